@@ -1,0 +1,1 @@
+"""Perception: AprilTag images, camera configuration and the tag-based POM observer."""
