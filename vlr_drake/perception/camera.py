@@ -1,0 +1,64 @@
+"""The in-hand camera's configuration: intrinsics and its pose X_PC in the palm frame.
+
+Camera frame C follows Drake's and OpenCV's convention: +z along the optical axis, +x to
+the right of the image, +y down. The default camera sits at the palm centre, recessed
+below the palm surface, looking along the palm normal (+z of P), so the tag on the bottom
+of a grasped object stays in view as the object moves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class CameraConfig:
+    """Pinhole camera fixed to the palm."""
+
+    # Image width of the delivered (downsampled) image [px].
+    width: int = 640
+    # Image height of the delivered (downsampled) image [px].
+    height: int = 480
+    # Vertical field of view [deg].
+    fov_y_deg: float = 70.0
+    # Camera position in the palm frame [m] (negative z: recessed below the palm surface).
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.02])
+    # Camera orientation in the palm frame, roll-pitch-yaw [deg] (zeros: C axes = P axes).
+    rpy_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # Render at this many times the resolution and downsample (INTER_AREA): sharper corners.
+    render_scale: int = 2
+    # Clipping planes of the renderer [m].
+    near: float = 0.005
+    far: float = 1.0
+    # Standard deviation of additive Gaussian pixel noise (0..255 scale); 0 disables it.
+    pixel_noise_std: float = 0.0
+
+    def validate(self) -> CameraConfig:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera: 'width' and 'height' must be positive, got {self.width} x {self.height}")
+        if not 1.0 < self.fov_y_deg < 170.0:
+            raise ValueError(f"camera: 'fov_y_deg' must be in (1, 170), got {self.fov_y_deg}")
+        if len(self.xyz) != 3 or len(self.rpy_deg) != 3:
+            raise ValueError("camera: 'xyz' and 'rpy_deg' must have 3 entries each")
+        if self.render_scale < 1:
+            raise ValueError(f"camera: 'render_scale' must be >= 1, got {self.render_scale}")
+        if not 0 < self.near < self.far:
+            raise ValueError("camera: need 0 < near < far")
+        if self.pixel_noise_std < 0:
+            raise ValueError("camera: 'pixel_noise_std' must be >= 0")
+        return self
+
+    def intrinsic_matrix(self) -> np.ndarray:
+        """3 x 3 pinhole matrix of the delivered image (principal point at the centre,
+        Drake's convention: pixel centres at half-integers, so c = size / 2 - 0.5 in
+        OpenCV's integer-centred pixel coordinates)."""
+        fy = 0.5 * self.height / np.tan(0.5 * np.deg2rad(self.fov_y_deg))
+        return np.array([[fy, 0.0, self.width / 2.0 - 0.5], [0.0, fy, self.height / 2.0 - 0.5], [0.0, 0.0, 1.0]])
+
+    def X_PC(self):
+        """Pose of the camera in the palm frame (pydrake RigidTransform)."""
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        return RigidTransform(RollPitchYaw(np.deg2rad(self.rpy_deg)), np.asarray(self.xyz, float))
