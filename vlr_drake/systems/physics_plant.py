@@ -1,0 +1,702 @@
+"""The physics plant of the hand: MultibodyPlant + tendons + palm camera in a Diagram ``hand``.
+
+DESIGN.md section 8. The plant loads the hand generated from a :class:`HandSpec`
+(:func:`vlr_drake.models.hand_sdf`) with its palm welded to the world, and the object
+(:func:`vlr_drake.objects.object_sdf`) as a free body under gravity. The tendons
+(:class:`vlr_drake.systems.tendons.TendonForces`) turn tendon commands into joint torques. An
+RgbdSensor fixed to the palm at ``camera.X_PC()`` renders with VTK at ``render_scale`` times
+the resolution; a small system downsamples (INTER_AREA) to the camera's size, so the image
+matches ``camera.intrinsic_matrix()``, and adds seeded pixel noise.
+
+Exported ports of the Diagram ``hand`` (same names as the model plant's):
+    input  tendon_command            (N) commanded absolute pulls l [m]
+    output rgb_image                 ImageRgba8U (only when a camera is given)
+    output theta_true                (N*K) joint angles, finger-major [rad]
+    output X_PO_true                 RigidTransform: the object's POM (tag) frame in the palm
+    output contacts_true             (3N) pad contact points in P, averaged per finger [m]
+    output contact_along_link_true   (N) a_i: contact position along the last link [m]
+    output tension                   (N) tendon tensions [N]
+    output tendon_position_measured  (N) applied (ramped) tendon pulls [m]
+
+Contact and time step (measured, DESIGN.md section 8): point contact with the SAP solver at
+1 ms held every object; the pads are two spheres across the finger so the object cannot
+pivot about one contact. The grasp places the pads on the object first (solving each
+finger's closing angle), then sets each tendon to the matching length plus a pretension of
+20 N (the thumb, opposing two fingers, 1.7x), then settles. One paper iteration
+(:meth:`PhysicsHand.apply_action`) ramps the tendons, then settles by displacement over
+10 ms windows (SAP's regularised friction leaves a slow creep) with a cap.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (
+    ClippingRange,
+    ColorRenderCamera,
+    DepthRange,
+    DepthRenderCamera,
+    MakeRenderEngineVtk,
+    Meshcat,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    RenderCameraCore,
+    RenderEngineVtkParams,
+    Rgba,
+    Role,
+)
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, ContactResults, MultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import BasicVector, Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
+
+from vlr_drake.hand import HandModel, HandSpec
+from vlr_drake.models import configure_parser, hand_sdf, joint_name, link_name, pad_geometry_name
+from vlr_drake.objects import ObjectSpec, object_sdf, tag_texture_path, write_object_models
+from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.systems.tendons import TendonForces
+
+__all__ = [
+    "PhysicsConfig",
+    "PhysicsHand",
+    "GraspResult",
+    "ActionResult",
+    "add_physics_hand",
+    "build_physics_hand",
+    "grasp",
+    "apply_action",
+    "ImageDownsampler",
+    "HandTruth",
+]
+
+RENDERER_NAME = "vtk"
+
+
+@dataclass
+class PhysicsConfig:
+    """Settings of the physics plant (DESIGN.md section 8 has the measurements behind them)."""
+
+    # Discrete time step of the MultibodyPlant [s]. 0.5-1 ms holds objects with SAP; 2 ms
+    # lets an object loaded along its contacts creep.
+    time_step: float = 0.001
+    # Contact model: "point" (default, fast) or "hydroelastic_with_fallback" (smoother, 5-10x slower).
+    contact_model: str = "point"
+    # Discrete contact approximation (solver): "sap" (default). TAMSI is deprecated in drake 1.51.
+    discrete_contact_approximation: str = "sap"
+    # Penetration allowance that sets the point-contact stiffness [m].
+    penetration_allowance: float = 0.0005
+    # Pose of the palm in the world: position [m] and roll-pitch-yaw [deg]. The default
+    # faces the palm down (P's +z = world -z), so the fingers hold the object against gravity.
+    palm_xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.4])
+    palm_rpy_deg: list[float] = field(default_factory=lambda: [180.0, 0.0, 0.0])
+    # Tendon ramp time of one action [s] (the applied pull moves linearly to a new command).
+    ramp_time: float = 0.2
+    # Update period of the tendon ramp [s].
+    ramp_update_period: float = 0.001
+    # Tendon damping c_i [N s/m], used instead of the spec's when > 0: the tendon plus the
+    # motor's position loop. With the spec's 5 N s/m the held object rang at about 4 Hz for
+    # over a second after each action (thumb against fingers); this damps it.
+    tendon_damping: float = 150.0
+    # Tendon pretension at the grasp [N]: 20-25 N held a box; 8 N dropped it.
+    pretension: float = 20.0
+    # Pretension factor of the thumb (finger names starting with "thumb"): opposing two
+    # fingers it needs about 1.7x their tension or the object drifts to it and drops.
+    thumb_factor: float = 1.7
+    # Settle test: window length [s], cap on the settle time after the ramp [s] ...
+    settle_window: float = 0.01
+    settle_max: float = 0.5
+    # ... and the speed thresholds over a window: object translation [m/s], object rotation
+    # [rad/s], joints [rad/s].
+    settle_object_speed: float = 0.001
+    settle_object_angular_speed: float = 0.02
+    settle_joint_speed: float = 0.02
+    # If > 0, skip the settle test and settle for exactly this long after the ramp [s].
+    fixed_settle_time: float = 0.0
+    # Settle time of the grasp [s] (capped settle, same test).
+    grasp_settle_max: float = 1.0
+    # Period of the contact sampler that holds the last contact of each finger [s].
+    contact_sample_period: float = 0.005
+    # The object "fell" when its POM moved this far from the grasp [m].
+    fall_distance: float = 0.02
+    # Seed of the camera's pixel noise.
+    seed: int = 0
+
+    def validate(self) -> PhysicsConfig:
+        if not self.time_step > 0:
+            raise ValueError(f"physics: 'time_step' must be positive (a discrete plant), got {self.time_step}")
+        if self.contact_model not in ("point", "hydroelastic", "hydroelastic_with_fallback"):
+            raise ValueError(f"physics: unknown 'contact_model' '{self.contact_model}'")
+        if self.discrete_contact_approximation not in ("sap", "lagged", "similar"):
+            raise ValueError(f"physics: 'discrete_contact_approximation' must be sap, lagged or similar, got "
+                             f"'{self.discrete_contact_approximation}'")
+        if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
+            raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
+        for name in ["ramp_time", "tendon_damping", "pretension", "thumb_factor", "settle_max", "grasp_settle_max", "fixed_settle_time"]:
+            if getattr(self, name) < 0:
+                raise ValueError(f"physics: '{name}' must be >= 0, got {getattr(self, name)}")
+        for name in ["ramp_update_period", "settle_window", "contact_sample_period", "fall_distance",
+                     "penetration_allowance"]:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"physics: '{name}' must be positive, got {getattr(self, name)}")
+        return self
+
+    def X_WP(self) -> RigidTransform:
+        return RigidTransform(RollPitchYaw(np.deg2rad(self.palm_rpy_deg)), np.asarray(self.palm_xyz, float))
+
+    @property
+    def action_period(self) -> float:
+        """Simulated time of one action when the settle is fixed (ramp + settle) [s]."""
+        return self.ramp_time + (self.fixed_settle_time if self.fixed_settle_time > 0 else self.settle_max)
+
+
+# --------------------------------------------------------------------------------------
+# Small systems.
+# --------------------------------------------------------------------------------------
+
+
+class ImageDownsampler(LeafSystem):
+    """Downsamples a supersampled RGBA image by an integer ``scale`` (OpenCV INTER_AREA) and
+    adds seeded Gaussian pixel noise. Input ``image_in`` (scale*W x scale*H), output
+    ``rgb_image`` (W x H). With INTER_AREA a pixel of the output is the mean of a scale x
+    scale block, so the intrinsics scale exactly (f/scale, (c + 0.5)/scale - 0.5)."""
+
+    def __init__(self, width: int, height: int, scale: int, noise_std: float = 0.0, seed: int = 0):
+        super().__init__()
+        if scale < 1 or width <= 0 or height <= 0:
+            raise ValueError(f"ImageDownsampler: need width, height > 0 and scale >= 1, got {width}, {height}, {scale}")
+        self._w, self._h, self._s = int(width), int(height), int(scale)
+        self._noise = float(noise_std)
+        self._rng = np.random.default_rng(seed)
+        self.image_input = self.DeclareAbstractInputPort(
+            name="image_in", model_value=AbstractValue.Make(ImageRgba8U(self._w * self._s, self._h * self._s)))
+        self.image_output = self.DeclareAbstractOutputPort(
+            name="rgb_image", alloc=lambda: AbstractValue.Make(ImageRgba8U(self._w, self._h)), calc=self._calc)
+
+    def _calc(self, context: Context, output: AbstractValue) -> None:
+        img = self.image_input.Eval(context)
+        src = np.asarray(img.data)
+        if src.shape[:2] != (self._h * self._s, self._w * self._s):
+            raise ValueError(f"image_in must be {self._w * self._s} x {self._h * self._s}, got {src.shape[1]} x {src.shape[0]}")
+        if self._s > 1:
+            dst = cv2.resize(src, (self._w, self._h), interpolation=cv2.INTER_AREA)
+        else:
+            dst = src.copy()
+        if self._noise > 0:
+            noisy = dst[..., :3].astype(np.float64) + self._rng.normal(0.0, self._noise, dst[..., :3].shape)
+            dst[..., :3] = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        out = output.get_mutable_value()
+        out.resize(self._w, self._h)
+        out.mutable_data[:] = dst.reshape(self._h, self._w, 4)
+
+
+class HandTruth(LeafSystem):
+    """Ground truth of the hand and object, read from the plant.
+
+    Inputs: ``state`` (plant [q; v]), ``body_poses`` (plant body poses), ``contact_results``.
+    Outputs: ``theta_true`` (N*K), ``X_PO_true`` (RigidTransform), ``contacts_true`` (3N, in P),
+    ``contact_along_link_true`` (N). A finger's contact is the mean of the contact points
+    between its last link and the object; when a finger momentarily has none, the last one
+    sampled (every ``sample_period``) is held, expressed on the last link so it moves with it.
+    """
+
+    def __init__(self, plant: MultibodyPlant, hand: HandModel, position_indices, palm_body_index,
+                 last_link_indices, object_body_index, X_BO: RigidTransform, sample_period: float = 0.005):
+        super().__init__()
+        self._N = hand.N
+        self._qi = np.asarray(position_indices, int)
+        self._palm = palm_body_index
+        self._links = list(last_link_indices)
+        self._obj = object_body_index
+        self._X_BO = X_BO
+        self._link_of = {int(b): i for i, b in enumerate(self._links)}
+        nx = plant.num_multibody_states()
+        self.state_input = self.DeclareVectorInputPort(name="state", size=nx)
+        self.body_poses_input = self.DeclareAbstractInputPort(
+            name="body_poses", model_value=AbstractValue.Make([RigidTransform()] * plant.num_bodies()))
+        self.contact_results_input = self.DeclareAbstractInputPort(
+            name="contact_results", model_value=AbstractValue.Make(ContactResults()))
+        # Held contacts, in each last link's frame (3N) + valid flags (N).
+        self._held = self.DeclareDiscreteState(4 * self._N)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=sample_period, offset_sec=0.0, update=self._sample)
+        self.theta_output = self.DeclareVectorOutputPort(
+            name="theta_true", size=hand.num_angles, calc=self._calc_theta,
+            prerequisites_of_calc={self.input_port_ticket(self.state_input.get_index())})
+        self.X_PO_output = self.DeclareAbstractOutputPort(
+            name="X_PO_true", alloc=lambda: AbstractValue.Make(RigidTransform()), calc=self._calc_X_PO,
+            prerequisites_of_calc={self.input_port_ticket(self.body_poses_input.get_index())})
+        self.contacts_output = self.DeclareVectorOutputPort(
+            name="contacts_true", size=3 * self._N, calc=self._calc_contacts,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+        self.along_output = self.DeclareVectorOutputPort(
+            name="contact_along_link_true", size=self._N, calc=self._calc_along,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+
+    def _current(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
+        """Current contacts in the world (N, 3) and a has-contact mask (N,)."""
+        results = self.contact_results_input.Eval(context)
+        sums = np.zeros((self._N, 3))
+        counts = np.zeros(self._N)
+        for k in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(k)
+            a, b = int(info.bodyA_index()), int(info.bodyB_index())
+            if a == int(self._obj) and b in self._link_of:
+                i = self._link_of[b]
+            elif b == int(self._obj) and a in self._link_of:
+                i = self._link_of[a]
+            else:
+                continue
+            sums[i] += info.contact_point()
+            counts[i] += 1
+        has = counts > 0
+        p_W = np.zeros((self._N, 3))
+        p_W[has] = sums[has] / counts[has, None]
+        return p_W, has
+
+    def _contacts_W(self, context: Context) -> np.ndarray:
+        """Contacts in the world, current or held (N, 3)."""
+        poses = self.body_poses_input.Eval(context)
+        p_W, has = self._current(context)
+        held = context.get_discrete_state(self._held).value()
+        for i in np.flatnonzero(~has):
+            X_WL = poses[int(self._links[i])]
+            p_W[i] = X_WL @ held[3 * i : 3 * i + 3]
+        return p_W
+
+    def _sample(self, context: Context, discrete_state: DiscreteValues) -> None:
+        poses = self.body_poses_input.Eval(context)
+        p_W, has = self._current(context)
+        x = context.get_discrete_state(self._held).value().copy()
+        for i in np.flatnonzero(has):
+            X_WL = poses[int(self._links[i])]
+            x[3 * i : 3 * i + 3] = X_WL.inverse() @ p_W[i]
+            x[3 * self._N + i] = 1.0
+        discrete_state.set_value(self._held, x)
+
+    def _calc_theta(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.state_input.Eval(context)[self._qi])
+
+    def _calc_X_PO(self, context: Context, output: AbstractValue) -> None:
+        poses = self.body_poses_input.Eval(context)
+        X_WP = poses[int(self._palm)]
+        X_WB = poses[int(self._obj)]
+        output.set_value(X_WP.inverse() @ X_WB @ self._X_BO)
+
+    def _calc_contacts(self, context: Context, output: BasicVector) -> None:
+        poses = self.body_poses_input.Eval(context)
+        X_PW = poses[int(self._palm)].inverse()
+        p_W = self._contacts_W(context)
+        output.SetFromVector(np.concatenate([X_PW @ p for p in p_W]))
+
+    def _calc_along(self, context: Context, output: BasicVector) -> None:
+        poses = self.body_poses_input.Eval(context)
+        p_W = self._contacts_W(context)
+        a = np.empty(self._N)
+        for i in range(self._N):
+            X_WL = poses[int(self._links[i])]
+            # The last link's frame sits at its joint with z along the link (models.py).
+            a[i] = (X_WL.inverse() @ p_W[i])[2]
+        output.SetFromVector(a)
+
+
+# --------------------------------------------------------------------------------------
+# Builder.
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class GraspResult:
+    """What the grasp did."""
+
+    theta: np.ndarray  # joint angles after settling (N*K) [rad]
+    theta_placed: np.ndarray  # joint angles that put the pads on the object (N*K) [rad]
+    command: np.ndarray  # tendon commands (N) [m]
+    tension: np.ndarray  # tendon tensions after settling (N) [N]
+    X_PO: RigidTransform  # POM pose after settling
+    contacts: np.ndarray  # pad contacts in P (N, 3) [m]
+    in_contact: np.ndarray  # finger has a pad contact now (N,) bool
+    settled: bool
+    settle_time: float  # simulated [s]
+    object_shift_mm: float  # POM moved while settling [mm]
+    wall_s: float
+
+
+@dataclass
+class ActionResult:
+    """One quasi-static action: ramp, settle (and render)."""
+
+    command: np.ndarray  # the clamped command applied (N) [m]
+    clamped: bool  # the requested command was outside the tendon range
+    settled: bool
+    settle_time: float  # simulated settle time after the ramp [s]
+    creep_mm_per_s: float  # object speed over the last settle window [mm/s]
+    X_PO: RigidTransform
+    contacts: np.ndarray  # (N, 3) in P
+    in_contact: np.ndarray  # (N,) bool
+    tension: np.ndarray  # (N,)
+    wall_physics_s: float
+    wall_render_s: float
+
+
+@dataclass
+class PhysicsHand:
+    """Handles of the physics hand inside a larger diagram (see :func:`add_physics_hand`)."""
+
+    diagram: Diagram  # the Diagram named "hand"
+    plant: MultibodyPlant
+    scene_graph: object
+    tendons: TendonForces
+    truth: HandTruth
+    hand: HandModel
+    obj: ObjectSpec
+    physics: PhysicsConfig
+    camera: CameraConfig | None
+    sensor: RgbdSensor | None
+    downsampler: ImageDownsampler | None
+    visualizer: MeshcatVisualizer | None
+    meshcat: Meshcat | None
+    object_body: object
+    palm_body: object
+    position_indices: np.ndarray
+    last_links: list
+    pad_geometries: list  # per finger: list of GeometryIds of the pad spheres
+    object_geometries: list
+    grasp_X_PO: RigidTransform | None = None
+
+    # -- context access -------------------------------------------------------------------
+
+    def hand_context(self, root_context: Context) -> Context:
+        return self.diagram.GetMyMutableContextFromRoot(root_context)
+
+    def plant_context(self, root_context: Context) -> Context:
+        return self.plant.GetMyMutableContextFromRoot(root_context)
+
+    def set_command(self, root_context: Context, l: np.ndarray) -> np.ndarray:
+        """Fix the (unconnected) ``tendon_command`` input to the clamped ``l``; returns it."""
+        lc = self.tendons.clamp(l)
+        self.diagram.GetInputPort("tendon_command").FixValue(self.hand_context(root_context), lc)
+        return lc
+
+    def command(self, root_context: Context) -> np.ndarray:
+        return self.tendons.clamp(self.diagram.GetInputPort("tendon_command").Eval(self.hand_context(root_context)))
+
+    def output(self, root_context: Context, name: str):
+        """Evaluate an exported output; returns a copy (never a reference into the cache)."""
+        v = self.diagram.GetOutputPort(name).Eval(self.hand_context(root_context))
+        if isinstance(v, RigidTransform):
+            return RigidTransform(v)
+        if isinstance(v, np.ndarray):
+            return v.copy()
+        return v
+
+    def in_contact(self, root_context: Context) -> np.ndarray:
+        """Whether each finger's pad touches the object right now (no hold)."""
+        tctx = self.truth.GetMyMutableContextFromRoot(root_context)
+        _, has = self.truth._current(tctx)
+        return has
+
+    # -- grasp and actions ----------------------------------------------------------------
+
+    def closing_direction(self) -> np.ndarray:
+        """Free closing path of each finger's joints (N, K): an unloaded tendon-driven finger
+        flexes with theta_k proportional to r_k / k_k (springs at rest angle 0)."""
+        w = self.hand.moment_arms / self.hand.stiffness
+        return w / w[:, :1]
+
+    def place_fingers(self, root_context: Context, steps: int = 200) -> np.ndarray:
+        """Solve, finger by finger, the angles along the free closing path at which the pads
+        first touch the object at its initial placement (signed distance = 0); sets them in
+        the plant context and returns theta (N*K)."""
+        plant, sg = self.plant, self.scene_graph
+        pctx = self.plant_context(root_context)
+        sg_ctx = sg.GetMyMutableContextFromRoot(root_context)
+        N, K = self.hand.N, self.hand.K
+        W = self.closing_direction()
+        theta = np.zeros((N, K))
+        q = plant.GetPositions(pctx)
+
+        def distance(i: int, s: float) -> float:
+            th = np.clip(s * W[i], self.hand.joint_lower[i], self.hand.joint_upper[i])
+            qq = q.copy()
+            qq[self.position_indices[i * K : (i + 1) * K]] = th
+            plant.SetPositions(pctx, qq)
+            qo = sg.get_query_output_port().Eval(sg_ctx)
+            return min(qo.ComputeSignedDistancePairClosestPoints(g, h).distance
+                       for g in self.pad_geometries[i] for h in self.object_geometries)
+
+        s_max = float(np.min(self.hand.joint_upper / W))
+        for i in range(N):
+            grid = np.linspace(0.0, s_max, steps)
+            d0 = distance(i, 0.0)
+            if d0 <= 0:
+                raise RuntimeError(f"finger '{self.hand.names[i]}': pad already penetrates the object when straight; "
+                                   "move the object's placement_xyz")
+            hi = None
+            for s in grid[1:]:
+                if distance(i, s) <= 0:
+                    hi = s
+                    break
+            if hi is None:
+                raise RuntimeError(f"finger '{self.hand.names[i]}': pad never reaches object '{self.obj.name}'; "
+                                   "move the object's placement_xyz")
+            lo = hi - (grid[1] - grid[0])
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                if distance(i, mid) > 0:
+                    lo = mid
+                else:
+                    hi = mid
+            theta[i] = np.clip(hi * W[i], self.hand.joint_lower[i], self.hand.joint_upper[i])
+            q[self.position_indices[i * K : (i + 1) * K]] = theta[i]
+        plant.SetPositions(pctx, q)
+        return theta.reshape(-1)
+
+    def pretensions(self) -> np.ndarray:
+        """Pretension per tendon at the grasp [N] (thumb x thumb_factor)."""
+        f = np.array([self.physics.thumb_factor if n.startswith("thumb") else 1.0 for n in self.hand.names])
+        return self.physics.pretension * f
+
+    def grasp(self, simulator: Simulator) -> GraspResult:
+        """Close the hand on the object from its initial placement: place the pads on the
+        object, set each command to the matching tendon length plus pretension/kappa, settle
+        with the object's weight on (capped at ``grasp_settle_max``)."""
+        t0 = time.perf_counter()
+        root = simulator.get_mutable_context()
+        pctx = self.plant_context(root)
+        X_WP = self.physics.X_WP()
+        plant = self.plant
+        plant.SetFreeBodyPose(pctx, self.object_body, X_WP @ self.obj.X_PB())
+        plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
+        theta0 = self.place_fingers(root)
+        l = self.hand.R @ theta0 + self.pretensions() / self.hand.kappa
+        if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
+            raise RuntimeError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
+        l = self.set_command(root, l)
+        self.tendons.set_applied(self.tendons.GetMyMutableContextFromRoot(root), l)
+        X_PO0 = self.output(root, "X_PO_true")
+        settled, t_settle, _ = self._settle(simulator, self.physics.grasp_settle_max)
+        X_PO = self.output(root, "X_PO_true")
+        self.grasp_X_PO = X_PO
+        return GraspResult(
+            theta=self.output(root, "theta_true").copy(), theta_placed=theta0, command=l,
+            tension=self.output(root, "tension").copy(), X_PO=X_PO,
+            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(), in_contact=self.in_contact(root),
+            settled=settled, settle_time=t_settle,
+            object_shift_mm=1e3 * float(np.linalg.norm(X_PO.translation() - X_PO0.translation())),
+            wall_s=time.perf_counter() - t0)
+
+    def _object_pose(self, root: Context) -> RigidTransform:
+        return self.plant.EvalBodyPoseInWorld(self.plant_context(root), self.object_body)
+
+    def _settle(self, simulator: Simulator, cap: float) -> tuple[bool, float, float]:
+        """Advance in windows until object and joints move slower than the thresholds over a
+        window (or for ``fixed_settle_time``); returns (settled, time, creep [m/s])."""
+        ph = self.physics
+        root = simulator.get_mutable_context()
+        t_start = root.get_time()
+        dt = ph.settle_window
+        if ph.fixed_settle_time > 0:
+            X0 = self._object_pose(root)
+            simulator.AdvanceTo(t_start + ph.fixed_settle_time - dt)
+            X0 = self._object_pose(root)
+            simulator.AdvanceTo(t_start + ph.fixed_settle_time)
+            X1 = self._object_pose(root)
+            creep = float(np.linalg.norm(X1.translation() - X0.translation())) / dt
+            return True, ph.fixed_settle_time, creep
+        pctx = self.plant_context(root)
+        creep = np.inf
+        while root.get_time() - t_start < cap - 1e-9:
+            X0 = self._object_pose(root)
+            th0 = self.plant.GetPositions(pctx)[self.position_indices]
+            simulator.AdvanceTo(root.get_time() + dt)
+            X1 = self._object_pose(root)
+            th1 = self.plant.GetPositions(pctx)[self.position_indices]
+            v = np.linalg.norm(X1.translation() - X0.translation()) / dt
+            w = (X0.rotation().inverse() @ X1.rotation()).ToAngleAxis().angle() / dt
+            qd = np.max(np.abs(th1 - th0)) / dt
+            creep = float(v)
+            if v < ph.settle_object_speed and w < ph.settle_object_angular_speed and qd < ph.settle_joint_speed:
+                return True, root.get_time() - t_start, creep
+        return False, root.get_time() - t_start, creep
+
+    def apply_action(self, simulator: Simulator, dl: np.ndarray, render: bool = True) -> ActionResult:
+        """One quasi-static paper iteration: command += dl (clamped to the tendon range),
+        ramp over ``ramp_time``, settle, and render the camera image when there is one."""
+        root = simulator.get_mutable_context()
+        dl = np.asarray(dl, float)
+        if dl.shape != (self.hand.N,):
+            raise ValueError(f"dl must have shape ({self.hand.N},), got {dl.shape}")
+        t0 = time.perf_counter()
+        want = self.command(root) + dl
+        l = self.set_command(root, want)
+        simulator.AdvanceTo(root.get_time() + self.physics.ramp_time + 2 * self.physics.ramp_update_period)
+        settled, t_settle, creep = self._settle(simulator, self.physics.settle_max)
+        t1 = time.perf_counter()
+        if render and self.camera is not None:
+            self.output(root, "rgb_image")
+        t2 = time.perf_counter()
+        return ActionResult(
+            command=l, clamped=bool(np.any(np.abs(l - want) > 1e-12)), settled=settled, settle_time=t_settle,
+            creep_mm_per_s=1e3 * creep, X_PO=self.output(root, "X_PO_true"),
+            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(), in_contact=self.in_contact(root),
+            tension=self.output(root, "tension").copy(), wall_physics_s=t1 - t0, wall_render_s=t2 - t1)
+
+    def object_fell(self, root_context: Context) -> bool:
+        """POM moved more than ``fall_distance`` from the grasp, or a pad lost the object."""
+        if self.grasp_X_PO is None:
+            raise RuntimeError("object_fell needs a grasp first")
+        X = self.output(root_context, "X_PO_true")
+        far = np.linalg.norm(X.translation() - self.grasp_X_PO.translation()) > self.physics.fall_distance
+        return bool(far or not np.all(self.in_contact(root_context)))
+
+
+def _ensure_object_assets(obj: ObjectSpec) -> None:
+    """Write the tag mesh and texture of ``obj`` under models/objects when missing."""
+    if not tag_texture_path(obj.tag_id).exists():
+        write_object_models(specs=[obj])
+
+
+def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, physics: PhysicsConfig,
+                     camera: CameraConfig | None = None, meshcat: Meshcat | None = None) -> PhysicsHand:
+    """Add the Diagram ``hand`` (plant, scene graph, tendons, truth, camera) to ``builder``.
+
+    The palm is welded to the world at ``physics.X_WP()``; the object is a free body. Its
+    ``tendon_command`` input is left for the caller to connect (or fix, see
+    :meth:`PhysicsHand.set_command`). With a ``meshcat``, a MeshcatVisualizer shows the
+    illustration geometry and the camera's frustum is drawn.
+    """
+    physics.validate()
+    obj.validate()
+    model = hand.model()
+    if camera is not None:
+        camera.validate()
+    _ensure_object_assets(obj)
+
+    inner = DiagramBuilder()
+    cfg = MultibodyPlantConfig(
+        time_step=physics.time_step, contact_model=physics.contact_model,
+        discrete_contact_approximation=physics.discrete_contact_approximation,
+        penetration_allowance=physics.penetration_allowance)
+    plant, sg = AddMultibodyPlant(cfg, inner)
+    parser = Parser(plant)
+    configure_parser(parser)
+    (hand_instance,) = parser.AddModelsFromString(hand_sdf(hand), "sdf")
+    (obj_instances,) = parser.AddModelsFromString(object_sdf(obj), "sdf")
+    palm = plant.GetBodyByName("palm", hand_instance)
+    plant.WeldFrames(plant.world_frame(), palm.body_frame(), physics.X_WP())
+    plant.Finalize()
+
+    N, K = model.N, model.K
+    joints = [plant.GetJointByName(joint_name(n, k), hand_instance) for n in model.names for k in range(1, K + 1)]
+    qi = np.array([j.position_start() for j in joints])
+    vi = np.array([j.velocity_start() for j in joints])
+    last_links = [plant.GetBodyByName(link_name(n, K), hand_instance) for n in model.names]
+    obj_body = plant.GetBodyByName("body", obj_instances)
+    inspector = sg.model_inspector()
+    pad_geoms = []
+    for n, link in zip(model.names, last_links, strict=True):
+        ids = plant.GetCollisionGeometriesForBody(link)
+        names = {pad_geometry_name(n, 0), pad_geometry_name(n, 1)}
+        pads = [g for g in ids if inspector.GetName(g).split("::")[-1] in names]
+        if len(pads) != 2:
+            raise RuntimeError(f"finger '{n}': expected 2 pad geometries, found {len(pads)}")
+        pad_geoms.append(pads)
+    obj_geoms = list(plant.GetCollisionGeometriesForBody(obj_body))
+
+    tendons = inner.AddNamedSystem("tendons", TendonForces(
+        model, qi, vi, plant.num_positions(), plant.num_velocities(),
+        ramp_time=physics.ramp_time, update_period=physics.ramp_update_period,
+        damping=[physics.tendon_damping] * N if physics.tendon_damping > 0 else None))
+    inner.Connect(plant.get_state_output_port(), tendons.state_input)
+    inner.Connect(tendons.generalized_force_output, plant.get_applied_generalized_force_input_port())
+
+    X_BO = plant.GetFrameByName("pom", obj_instances).GetFixedPoseInBodyFrame()
+    truth = inner.AddNamedSystem("truth", HandTruth(
+        plant, model, qi, palm.index(), [b.index() for b in last_links], obj_body.index(), X_BO,
+        sample_period=physics.contact_sample_period))
+    inner.Connect(plant.get_state_output_port(), truth.state_input)
+    inner.Connect(plant.get_body_poses_output_port(), truth.body_poses_input)
+    inner.Connect(plant.get_contact_results_output_port(), truth.contact_results_input)
+
+    inner.ExportInput(tendons.tendon_command_input, "tendon_command")
+    sensor = down = None
+    if camera is not None:
+        sg.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams()))
+        s = camera.render_scale
+        core = RenderCameraCore(RENDERER_NAME, CameraInfo(camera.width * s, camera.height * s,
+                                                          np.deg2rad(camera.fov_y_deg)),
+                                ClippingRange(camera.near, camera.far), RigidTransform())
+        sensor = inner.AddNamedSystem("camera", RgbdSensor(
+            parent_id=plant.GetBodyFrameIdOrThrow(palm.index()), X_PB=camera.X_PC(),
+            color_camera=ColorRenderCamera(core, False), depth_camera=DepthRenderCamera(core, DepthRange(camera.near, camera.far * 0.99))))
+        inner.Connect(sg.get_query_output_port(), sensor.query_object_input_port())
+        down = inner.AddNamedSystem("downsample", ImageDownsampler(
+            camera.width, camera.height, s, camera.pixel_noise_std, physics.seed))
+        inner.Connect(sensor.color_image_output_port(), down.image_input)
+        inner.ExportOutput(down.image_output, "rgb_image")
+    inner.ExportOutput(truth.theta_output, "theta_true")
+    inner.ExportOutput(truth.X_PO_output, "X_PO_true")
+    inner.ExportOutput(truth.contacts_output, "contacts_true")
+    inner.ExportOutput(truth.along_output, "contact_along_link_true")
+    inner.ExportOutput(tendons.tension_output, "tension")
+    inner.ExportOutput(tendons.tendon_position_output, "tendon_position_measured")
+
+    vis = None
+    if meshcat is not None:
+        vis = MeshcatVisualizer.AddToBuilder(inner, sg, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+        if camera is not None:
+            draw_camera_frustum(meshcat, camera, physics.X_WP())
+
+    diagram = inner.Build()
+    diagram.set_name("hand")
+    builder.AddNamedSystem("hand", diagram)
+    return PhysicsHand(
+        diagram=diagram, plant=plant, scene_graph=sg, tendons=tendons, truth=truth, hand=model, obj=obj,
+        physics=physics, camera=camera, sensor=sensor, downsampler=down, visualizer=vis, meshcat=meshcat,
+        object_body=obj_body, palm_body=palm, position_indices=qi, last_links=last_links,
+        pad_geometries=pad_geoms, object_geometries=obj_geoms)
+
+
+def draw_camera_frustum(meshcat: Meshcat, camera: CameraConfig, X_WP: RigidTransform, depth: float = 0.12,
+                        path: str = "camera_frustum") -> None:
+    """Draw the palm camera's viewing frustum (to ``depth`` metres) as line segments."""
+    Kmat = camera.intrinsic_matrix()
+    corners_px = [(-0.5, -0.5), (camera.width - 0.5, -0.5), (camera.width - 0.5, camera.height - 0.5),
+                  (-0.5, camera.height - 0.5)]
+    X_WC = X_WP @ camera.X_PC()
+    o = X_WC.translation()
+    far = [X_WC @ (depth * np.array([(u - Kmat[0, 2]) / Kmat[0, 0], (v - Kmat[1, 2]) / Kmat[1, 1], 1.0]))
+           for u, v in corners_px]
+    start = [o] * 4 + far
+    end = far + far[1:] + far[:1]
+    meshcat.SetLineSegments(path, np.array(start).T, np.array(end).T, 1.0, Rgba(0.1, 0.6, 1.0, 1.0))
+
+
+def build_physics_hand(hand: HandSpec, obj: ObjectSpec, physics: PhysicsConfig | None = None,
+                       camera: CameraConfig | None = None, meshcat: Meshcat | None = None
+                       ) -> tuple[Diagram, PhysicsHand, Simulator]:
+    """A root diagram holding only the physics hand (tendon command left to be fixed), and
+    its Simulator (initialised)."""
+    builder = DiagramBuilder()
+    ph = add_physics_hand(builder, hand, obj, physics or PhysicsConfig(), camera, meshcat)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    root = simulator.get_mutable_context()
+    ph.set_command(root, ph.hand.tendon_range[:, 0])
+    simulator.Initialize()
+    return diagram, ph, simulator
+
+
+def grasp(simulator: Simulator, physics_hand: PhysicsHand) -> GraspResult:
+    """See :meth:`PhysicsHand.grasp`."""
+    return physics_hand.grasp(simulator)
+
+
+def apply_action(simulator: Simulator, physics_hand: PhysicsHand, dl: np.ndarray, render: bool = True) -> ActionResult:
+    """See :meth:`PhysicsHand.apply_action`."""
+    return physics_hand.apply_action(simulator, dl, render)
