@@ -1,0 +1,228 @@
+"""The real palm camera: an OpenCV VideoCapture frame source and OpenCV YAML intrinsics.
+
+:class:`FrameSource` reads frames from a device index, a video file or a stream URL
+(``cv2.VideoCapture``). A read never waits longer than ``timeout_s``: the capture runs on one
+worker thread, and a frame that does not arrive in time, or the end of a file, is reported as
+"no frame" (the hardware interface turns that into ``camera_valid = 0``), never as a hang.
+
+Intrinsics use OpenCV's own YAML format (``cv2.FileStorage``), the one ``calibrateCamera``
+tools write: nodes ``camera_matrix`` (3 x 3), ``distortion_coefficients`` (1 x n, OpenCV's
+order k1 k2 p1 p2 k3 ...), ``image_width``, ``image_height``. The pose observer gets K and
+the distortion from here (DESIGN.md section 5: solvePnP with the camera intrinsics).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import logging
+import queue
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CameraError", "CameraIntrinsics", "FrameSource", "read_intrinsics", "write_intrinsics"]
+
+log = logging.getLogger(__name__)
+
+
+class CameraError(RuntimeError):
+    """The camera cannot be opened, or its frames do not match its calibration."""
+
+
+@dataclass
+class CameraIntrinsics:
+    """Pinhole intrinsics with OpenCV distortion, for images of ``width`` x ``height``."""
+
+    # 3 x 3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] [px], OpenCV pixel centres.
+    K: np.ndarray
+    # Distortion coefficients in OpenCV's order (k1, k2, p1, p2[, k3, ...]).
+    dist: np.ndarray
+    # Image size the calibration holds for [px].
+    width: int
+    height: int
+
+    def validate(self) -> CameraIntrinsics:
+        K = np.asarray(self.K, float)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise ValueError(f"intrinsics: 'camera_matrix' must be a finite 3 x 3 matrix, got shape {K.shape}")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise ValueError(f"intrinsics: 'camera_matrix' is not a pinhole matrix: {K.tolist()}")
+        d = np.asarray(self.dist, float).ravel()
+        if d.size not in (0, 4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
+            raise ValueError(f"intrinsics: 'distortion_coefficients' must have 4, 5, 8, 12 or 14 finite entries, got {d.size}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"intrinsics: 'image_width' and 'image_height' must be positive, got {self.width} x {self.height}")
+        self.K, self.dist = K, d
+        return self
+
+
+def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, rms_px: float | None = None) -> None:
+    """Write intrinsics as an OpenCV YAML file (``cv2.FileStorage``)."""
+    import cv2
+
+    intrinsics.validate()
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    if not fs.isOpened():
+        raise OSError(f"cannot write intrinsics file '{path}'")
+    try:
+        fs.write("image_width", int(intrinsics.width))
+        fs.write("image_height", int(intrinsics.height))
+        fs.write("camera_matrix", np.asarray(intrinsics.K, np.float64))
+        fs.write("distortion_coefficients", np.asarray(intrinsics.dist, np.float64).reshape(1, -1))
+        if rms_px is not None:
+            fs.write("avg_reprojection_error", float(rms_px))
+    finally:
+        fs.release()
+
+
+def read_intrinsics(path: str | Path) -> CameraIntrinsics:
+    """Read an OpenCV YAML intrinsics file; a missing file or node is an error naming it."""
+    import cv2
+
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"camera calibration file '{path}' does not exist")
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise CameraError(f"cannot parse camera calibration file '{path}' (OpenCV YAML expected)")
+    try:
+        nodes = {}
+        for name in ("camera_matrix", "distortion_coefficients", "image_width", "image_height"):
+            node = fs.getNode(name)
+            if node.empty():
+                raise CameraError(f"camera calibration file '{path}' has no '{name}'")
+            nodes[name] = node
+        K = nodes["camera_matrix"].mat()
+        dist = nodes["distortion_coefficients"].mat()
+        width, height = int(nodes["image_width"].real()), int(nodes["image_height"].real())
+    finally:
+        fs.release()
+    if K is None or dist is None:
+        raise CameraError(f"camera calibration file '{path}': 'camera_matrix' and 'distortion_coefficients' must be matrices")
+    try:
+        return CameraIntrinsics(K=K, dist=dist.ravel(), width=width, height=height).validate()
+    except ValueError as e:
+        raise CameraError(f"camera calibration file '{path}': {e}") from e
+
+
+class _Worker:
+    """One daemon thread running submitted calls in order (a hung capture cannot block the
+    interpreter's exit, unlike ``concurrent.futures.ThreadPoolExecutor``)."""
+
+    def __init__(self, name: str):
+        self._jobs: queue.Queue = queue.Queue()
+        threading.Thread(target=self._run, name=name, daemon=True).start()
+
+    def submit(self, fn, *args) -> cf.Future:
+        fut: cf.Future = cf.Future()
+        self._jobs.put((fut, fn, args))
+        return fut
+
+    def shutdown(self, wait: bool = False) -> None:
+        self._jobs.put(None)
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            fut, fn, args = job
+            if fut.set_running_or_notify_cancel():
+                try:
+                    fut.set_result(fn(*args))
+                except BaseException as e:
+                    fut.set_exception(e)
+
+
+class FrameSource:
+    """Frames from ``cv2.VideoCapture`` with a bounded wait per frame.
+
+    Args:
+        source: device index (int), or a video file path or stream URL (str).
+        timeout_s: longest wait for one frame [s]; then :meth:`read` reports no frame.
+        expected_size: (width, height) that frames must have (from the calibration);
+            another size raises :class:`CameraError` (the intrinsics would be wrong).
+        capture_factory: builds the capture object from ``source`` (default
+            ``cv2.VideoCapture``); tests pass a stand-in.
+    """
+
+    def __init__(
+        self,
+        source: int | str,
+        timeout_s: float = 1.0,
+        expected_size: tuple[int, int] | None = None,
+        capture_factory=None,
+    ):
+        if timeout_s <= 0:
+            raise ValueError(f"camera: 'timeout_s' must be positive, got {timeout_s}")
+        self.source = source
+        self.timeout_s = float(timeout_s)
+        self.expected_size = expected_size
+        self._factory = capture_factory
+        self._cap = None
+        self._pool: _Worker | None = None
+        self._pending: cf.Future | None = None
+        #: Frames delivered, and reads that delivered nothing (timeout or end of stream).
+        self.frames = 0
+        self.misses = 0
+        #: True once the capture reported the end of the stream (a file ran out).
+        self.ended = False
+
+    def open(self) -> FrameSource:
+        import cv2
+
+        factory = self._factory or cv2.VideoCapture
+        self._pool = _Worker(name=f"camera-{self.source}")
+        fut = self._pool.submit(factory, self.source)
+        try:
+            cap = fut.result(timeout=max(self.timeout_s, 5.0))
+        except cf.TimeoutError as e:
+            self._pool.shutdown(wait=False)
+            raise CameraError(f"camera '{self.source}' did not open within {max(self.timeout_s, 5.0)} s") from e
+        if cap is None or not cap.isOpened():
+            self._pool.shutdown(wait=False)
+            raise CameraError(f"cannot open camera '{self.source}' (device index, file or URL)")
+        self._cap = cap
+        return self
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        """(True, BGR frame) or (False, None) when no frame came within ``timeout_s``."""
+        if self._cap is None:
+            raise CameraError(f"camera '{self.source}' is not open")
+        if self._pending is None:
+            self._pending = self._pool.submit(self._cap.read)
+        try:
+            ok, frame = self._pending.result(timeout=self.timeout_s)
+        except cf.TimeoutError:
+            self.misses += 1
+            log.warning("camera '%s': no frame within %.3f s", self.source, self.timeout_s)
+            return False, None  # the read stays pending; the next call waits on it again
+        except Exception as e:
+            self._pending = None
+            self.misses += 1
+            log.warning("camera '%s': read failed: %s", self.source, e)
+            return False, None
+        self._pending = None
+        if not ok or frame is None:
+            self.misses += 1
+            self.ended = True
+            return False, None
+        self.ended = False
+        if self.expected_size is not None and (frame.shape[1], frame.shape[0]) != tuple(self.expected_size):
+            raise CameraError(
+                f"camera '{self.source}' delivers {frame.shape[1]} x {frame.shape[0]} frames but the "
+                f"calibration is for {self.expected_size[0]} x {self.expected_size[1]}"
+            )
+        self.frames += 1
+        return True, frame
+
+    def release(self) -> None:
+        """Release the capture on its worker thread (after any pending read) without waiting."""
+        if self._cap is not None and self._pool is not None:
+            self._pool.submit(self._cap.release)
+            self._pool.shutdown(wait=False)
+        self._cap = None
+
+    def __enter__(self) -> FrameSource:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -1,0 +1,209 @@
+"""The hardware section of a scenario: tendon motors (Dynamixel) and the palm camera.
+
+A :class:`HardwareConfig` is a plain dataclass, loadable with Drake's YAML loader
+(``pydrake.common.yaml.yaml_load_typed``), with a comment on every field. It holds what the
+hardware interface (DESIGN.md section 8) needs to swap the simulated hand plant and rendered
+camera for the real Yale Model O: the serial bus, one Dynamixel X-series servo per tendon
+(protocol 2.0), the spool that turns motor angle into tendon pull, and the camera source and
+its calibration file.
+
+Tendon pull ``l_i`` [m] (0 = taut at a straight finger, DESIGN.md section 2) and motor ticks
+are related through the spool radius ``r`` and a per-motor zero offset and direction sign:
+
+    ticks_i = zero_offset_ticks_i + direction_i * round(l_i / r * ticks_per_rev / (2 pi))
+
+Tendon limits default to the hand's ``tendon_range`` (:class:`vlr_drake.hand.HandSpec`), so
+the hand's numbers stay in one place; a hardware build may narrow them here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["HardwareConfig", "TendonMotorMap", "load_hardware_config"]
+
+#: Baud rates accepted by the Dynamixel SDK's PortHandler.
+SUPPORTED_BAUD_RATES = (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+    1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000,
+)  # fmt: skip
+#: X-series operating modes that allow a tendon to wind more than one turn.
+MULTI_TURN_MODES = (4, 5)  # 4: extended position, 5: current-based position
+
+
+@dataclass
+class HardwareConfig:
+    """Tendon motors and camera of a real hand (one scenario's ``hardware`` section)."""
+
+    # Serial device of the Dynamixel bus (e.g. /dev/ttyUSB0 for a U2D2).
+    port: str = "/dev/ttyUSB0"
+    # Bus baud rate [bit/s]; one of the rates the Dynamixel SDK supports.
+    baud_rate: int = 1000000
+    # Dynamixel protocol version; only 2.0 (X-series) is supported.
+    protocol_version: float = 2.0
+    # Dynamixel ids of the tendon motors, one per finger in the hand's finger order.
+    motor_ids: list[int] = field(default_factory=lambda: [1, 2, 3])
+    # Spool (pulley) radius on each motor horn: tendon pull = radius * motor angle [m].
+    spool_radius: float = 0.005
+    # Motor position [ticks] at which each tendon is taut with the finger straight (l = 0).
+    zero_offset_ticks: list[int] = field(default_factory=lambda: [0, 0, 0])
+    # Winding direction of each motor: +1 if increasing ticks pull the tendon, else -1.
+    direction: list[int] = field(default_factory=lambda: [1, 1, 1])
+    # Encoder ticks per motor revolution (X-series: 4096).
+    ticks_per_rev: int = 4096
+    # Lower tendon limits per motor [m]; empty: take them from the hand's tendon_range.
+    tendon_lower: list[float] = field(default_factory=list)
+    # Upper tendon limits per motor [m]; empty: take them from the hand's tendon_range.
+    tendon_upper: list[float] = field(default_factory=list)
+    # Operating mode written to address 11: 4 extended position, 5 current-based position.
+    operating_mode: int = 5
+    # Goal current (address 102) in current-based position mode [raw units, 0 = leave as is].
+    goal_current_raw: int = 0
+    # Size of one raw current unit [A] (XM430: 2.69 mA), for the motor_current output.
+    current_unit_a: float = 0.00269
+    # Camera: an int device index, or a str file path or stream URL (OpenCV VideoCapture).
+    camera: int | str = 0
+    # OpenCV YAML intrinsics file (camera_matrix, distortion_coefficients, image size);
+    # relative paths are resolved against the scenario file's folder by the caller.
+    calibration_file: str = "camera_intrinsics.yaml"
+    # Longest wait for one camera frame before the frame is reported invalid [s].
+    camera_timeout_s: float = 1.0
+    # Status-packet timeout slack added by the bus adapter (USB latency timer) [ms]; the
+    # SDK waits 2 * this + 2 ms plus the transfer time for each reply.
+    latency_timer_ms: float = 16.0
+    # Retries of a failed bus transaction (timeout or corrupt reply) before giving up.
+    comm_retries: int = 2
+    # Period of the hardware interface's update: send commands, read motors and camera [s].
+    period_s: float = 0.05
+
+    @property
+    def num_motors(self) -> int:
+        return len(self.motor_ids)
+
+    def validate(self, num_fingers: int | None = None) -> HardwareConfig:
+        """Check the config and raise ``ValueError`` naming the offending field.
+
+        ``num_fingers`` (optional) is the hand's finger count that ``motor_ids`` must match.
+        """
+        where = "hardware config"
+        if not self.port:
+            raise ValueError(f"{where}: 'port' is empty")
+        if self.baud_rate not in SUPPORTED_BAUD_RATES:
+            raise ValueError(f"{where}: 'baud_rate' {self.baud_rate} is not one of {SUPPORTED_BAUD_RATES}")
+        if self.protocol_version != 2.0:
+            raise ValueError(f"{where}: 'protocol_version' must be 2.0, got {self.protocol_version}")
+        n = len(self.motor_ids)
+        if n == 0:
+            raise ValueError(f"{where}: 'motor_ids' is empty")
+        if len(set(self.motor_ids)) != n:
+            raise ValueError(f"{where}: 'motor_ids' has duplicates: {self.motor_ids}")
+        if any(not 0 <= int(i) <= 252 for i in self.motor_ids):
+            raise ValueError(f"{where}: 'motor_ids' must be in 0..252, got {self.motor_ids}")
+        if num_fingers is not None and n != num_fingers:
+            raise ValueError(f"{where}: 'motor_ids' has {n} motors but the hand has {num_fingers} fingers")
+        if not (math.isfinite(self.spool_radius) and self.spool_radius > 0):
+            raise ValueError(f"{where}: 'spool_radius' must be positive, got {self.spool_radius}")
+        if len(self.zero_offset_ticks) != n:
+            raise ValueError(f"{where}: 'zero_offset_ticks' must have {n} entries (one per motor), got {len(self.zero_offset_ticks)}")
+        if len(self.direction) != n or any(d not in (1, -1) for d in self.direction):
+            raise ValueError(f"{where}: 'direction' must have {n} entries of +1 or -1, got {self.direction}")
+        if self.ticks_per_rev <= 0:
+            raise ValueError(f"{where}: 'ticks_per_rev' must be positive, got {self.ticks_per_rev}")
+        for name in ("tendon_lower", "tendon_upper"):
+            v = getattr(self, name)
+            if len(v) not in (0, n):
+                raise ValueError(f"{where}: '{name}' must be empty or have {n} entries, got {len(v)}")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{where}: '{name}' is not finite: {v}")
+        if (len(self.tendon_lower) == 0) != (len(self.tendon_upper) == 0):
+            raise ValueError(f"{where}: give both 'tendon_lower' and 'tendon_upper', or neither")
+        if self.tendon_lower and not np.all(np.asarray(self.tendon_lower) < np.asarray(self.tendon_upper)):
+            raise ValueError(f"{where}: 'tendon_lower' must be below 'tendon_upper'")
+        if self.operating_mode not in MULTI_TURN_MODES:
+            raise ValueError(f"{where}: 'operating_mode' must be 4 (extended position) or 5 (current-based position), got {self.operating_mode}")
+        if not 0 <= self.goal_current_raw <= 32767:
+            raise ValueError(f"{where}: 'goal_current_raw' must be in 0..32767, got {self.goal_current_raw}")
+        if not isinstance(self.camera, int | str) or (isinstance(self.camera, str) and not self.camera):
+            raise ValueError(f"{where}: 'camera' must be an int device index or a non-empty path/URL, got {self.camera!r}")
+        for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{where}: '{name}' must be positive, got {v}")
+        if self.comm_retries < 0:
+            raise ValueError(f"{where}: 'comm_retries' must be >= 0, got {self.comm_retries}")
+        return self
+
+    def tendon_limits(self, hand=None) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper tendon limits (N,) [m]: this config's, else the hand's tendon_range.
+
+        ``hand`` is a :class:`vlr_drake.hand.HandSpec`, needed when the config gives none.
+        """
+        if self.tendon_lower:
+            return np.asarray(self.tendon_lower, float), np.asarray(self.tendon_upper, float)
+        if hand is None:
+            raise ValueError("hardware config: no 'tendon_lower'/'tendon_upper' given and no hand to take tendon_range from")
+        rng = np.array([f.tendon_range for f in hand.fingers], float)
+        if len(rng) != self.num_motors:
+            raise ValueError(f"hardware config: 'motor_ids' has {self.num_motors} motors but the hand has {len(rng)} fingers")
+        return rng[:, 0].copy(), rng[:, 1].copy()
+
+
+class TendonMotorMap:
+    """Tendon pull [m] <-> motor ticks through spool radius, zero offset and direction.
+
+    ticks = zero_offset + direction * round(l / r * ticks_per_rev / (2 pi)); the inverse is
+    exact up to one tick (2 pi r / ticks_per_rev of tendon: 7.7 um for r = 5 mm).
+    """
+
+    def __init__(self, config: HardwareConfig, lower: np.ndarray, upper: np.ndarray):
+        self.zero = np.asarray(config.zero_offset_ticks, np.int64)
+        self.sign = np.asarray(config.direction, np.int64)
+        self.ticks_per_m = config.ticks_per_rev / (2.0 * math.pi * config.spool_radius)
+        self.lower = np.asarray(lower, float)
+        self.upper = np.asarray(upper, float)
+        n = len(self.zero)
+        if self.lower.shape != (n,) or self.upper.shape != (n,):
+            raise ValueError(f"tendon limits must have shape ({n},), got {self.lower.shape} and {self.upper.shape}")
+
+    def to_ticks(self, l: np.ndarray) -> np.ndarray:
+        """Goal ticks (N,) int64 for tendon pulls ``l`` (N,) [m] (no clipping here)."""
+        l = np.asarray(l, float)
+        if l.shape != self.zero.shape:
+            raise ValueError(f"tendon command must have shape {self.zero.shape}, got {l.shape}")
+        return self.zero + self.sign * np.round(l * self.ticks_per_m).astype(np.int64)
+
+    def to_tendon(self, ticks: np.ndarray) -> np.ndarray:
+        """Tendon pulls (N,) [m] for motor positions ``ticks`` (N,)."""
+        ticks = np.asarray(ticks, np.int64)
+        return (self.sign * (ticks - self.zero)).astype(float) / self.ticks_per_m
+
+    def clip(self, l: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tendon command clipped to the limits, and a bool mask of entries that were clipped.
+        A non-finite command is an error (never sent)."""
+        l = np.asarray(l, float)
+        if l.shape != self.lower.shape:
+            raise ValueError(f"tendon command must have shape {self.lower.shape}, got {l.shape}")
+        if not np.all(np.isfinite(l)):
+            raise ValueError(f"tendon command is not finite: {l}")
+        c = np.clip(l, self.lower, self.upper)
+        return c, c != l
+
+    def tick_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lowest and highest allowed goal ticks per motor (the driver's last check)."""
+        a, b = self.to_ticks(self.lower), self.to_ticks(self.upper)
+        return np.minimum(a, b), np.maximum(a, b)
+
+
+def load_hardware_config(filename: str | None = None, data: str | None = None) -> HardwareConfig:
+    """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file)."""
+    from pydrake.common.yaml import yaml_load_typed
+
+    config = HardwareConfig()
+    if filename is not None:
+        config = yaml_load_typed(schema=HardwareConfig, filename=filename, defaults=config)
+    if data is not None:
+        config = yaml_load_typed(schema=HardwareConfig, data=data, defaults=config)
+    return config

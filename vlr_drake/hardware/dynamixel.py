@@ -1,0 +1,347 @@
+"""Tendon motors: a safe driver for Dynamixel X-series servos (protocol 2.0) on one bus.
+
+The Yale Model O pulls each finger's tendon with one Dynamixel servo (DESIGN.md section 8).
+:class:`TendonMotors` wraps the ``dynamixel_sdk`` package (PortHandler, protocol 2.0
+PacketHandler, GroupSyncWrite, GroupSyncRead) and works in motor ticks; the tendon <-> tick
+conversion and the tendon limits live in :class:`vlr_drake.hardware.config.TendonMotorMap`.
+
+Safe start (:meth:`TendonMotors.open`):
+  1. open the port at the configured baud rate (a missing device is a clear error);
+  2. ping every motor (an id that does not answer is named in the error);
+  3. torque off, then set the operating mode (address 11; 4 = extended position,
+     5 = current-based position) and, in mode 5, the goal current (address 102);
+  4. read all present positions with one sync read (address 132);
+  5. set each goal position to the position just read, so nothing jumps;
+  6. only then enable torque (address 64), confirmed motor by motor.
+
+Running: :meth:`write_goal_ticks` refuses goals outside the tick limits before anything is
+sent; one sync write (address 116, 4 bytes) moves all motors; :meth:`read` returns present
+positions and currents from one sync read of addresses 126..135. A failed transaction is
+retried ``comm_retries`` times; then torque is switched off (best effort) and
+:class:`DynamixelError` names what failed. :meth:`close` (also on leaving a ``with`` block)
+switches torque off and closes the port. Every SDK call is bounded by the SDK's status
+timeout (2 x latency timer + 2 ms + transfer time), so nothing hangs.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+__all__ = [
+    "DynamixelError",
+    "TendonMotors",
+    "ADDR_OPERATING_MODE",
+    "ADDR_TORQUE_ENABLE",
+    "ADDR_GOAL_CURRENT",
+    "ADDR_GOAL_POSITION",
+    "ADDR_PRESENT_CURRENT",
+    "ADDR_PRESENT_POSITION",
+]
+
+log = logging.getLogger(__name__)
+
+# X-series control table (protocol 2.0).
+ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
+ADDR_TORQUE_ENABLE = 64  # 1 byte
+ADDR_GOAL_CURRENT = 102  # 2 bytes
+ADDR_GOAL_POSITION = 116  # 4 bytes
+ADDR_PRESENT_CURRENT = 126  # 2 bytes, signed
+ADDR_PRESENT_POSITION = 132  # 4 bytes, signed
+#: One sync read covers present current (126), velocity (128) and position (132).
+READ_BLOCK_START, READ_BLOCK_LENGTH = ADDR_PRESENT_CURRENT, 10
+#: Goal position range of extended position mode [ticks].
+EXTENDED_POSITION_LIMIT = 1_048_575
+
+
+class DynamixelError(RuntimeError):
+    """A bus or motor failure (torque has been switched off where the bus still answers)."""
+
+
+def _signed(value: int, bits: int) -> int:
+    value &= (1 << bits) - 1
+    return value - (1 << bits) if value >= 1 << (bits - 1) else value
+
+
+class TendonMotors:
+    """The tendon servos of one hand on one Dynamixel bus (protocol 2.0, X-series).
+
+    Args:
+        port: serial device name (e.g. ``/dev/ttyUSB0``).
+        baud_rate: bus baud rate [bit/s].
+        motor_ids: motor ids, one per tendon, in the hand's finger order.
+        tick_limits: (lowest, highest) allowed goal ticks per motor, each (N,); goals outside
+            them are refused before anything is sent.
+        operating_mode: 4 (extended position) or 5 (current-based position).
+        goal_current_raw: goal current written in mode 5 (0: leave the motor's value).
+        latency_timer_ms: status-packet timeout slack of the adapter [ms].
+        comm_retries: retries of a failed transaction before :class:`DynamixelError`.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud_rate: int,
+        motor_ids: list[int],
+        tick_limits: tuple[np.ndarray, np.ndarray],
+        operating_mode: int = 5,
+        goal_current_raw: int = 0,
+        latency_timer_ms: float = 16.0,
+        comm_retries: int = 2,
+    ):
+        self.port_name = str(port)
+        self.baud_rate = int(baud_rate)
+        self.motor_ids = [int(i) for i in motor_ids]
+        lo, hi = (np.asarray(x, np.int64) for x in tick_limits)
+        n = len(self.motor_ids)
+        if lo.shape != (n,) or hi.shape != (n,):
+            raise ValueError(f"tick_limits must be two arrays of shape ({n},), got {lo.shape} and {hi.shape}")
+        if np.any(lo > hi) or np.any(np.abs(lo) > EXTENDED_POSITION_LIMIT) or np.any(np.abs(hi) > EXTENDED_POSITION_LIMIT):
+            raise ValueError(f"tick_limits must satisfy lo <= hi within +-{EXTENDED_POSITION_LIMIT}, got {lo} and {hi}")
+        self.tick_lower, self.tick_upper = lo, hi
+        self.operating_mode = int(operating_mode)
+        self.goal_current_raw = int(goal_current_raw)
+        self.latency_timer_ms = float(latency_timer_ms)
+        self.comm_retries = int(comm_retries)
+        self.is_open = False
+        self.torque_on = False
+        self._port = None
+        self._ph = None
+        self._sync_write = None
+        self._sync_read = None
+
+    @classmethod
+    def from_config(cls, config, tick_limits: tuple[np.ndarray, np.ndarray]) -> TendonMotors:
+        """Driver for a :class:`vlr_drake.hardware.config.HardwareConfig`."""
+        return cls(
+            port=config.port,
+            baud_rate=config.baud_rate,
+            motor_ids=list(config.motor_ids),
+            tick_limits=tick_limits,
+            operating_mode=config.operating_mode,
+            goal_current_raw=config.goal_current_raw,
+            latency_timer_ms=config.latency_timer_ms,
+            comm_retries=config.comm_retries,
+        )
+
+    # --- life cycle -------------------------------------------------------------------------
+    def open(self) -> np.ndarray:
+        """Safe start (module docstring, steps 1-6). Returns the first positions (N,) [ticks]."""
+        import dynamixel_sdk as sdk
+
+        if self.is_open:
+            raise DynamixelError(f"port {self.port_name} is already open")
+        latency = self.latency_timer_ms
+
+        class _Port(sdk.PortHandler):
+            # The SDK's status timeout uses a fixed 16 ms USB latency; make it configurable.
+            def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
+                self.packet_start_time = self.getCurrentTime()
+                self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency + 2.0
+
+        self._port = _Port(self.port_name)
+        self._ph = sdk.PacketHandler(2.0)
+        try:
+            ok = self._port.setBaudRate(self.baud_rate)
+        except Exception as e:  # serial.SerialException, OSError
+            self._port = None
+            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}': {e}") from e
+        if not ok:
+            self._port = None
+            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}' at {self.baud_rate} baud")
+        self.is_open = True
+        try:
+            for dxl_id in self.motor_ids:
+                self._call(f"ping motor id {dxl_id}", lambda i=dxl_id: self._ph.ping(self._port, i), dxl_id)
+            for dxl_id in self.motor_ids:
+                self._write1(dxl_id, ADDR_TORQUE_ENABLE, 0, "torque off")
+                mode = self._call(
+                    f"read operating mode of motor id {dxl_id}",
+                    lambda i=dxl_id: self._ph.read1ByteTxRx(self._port, i, ADDR_OPERATING_MODE),
+                    dxl_id,
+                )
+                if mode != self.operating_mode:
+                    self._write1(dxl_id, ADDR_OPERATING_MODE, self.operating_mode, "set operating mode")
+                if self.operating_mode == 5 and self.goal_current_raw > 0:
+                    self._call(
+                        f"set goal current of motor id {dxl_id}",
+                        lambda i=dxl_id: self._ph.write2ByteTxRx(self._port, i, ADDR_GOAL_CURRENT, self.goal_current_raw),
+                        dxl_id,
+                    )
+            self._sync_write = sdk.GroupSyncWrite(self._port, self._ph, ADDR_GOAL_POSITION, 4)
+            self._sync_read = sdk.GroupSyncRead(self._port, self._ph, READ_BLOCK_START, READ_BLOCK_LENGTH)
+            for dxl_id in self.motor_ids:
+                self._sync_read.addParam(dxl_id)
+            ticks, _ = self._read_once()
+            # Hold where the motors are: goal = present (clamped into the limits), then torque on.
+            self._send_goal(np.clip(ticks, self.tick_lower, self.tick_upper))
+            for dxl_id in self.motor_ids:
+                self._write1(dxl_id, ADDR_TORQUE_ENABLE, 1, "torque on")
+                self.torque_on = True
+        except BaseException:
+            self.close()
+            raise
+        log.info("Dynamixel bus %s open, motors %s at %s ticks, torque on", self.port_name, self.motor_ids, ticks)
+        return ticks
+
+    def close(self) -> None:
+        """Torque off (best effort: one broadcast sync write, then confirmed writes) and close
+        the port. Safe to call more than once and after errors."""
+        if not self.is_open:
+            return
+        try:
+            self.torque_off()
+        finally:
+            try:
+                self._port.closePort()
+            except Exception:
+                pass
+            self.is_open = False
+            log.info("Dynamixel bus %s closed", self.port_name)
+
+    def torque_off(self) -> bool:
+        """Switch torque off on every motor. Returns True when every motor confirmed it."""
+        import dynamixel_sdk as sdk
+
+        if not self.is_open:
+            return False
+        self._port.is_using = False
+        try:
+            group = sdk.GroupSyncWrite(self._port, self._ph, ADDR_TORQUE_ENABLE, 1)
+            for dxl_id in self.motor_ids:
+                group.addParam(dxl_id, [0])
+            group.txPacket()
+        except Exception as e:
+            log.warning("broadcast torque off on %s failed: %s", self.port_name, e)
+        confirmed = True
+        for dxl_id in self.motor_ids:
+            try:
+                self._port.is_using = False
+                result, error = self._ph.write1ByteTxRx(self._port, dxl_id, ADDR_TORQUE_ENABLE, 0)
+                confirmed &= result == sdk.COMM_SUCCESS and error == 0
+            except Exception:
+                confirmed = False
+        self.torque_on = False
+        return confirmed
+
+    def __enter__(self) -> TendonMotors:
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- running ----------------------------------------------------------------------------
+    def write_goal_ticks(self, ticks: np.ndarray) -> None:
+        """Send goal positions (N,) [ticks] to all motors with one sync write.
+
+        Goals outside the tick limits raise ``ValueError`` and nothing is sent (the motors
+        hold their last goal). A bus failure raises :class:`DynamixelError` after torque off.
+        """
+        ticks = np.asarray(ticks)
+        if ticks.shape != (len(self.motor_ids),):
+            raise ValueError(f"goal ticks must have shape ({len(self.motor_ids)},), got {ticks.shape}")
+        if not np.issubdtype(ticks.dtype, np.integer):
+            raise ValueError(f"goal ticks must be integers, got dtype {ticks.dtype}")
+        bad = (ticks < self.tick_lower) | (ticks > self.tick_upper)
+        if np.any(bad):
+            ids = [i for i, b in zip(self.motor_ids, bad, strict=True) if b]
+            raise ValueError(
+                f"goal ticks {ticks.tolist()} outside the limits [{self.tick_lower.tolist()}, "
+                f"{self.tick_upper.tolist()}] for motor ids {ids}; nothing sent"
+            )
+        self._require_open()
+        self._guarded(lambda: self._send_goal(ticks))
+
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """Present positions (N,) [ticks] and currents (N,) [raw units] from one sync read."""
+        self._require_open()
+        return self._guarded(self._read_once)
+
+    # --- internals --------------------------------------------------------------------------
+    def _require_open(self) -> None:
+        if not self.is_open:
+            raise DynamixelError(f"Dynamixel port '{self.port_name}' is not open")
+
+    def _guarded(self, fn):
+        """Run ``fn``; on any failure switch torque off, close the port and raise."""
+        try:
+            return fn()
+        except BaseException as e:
+            log.error("Dynamixel failure on %s: %s; switching torque off", self.port_name, e)
+            try:
+                self.close()
+            except Exception:
+                pass
+            if isinstance(e, DynamixelError):
+                raise
+            raise DynamixelError(f"Dynamixel bus '{self.port_name}' failed: {e}") from e
+
+    def _call(self, what: str, fn, dxl_id: int | None = None):
+        """Run one SDK transaction with retries. ``fn`` returns (value..., result, error)."""
+        import dynamixel_sdk as sdk
+
+        last = ""
+        for _ in range(self.comm_retries + 1):
+            try:
+                out = fn()
+            except Exception as e:
+                raise DynamixelError(f"{what}: port '{self.port_name}' failed: {e}") from e
+            out = out if isinstance(out, tuple) else (out,)
+            if len(out) == 3:
+                value, result, error = out
+            else:
+                value, (result, error) = None, out
+            if result == sdk.COMM_SUCCESS and error == 0:
+                return value
+            if result != sdk.COMM_SUCCESS:
+                last = self._ph.getTxRxResult(result)
+            else:
+                last = self._ph.getRxPacketError(error)
+        who = f" (motor id {dxl_id} on '{self.port_name}' at {self.baud_rate} baud)" if dxl_id is not None else ""
+        if result == sdk.COMM_RX_TIMEOUT and dxl_id is not None:
+            raise DynamixelError(f"{what}: motor id {dxl_id} does not answer{who}: {last}")
+        raise DynamixelError(f"{what}{who}: {last}")
+
+    def _write1(self, dxl_id: int, addr: int, value: int, what: str) -> None:
+        self._call(
+            f"{what} (address {addr}) of motor id {dxl_id}",
+            lambda: self._ph.write1ByteTxRx(self._port, dxl_id, addr, value),
+            dxl_id,
+        )
+
+    def _send_goal(self, ticks: np.ndarray) -> None:
+        import dynamixel_sdk as sdk
+
+        self._sync_write.clearParam()
+        for dxl_id, t in zip(self.motor_ids, ticks, strict=True):
+            v = int(t) & 0xFFFFFFFF
+            self._sync_write.addParam(dxl_id, [v & 0xFF, (v >> 8) & 0xFF, (v >> 16) & 0xFF, (v >> 24) & 0xFF])
+        for _ in range(self.comm_retries + 1):
+            try:
+                result = self._sync_write.txPacket()
+            except Exception as e:
+                raise DynamixelError(f"sync write of goal positions on '{self.port_name}' failed: {e}") from e
+            if result == sdk.COMM_SUCCESS:
+                return
+        raise DynamixelError(f"sync write of goal positions on '{self.port_name}': {self._ph.getTxRxResult(result)}")
+
+    def _read_once(self) -> tuple[np.ndarray, np.ndarray]:
+        import dynamixel_sdk as sdk
+
+        what = ""
+        for _ in range(self.comm_retries + 1):
+            try:
+                result = self._sync_read.txRxPacket()
+            except Exception as e:
+                raise DynamixelError(f"sync read of present position on '{self.port_name}' failed: {e}") from e
+            missing = [i for i in self.motor_ids if not self._sync_read.isAvailable(i, READ_BLOCK_START, READ_BLOCK_LENGTH)]
+            if result == sdk.COMM_SUCCESS and not missing:
+                pos = [_signed(self._sync_read.getData(i, ADDR_PRESENT_POSITION, 4), 32) for i in self.motor_ids]
+                cur = [_signed(self._sync_read.getData(i, ADDR_PRESENT_CURRENT, 2), 16) for i in self.motor_ids]
+                return np.array(pos, np.int64), np.array(cur, np.int64)
+            # The SDK stops at the first motor that fails; name it.
+            failed = next((i for i in self.motor_ids if len(self._sync_read.data_dict.get(i, [])) != READ_BLOCK_LENGTH), None)
+            what = f"{self._ph.getTxRxResult(result)}" + (f" (first failing motor id {failed})" if failed is not None else "")
+        raise DynamixelError(f"sync read of present position on '{self.port_name}' at {self.baud_rate} baud: {what}")

@@ -1,0 +1,261 @@
+"""The hardware interface: the real hand's tendon motors and palm camera as one Drake system.
+
+DESIGN.md section 8: the same diagram runs on a real hand by swapping the physics plant and
+the rendered camera for this system; the observer, filter and controller stay unchanged. It
+has the simulated hand's ports plus the camera's:
+
+    input  tendon_command            (N,) commanded tendon pull l [m] (0 = taut, straight finger)
+    output tendon_position_measured  (N,) tendon pull measured by the motor encoders [m]
+    output rgb_image                 ImageRgba8U, the latest camera frame (abstract)
+    output camera_valid              (1,) 1 if a frame arrived in the last update, else 0
+    output tendon_command_sent       (N,) the command after the limits, as sent [m]
+    output motor_current             (N,) present motor current [A]
+
+A periodic unrestricted update (``config.period_s``) clips the command to the tendon limits
+(the config's or the hand's ``tendon_range``), converts it to motor ticks
+(:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
+positions with one sync read, and grabs a camera frame. When no frame arrives within the
+camera timeout (or a video file ends), ``camera_valid`` is 0 and ``rgb_image`` is a black
+frame, so an AprilTag observer that only sees the image reports "no tag" instead of re-using
+a stale frame.
+
+Safe start and stop: the motors are opened by an initialization event (ping, first read, goal
+= present position, then torque on: :class:`vlr_drake.hardware.dynamixel.TendonMotors`).
+A bus failure or a non-finite command switches torque off and raises. :meth:`close` (called by
+:func:`run_hardware` on the way out, also on errors and Ctrl-C, and by a finalizer as a last
+resort) switches torque off and releases the camera.
+
+The hardware is a single resource: one context per :class:`HardwareInterface` at a time.
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.sensors import ImageRgba8U
+
+from vlr_drake.hand import HandSpec
+from vlr_drake.hardware.camera import CameraIntrinsics, FrameSource, read_intrinsics
+from vlr_drake.hardware.config import HardwareConfig, TendonMotorMap
+from vlr_drake.hardware.dynamixel import TendonMotors
+
+__all__ = ["HardwareInterface", "add_hardware_interface", "build_hardware_diagram", "run_hardware"]
+
+log = logging.getLogger(__name__)
+
+
+def _shutdown(motors, camera) -> None:
+    try:
+        if motors is not None:
+            motors.close()
+    finally:
+        if camera is not None:
+            camera.release()
+
+
+class HardwareInterface(LeafSystem):
+    """Tendon motors and camera of a real hand, with the simulated hand's ports (module doc).
+
+    Args:
+        hand: the hand (finger count and, unless the config narrows them, tendon limits).
+        config: the scenario's hardware section.
+        intrinsics: camera intrinsics; default: read ``config.calibration_file``.
+        motors: a motor driver with ``open/read/write_goal_ticks/close`` (default
+            :class:`TendonMotors` from the config).
+        camera: a frame source with ``open/read/release`` (default :class:`FrameSource`).
+    """
+
+    def __init__(
+        self,
+        hand: HandSpec,
+        config: HardwareConfig,
+        intrinsics: CameraIntrinsics | None = None,
+        motors=None,
+        camera=None,
+    ):
+        super().__init__()
+        N = hand.num_fingers
+        config.validate(num_fingers=N)
+        self.config = config
+        self.num_tendons = N
+        lower, upper = config.tendon_limits(hand)
+        self.motor_map = TendonMotorMap(config, lower, upper)
+        self.intrinsics = (intrinsics or read_intrinsics(config.calibration_file)).validate()
+        w, h = self.intrinsics.width, self.intrinsics.height
+        self.motors = motors if motors is not None else TendonMotors.from_config(config, self.motor_map.tick_limits())
+        self.camera = camera if camera is not None else FrameSource(config.camera, config.camera_timeout_s, expected_size=(w, h))
+        self._finalizer = weakref.finalize(self, _shutdown, self.motors, self.camera)
+        self._blank = np.zeros((h, w, 4), np.uint8)
+        self._blank[..., 3] = 255
+
+        self._command_port = self.DeclareVectorInputPort(name="tendon_command", size=N)
+        self._measured_index = self.DeclareDiscreteState(N)
+        self._sent_index = self.DeclareDiscreteState(N)
+        self._current_index = self.DeclareDiscreteState(N)
+        self._valid_index = self.DeclareDiscreteState(1)
+        self._image_index = self.DeclareAbstractState(model_value=self._image_value(self._blank))
+        self._measured_port = self.DeclareStateOutputPort(name="tendon_position_measured", state_index=self._measured_index)
+        self._image_port = self.DeclareStateOutputPort(name="rgb_image", state_index=self._image_index)
+        self._valid_port = self.DeclareStateOutputPort(name="camera_valid", state_index=self._valid_index)
+        self._sent_port = self.DeclareStateOutputPort(name="tendon_command_sent", state_index=self._sent_index)
+        self._current_port = self.DeclareStateOutputPort(name="motor_current", state_index=self._current_index)
+        self.DeclareInitializationUnrestrictedUpdateEvent(update=self._initialize)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=config.period_s, offset_sec=0.0, update=self._update)
+        #: Updates done, and how many of them had a command clipped at a limit.
+        self.num_updates = 0
+        self.num_clipped = 0
+
+    # --- the camera's calibration, for the AprilTag observer ----------------------------------
+    def camera_matrix(self) -> np.ndarray:
+        """3 x 3 intrinsic matrix K of ``rgb_image`` (OpenCV pixel convention)."""
+        return np.array(self.intrinsics.K, float)
+
+    def distortion_coefficients(self) -> np.ndarray:
+        """OpenCV distortion coefficients of ``rgb_image``."""
+        return np.array(self.intrinsics.dist, float)
+
+    # --- life cycle ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Torque off, close the bus and release the camera (idempotent)."""
+        self._finalizer()
+
+    @property
+    def closed(self) -> bool:
+        return not self._finalizer.alive
+
+    # --- events -------------------------------------------------------------------------------
+    @staticmethod
+    def _image_value(rgba: np.ndarray):
+        from pydrake.common.value import Value
+
+        image = ImageRgba8U(rgba.shape[1], rgba.shape[0])
+        image.mutable_data[:] = rgba
+        return Value(image)
+
+    def _initialize(self, context, state) -> None:
+        if self.closed:
+            raise RuntimeError("hardware interface: already closed; build a new one to run again")
+        try:
+            ticks = self.motors.open()
+            self.camera.open()
+        except BaseException:
+            self.close()
+            raise
+        l = self.motor_map.to_tendon(ticks)
+        state.get_mutable_discrete_state(self._measured_index).set_value(l)
+        state.get_mutable_discrete_state(self._sent_index).set_value(np.clip(l, self.motor_map.lower, self.motor_map.upper))
+        log.info("hardware interface started: tendons %s m", np.round(l, 5))
+
+    def _update(self, context, state) -> None:
+        if self.closed:
+            raise RuntimeError("hardware interface: closed (torque is off); the run cannot continue")
+        import cv2
+
+        try:
+            if self._command_port.HasValue(context):
+                command = np.asarray(self._command_port.Eval(context), float)
+            else:  # nothing connected: hold the last command
+                command = np.array(context.get_discrete_state(self._sent_index).get_value())
+            sent, clipped = self.motor_map.clip(command)
+            self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
+            ticks, current = self.motors.read()
+            ok, frame = self.camera.read()
+        except BaseException:
+            self.close()
+            raise
+        self.num_updates += 1
+        self.num_clipped += bool(np.any(clipped))
+        state.get_mutable_discrete_state(self._sent_index).set_value(sent)
+        state.get_mutable_discrete_state(self._measured_index).set_value(self.motor_map.to_tendon(ticks))
+        state.get_mutable_discrete_state(self._current_index).set_value(np.asarray(current, float) * self.config.current_unit_a)
+        state.get_mutable_discrete_state(self._valid_index).set_value([1.0 if ok else 0.0])
+        rgba = cv2.cvtColor(frame, cv2.COLOR_BGR2RGBA) if ok else self._blank
+        state.get_mutable_abstract_state(self._image_index).set_value(self._image_value(rgba).get_value())
+
+    # --- port handles -------------------------------------------------------------------------
+    def get_tendon_command_input_port(self):
+        return self._command_port
+
+    def get_tendon_position_measured_output_port(self):
+        return self._measured_port
+
+    def get_rgb_image_output_port(self):
+        return self._image_port
+
+    def get_camera_valid_output_port(self):
+        return self._valid_port
+
+
+def add_hardware_interface(
+    builder: DiagramBuilder,
+    hand: HandSpec,
+    config: HardwareConfig,
+    name: str = "hardware",
+    base_dir: str | Path | None = None,
+    **kwargs,
+) -> HardwareInterface:
+    """Add a :class:`HardwareInterface` named ``name`` to ``builder`` (what the scenario
+    builder calls for a hardware run). A relative ``config.calibration_file`` is resolved
+    against ``base_dir`` (the scenario file's folder) when given; ``kwargs`` go to the
+    constructor (e.g. ``intrinsics=``)."""
+    if base_dir is not None and not Path(config.calibration_file).is_absolute():
+        import copy
+
+        config = copy.deepcopy(config)
+        config.calibration_file = str(Path(base_dir) / config.calibration_file)
+    return builder.AddNamedSystem(name, HardwareInterface(hand, config, **kwargs))
+
+
+def build_hardware_diagram(
+    hand: HandSpec,
+    config: HardwareConfig,
+    command_source=None,
+    **kwargs,
+):
+    """A diagram of the hardware interface alone, for bring-up and tests.
+
+    ``command_source`` (a System with one N-vector output, e.g. a ConstantVectorSource or a
+    TrajectorySource) is connected to ``tendon_command``; without it that input is exported.
+    The interface's outputs are exported under their own names. Returns (diagram, interface).
+    """
+    builder = DiagramBuilder()
+    hw = add_hardware_interface(builder, hand, config, **kwargs)
+    if command_source is not None:
+        src = builder.AddNamedSystem("tendon_command_source", command_source)
+        builder.Connect(src.get_output_port(), hw.get_tendon_command_input_port())
+    else:
+        builder.ExportInput(hw.get_tendon_command_input_port(), "tendon_command")
+    for port in (
+        hw.get_tendon_position_measured_output_port(),
+        hw.get_rgb_image_output_port(),
+        hw.get_camera_valid_output_port(),
+        hw.GetOutputPort("tendon_command_sent"),
+        hw.GetOutputPort("motor_current"),
+    ):
+        builder.ExportOutput(port, port.get_name())
+    diagram = builder.Build()
+    diagram.set_name("hardware_diagram")
+    return diagram, hw
+
+
+def run_hardware(diagram, interface: HardwareInterface, duration: float, realtime_rate: float = 1.0, monitor=None):
+    """Run ``diagram`` in (scaled) real time with Drake's Simulator for ``duration`` [s];
+    the interface is closed (torque off) on the way out, also on errors. Returns the
+    simulator. ``monitor`` (optional) is passed to ``Simulator.set_monitor``."""
+    from pydrake.systems.analysis import Simulator
+
+    simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
+    if monitor is not None:
+        simulator.set_monitor(monitor)
+    try:
+        simulator.Initialize()
+        simulator.AdvanceTo(duration)
+    finally:
+        interface.close()
+    return simulator
+
