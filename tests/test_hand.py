@@ -1,0 +1,59 @@
+"""The hand specification: validation, derived arrays, novel hands."""
+
+import numpy as np
+import pytest
+
+from vlr_drake.hand import HandSpec, generic_hand, hand_by_name, model_o, novel_finger
+
+
+def test_model_o_arrays(model_o_hand):
+    h = model_o_hand
+    assert (h.N, h.K) == (3, 2)
+    np.testing.assert_allclose(h.link_lengths[:, 0], 0.062)
+    # thumb opposes the two fingers
+    assert h.u[0] @ h.u[1] == pytest.approx(-1.0)
+    np.testing.assert_allclose(h.R[0, :2], h.moment_arms[0])
+    assert h.constraint_pairs.tolist() == [[0, 1], [0, 2], [1, 2]]
+
+
+def test_generic_hand_constraints():
+    h = generic_hand(5, 3).model()
+    assert h.num_constraints == 3 * 5 - 6
+    assert h.R.shape == (5, 15)
+
+
+def test_novel_hands_replace_the_right_fingers():
+    nh3 = hand_by_name("NH3").model()
+    base = model_o().model()
+    np.testing.assert_allclose(nh3.base, base.base)  # mounted where the old fingers were
+    assert nh3.link_lengths[:, 0].tolist() == pytest.approx([0.040, 0.050, 0.050])
+    assert nh3.pad[2] == pytest.approx(novel_finger("NF3").pad_offset)
+    nh1 = hand_by_name("NH1").model()
+    assert nh1.link_lengths[:, 0].tolist() == pytest.approx([0.040, 0.062, 0.062])
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("link_lengths", [-0.01], "link_lengths"),
+        ("stiffness", [0.08, -1.0], "stiffness"),
+        ("moment_arms", [0.009], "moment_arms"),
+        ("flexion_direction", [0.0, 0.0, 1.0], "flexion_direction"),
+        ("tendon_range", [0.01, 0.0], "tendon_range"),
+    ],
+)
+def test_bad_finger_fields_are_named(field, value, message):
+    spec = model_o()
+    setattr(spec.fingers[1], field, value)
+    with pytest.raises(ValueError, match=message):
+        spec.validate()
+
+
+def test_too_few_fingers_and_unknown_names():
+    spec = model_o()
+    with pytest.raises(ValueError, match="at least 3 fingers"):
+        HandSpec(name="two", fingers=spec.fingers[:2]).validate()
+    with pytest.raises(ValueError, match="unknown hand"):
+        hand_by_name("NH9")
+    with pytest.raises(ValueError, match="no finger 'pinky'"):
+        spec.replaced({"pinky": novel_finger("NF1")})

@@ -1,0 +1,137 @@
+"""Grasp configurations: physical checks and sampling of hand-object hypotheses.
+
+A VLR configuration (theta, a) is a *physical* grasp when (DESIGN.md sections 4 and 6)
+- the tendons only pull: the implied tension T >= 0 (:func:`vlr_drake.motion.equilibrium`);
+- the fingers squeeze the object: every contact-pair multiplier lambda < 0;
+- and, for a strict check, the equilibrium is a constrained *minimum* of the energy of
+  Eq. 9: the Hessian of the Lagrangian reduced to the tangent space of the grasp manifold
+  is positive definite (:func:`reduced_hessian_min_eig`).
+
+The last condition is worth a word. With contacts pinned to the object (the VLR's fixed
+E^C links), a squeezed object acts as a set of compressed struts between the fingertips,
+and a strong squeeze makes the stationary point a saddle (a strut under compression
+buckles). Newton's method tracks stationary points either way, so the motion function
+is defined for both; tests that compare against an optimiser use stable grasps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlr_drake import kinematics, motion
+from vlr_drake.hand import HandModel
+
+__all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian"]
+
+
+def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None, tendon="elastic"):
+    """Hessian of the Lagrangian of Eq. 9 and the constraint Jacobian, for one configuration.
+
+    Returns (H (n, n), G (m, n)) with n = N*K.
+    """
+    N, K = hand.N, hand.K
+    L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths).reshape(N, K - 1)
+    k = hand.stiffness if stiffness is None else np.asarray(stiffness).reshape(N, K)
+    Pc = np.empty((N, 3))
+    Jc = np.empty((N, 3, K))
+    Hc = np.empty((N, 3, K, K))
+    motion._fk_all(np.ascontiguousarray(theta, float), np.ascontiguousarray(L, float),
+                   np.ascontiguousarray(a, float), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
+    g = np.empty(hand.num_constraints)
+    G = np.empty((hand.num_constraints, N * K))
+    motion._constraint_jacobian(Pc, Jc, hand.constraint_pairs, np.zeros(hand.num_constraints), g, G)
+    H = np.diag(k.ravel()).astype(float)
+    if tendon == "elastic":
+        H += hand.R.T @ np.diag(hand.kappa) @ hand.R
+    for c, (i, j) in enumerate(hand.constraint_pairs):
+        Jd = np.zeros((3, N * K))
+        Jd[:, i * K : (i + 1) * K] = Jc[i]
+        Jd[:, j * K : (j + 1) * K] -= Jc[j]
+        Hg = Jd.T @ Jd
+        dp = Pc[i] - Pc[j]
+        Hg[i * K : (i + 1) * K, i * K : (i + 1) * K] += np.einsum("r,rkl->kl", dp, Hc[i])
+        Hg[j * K : (j + 1) * K, j * K : (j + 1) * K] -= np.einsum("r,rkl->kl", dp, Hc[j])
+        H += multipliers[c] * Hg
+    return H, G
+
+
+def reduced_hessian_min_eig(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None,
+                            tendon="elastic") -> np.ndarray:
+    """Smallest eigenvalue of the reduced Hessian, per particle (P,) [N m/rad].
+
+    Positive: the configuration is a strict constrained minimum of Eq. 9's energy.
+    For the ideal tendon the tangent space also keeps the tendon lengths fixed.
+    """
+    theta = np.asarray(theta, float)
+    P = theta.shape[0]
+    out = np.empty(P)
+    for p in range(P):
+        L = None if link_lengths is None else np.asarray(link_lengths)[min(p, len(link_lengths) - 1)]
+        k = None if stiffness is None else np.asarray(stiffness)[min(p, len(stiffness) - 1)]
+        H, G = lagrangian_hessian(hand, theta[p], np.asarray(a)[p], np.asarray(multipliers)[p], L, k, tendon)
+        A = G if tendon == "elastic" else np.vstack([G, hand.R])
+        _, S, Vt = np.linalg.svd(A)
+        Z = Vt[A.shape[0]:].T
+        out[p] = np.linalg.eigvalsh(Z.T @ H @ Z).min() if Z.shape[1] else np.inf
+    return out
+
+
+@dataclass
+class GraspSample:
+    """Physical grasp configurations (P of them) with their tendon state."""
+
+    theta: np.ndarray  # (P, N, K)
+    a: np.ndarray  # (P, N)
+    stretch: np.ndarray  # (P, N)
+    tension: np.ndarray  # (P, N)
+    multipliers: np.ndarray  # (P, m)
+    D2: np.ndarray  # (P, m)
+
+
+def sample_grasps(
+    hand: HandModel,
+    rng: np.random.Generator,
+    count: int,
+    *,
+    proximal_range=(-0.1, 0.6),
+    distal_range=(0.0, 1.2),
+    contact_range=(0.015, 0.04),
+    min_tension: float = 0.5,
+    stable: bool = False,
+    max_draws: int = 2_000_000,
+) -> GraspSample:
+    """Draw ``count`` physical grasps by rejection from uniform angle and contact ranges.
+
+    Proximal joints (the first) in ``proximal_range``, the others in ``distal_range`` split
+    evenly over the K-1 distal joints, contacts along the last link in ``contact_range``.
+    Kept: tension >= ``min_tension`` [N] on every tendon, squeeze on every contact pair,
+    and with ``stable`` a strict constrained minimum. Raises if too few are found.
+    """
+    N, K = hand.N, hand.K
+    kept: list[tuple] = []
+    total = 0
+    drawn = 0
+    batch = max(4 * count, 4096)
+    while total < count:
+        if drawn >= max_draws:
+            raise RuntimeError(f"found only {total} of {count} physical grasps in {drawn} draws; widen the ranges")
+        th = np.empty((batch, N, K))
+        th[..., 0] = rng.uniform(*proximal_range, (batch, N))
+        th[..., 1:] = rng.uniform(*distal_range, (batch, N, K - 1)) / (K - 1)
+        a = rng.uniform(*contact_range, (batch, N))
+        drawn += batch
+        eq = motion.equilibrium(hand, th, a=a)
+        good = eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.multipliers < 0, axis=1)
+        idx = np.flatnonzero(good)
+        if stable and idx.size:
+            eig = reduced_hessian_min_eig(hand, eq.theta[idx], a[idx], eq.multipliers[idx])
+            idx = idx[eig > 1e-3]
+        if idx.size:
+            th_eq = eq.theta[idx]
+            D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, th_eq, a[idx]))
+            kept.append((th_eq, a[idx], eq.stretch[idx], eq.tension[idx], eq.multipliers[idx], D2))
+            total += idx.size
+    cat = [np.concatenate([k[i] for k in kept])[:count] for i in range(6)]
+    return GraspSample(*cat)

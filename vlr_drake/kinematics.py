@@ -1,0 +1,176 @@
+"""Forward kinematics of the VLR, batched over particles (DESIGN.md sections 2-3).
+
+Finger i is planar. In its plane (coordinates x along u_i, z along the palm normal) the
+chain of *virtual* links (Eq. 2) has lengths ``ell_k`` and absolute angles ``psi_k``:
+
+    ell_k = L_k,           psi_k = phi_k              (k < K-1, physical links)
+    ell_K = d_i = |(a_i, n_i)|,  psi_K = phi_K + gamma_i,  gamma_i = atan2(n_i, a_i)
+
+with ``phi_k = theta_1 + ... + theta_k``. Joint k+1 sits at ``q_{k+1} = q_k + ell_k e(psi_k)``
+and the contact at the end of the chain, ``p_i = q_K + d_i e(psi_K)``, with
+``e(a) = sin(a) u_i + cos(a) z``. The derivatives used by the Newton solver are
+
+    dp/dtheta_j = sum_{k >= j} ell_k e'(psi_k),     e'(a) = cos(a) u - sin(a) z
+    d2p/dtheta_j dtheta_l = -sum_{k >= max(j, l)} ell_k e(psi_k)
+
+Arrays follow the particle-first convention: ``theta`` is (P, N, K), ``a`` is (P, N),
+per-particle hand parameters (link lengths (P, N, K-1)) may have a leading axis of 1 to
+share one value across particles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from vlr_drake.hand import HandModel
+
+__all__ = [
+    "contacts",
+    "joint_positions",
+    "virtual_links",
+    "as_particles",
+    "finger_contact_derivatives",
+]
+
+
+@njit(cache=True, fastmath=False)
+def finger_contact_derivatives(theta, L, a, n, base, u, P_out, J_out, H_out):  # pragma: no cover - numba
+    """Contact of one finger with its first and second derivatives (in place).
+
+    theta (K,), L (K-1,), a, n scalars, base (3,), u (3,) -> P_out (3,), J_out (3, K),
+    H_out (3, K, K). z is the palm normal (0, 0, 1).
+    """
+    K = theta.shape[0]
+    d = np.sqrt(a * a + n * n)
+    gamma = np.arctan2(n, a)
+    # Accumulate from the tip backwards: suffix sums of ell_k e(psi_k) and ell_k e'(psi_k).
+    phi = 0.0
+    sx = 0.0
+    sz = 0.0
+    # planar suffix sums, filled from the tip
+    cx = np.empty(K)
+    cz = np.empty(K)
+    ex = np.empty(K)
+    ez = np.empty(K)
+    for k in range(K):
+        phi += theta[k]
+        if k < K - 1:
+            ell = L[k]
+            psi = phi
+        else:
+            ell = d
+            psi = phi + gamma
+        s = np.sin(psi)
+        c = np.cos(psi)
+        sx += ell * s
+        sz += ell * c
+        ex[k] = ell * s  # ell e(psi): x part
+        ez[k] = ell * c  # z part
+        cx[k] = ell * c  # ell e'(psi): x part
+        cz[k] = -ell * s
+    # suffix sums
+    for k in range(K - 2, -1, -1):
+        cx[k] += cx[k + 1]
+        cz[k] += cz[k + 1]
+        ex[k] += ex[k + 1]
+        ez[k] += ez[k + 1]
+    for r in range(3):
+        P_out[r] = base[r] + sx * u[r]
+    P_out[2] += sz
+    for j in range(K):
+        for r in range(3):
+            J_out[r, j] = cx[j] * u[r]
+        J_out[2, j] += cz[j]
+        for l in range(K):
+            m = j if j > l else l
+            for r in range(3):
+                H_out[r, j, l] = -ex[m] * u[r]
+            H_out[2, j, l] += -ez[m]
+
+
+@njit(cache=True, parallel=True)
+def _contacts_kernel(theta, L, a, pad, base, u, out):  # pragma: no cover - numba
+    P, N, K = theta.shape
+    for pp in prange(P):
+        p = np.int64(pp)
+        pl = p if L.shape[0] > 1 else 0
+        for i in range(N):
+            phi = 0.0
+            x = 0.0
+            z = 0.0
+            for k in range(K):
+                phi += theta[p, i, k]
+                if k < K - 1:
+                    ell = L[pl, i, k]
+                    psi = phi
+                else:
+                    ell = np.sqrt(a[p, i] ** 2 + pad[i] ** 2)
+                    psi = phi + np.arctan2(pad[i], a[p, i])
+                x += ell * np.sin(psi)
+                z += ell * np.cos(psi)
+            for r in range(3):
+                out[p, i, r] = base[i, r] + x * u[i, r]
+            out[p, i, 2] += z
+
+
+def as_particles(name: str, value, shape: tuple, allow_shared: bool = False) -> np.ndarray:
+    """Validate a particle-first array; ``shape`` is the full (P, ...) shape expected.
+
+    With ``allow_shared`` a leading axis of 1 (one value for all particles) is accepted.
+    Raises ``ValueError`` naming the array and both shapes.
+    """
+    arr = np.asarray(value, dtype=np.float64)
+    ok = arr.shape == tuple(shape) or (allow_shared and arr.shape == (1, *shape[1:]))
+    if not ok:
+        want = f"{tuple(shape)}" + (f" or {(1, *shape[1:])}" if allow_shared else "")
+        raise ValueError(f"'{name}' must have shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"'{name}' contains NaN or infinite values")
+    return np.ascontiguousarray(arr)
+
+
+def _particle_count(theta, hand: HandModel) -> int:
+    theta = np.asarray(theta)
+    if theta.ndim != 3 or theta.shape[1:] != (hand.N, hand.K):
+        raise ValueError(f"'theta' must have shape (P, {hand.N}, {hand.K}), got {theta.shape}")
+    return theta.shape[0]
+
+
+def contacts(hand: HandModel, theta, a, link_lengths=None) -> np.ndarray:
+    """Contact points p_i in the palm frame, (P, N, 3), for angles (P, N, K) and a (P, N)."""
+    P = _particle_count(theta, hand)
+    theta = as_particles("theta", theta, (P, hand.N, hand.K))
+    a = as_particles("a", a, (P, hand.N))
+    L = hand.link_lengths[None] if link_lengths is None else link_lengths
+    L = as_particles("link_lengths", L, (P, hand.N, hand.K - 1), allow_shared=True)
+    out = np.empty((P, hand.N, 3))
+    _contacts_kernel(theta, L, a, hand.pad, hand.base, hand.u, out)
+    return out
+
+
+def joint_positions(hand: HandModel, theta, link_lengths=None) -> np.ndarray:
+    """Joint positions q_1..q_K of every finger in the palm frame, (P, N, K, 3)."""
+    P = _particle_count(theta, hand)
+    theta = as_particles("theta", theta, (P, hand.N, hand.K))
+    L = hand.link_lengths[None] if link_lengths is None else link_lengths
+    L = as_particles("link_lengths", L, (P, hand.N, hand.K - 1), allow_shared=True)
+    phi = np.cumsum(theta, axis=-1)[..., : hand.K - 1]  # (P, N, K-1)
+    step_x = L * np.sin(phi)
+    step_z = L * np.cos(phi)
+    q = np.empty((P, hand.N, hand.K, 3))
+    q[:, :, 0, :] = hand.base[None]
+    cx = np.cumsum(step_x, axis=-1)
+    cz = np.cumsum(step_z, axis=-1)
+    q[:, :, 1:, :] = hand.base[None, :, None, :] + cx[..., None] * hand.u[None, :, None, :]
+    q[:, :, 1:, 2] += cz
+    return q
+
+
+def virtual_links(hand: HandModel, theta, a, link_lengths=None) -> dict[str, np.ndarray]:
+    """The VLR's point sets (Eq. 1-2): joints (P, N, K, 3) and contacts (P, N, 3).
+
+    E^J of finger i is the polyline joints[:, i] -> contacts[:, i]; its last segment is the
+    distal virtual link. E^C are the segments between all pairs of contacts and the POM.
+    """
+    return {"joints": joint_positions(hand, theta, link_lengths), "contacts": contacts(hand, theta, a, link_lengths)}

@@ -1,0 +1,165 @@
+"""Reference motion function: Eq. 9 as a Drake MathematicalProgram, one configuration.
+
+The same problem as :func:`vlr_drake.motion.move`, written as an optimisation and handed to
+IPOPT or SNOPT (both ship with the drake wheel), warm-started from the current angles:
+
+    elastic:  min_theta  sum 0.5 k (theta - theta0)^2 + sum_i 0.5 kappa_i s_i'^2
+              s.t.       0.5 (|p_i - p_j|^2 - D_ij^2) = 0              (Eq. 8)
+              with       s_i' = s_i + dl_i - R_i (theta - theta_prev)
+    ideal:    min_theta  sum 0.5 k (theta - theta0)^2
+              s.t.       Eq. 8 and R (theta - theta_prev) = dl          (Eq. 7)
+
+It is slow (milliseconds) and used where one answer is needed with certainty: the tests
+that hold the batched Newton solver to it, the benchmark, and checks in the controller.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.solvers import IpoptSolver, MathematicalProgram, SnoptSolver, SolverOptions
+
+from vlr_drake.hand import HandModel
+from vlr_drake.motion import TENDON_MODELS, equilibrium
+
+__all__ = ["MotionSolveError", "ReferenceResult", "solve_move", "SOLVERS"]
+
+SOLVERS = ("ipopt", "snopt")
+
+
+#: Scale of the cost (energies are ~1e-2 J) and of the squared-distance constraints (~1e-3 m^2).
+COST_SCALE = 1e3
+CONSTRAINT_SCALE = 1e3
+
+
+class MotionSolveError(RuntimeError):
+    """The MathematicalProgram solver did not find a solution."""
+
+
+@dataclass
+class ReferenceResult:
+    theta: np.ndarray  # (N, K)
+    tension: np.ndarray  # (N,)
+    solver: str
+    solve_time_s: float
+
+
+def _contact_expressions(hand: HandModel, x, a, L):
+    """Symbolic contact points (N x 3 list) for decision variables x (N*K,)."""
+    from pydrake.symbolic import cos, sin
+
+    N, K = hand.N, hand.K
+    pts = []
+    for i in range(N):
+        phi = 0
+        sx = 0
+        sz = 0
+        for k in range(K):
+            phi = phi + x[i * K + k]
+            if k < K - 1:
+                ell, psi = L[i, k], phi
+            else:
+                ell = float(np.hypot(a[i], hand.pad[i]))
+                psi = phi + float(np.arctan2(hand.pad[i], a[i]))
+            sx = sx + ell * sin(psi)
+            sz = sz + ell * cos(psi)
+        b, u = hand.base[i], hand.u[i]
+        pts.append([b[0] + sx * u[0], b[1] + sx * u[1], b[2] + sz])
+    return pts
+
+
+def solve_move(
+    hand: HandModel,
+    theta,
+    dl,
+    *,
+    a,
+    D2,
+    stretch=None,
+    link_lengths=None,
+    stiffness=None,
+    tendon: str = "elastic",
+    solver: str = "ipopt",
+    tolerance: float = 1e-12,
+    local_range: float = 0.3,
+) -> ReferenceResult:
+    """Solve Eq. 9 for one configuration (no particle axis): theta (N, K), dl (N,), a (N,),
+    D2 (m,), stretch (N,). Raises :class:`MotionSolveError` if the solver fails."""
+    if tendon not in TENDON_MODELS:
+        raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got '{solver}'")
+    N, K = hand.N, hand.K
+    theta0 = np.asarray(theta, float)
+    if theta0.shape != (N, K):
+        raise ValueError(f"'theta' must have shape ({N}, {K}), got {theta0.shape}")
+    dl = np.asarray(dl, float).reshape(N)
+    a = np.asarray(a, float).reshape(N)
+    D2 = np.asarray(D2, float).reshape(hand.num_constraints)
+    L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths, float).reshape(N, K - 1)
+    k = hand.stiffness if stiffness is None else np.asarray(stiffness, float).reshape(N, K)
+    if tendon == "elastic":
+        if stretch is None:
+            raise ValueError("the elastic tendon model needs 'stretch'")
+        s0 = np.asarray(stretch, float).reshape(N)
+
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(N * K, "theta")
+    kf = k.ravel()
+    rest = hand.rest_angles.ravel()
+    R = hand.R
+    # Spring energy (Eq. 6) as a quadratic cost.
+    # Energies are millijoules: scale the cost (not the solution) so that the solvers'
+    # relative optimality tolerances bite at the 1e-8 rad level.
+    cs = COST_SCALE
+    prog.AddQuadraticCost(cs * np.diag(kf), -cs * kf * rest, 0.5 * cs * float(kf @ rest**2), x, is_convex=True)
+    if tendon == "elastic":
+        # 0.5 kappa (s0 + dl - R (x - theta0))^2 = 0.5 x^T Q x + b^T x + c
+        c0 = s0 + dl + R @ theta0.ravel()  # s' = c0 - R x
+        Q = R.T @ np.diag(hand.kappa) @ R
+        b = -R.T @ (hand.kappa * c0)
+        prog.AddQuadraticCost(cs * Q, cs * b, 0.5 * cs * float(hand.kappa @ c0**2), x, is_convex=True)
+    else:
+        prog.AddLinearEqualityConstraint(R, R @ theta0.ravel() + dl, x)
+    pts = _contact_expressions(hand, x, a, L)
+    for c, (i, j) in enumerate(hand.constraint_pairs):
+        d = [pts[i][r] - pts[j][r] for r in range(3)]
+        expr = CONSTRAINT_SCALE * (0.5 * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 0.5 * D2[c])
+        prog.AddConstraint(expr, 0.0, 0.0)
+    # Eq. 9 is a local motion model (contacts held fixed under local motions): keep the
+    # search within a box around the current angles so the solver cannot jump to a far
+    # minimum of the same energy.
+    prog.AddBoundingBoxConstraint(theta0.ravel() - local_range, theta0.ravel() + local_range, x)
+    prog.SetInitialGuess(x, theta0.ravel())
+
+    options = SolverOptions()
+    if solver == "ipopt":
+        s = IpoptSolver()
+        options.SetOption(s.solver_id(), "tol", tolerance)
+        options.SetOption(s.solver_id(), "constr_viol_tol", tolerance)
+        options.SetOption(s.solver_id(), "print_level", 0)
+    else:
+        s = SnoptSolver()
+        # SNOPT's tolerances are relative and it stops with "cannot be improved" when asked
+        # for more than double precision gives; 1e-10 on the scaled problem is ~1e-9 rad.
+        options.SetOption(s.solver_id(), "Major optimality tolerance", max(tolerance, 1e-10))
+        options.SetOption(s.solver_id(), "Major feasibility tolerance", max(tolerance, 1e-10))
+    if not s.available() or not s.enabled():
+        raise MotionSolveError(f"solver '{solver}' is not available in this drake build")
+    t0 = time.perf_counter()
+    result = s.Solve(prog, theta0.ravel(), options)
+    elapsed = time.perf_counter() - t0
+    if not result.is_success():
+        raise MotionSolveError(
+            f"{solver} failed on the motion problem (Eq. 9, {tendon} tendon): {result.get_solution_result()}"
+        )
+    th = result.GetSolution(x).reshape(N, K)
+    if tendon == "elastic":
+        T = hand.kappa * (s0 + dl - R @ (th - theta0).ravel())
+    else:
+        # The tension is the multiplier of the tendon equation; recover it from the
+        # stationarity conditions at the solution (exact there).
+        T = equilibrium(hand, th[None], a=a[None], link_lengths=L[None], stiffness=k[None], settle=False).tension[0]
+    return ReferenceResult(th, T, solver, elapsed)
