@@ -16,8 +16,9 @@ checks their CRC, removes byte stuffing and answers like X-series servos:
   a first-order lag (time constant ``lag_s``).
 
 Fault injection: ``missing_ids`` (motors that never answer), ``corrupt_ids`` (replies with a
-broken CRC), ``silent`` (the whole bus stops answering), :meth:`disconnect` (the adapter is
-unplugged: the pty master is closed, so the SDK's reads and writes fail).
+broken CRC), ``corrupt_next`` (the next n replies are broken: a transient fault), ``silent``
+(the whole bus stops answering), :meth:`disconnect` (the adapter is unplugged: the pty master
+is closed, so the SDK's reads and writes fail).
 """
 
 from __future__ import annotations
@@ -132,6 +133,8 @@ class DynamixelEmulator:
         self.missing_ids: set[int] = set()
         self.corrupt_ids: set[int] = set()
         self.silent = False
+        #: The next this-many status packets get a broken CRC (a transient fault).
+        self.corrupt_next = 0
         #: Every instruction packet received with a good CRC: (time, id, instruction, params).
         self.log: list[tuple[float, int, int, bytes]] = []
         #: Number of instruction packets received with a bad CRC.
@@ -144,6 +147,7 @@ class DynamixelEmulator:
         self._thread: threading.Thread | None = None
         self._last_step = time.monotonic()
         self._connected = True
+        self._idle_rounds = 0
 
     # --- life cycle -----------------------------------------------------------------------
     def start(self) -> DynamixelEmulator:
@@ -176,6 +180,16 @@ class DynamixelEmulator:
         if self._connected:
             os.close(self._master)
             self._connected = False
+
+    def wait_idle(self, timeout: float = 2.0) -> None:
+        """Wait until every byte written to the port so far has been handled (packets without
+        a reply, like sync write, are otherwise handled a moment after the SDK returns)."""
+        start = self._idle_rounds
+        deadline = time.monotonic() + timeout
+        while self._idle_rounds < start + 2:
+            if time.monotonic() > deadline:
+                raise TimeoutError("dynamixel emulator: not idle")
+            time.sleep(0.001)
 
     # --- inspection -------------------------------------------------------------------------
     def goal_position(self, dxl_id: int) -> int:
@@ -215,10 +229,11 @@ class DynamixelEmulator:
         buf = bytearray()
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self._master], [], [], 0.01)
+                ready, _, _ = select.select([self._master], [], [], 0.002)
                 if not ready:
                     with self._lock:
                         self._step()
+                    self._idle_rounds += 1
                     continue
                 chunk = os.read(self._master, 4096)
             except OSError:
@@ -275,7 +290,9 @@ class DynamixelEmulator:
         return dxl_id in self.motors and dxl_id not in self.missing_ids and not self.silent
 
     def _status(self, dxl_id: int, error: int, params: bytes = b"") -> bytes:
-        return status_packet(dxl_id, error, params, corrupt=dxl_id in self.corrupt_ids)
+        corrupt = dxl_id in self.corrupt_ids or self.corrupt_next > 0
+        self.corrupt_next = max(0, self.corrupt_next - 1)
+        return status_packet(dxl_id, error, params, corrupt=corrupt)
 
     def _handle(self, pkt: bytes) -> bytes:
         dxl_id = pkt[4]

@@ -105,6 +105,7 @@ class HardwareInterface(LeafSystem):
         self._current_port = self.DeclareStateOutputPort(name="motor_current", state_index=self._current_index)
         self.DeclareInitializationUnrestrictedUpdateEvent(update=self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=config.period_s, offset_sec=0.0, update=self._update)
+        self.DeclareForcedUnrestrictedUpdateEvent(update=self._update)
         #: Updates done, and how many of them had a command clipped at a limit.
         self.num_updates = 0
         self.num_clipped = 0

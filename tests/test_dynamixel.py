@@ -1,0 +1,218 @@
+"""The Dynamixel tendon-motor driver, exercised through the real SDK over a pty emulator.
+
+The emulator (tests/dynamixel_emulator.py) speaks protocol 2.0 on a pseudo-terminal, so every
+test here goes through dynamixel_sdk -> pyserial -> a real serial device -> packet parsing,
+CRC and byte stuffing on both sides.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from dynamixel_emulator import (
+    ADDR_GOAL_POSITION,
+    ADDR_PRESENT_POSITION,
+    ADDR_TORQUE_ENABLE,
+    PING,
+    SYNC_READ,
+    SYNC_WRITE,
+    WRITE,
+    DynamixelEmulator,
+    crc16,
+    status_packet,
+)
+
+from vlr_drake.hardware.dynamixel import DynamixelError, TendonMotors
+
+pytestmark = pytest.mark.timeout(60)
+
+IDS = [1, 2, 3]
+LIMITS = (np.full(3, -20000), np.full(3, 20000))
+
+
+@pytest.fixture
+def emulator():
+    emu = DynamixelEmulator(IDS, initial_positions={1: 1200, 2: -300, 3: 5})
+    emu.start()
+    yield emu
+    emu.stop()
+
+
+def make_motors(emu: DynamixelEmulator, **kwargs) -> TendonMotors:
+    # A generous latency keeps a loaded test machine from faking timeouts.
+    kw = dict(latency_timer_ms=30.0, comm_retries=2)
+    kw.update(kwargs)
+    return TendonMotors(emu.port_name, 1000000, IDS, LIMITS, **kw)
+
+
+def test_crc_matches_sdk_and_protocol_example(rng):
+    from dynamixel_sdk import PacketHandler
+
+    ph = PacketHandler(2.0)
+    # Protocol 2.0 e-manual ping example: FF FF FD 00 01 03 00 01 -> CRC 19 4E.
+    assert crc16(bytes([0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01])) == 0x4E19
+    for n in (1, 7, 64, 300):
+        data = rng.integers(0, 256, size=n).tolist()
+        assert crc16(data) == ph.updateCRC(0, data, n)
+
+
+def test_status_packet_stuffing_is_parsed_by_sdk():
+    """A status packet whose parameters contain FF FF FD is stuffed, and the SDK's
+    removeStuffing recovers the original parameters."""
+    from dynamixel_sdk import PacketHandler
+
+    pkt = status_packet(7, 0, bytes([0xFF, 0xFF, 0xFD, 0x00]))
+    assert pkt.count(bytes([0xFF, 0xFF, 0xFD, 0xFD])) == 1  # stuffed
+    out = PacketHandler(2.0).removeStuffing(list(pkt))
+    assert out[9:13] == [0xFF, 0xFF, 0xFD, 0x00]
+
+
+def test_read_and_write_with_stuffing_through_the_sdk(emulator):
+    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    port, ph = PortHandler(emulator.port_name), PacketHandler(2.0)
+    assert port.openPort() and port.setBaudRate(1000000)
+    try:
+        model, result, error = ph.ping(port, 2)
+        assert (model, result, error) == (1020, COMM_SUCCESS, 0)
+        value = 0x00FDFFFF  # little-endian FF FF FD 00: needs stuffing both ways
+        result, error = ph.write4ByteTxRx(port, 2, ADDR_GOAL_POSITION, value)
+        assert (result, error) == (COMM_SUCCESS, 0)
+        assert emulator.goal_position(2) == value
+        emulator.set_present_position(2, value)
+        data, result, error = ph.read4ByteTxRx(port, 2, ADDR_PRESENT_POSITION)
+        assert (data, result, error) == (value, COMM_SUCCESS, 0)
+    finally:
+        port.closePort()
+
+
+def test_safe_start_order(emulator):
+    t_open = time.monotonic()
+    with make_motors(emulator) as motors:
+        first = motors.read()[0]
+        assert first.tolist() == [1200, -300, 5]
+        assert all(emulator.torque_enabled(i) for i in IDS)
+        assert all(emulator.operating_mode(i) == 5 for i in IDS)
+        # every motor pinged
+        assert sorted(i for _, i, _ in emulator.instructions(PING)) == IDS
+        sync_reads = emulator.instructions(SYNC_READ)
+        torque_on = [(t, i) for t, i, p in emulator.instructions(WRITE, ADDR_TORQUE_ENABLE) if p[2] == 1]
+        assert sorted(i for _, i in torque_on) == IDS
+        # positions read, then goal = present sent, then torque on
+        assert sync_reads and min(t for t, _ in torque_on) > sync_reads[0][0] > t_open
+        goal_writes = emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)
+        assert goal_writes and goal_writes[0][0] < min(t for t, _ in torque_on)
+        assert [emulator.goal_position(i) for i in IDS] == [1200, -300, 5]  # nothing jumps
+        # the operating mode (EEPROM) was written while torque was off
+        mode_writes = [t for t, _, p in emulator.instructions(WRITE, 11)]
+        assert len(mode_writes) == 3 and max(mode_writes) < min(t for t, _ in torque_on)
+    assert not any(emulator.torque_enabled(i) for i in IDS)  # torque off on close
+
+
+def test_goals_reach_motors_as_ticks(emulator):
+    with make_motors(emulator) as motors:
+        goal = np.array([4096, -2048, 17])
+        motors.write_goal_ticks(goal)
+        emulator.wait_idle()
+        assert [emulator.goal_position(i) for i in IDS] == goal.tolist()
+        pos, cur = motors.read()
+        assert pos.tolist() == goal.tolist()  # the emulated motors follow at once (no lag)
+        assert cur.shape == (3,)
+
+
+def test_limits_refused_before_sending(emulator):
+    with make_motors(emulator) as motors:
+        motors.write_goal_ticks(np.array([100, 200, 300]))
+        emulator.wait_idle()
+        n_writes = len(emulator.instructions(SYNC_WRITE))
+        with pytest.raises(ValueError, match=r"motor ids \[2\]"):
+            motors.write_goal_ticks(np.array([100, 20001, 300]))
+        with pytest.raises(ValueError, match="integers"):
+            motors.write_goal_ticks(np.array([100.0, 200.0, 300.0]))
+        emulator.wait_idle()
+        assert len(emulator.instructions(SYNC_WRITE)) == n_writes
+        assert [emulator.goal_position(i) for i in IDS] == [100, 200, 300]
+        assert motors.torque_on
+
+
+def test_missing_port_is_a_clear_error():
+    motors = TendonMotors("/dev/does-not-exist-vlr", 1000000, IDS, LIMITS)
+    with pytest.raises(DynamixelError, match="cannot open Dynamixel port '/dev/does-not-exist-vlr'"):
+        motors.open()
+    assert not motors.is_open
+
+
+def test_missing_motor_named_at_start(emulator):
+    emulator.missing_ids.add(2)
+    motors = make_motors(emulator)
+    t = time.monotonic()
+    with pytest.raises(DynamixelError, match="motor id 2 does not answer"):
+        motors.open()
+    assert time.monotonic() - t < 5.0
+    assert not motors.is_open
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def test_transient_corrupt_reply_is_retried(emulator):
+    with make_motors(emulator) as motors:
+        motors.write_goal_ticks(np.array([10, 20, 30]))
+        emulator.corrupt_next = 1
+        pos, _ = motors.read()
+        assert pos.tolist() == [10, 20, 30]
+        assert motors.torque_on
+
+
+def test_corrupt_packets_stop_with_torque_off(emulator):
+    with make_motors(emulator) as motors:
+        motors.write_goal_ticks(np.array([10, 20, 30]))
+        emulator.corrupt_ids.add(3)
+        t = time.monotonic()
+        with pytest.raises(DynamixelError, match=r"Incorrect status packet.*motor id 3"):
+            motors.read()
+        assert time.monotonic() - t < 5.0
+        assert not motors.is_open
+        assert not any(emulator.torque_enabled(i) for i in IDS)  # broadcast torque off landed
+        with pytest.raises(DynamixelError, match="not open"):
+            motors.write_goal_ticks(np.array([10, 20, 30]))
+
+
+def test_motor_that_stops_answering(emulator):
+    with make_motors(emulator) as motors:
+        emulator.missing_ids.add(1)
+        t = time.monotonic()
+        with pytest.raises(DynamixelError, match=r"no status packet.*motor id 1"):
+            motors.read()
+        assert time.monotonic() - t < 5.0
+        assert not motors.is_open
+        # motors 2 and 3 still listen and were switched off
+        assert not emulator.torque_enabled(2) and not emulator.torque_enabled(3)
+
+
+def test_silent_bus_does_not_hang(emulator):
+    with make_motors(emulator) as motors:
+        emulator.silent = True
+        t = time.monotonic()
+        with pytest.raises(DynamixelError):
+            motors.read()
+        assert time.monotonic() - t < 5.0
+        assert not motors.is_open
+
+
+def test_disconnected_port(emulator):
+    with make_motors(emulator) as motors:
+        emulator.disconnect()
+        t = time.monotonic()
+        with pytest.raises(DynamixelError, match="failed"):
+            motors.write_goal_ticks(np.array([1, 2, 3]))
+            motors.read()
+        assert time.monotonic() - t < 5.0
+        assert not motors.is_open
+
+
+def test_bad_constructor_arguments():
+    with pytest.raises(ValueError, match="tick_limits"):
+        TendonMotors("/dev/null", 1000000, IDS, (np.zeros(2), np.zeros(2)))
+    with pytest.raises(ValueError, match="lo <= hi"):
+        TendonMotors("/dev/null", 1000000, IDS, (np.ones(3), np.zeros(3)))
