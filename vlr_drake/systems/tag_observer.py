@@ -159,8 +159,8 @@ class TagObserver(LeafSystem):
         return self._reprojection_error
 
     def held_pose(self, context: Context) -> RigidTransform:
-        """The last valid pose stored by an update (identity before the first)."""
-        return context.get_abstract_state(self._held).get_value()
+        """The last valid pose stored by an update (identity before the first); a copy."""
+        return RigidTransform(context.get_abstract_state(self._held).get_value())
 
     def prepare_image(self, image: np.ndarray, time: float = 0.0) -> np.ndarray:
         """Downsample (``input_scale``), check ``image_size`` and add the seeded pixel noise:
@@ -276,7 +276,8 @@ class NoisyPoseSensor(LeafSystem):
         return self._X_PO_valid
 
     def held_pose(self, context: Context) -> RigidTransform:
-        return context.get_abstract_state(self._held).get_value()
+        """The last valid measurement stored by an update (identity before the first); a copy."""
+        return RigidTransform(context.get_abstract_state(self._held).get_value())
 
     def draw(self, n: int) -> tuple[np.ndarray, np.ndarray, bool]:
         """Noise of sample n: (dp [m] (3,), rotation vector w [rad] (3,), valid)."""
