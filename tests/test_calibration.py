@@ -1,0 +1,100 @@
+"""Camera calibration helper: synthetic views of targets rendered with a known K."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydrake.math import RollPitchYaw
+
+from vlr_drake.hardware.calibrate import (
+    calibrate_charuco,
+    calibrate_chessboard,
+    chessboard_image,
+    main,
+    render_planar_target,
+)
+from vlr_drake.hardware.camera import read_intrinsics
+
+K_TRUE = np.array([[610.0, 0.0, 322.5], [0.0, 604.0, 236.0], [0.0, 0.0, 1.0]])
+SIZE = (640, 480)
+# Target frame T faces the camera: x_T = x_C, y_T = -y_C, z_T = -z_C.
+R_FACING = np.diag([1.0, -1.0, -1.0])
+
+
+def random_views(texture, metres_per_pixel, rng, n, distance=(0.45, 0.6)):
+    views = []
+    for _ in range(n):
+        rpy = np.deg2rad([rng.uniform(-35, 35), rng.uniform(-35, 35), rng.uniform(-20, 20)])
+        R = R_FACING @ RollPitchYaw(*rpy).ToRotationMatrix().matrix()
+        p = np.array([rng.uniform(-0.04, 0.04), rng.uniform(-0.03, 0.03), rng.uniform(*distance)])
+        views.append(render_planar_target(texture, metres_per_pixel, K_TRUE, R, p, SIZE))
+    return views
+
+
+def test_render_planar_target_projects_with_K():
+    """A single dark pixel at the texture centre lands at the principal point when the
+    target is square-on at the optical axis."""
+    tex = np.full((101, 101), 255, np.uint8)
+    tex[50, 50] = 0
+    img = render_planar_target(tex, 0.0005, K_TRUE, R_FACING, np.array([0.0, 0.0, 0.3]), SIZE, supersample=1)
+    v, u = np.unravel_index(np.argmin(img), img.shape)
+    assert (u, v) == (round(K_TRUE[0, 2]), round(K_TRUE[1, 2]))
+
+
+def test_chessboard_calibration_recovers_focal_length(rng, tmp_path):
+    pattern, square = (9, 6), 0.025
+    tex = chessboard_image(pattern, square_px=40)
+    views = random_views(tex, square / 40, rng, n=10)
+    res = calibrate_chessboard(views, pattern, square)
+    assert all(res.used)
+    K = res.intrinsics.K
+    assert abs(K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
+    assert abs(K[1, 1] / K_TRUE[1, 1] - 1) < 0.01
+    assert np.allclose(K[:2, 2], K_TRUE[:2, 2], atol=2.0)
+    assert res.rms_px < 0.3
+    assert (res.intrinsics.width, res.intrinsics.height) == SIZE
+    # round trip through the OpenCV YAML file
+    res.save(tmp_path / "cam.yaml")
+    back = read_intrinsics(tmp_path / "cam.yaml")
+    assert np.allclose(back.K, K) and np.allclose(back.dist, res.intrinsics.dist)
+
+
+def test_images_without_the_board_are_skipped(rng):
+    pattern, square = (9, 6), 0.025
+    tex = chessboard_image(pattern, square_px=40)
+    views = random_views(tex, square / 40, rng, n=4)
+    blank = np.full(SIZE[::-1], 128, np.uint8)
+    res = calibrate_chessboard([views[0], blank, *views[1:]], pattern, square)
+    assert res.used == [True, False, True, True, True]
+    with pytest.raises(ValueError, match="at least 3 images"):
+        calibrate_chessboard([blank, blank, views[0]], pattern, square)
+
+
+def test_charuco_calibration(rng):
+    import cv2
+
+    squares, square, marker = (7, 5), 0.04, 0.03
+    board = cv2.aruco.CharucoBoard(squares, square, marker, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100))
+    px = 60
+    tex = board.generateImage((squares[0] * px, squares[1] * px), marginSize=0, borderBits=1)
+    tex = np.pad(tex, px // 2, constant_values=255)
+    views = random_views(tex, square / px, rng, n=8, distance=(0.5, 0.65))
+    res = calibrate_charuco(views, squares, square, marker)
+    assert sum(res.used) >= 6
+    assert abs(res.intrinsics.K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
+
+
+def test_command_line_writes_intrinsics(rng, tmp_path):
+    import cv2
+
+    pattern, square = (9, 6), 0.025
+    tex = chessboard_image(pattern, square_px=40)
+    files = []
+    for k, img in enumerate(random_views(tex, square / 40, rng, n=6)):
+        files.append(str(tmp_path / f"view{k}.png"))
+        cv2.imwrite(files[-1], img)
+    out = tmp_path / "intrinsics.yaml"
+    assert main(["--pattern", "9x6", "--square", "0.025", "--fix-aspect", "--out", str(out), *files]) == 0
+    intr = read_intrinsics(out)
+    assert abs(intr.K[0, 0] / K_TRUE[0, 0] - 1) < 0.02
+    assert intr.K[0, 0] == pytest.approx(intr.K[1, 1])  # --fix-aspect
