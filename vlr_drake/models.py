@@ -124,7 +124,7 @@ def pad_position(finger: FingerSpec) -> np.ndarray:
 
 
 def _fmt(*v: float) -> str:
-    return " ".join(f"{x:.9g}" if abs(x) > 1e-15 else "0" for x in v)
+    return " ".join(f"{x:.17g}" if abs(x) > 1e-15 else "0" for x in v)
 
 
 def _rpy(R: np.ndarray) -> tuple[float, float, float]:
@@ -170,14 +170,14 @@ def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: 
             f"{indent}  <pose>{_fmt(*p, *rpy)}</pose>",
             f"{indent}  <inertial>",
             f"{indent}    <pose>{_fmt(0, 0, L / 2)} 0 0 0</pose>",
-            f"{indent}    <mass>{m:.9g}</mass>",
-            f"{indent}    <inertia><ixx>{ixx:.9g}</ixx><iyy>{iyy:.9g}</iyy><izz>{izz:.9g}</izz>"
+            f"{indent}    <mass>{m:.17g}</mass>",
+            f"{indent}    <inertia><ixx>{ixx:.17g}</ixx><iyy>{iyy:.17g}</iyy><izz>{izz:.17g}</izz>"
             f"<ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia>",
             f"{indent}  </inertial>",
             f'{indent}  <visual name="{lname}_visual">',
             f"{indent}    <pose>{_fmt(0, 0, L / 2)} 0 0 0</pose>",
-            f"{indent}    <geometry><capsule><radius>{f.link_radius:.9g}</radius>"
-            f"<length>{L:.9g}</length></capsule></geometry>",
+            f"{indent}    <geometry><capsule><radius>{f.link_radius:.17g}</radius>"
+            f"<length>{L:.17g}</length></capsule></geometry>",
             f"{indent}    <material><diffuse>{_COLORS['link']}</diffuse></material>",
             f"{indent}  </visual>",
         ]
@@ -186,8 +186,8 @@ def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: 
             out += [
                 f'{indent}  <collision name="{lname}_collision">',
                 f"{indent}    <pose>{_fmt(0, 0, L / 2)} 0 0 0</pose>",
-                f"{indent}    <geometry><capsule><radius>{f.link_radius:.9g}</radius>"
-                f"<length>{L:.9g}</length></capsule></geometry>",
+                f"{indent}    <geometry><capsule><radius>{f.link_radius:.17g}</radius>"
+                f"<length>{L:.17g}</length></capsule></geometry>",
                 _friction(f, indent + "    "),
                 f"{indent}  </collision>",
             ]
@@ -200,12 +200,12 @@ def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: 
                 out += [
                     f'{indent}  <collision name="{pad_geometry_name(f.name, side)}">',
                     f"{indent}    <pose>{_fmt(cx, y, pad[2])} 0 0 0</pose>",
-                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.9g}</radius></sphere></geometry>",
+                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.17g}</radius></sphere></geometry>",
                     _friction(f, indent + "    "),
                     f"{indent}  </collision>",
                     f'{indent}  <visual name="{f.name}_pad_visual{side}">',
                     f"{indent}    <pose>{_fmt(cx, y, pad[2])} 0 0 0</pose>",
-                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.9g}</radius></sphere></geometry>",
+                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.17g}</radius></sphere></geometry>",
                     f"{indent}    <material><diffuse>{_COLORS['pad']}</diffuse></material>",
                     f"{indent}  </visual>",
                 ]
@@ -217,10 +217,10 @@ def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: 
             f"{indent}  <child>{lname}</child>",
             f"{indent}  <axis>",
             f"{indent}    <xyz>0 1 0</xyz>",
-            f"{indent}    <limit><lower>{f.joint_lower[k - 1]:.9g}</lower><upper>{f.joint_upper[k - 1]:.9g}</upper></limit>",
-            f"{indent}    <dynamics><damping>{f.joint_damping[k - 1]:.9g}</damping>"
-            f"<spring_stiffness>{f.stiffness[k - 1]:.9g}</spring_stiffness>"
-            f"<spring_reference>{f.rest_angles[k - 1]:.9g}</spring_reference></dynamics>",
+            f"{indent}    <limit><lower>{f.joint_lower[k - 1]:.17g}</lower><upper>{f.joint_upper[k - 1]:.17g}</upper></limit>",
+            f"{indent}    <dynamics><damping>{f.joint_damping[k - 1]:.17g}</damping>"
+            f"<spring_stiffness>{f.stiffness[k - 1]:.17g}</spring_stiffness>"
+            f"<spring_reference>{f.rest_angles[k - 1]:.17g}</spring_reference></dynamics>",
             f"{indent}  </axis>",
             f"{indent}</joint>",
         ]
@@ -236,8 +236,8 @@ def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: 
 
 def _friction(f: FingerSpec, indent: str) -> str:
     return (
-        f"{indent}<drake:proximity_properties><drake:mu_dynamic>{f.friction:.9g}</drake:mu_dynamic>"
-        f"<drake:mu_static>{f.friction:.9g}</drake:mu_static></drake:proximity_properties>"
+        f"{indent}<drake:proximity_properties><drake:mu_dynamic>{f.friction:.17g}</drake:mu_dynamic>"
+        f"<drake:mu_static>{f.friction:.17g}</drake:mu_static></drake:proximity_properties>"
     )
 
 
@@ -247,13 +247,13 @@ def _palm_links(hand: HandSpec, indent: str) -> list[str]:
     hole = 0.3 * r
     out = [
         f'{indent}<link name="palm">',
-        f"{indent}  <inertial><pose>0 0 {-t / 2:.9g} 0 0 0</pose><mass>{PALM_MASS}</mass>"
-        f"<inertia><ixx>{PALM_MASS * r * r / 4:.9g}</ixx><iyy>{PALM_MASS * r * r / 4:.9g}</iyy>"
-        f"<izz>{PALM_MASS * r * r / 2:.9g}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
+        f"{indent}  <inertial><pose>0 0 {-t / 2:.17g} 0 0 0</pose><mass>{PALM_MASS}</mass>"
+        f"<inertia><ixx>{PALM_MASS * r * r / 4:.17g}</ixx><iyy>{PALM_MASS * r * r / 4:.17g}</iyy>"
+        f"<izz>{PALM_MASS * r * r / 2:.17g}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
         # Collision only (no visual): a thin disc below the finger bases.
         f'{indent}  <collision name="palm_collision">',
-        f"{indent}    <pose>0 0 {-t / 2:.9g} 0 0 0</pose>",
-        f"{indent}    <geometry><cylinder><radius>{r:.9g}</radius><length>{t:.9g}</length></cylinder></geometry>",
+        f"{indent}    <pose>0 0 {-t / 2:.17g} 0 0 0</pose>",
+        f"{indent}    <geometry><cylinder><radius>{r:.17g}</radius><length>{t:.17g}</length></cylinder></geometry>",
         f"{indent}  </collision>",
     ]
     # Visual: a ring of 12 blocks around the camera hole.
@@ -265,7 +265,7 @@ def _palm_links(hand: HandSpec, indent: str) -> list[str]:
         c = hole + width / 2
         out += [
             f'{indent}  <visual name="palm_visual{j}">',
-            f"{indent}    <pose>{_fmt(c * math.cos(ang), c * math.sin(ang), -t / 2)} 0 0 {ang:.9g}</pose>",
+            f"{indent}    <pose>{_fmt(c * math.cos(ang), c * math.sin(ang), -t / 2)} 0 0 {ang:.17g}</pose>",
             f"{indent}    <geometry><box><size>{_fmt(width, chord, t)}</size></box></geometry>",
             f"{indent}    <material><diffuse>{_COLORS['palm']}</diffuse></material>",
             f"{indent}  </visual>",

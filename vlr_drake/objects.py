@@ -14,8 +14,6 @@ objects (approximate: each object is reduced to the simple shape the fingers tou
 ``models/objects/`` and the tag textures to ``models/objects/textures/``.
 """
 
-from __future__ import annotations
-
 import copy
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,7 +97,7 @@ class ObjectSpec:
     marble_mass: float = 0.0
     rim_height: float = 0.0
 
-    def validate(self) -> ObjectSpec:
+    def validate(self) -> "ObjectSpec":
         """Check the spec; raise ``ValueError`` naming the offending field."""
         where = f"object '{self.name}'"
         if self.shape not in SHAPES:
@@ -220,7 +218,7 @@ def preset(name: str) -> ObjectSpec:
     - ``toy_block``: YCB 061 foam brick, 75 x 50 x 50 mm, 28 g: a box, long side across
       the thumb-finger direction (y), tag on the face towards the palm.
     - ``flat_screwdriver``: the handle of YCB 044 flat screwdriver, about 32 mm across and
-      90 mm long, 98 g (whole tool): a cylinder along the palm normal, tag on its butt.
+      90 mm long, 98 g (whole tool): a cylinder lying across the fingers, tag on its side.
     - ``gelatin_box``: YCB 009 gelatin box, 89 x 73 x 28 mm, 97 g: a box with its thin
       side along the palm normal and its 89 mm side across (y).
     Task objects: ``cup_1`` .. ``cup_4`` (YCB 065 stacking cups, four in decreasing size,
@@ -236,7 +234,12 @@ def preset(name: str) -> ObjectSpec:
         return ObjectSpec(name="toy_block", shape="box", size=[0.050, 0.075, 0.050], mass=0.028, tag_id=3,
                           tag_size=0.030, placement_xyz=[0.0, 0.0, 0.075], color=[0.2, 0.6, 0.25, 1.0])
     if name == "flat_screwdriver":
-        return _cylinder("flat_screwdriver", 0.016, 0.090, 0.098, 4, 0.020, 0.085, [0.9, 0.8, 0.1, 1.0])
+        # Lying across the fingers (axis along the palm's y), where the thumb pushes it
+        # against the two fingers' proximal links (a power grasp: a 32 mm handle is narrow
+        # for this hand); tag on the side facing the palm.
+        return ObjectSpec(name="flat_screwdriver", shape="cylinder", size=[0.016, 0.090], mass=0.098, tag_id=4,
+                          tag_size=0.020, tag_face="-y", placement_xyz=[-0.02, 0.0, 0.07],
+                          placement_rpy_deg=[90.0, 0.0, 0.0], color=[0.9, 0.8, 0.1, 1.0])
     if name == "gelatin_box":
         return ObjectSpec(name="gelatin_box", shape="box", size=[0.073, 0.089, 0.028], mass=0.097, tag_id=5,
                           tag_size=0.030, placement_xyz=[0.0, 0.0, 0.085], color=[0.85, 0.3, 0.5, 1.0])
@@ -293,7 +296,7 @@ def _tag_mtl(tag_id: int) -> str:
 
 
 def _fmt(*v: float) -> str:
-    return " ".join(f"{x:.9g}" if abs(x) > 1e-15 else "0" for x in v)
+    return " ".join(f"{x:.17g}" if abs(x) > 1e-15 else "0" for x in v)
 
 
 def _pose(X) -> str:
@@ -304,17 +307,17 @@ def _pose(X) -> str:
 def _geometry(spec: ObjectSpec) -> str:
     s = spec.size
     if spec.shape == "sphere":
-        return f"<sphere><radius>{s[0]:.9g}</radius></sphere>"
+        return f"<sphere><radius>{s[0]:.17g}</radius></sphere>"
     if spec.shape == "box":
         return f"<box><size>{_fmt(*s)}</size></box>"
     if spec.shape == "cylinder":
-        return f"<cylinder><radius>{s[0]:.9g}</radius><length>{s[1]:.9g}</length></cylinder>"
-    return f"<capsule><radius>{s[0]:.9g}</radius><length>{s[1]:.9g}</length></capsule>"
+        return f"<cylinder><radius>{s[0]:.17g}</radius><length>{s[1]:.17g}</length></cylinder>"
+    return f"<capsule><radius>{s[0]:.17g}</radius><length>{s[1]:.17g}</length></capsule>"
 
 
 def _friction(mu: float) -> str:
-    return (f"<drake:proximity_properties><drake:mu_dynamic>{mu:.9g}</drake:mu_dynamic>"
-            f"<drake:mu_static>{mu:.9g}</drake:mu_static></drake:proximity_properties>")
+    return (f"<drake:proximity_properties><drake:mu_dynamic>{mu:.17g}</drake:mu_dynamic>"
+            f"<drake:mu_static>{mu:.17g}</drake:mu_static></drake:proximity_properties>")
 
 
 def object_sdf(spec: ObjectSpec) -> str:
@@ -333,8 +336,8 @@ def object_sdf(spec: ObjectSpec) -> str:
         '<sdf version="1.9" xmlns:drake="http://drake.mit.edu">',
         f'  <model name="{spec.name}">',
         '    <link name="body">',
-        f"      <inertial><mass>{spec.mass:.9g}</mass><inertia><ixx>{ixx:.9g}</ixx><iyy>{iyy:.9g}</iyy>"
-        f"<izz>{izz:.9g}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
+        f"      <inertial><mass>{spec.mass:.17g}</mass><inertia><ixx>{ixx:.17g}</ixx><iyy>{iyy:.17g}</iyy>"
+        f"<izz>{izz:.17g}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
         '      <collision name="collision">',
         f"        <geometry>{_geometry(spec)}</geometry>",
         f"        {_friction(spec.friction)}",
@@ -404,11 +407,11 @@ def _marble(spec: ObjectSpec) -> list[str]:
     return [
         '    <link name="marble">',
         f"      <pose>{_fmt(*p)} 0 0 0</pose>",
-        f"      <inertial><mass>{m:.9g}</mass><inertia><ixx>{i:.9g}</ixx><iyy>{i:.9g}</iyy><izz>{i:.9g}</izz>"
+        f"      <inertial><mass>{m:.17g}</mass><inertia><ixx>{i:.17g}</ixx><iyy>{i:.17g}</iyy><izz>{i:.17g}</izz>"
         "<ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
-        f'      <collision name="marble_collision"><geometry><sphere><radius>{r:.9g}</radius></sphere></geometry>'
+        f'      <collision name="marble_collision"><geometry><sphere><radius>{r:.17g}</radius></sphere></geometry>'
         f"{_friction(0.3)}</collision>",
-        f'      <visual name="marble_visual"><geometry><sphere><radius>{r:.9g}</radius></sphere></geometry>'
+        f'      <visual name="marble_visual"><geometry><sphere><radius>{r:.17g}</radius></sphere></geometry>'
         "<material><diffuse>0.7 0.7 0.75 1</diffuse></material></visual>",
         "    </link>",
     ]

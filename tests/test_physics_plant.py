@@ -1,0 +1,181 @@
+"""The physics hand: ports, camera, grasp, random actions on the paper's objects."""
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RigidTransform
+from pydrake.systems.sensors import ImageRgba8U
+
+from vlr_drake.hand import hand_by_name, model_o
+from vlr_drake.models import PAD_FRACTION
+from vlr_drake.objects import PAPER_OBJECTS, preset
+from vlr_drake.perception.apriltag import dictionary, tag_corners
+from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.physics.check import exploration_step, run_check
+from vlr_drake.systems.physics_plant import ImageDownsampler, PhysicsConfig, build_physics_hand
+
+OUTPUTS = {
+    "theta_true": 6,
+    "contacts_true": 9,
+    "contact_along_link_true": 3,
+    "tension": 3,
+    "tendon_position_measured": 3,
+}
+
+
+def test_ports_and_camera_image_match_the_intrinsics():
+    """The rendered, downsampled image shows the tag where X_PO_true and the camera's
+    intrinsics put it: OpenCV's pose from the image agrees with the plant's truth."""
+    camera = CameraConfig()
+    diagram, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(), camera)
+    hand = ph.diagram
+    assert hand.get_name() == "hand"
+    assert hand.num_input_ports() == 1 and hand.GetInputPort("tendon_command").size() == 3
+    for name, size in OUTPUTS.items():
+        assert hand.GetOutputPort(name).size() == size
+    assert hand.HasOutputPort("rgb_image") and hand.HasOutputPort("X_PO_true")
+    g = ph.grasp(sim)
+    root = sim.get_context()
+    img = ph.output(root, "rgb_image")
+    assert (img.width(), img.height()) == (camera.width, camera.height)
+    gray = cv2.cvtColor(np.asarray(img.data), cv2.COLOR_RGBA2GRAY)
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
+    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary(), params).detectMarkers(gray)
+    assert ids is not None and int(np.ravel(ids)[0]) == ph.obj.tag_id
+    ok, rvec, tvec = cv2.solvePnP(tag_corners(ph.obj.tag_size), corners[0].reshape(4, 2).astype(float),
+                                  camera.intrinsic_matrix(), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    assert ok
+    X_CO_true = camera.X_PC().inverse() @ g.X_PO
+    np.testing.assert_allclose(tvec.ravel(), X_CO_true.translation(), atol=0.001)
+    R = cv2.Rodrigues(rvec)[0]
+    angle = np.rad2deg(np.arccos(np.clip((np.trace(R.T @ X_CO_true.rotation().matrix()) - 1) / 2, -1, 1)))
+    assert angle < 3.0
+    del diagram
+
+
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
+def test_paper_object_stays_in_hand_through_random_actions(name):
+    """Grasp, then 10 random +-1.5 mm actions: every pad keeps touching the object, it does
+    not fall, tensions stay >= 0 and commands inside the tendon range. Reports the drift of
+    each contact on the object's surface."""
+    r = run_check(name, "model_o", actions=10, seed=3)
+    print(f"{name}: drift/action mean {np.round(r.contact_drift_per_action_mm_mean, 2)} mm, "
+          f"max {np.round(r.contact_drift_per_action_mm_max, 2)} mm, total {np.round(r.contact_drift_total_mm, 2)} mm, "
+          f"POM {r.pom_motion_per_action_mm_mean:.2f} mm/action, wall {r.wall_per_action_s_mean:.3f} s/action")
+    assert r.grasp_settled
+    assert r.held, f"{name} lost at action {r.first_loss}"
+    assert r.min_tension_N > 0.0
+    assert r.max_command_violation_m <= 0.0
+    assert np.all(np.isfinite(r.contact_drift_per_action_mm_mean))
+    # Contacts roll (about 1 mm per action, DESIGN.md section 8) but stay on the pads.
+    assert max(r.contact_drift_per_action_mm_mean) < 3.0
+    assert r.pom_motion_per_action_mm_mean > 0.01  # the actions do move the object
+
+
+def test_contacts_sit_on_the_pads_and_hold_when_lost():
+    _, ph, sim = build_physics_hand(model_o(), preset("gelatin_box"), PhysicsConfig())
+    g = ph.grasp(sim)
+    root = sim.get_mutable_context()
+    assert np.all(g.in_contact)
+    a = ph.output(root, "contact_along_link_true")
+    distal = np.array([f.distal_length for f in ph.hand.spec.fingers])
+    np.testing.assert_allclose(a, PAD_FRACTION * distal, atol=0.008)
+    # Contacts are mid-way between the pad spheres' surfaces (pad_offset from the link axis).
+    plant, pctx = ph.plant, ph.plant_context(root)
+    palm = ph.palm_body.body_frame()
+    c = ph.output(root, "contacts_true").reshape(-1, 3)
+    p_L = [plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c[i] for i, link in enumerate(ph.last_links)]
+    for i, f in enumerate(ph.hand.spec.fingers):
+        assert abs(p_L[i][0] - f.pad_offset) < 0.002
+        assert abs(p_L[i][1]) < 0.007
+    # Take the object away: no finger touches it, the last contacts are held on the links.
+    X_far = RigidTransform([0.0, 0.0, -1.0])
+    plant.SetFreeBodyPose(pctx, ph.object_body, X_far)
+    sim.AdvanceTo(root.get_time() + 0.003)
+    assert not np.any(ph.in_contact(root))
+    c2 = ph.output(root, "contacts_true").reshape(-1, 3)
+    for i, link in enumerate(ph.last_links):
+        p2 = plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c2[i]
+        np.testing.assert_allclose(p2, p_L[i], atol=5e-4)
+
+
+def test_action_commands_are_clamped_to_the_tendon_range():
+    _, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(settle_max=0.05))
+    ph.grasp(sim)
+    r = ph.apply_action(sim, np.array([0.0, 0.0, -1.0]), render=False)
+    assert r.clamped
+    lo = ph.hand.tendon_range[:, 0]
+    assert r.command[2] == lo[2]
+    assert ph.output(sim.get_context(), "tendon_position_measured")[2] == pytest.approx(lo[2])
+    # The released finger, pushed open by the object (theta < 0), keeps at most a small
+    # tension (stretch lo - R theta plus damping); none is negative.
+    assert np.all(r.tension >= 0.0)
+    assert r.tension[2] < 5.0 < r.tension[1]
+
+
+def test_novel_hand_holds_an_object():
+    r = run_check("apple", "NH3", actions=3, seed=1)
+    assert r.held and r.grasp_settled
+
+
+def test_exploration_stays_in_the_window():
+    rng = np.random.default_rng(0)
+    rng_T = hand_by_name("model_o").model().tendon_range
+    center = np.array([0.018, 0.012, 0.0005])
+    l = center.copy()
+    for _ in range(500):
+        dl = exploration_step(rng, l, center, 0.0015, 0.004, rng_T)
+        assert np.all(np.abs(dl) <= 0.0015 + 1e-12)
+        l = l + dl
+        assert np.all(l <= center + 0.004 + 1e-12) and np.all(l >= np.maximum(center - 0.004, rng_T[:, 0]) - 1e-12)
+
+
+def test_image_downsampler_averages_blocks_and_seeds_noise():
+    w, h, s = 4, 3, 2
+    big = np.zeros((h * s, w * s, 4), np.uint8)
+    big[..., 3] = 255
+    big[::2, ::2, 0] = 200  # one of four pixels in each 2x2 block: mean 50
+    img = ImageRgba8U(w * s, h * s)
+    img.mutable_data[:] = big
+    ds = ImageDownsampler(w, h, s)
+    ctx = ds.CreateDefaultContext()
+    ds.image_input.FixValue(ctx, AbstractValue.Make(img))
+    out = np.asarray(ds.image_output.Eval(ctx).data)
+    assert out.shape == (h, w, 4)
+    np.testing.assert_array_equal(out[..., 0], 50)
+    noisy = []
+    for seed in (7, 7, 8):
+        dn = ImageDownsampler(w, h, s, noise_std=5.0, seed=seed)
+        c = dn.CreateDefaultContext()
+        dn.image_input.FixValue(c, AbstractValue.Make(img))
+        noisy.append(np.asarray(dn.image_output.Eval(c).data).copy())
+    np.testing.assert_array_equal(noisy[0], noisy[1])
+    assert np.any(noisy[0] != noisy[2]) and np.any(noisy[0][..., 0] != 50)
+
+
+def test_physics_config_loads_from_yaml_and_validates():
+    cfg = yaml_load_typed(schema=PhysicsConfig, data="time_step: 0.0005\npretension: 25.0\n")
+    assert cfg.time_step == 0.0005 and cfg.pretension == 25.0 and cfg.thumb_factor == 1.7
+    with pytest.raises(ValueError, match="time_step"):
+        PhysicsConfig(time_step=0.0).validate()
+    with pytest.raises(ValueError, match="discrete_contact_approximation"):
+        PhysicsConfig(discrete_contact_approximation="tamsi").validate()
+
+
+def test_meshcat_recording_saves_html(tmp_path):
+    from pydrake.geometry import Meshcat
+
+    meshcat = Meshcat()
+    _, ph, sim = build_physics_hand(model_o(), preset("toy_block"), PhysicsConfig(settle_max=0.05),
+                                    CameraConfig(width=64, height=48, render_scale=1), meshcat)
+    ph.grasp(sim)
+    ph.start_recording()
+    ph.apply_action(sim, np.array([0.001, -0.001, 0.0]), render=False)
+    ph.publish_recording()
+    path = ph.save_html(str(tmp_path / "hand.html"))
+    text = open(path).read()
+    assert "<html" in text.lower() and len(text) > 10_000
+    assert meshcat.HasPath("camera_frustum")

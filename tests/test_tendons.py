@@ -1,0 +1,117 @@
+"""TendonForces: T = kappa max(0, l - R theta) (+ damping), tau = R^T T, clamping, ramp."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from vlr_drake.hand import generic_hand, model_o
+from vlr_drake.systems.tendons import TendonForces, tendon_tension
+
+# A fake plant layout: 2 extra positions/velocities before the joints (e.g. an object's),
+# joints stored in reverse order, so the index mapping is exercised.
+EXTRA = 2
+
+
+def _system(hand, ramp_time=0.2, damping=None):
+    nk = hand.num_angles
+    qi = EXTRA + np.arange(nk)[::-1]
+    vi = EXTRA + np.arange(nk)[::-1]
+    nq = nv = EXTRA + nk
+    return TendonForces(hand, qi, vi, nq, nv, ramp_time=ramp_time, update_period=0.001, damping=damping), qi, vi
+
+
+def _state(qi, vi, theta, theta_dot=None):
+    n = EXTRA + len(theta)
+    x = np.zeros(2 * n)
+    x[qi] = theta
+    if theta_dot is not None:
+        x[n + vi] = theta_dot
+    return x
+
+
+def test_force_is_R_transpose_T_on_the_joints():
+    hand = model_o().model()
+    sys, qi, vi = _system(hand, damping=[0.0] * hand.N)
+    ctx = sys.CreateDefaultContext()
+    rng = np.random.default_rng(0)
+    theta = rng.uniform(0.4, 0.8, hand.num_angles)
+    l = hand.R @ theta + np.array([0.01, -0.002, 0.004])  # finger 1 slack
+    assert np.all(l > hand.tendon_range[:, 0])
+    sys.set_applied(ctx, l)
+    sys.tendon_command_input.FixValue(ctx, l)
+    sys.state_input.FixValue(ctx, _state(qi, vi, theta))
+    T = sys.tension_output.Eval(ctx)
+    expected_T = hand.kappa * np.maximum(0.0, l - hand.R @ theta)
+    np.testing.assert_allclose(T, expected_T, rtol=1e-12)
+    assert T[1] == 0.0 and T[0] == pytest.approx(2000.0 * 0.01)
+    tau = sys.generalized_force_output.Eval(ctx)
+    assert tau.shape == (EXTRA + hand.num_angles,)
+    np.testing.assert_allclose(tau[vi], hand.R.T @ expected_T, rtol=1e-12)
+    np.testing.assert_array_equal(tau[:EXTRA], 0.0)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), l)
+
+
+def test_tension_never_negative_with_damping():
+    """A fast-flexing finger (stretch shrinking) must not push: T >= 0, and a slack tendon
+    carries nothing whatever its rate."""
+    hand = generic_hand(4, 3).model()
+    sys, qi, vi = _system(hand, damping=[50.0] * hand.N)
+    ctx = sys.CreateDefaultContext()
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        theta = rng.uniform(0.0, 1.0, hand.num_angles)
+        theta_dot = rng.uniform(-20.0, 20.0, hand.num_angles)
+        l = np.clip(hand.R @ theta + rng.uniform(-0.003, 0.003, hand.N), *hand.tendon_range.T)
+        sys.set_applied(ctx, l)
+        sys.tendon_command_input.FixValue(ctx, l)
+        sys.state_input.FixValue(ctx, _state(qi, vi, theta, theta_dot))
+        T = sys.tension_output.Eval(ctx)
+        assert np.all(T >= 0.0)
+        s = l - hand.R @ theta
+        assert np.all(T[s <= 0] == 0.0)
+        expected = np.where(s > 0, np.maximum(0.0, hand.kappa * s - 50.0 * (hand.R @ theta_dot)), 0.0)
+        np.testing.assert_allclose(T, expected, rtol=1e-12, atol=1e-12)
+    # The pure function agrees.
+    np.testing.assert_allclose(tendon_tension(hand, l, theta, theta_dot, None, np.full(hand.N, 50.0)), T)
+
+
+def test_ramp_is_linear_and_clamped_to_the_range():
+    hand = model_o().model()
+    sys, qi, vi = _system(hand, ramp_time=0.2)
+    ctx = sys.CreateDefaultContext()
+    l0 = np.array([0.01, 0.012, 0.014])
+    sys.set_applied(ctx, l0)
+    sys.state_input.FixValue(ctx, _state(qi, vi, np.zeros(hand.num_angles)))
+    # The last tendon is commanded past its upper limit: it must stop at the limit.
+    hi = hand.tendon_range[:, 1]
+    cmd = np.array([0.02, 0.002, hi[2] + 0.05])
+    target = np.array([0.02, 0.002, hi[2]])
+    sys.tendon_command_input.FixValue(ctx, cmd)
+    sim = Simulator(sys, ctx)
+    sim.Initialize()
+    sim.AdvanceTo(0.1)
+    l_half = sys.tendon_position_output.Eval(ctx)
+    np.testing.assert_allclose(l_half, l0 + 0.5 * (target - l0), atol=0.01 * np.max(np.abs(target - l0)))
+    sim.AdvanceTo(0.25)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), target, atol=1e-12)
+    assert np.all(sys.tendon_position_output.Eval(ctx) <= hi)
+    # A new command mid-way ramps from where the pull is, not from the old start.
+    sys.tendon_command_input.FixValue(ctx, l0)
+    sim.AdvanceTo(0.35)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), target + 0.5 * (l0 - target),
+                               atol=0.01 * np.max(np.abs(target - l0)))
+
+
+def test_clamp_validates_shape():
+    hand = model_o().model()
+    sys, _, _ = _system(hand)
+    with pytest.raises(ValueError, match="tendon_command"):
+        sys.clamp(np.zeros(4))
+    np.testing.assert_allclose(sys.clamp(np.array([-1.0, 0.01, 1.0])),
+                               [hand.tendon_range[0, 0], 0.01, hand.tendon_range[2, 1]])
+
+
+def test_bad_indices_raise():
+    hand = model_o().model()
+    with pytest.raises(ValueError, match="position_indices"):
+        TendonForces(hand, np.arange(5), np.arange(6), 6, 6)

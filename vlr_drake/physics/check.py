@@ -1,0 +1,174 @@
+"""Does the physics hand hold the paper's objects through random exploratory actions?
+
+For each object: grasp it (:meth:`PhysicsHand.grasp`), then apply ``actions`` random
+exploratory actions, uniform in +-``step`` per tendon (DESIGN.md section 6: +-1.5 mm), kept
+within ``window`` of the grasp's tendon commands by reflection (a random walk that wanders
+off slackens a tendon and drops the object, DESIGN.md section 8) and within the tendon
+range. Reports whether the object stayed in hand (all pads in contact and the POM within
+``fall_distance`` of the grasp), how far each contact drifted on the object surface (the
+contact point expressed in the POM frame O), tensions, settle statistics and wall time per
+action (ramp + settle, and render when a camera is used).
+
+    python -m vlr_drake.physics.check                 # 5 objects x 50 actions, with camera
+    python -m vlr_drake.physics.check --actions 10 --objects apple --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlr_drake.hand import hand_by_name
+from vlr_drake.objects import PAPER_OBJECTS, ObjectSpec, preset
+from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
+
+__all__ = ["CheckResult", "exploration_step", "run_check", "main"]
+
+
+def exploration_step(rng: np.random.Generator, current: np.ndarray, center: np.ndarray, step: float,
+                     window: float, tendon_range: np.ndarray) -> np.ndarray:
+    """A random action dl (uniform in +-step per tendon) such that current + dl stays within
+    center +- window and the tendon range, reflecting at the bounds."""
+    lo = np.maximum(center - window, tendon_range[:, 0])
+    hi = np.minimum(center + window, tendon_range[:, 1])
+    target = current + rng.uniform(-step, step, size=current.shape)
+    target = np.where(target > hi, 2 * hi - target, target)
+    target = np.where(target < lo, 2 * lo - target, target)
+    return np.clip(target, lo, hi) - current
+
+
+@dataclass
+class CheckResult:
+    """Outcome of one object's run (numbers in the units their names say)."""
+
+    object: str
+    hand: str
+    actions: int
+    held: bool  # every pad still touches the object and it never moved past fall_distance
+    first_loss: int | None  # first action after which the object was lost (None: never)
+    grasp_settled: bool
+    grasp_tension_N: list[float]
+    contact_drift_per_action_mm_mean: list[float]  # per finger: mean |dp^O| per action
+    contact_drift_per_action_mm_max: list[float]
+    contact_drift_total_mm: list[float]  # per finger: |p^O(end) - p^O(grasp)|
+    pom_motion_per_action_mm_mean: float
+    pom_rotation_per_action_deg_mean: float
+    min_tension_N: float
+    max_command_violation_m: float  # > 0 would mean a command past the tendon range
+    settled_fraction: float
+    settle_time_s_mean: float
+    creep_mm_per_s_max: float
+    wall_per_action_s_mean: float  # ramp + settle (+ render)
+    wall_physics_s_mean: float
+    wall_render_s_mean: float
+    wall_grasp_s: float
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def run_check(obj: ObjectSpec | str, hand_name: str = "model_o", actions: int = 50, seed: int = 0,
+              physics: PhysicsConfig | None = None, camera: CameraConfig | None = None,
+              step: float = 0.0015, window: float = 0.004) -> CheckResult:
+    """Grasp ``obj`` with ``hand_name`` and apply ``actions`` random actions (see module doc)."""
+    obj = preset(obj) if isinstance(obj, str) else obj
+    rng = np.random.default_rng(seed)
+    physics = physics or PhysicsConfig()
+    _, ph, sim = build_physics_hand(hand_by_name(hand_name), obj, physics, camera)
+    root = sim.get_mutable_context()
+    g = ph.grasp(sim)
+    N = ph.hand.N
+    center = g.command.copy()
+    rng_T = ph.hand.tendon_range
+
+    def contacts_O(X_PO, contacts):
+        X_OP = X_PO.inverse()
+        return np.array([X_OP @ c for c in contacts])
+
+    p_O0 = contacts_O(g.X_PO, g.contacts)
+    prev_p, prev_X = p_O0, g.X_PO
+    drift, pom_dp, pom_dr = [], [], []
+    min_T = float(np.min(g.tension))
+    violation = 0.0
+    settled, t_settle, creep, wall, wall_p, wall_r = [], [], [], [], [], []
+    first_loss = None
+    for k in range(actions):
+        dl = exploration_step(rng, ph.command(root), center, step, window, rng_T)
+        r = ph.apply_action(sim, dl, render=camera is not None)
+        l_meas = ph.output(root, "tendon_position_measured")
+        violation = max(violation, float(np.max(np.concatenate([rng_T[:, 0] - l_meas, l_meas - rng_T[:, 1]]))))
+        min_T = min(min_T, float(np.min(r.tension)))
+        p = contacts_O(r.X_PO, r.contacts)
+        drift.append(np.linalg.norm(p - prev_p, axis=1))
+        pom_dp.append(np.linalg.norm(r.X_PO.translation() - prev_X.translation()))
+        pom_dr.append((prev_X.rotation().inverse() @ r.X_PO.rotation()).ToAngleAxis().angle())
+        prev_p, prev_X = p, r.X_PO
+        settled.append(r.settled)
+        t_settle.append(r.settle_time)
+        creep.append(r.creep_mm_per_s)
+        wall_p.append(r.wall_physics_s)
+        wall_r.append(r.wall_render_s)
+        wall.append(r.wall_physics_s + r.wall_render_s)
+        if first_loss is None and ph.object_fell(root):
+            first_loss = k
+    drift = np.array(drift).reshape(-1, N)
+    total = np.linalg.norm(prev_p - p_O0, axis=1)
+    return CheckResult(
+        object=obj.name, hand=hand_name, actions=actions, held=first_loss is None, first_loss=first_loss,
+        grasp_settled=g.settled, grasp_tension_N=[float(x) for x in g.tension],
+        contact_drift_per_action_mm_mean=[float(x) for x in 1e3 * drift.mean(axis=0)] if actions else [0.0] * N,
+        contact_drift_per_action_mm_max=[float(x) for x in 1e3 * drift.max(axis=0)] if actions else [0.0] * N,
+        contact_drift_total_mm=[float(x) for x in 1e3 * total],
+        pom_motion_per_action_mm_mean=float(1e3 * np.mean(pom_dp)) if actions else 0.0,
+        pom_rotation_per_action_deg_mean=float(np.rad2deg(np.mean(pom_dr))) if actions else 0.0,
+        min_tension_N=min_T, max_command_violation_m=violation,
+        settled_fraction=float(np.mean(settled)) if actions else 1.0,
+        settle_time_s_mean=float(np.mean(t_settle)) if actions else 0.0,
+        creep_mm_per_s_max=float(np.max(creep)) if actions else 0.0,
+        wall_per_action_s_mean=float(np.mean(wall)) if actions else 0.0,
+        wall_physics_s_mean=float(np.mean(wall_p)) if actions else 0.0,
+        wall_render_s_mean=float(np.mean(wall_r)) if actions else 0.0,
+        wall_grasp_s=g.wall_s)
+
+
+def main(argv: list[str] | None = None) -> list[CheckResult]:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS), help="object presets")
+    ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
+    ap.add_argument("--actions", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-camera", action="store_true", help="skip rendering")
+    ap.add_argument("--time-step", type=float, default=None, help="plant time step [s]")
+    ap.add_argument("--json", default=None, help="write the results here")
+    args = ap.parse_args(argv)
+    physics = PhysicsConfig()
+    if args.time_step:
+        physics.time_step = args.time_step
+    camera = None if args.no_camera else CameraConfig()
+    results = []
+    t0 = time.perf_counter()
+    for name in args.objects:
+        r = run_check(name, args.hand, args.actions, args.seed, physics, camera)
+        results.append(r)
+        print(f"{r.object:17s} held={r.held!s:5s} drift/action [mm] mean {np.round(r.contact_drift_per_action_mm_mean, 2)} "
+              f"max {np.round(r.contact_drift_per_action_mm_max, 2)} total {np.round(r.contact_drift_total_mm, 1)} | "
+              f"POM {r.pom_motion_per_action_mm_mean:.2f} mm {r.pom_rotation_per_action_deg_mean:.2f} deg/action | "
+              f"T_min {r.min_tension_N:.1f} N | settled {100 * r.settled_fraction:.0f}% "
+              f"({r.settle_time_s_mean:.2f} s) creep<= {r.creep_mm_per_s_max:.2f} mm/s | wall/action "
+              f"{r.wall_per_action_s_mean:.3f} s (physics {r.wall_physics_s_mean:.3f}, render {r.wall_render_s_mean:.3f})")
+    print(f"total wall {time.perf_counter() - t0:.1f} s")
+    if args.json:
+        out = {"hand": args.hand, "actions": args.actions, "seed": args.seed,
+               "physics": dict(physics.__dict__), "camera": bool(camera), "results": [r.as_dict() for r in results]}
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+    return results
+
+
+if __name__ == "__main__":
+    main()
