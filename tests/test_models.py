@@ -64,7 +64,9 @@ def test_generated_files_are_current():
         assert tag_texture_path(preset(name).tag_id).exists()
 
 
-@pytest.mark.parametrize("rel", sorted(p.relative_to(models_dir()).as_posix() for p in models_dir().rglob("*.sdf")))
+@pytest.mark.parametrize(
+    "rel", sorted(p.relative_to(models_dir()).as_posix() for p in models_dir().rglob("*.sdf"))
+)
 def test_every_model_file_parses(rel):
     plant, _ = _plant(url=f"package://vlr_drake/{rel}")
     plant.Finalize()
@@ -148,8 +150,9 @@ def test_pad_geometry():
         assert abs(centers[0, 1] - centers[1, 1]) == pytest.approx(PAD_SPHERE_SPACING)
         np.testing.assert_allclose(centers[:, 0] + PAD_SPHERE_RADIUS, f.pad_offset)
         np.testing.assert_allclose(centers[:, 2], PAD_FRACTION * f.distal_length)
-        assert insp.GetProximityProperties(g).GetProperty("material", "coulomb_friction").static_friction() == \
-            pytest.approx(f.friction)
+        assert insp.GetProximityProperties(g).GetProperty(
+            "material", "coulomb_friction"
+        ).static_friction() == pytest.approx(f.friction)
     del plant, inst
 
 
@@ -168,8 +171,11 @@ def test_finger_file_matches_spec(name):
         np.testing.assert_allclose(X.translation(), [0, 0, z], atol=1e-12)
         z += (list(f.link_lengths) + [f.distal_length])[k]
     X_pad = plant.GetFrameByName(pad_frame_name(f.name), inst).CalcPose(ctx, mount)
-    np.testing.assert_allclose(X_pad.translation(),
-                               [f.pad_offset, 0, sum(f.link_lengths) + PAD_FRACTION * f.distal_length], atol=1e-12)
+    np.testing.assert_allclose(
+        X_pad.translation(),
+        [f.pad_offset, 0, sum(f.link_lengths) + PAD_FRACTION * f.distal_length],
+        atol=1e-12,
+    )
     assert finger_sdf(f) in generated_models()[f"fingers/{name}.sdf"]
 
 
@@ -210,7 +216,9 @@ def test_paper_objects_present():
 
 
 def test_object_spec_loads_from_yaml():
-    spec = yaml_load_typed(schema=ObjectSpec, data="""
+    spec = yaml_load_typed(
+        schema=ObjectSpec,
+        data="""
 name: mug
 shape: cylinder
 size: [0.04, 0.09]
@@ -219,7 +227,8 @@ tag_id: 7
 tag_size: 0.025
 tag_face: "-z"
 placement_xyz: [0.0, 0.0, 0.08]
-""")
+""",
+    )
     spec.validate()
     assert spec.shape == "cylinder" and spec.size == [0.04, 0.09] and spec.tag_id == 7
     assert spec.tag_to_pom_xyz == [0.0, 0.0, 0.0]

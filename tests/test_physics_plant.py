@@ -45,8 +45,13 @@ def test_ports_and_camera_image_match_the_intrinsics():
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
     corners, ids, _ = cv2.aruco.ArucoDetector(dictionary(), params).detectMarkers(gray)
     assert ids is not None and int(np.ravel(ids)[0]) == ph.obj.tag_id
-    ok, rvec, tvec = cv2.solvePnP(tag_corners(ph.obj.tag_size), corners[0].reshape(4, 2).astype(float),
-                                  camera.intrinsic_matrix(), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    ok, rvec, tvec = cv2.solvePnP(
+        tag_corners(ph.obj.tag_size),
+        corners[0].reshape(4, 2).astype(float),
+        camera.intrinsic_matrix(),
+        None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
+    )
     assert ok
     X_CO_true = camera.X_PC().inverse() @ g.X_PO
     np.testing.assert_allclose(tvec.ravel(), X_CO_true.translation(), atol=0.001)
@@ -62,9 +67,11 @@ def test_paper_object_stays_in_hand_through_random_actions(name):
     not fall, tensions stay >= 0 and commands inside the tendon range. Reports the drift of
     each contact on the object's surface."""
     r = run_check(name, "model_o", actions=10, seed=3)
-    print(f"{name}: drift/action mean {np.round(r.contact_drift_per_action_mm_mean, 2)} mm, "
-          f"max {np.round(r.contact_drift_per_action_mm_max, 2)} mm, total {np.round(r.contact_drift_total_mm, 2)} mm, "
-          f"POM {r.pom_motion_per_action_mm_mean:.2f} mm/action, wall {r.wall_per_action_s_mean:.3f} s/action")
+    print(
+        f"{name}: drift/action mean {np.round(r.contact_drift_per_action_mm_mean, 2)} mm, "
+        f"max {np.round(r.contact_drift_per_action_mm_max, 2)} mm, total {np.round(r.contact_drift_total_mm, 2)} mm, "
+        f"POM {r.pom_motion_per_action_mm_mean:.2f} mm/action, wall {r.wall_per_action_s_mean:.3f} s/action"
+    )
     assert r.grasp_settled
     assert r.held, f"{name} lost at action {r.first_loss}"
     assert r.min_tension_N > 0.0
@@ -87,7 +94,10 @@ def test_contacts_sit_on_the_pads_and_hold_when_lost():
     plant, pctx = ph.plant, ph.plant_context(root)
     palm = ph.palm_body.body_frame()
     c = ph.output(root, "contacts_true").reshape(-1, 3)
-    p_L = [plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c[i] for i, link in enumerate(ph.last_links)]
+    p_L = [
+        plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c[i]
+        for i, link in enumerate(ph.last_links)
+    ]
     for i, f in enumerate(ph.hand.spec.fingers):
         assert abs(p_L[i][0] - f.pad_offset) < 0.002
         assert abs(p_L[i][1]) < 0.007
@@ -130,7 +140,9 @@ def test_exploration_stays_in_the_window():
         dl = exploration_step(rng, l, center, 0.0015, 0.004, rng_T)
         assert np.all(np.abs(dl) <= 0.0015 + 1e-12)
         l = l + dl
-        assert np.all(l <= center + 0.004 + 1e-12) and np.all(l >= np.maximum(center - 0.004, rng_T[:, 0]) - 1e-12)
+        assert np.all(l <= center + 0.004 + 1e-12) and np.all(
+            l >= np.maximum(center - 0.004, rng_T[:, 0]) - 1e-12
+        )
 
 
 def test_image_downsampler_averages_blocks_and_seeds_noise():
@@ -169,8 +181,13 @@ def test_meshcat_recording_saves_html(tmp_path):
     from pydrake.geometry import Meshcat
 
     meshcat = Meshcat()
-    _, ph, sim = build_physics_hand(model_o(), preset("toy_block"), PhysicsConfig(settle_max=0.05),
-                                    CameraConfig(width=64, height=48, render_scale=1), meshcat)
+    _, ph, sim = build_physics_hand(
+        model_o(),
+        preset("toy_block"),
+        PhysicsConfig(settle_max=0.05),
+        CameraConfig(width=64, height=48, render_scale=1),
+        meshcat,
+    )
     ph.grasp(sim)
     ph.start_recording()
     ph.apply_action(sim, np.array([0.001, -0.001, 0.0]), render=False)

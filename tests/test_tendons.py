@@ -17,7 +17,11 @@ def _system(hand, ramp_time=0.2, damping=None):
     qi = EXTRA + np.arange(nk)[::-1]
     vi = EXTRA + np.arange(nk)[::-1]
     nq = nv = EXTRA + nk
-    return TendonForces(hand, qi, vi, nq, nv, ramp_time=ramp_time, update_period=0.001, damping=damping), qi, vi
+    return (
+        TendonForces(hand, qi, vi, nq, nv, ramp_time=ramp_time, update_period=0.001, damping=damping),
+        qi,
+        vi,
+    )
 
 
 def _state(qi, vi, theta, theta_dot=None):
@@ -98,8 +102,11 @@ def test_ramp_is_linear_and_clamped_to_the_range():
     # A new command mid-way ramps from where the pull is, not from the old start.
     sys.tendon_command_input.FixValue(ctx, l0)
     sim.AdvanceTo(0.35)
-    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), target + 0.5 * (l0 - target),
-                               atol=0.01 * np.max(np.abs(target - l0)))
+    np.testing.assert_allclose(
+        sys.tendon_position_output.Eval(ctx),
+        target + 0.5 * (l0 - target),
+        atol=0.01 * np.max(np.abs(target - l0)),
+    )
 
 
 def test_clamp_validates_shape():
@@ -107,8 +114,9 @@ def test_clamp_validates_shape():
     sys, _, _ = _system(hand)
     with pytest.raises(ValueError, match="tendon_command"):
         sys.clamp(np.zeros(4))
-    np.testing.assert_allclose(sys.clamp(np.array([-1.0, 0.01, 1.0])),
-                               [hand.tendon_range[0, 0], 0.01, hand.tendon_range[2, 1]])
+    np.testing.assert_allclose(
+        sys.clamp(np.array([-1.0, 0.01, 1.0])), [hand.tendon_range[0, 0], 0.01, hand.tendon_range[2, 1]]
+    )
 
 
 def test_bad_indices_raise():

@@ -149,7 +149,9 @@ def _capsule_inertia(radius: float, length: float) -> tuple[float, float, float,
     return m, ixx, ixx, izz
 
 
-def _finger_links(f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: str, indent: str) -> list[str]:
+def _finger_links(
+    f: FingerSpec, X_root: tuple[np.ndarray, np.ndarray], parent: str, indent: str
+) -> list[str]:
     """Links and joints of one finger. ``X_root`` = (R, p) of the finger frame F (at its base,
     straight-finger orientation) in the model frame; ``parent`` is the body its joint 1
     attaches to."""
@@ -258,7 +260,7 @@ def _palm_links(hand: HandSpec, indent: str) -> list[str]:
     ]
     # Visual: a ring of 12 blocks around the camera hole.
     n = 12
-    width = (r - hole)
+    width = r - hole
     chord = 2 * r * math.sin(math.pi / n) * 1.05
     for j in range(n):
         ang = 2 * math.pi * j / n
@@ -338,8 +340,12 @@ def write_models(root: Path | None = None) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="Generate the SDFormat models of the hands, fingers and objects.")
-    ap.add_argument("--write", action="store_true", help="write models/hands, models/fingers and models/objects")
+    ap = argparse.ArgumentParser(
+        description="Generate the SDFormat models of the hands, fingers and objects."
+    )
+    ap.add_argument(
+        "--write", action="store_true", help="write models/hands, models/fingers and models/objects"
+    )
     args = ap.parse_args(argv)
     if not args.write:
         for rel in generated_models():

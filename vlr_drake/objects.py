@@ -104,13 +104,17 @@ class ObjectSpec:
             raise ValueError(f"{where}: field 'shape' must be one of {list(SHAPES)}, got '{self.shape}'")
         n = {"sphere": 1, "box": 3, "cylinder": 2, "capsule": 2}[self.shape]
         if len(self.size) != n:
-            raise ValueError(f"{where}: field 'size' must have {n} entries for a {self.shape} {SHAPES[self.shape]}, got {self.size}")
+            raise ValueError(
+                f"{where}: field 'size' must have {n} entries for a {self.shape} {SHAPES[self.shape]}, got {self.size}"
+            )
         if not all(np.isfinite(self.size)) or min(self.size) <= 0:
             raise ValueError(f"{where}: field 'size' must be positive, got {self.size}")
         if not (np.isfinite(self.mass) and self.mass > 0):
             raise ValueError(f"{where}: field 'mass' must be positive, got {self.mass}")
         if not 0 <= int(self.tag_id) < TAG36H11_COUNT or int(self.tag_id) != self.tag_id:
-            raise ValueError(f"{where}: field 'tag_id' must be a tag36h11 id in 0..{TAG36H11_COUNT - 1}, got {self.tag_id}")
+            raise ValueError(
+                f"{where}: field 'tag_id' must be a tag36h11 id in 0..{TAG36H11_COUNT - 1}, got {self.tag_id}"
+            )
         if not self.tag_size > 0:
             raise ValueError(f"{where}: field 'tag_size' must be positive, got {self.tag_size}")
         if self.tag_face not in FACES:
@@ -127,7 +131,9 @@ class ObjectSpec:
             if getattr(self, fname) < 0:
                 raise ValueError(f"{where}: field '{fname}' must be >= 0, got {getattr(self, fname)}")
         if (self.marble_radius > 0) != (self.marble_mass > 0):
-            raise ValueError(f"{where}: fields 'marble_radius' and 'marble_mass' must both be set or both be 0")
+            raise ValueError(
+                f"{where}: fields 'marble_radius' and 'marble_mass' must both be set or both be 0"
+            )
         if (self.marble_radius > 0 or self.rim_height > 0) and self.shape != "box":
             raise ValueError(f"{where}: field 'shape' must be 'box' for a marble maze, got '{self.shape}'")
         return self
@@ -167,7 +173,9 @@ class ObjectSpec:
         """Pose of the POM frame O in the tag frame T."""
         from pydrake.math import RigidTransform, RollPitchYaw
 
-        return RigidTransform(RollPitchYaw(np.deg2rad(self.tag_to_pom_rpy_deg)), np.asarray(self.tag_to_pom_xyz, float))
+        return RigidTransform(
+            RollPitchYaw(np.deg2rad(self.tag_to_pom_rpy_deg)), np.asarray(self.tag_to_pom_xyz, float)
+        )
 
     def X_BO(self):
         """Pose of the POM frame O in the body frame B."""
@@ -177,7 +185,9 @@ class ObjectSpec:
         """Initial placement of the body in the palm frame."""
         from pydrake.math import RigidTransform, RollPitchYaw
 
-        return RigidTransform(RollPitchYaw(np.deg2rad(self.placement_rpy_deg)), np.asarray(self.placement_xyz, float))
+        return RigidTransform(
+            RollPitchYaw(np.deg2rad(self.placement_rpy_deg)), np.asarray(self.placement_xyz, float)
+        )
 
     def inertia(self) -> tuple[float, float, float]:
         """Principal moments of inertia (uniform density) about the body origin [kg m^2]."""
@@ -199,13 +209,29 @@ class ObjectSpec:
 
 
 def _sphere(name, radius, mass, tag_id, tag_size, z, color) -> ObjectSpec:
-    return ObjectSpec(name=name, shape="sphere", size=[radius], mass=mass, tag_id=tag_id, tag_size=tag_size,
-                      placement_xyz=[0.0, 0.0, z], color=color)
+    return ObjectSpec(
+        name=name,
+        shape="sphere",
+        size=[radius],
+        mass=mass,
+        tag_id=tag_id,
+        tag_size=tag_size,
+        placement_xyz=[0.0, 0.0, z],
+        color=color,
+    )
 
 
 def _cylinder(name, radius, length, mass, tag_id, tag_size, z, color) -> ObjectSpec:
-    return ObjectSpec(name=name, shape="cylinder", size=[radius, length], mass=mass, tag_id=tag_id,
-                      tag_size=tag_size, placement_xyz=[0.0, 0.0, z], color=color)
+    return ObjectSpec(
+        name=name,
+        shape="cylinder",
+        size=[radius, length],
+        mass=mass,
+        tag_id=tag_id,
+        tag_size=tag_size,
+        placement_xyz=[0.0, 0.0, z],
+        color=color,
+    )
 
 
 def preset(name: str) -> ObjectSpec:
@@ -231,27 +257,62 @@ def preset(name: str) -> ObjectSpec:
     if name == "wine_glass":
         return _cylinder("wine_glass", 0.033, 0.070, 0.133, 2, 0.030, 0.075, [0.75, 0.85, 0.9, 1.0])
     if name == "toy_block":
-        return ObjectSpec(name="toy_block", shape="box", size=[0.050, 0.075, 0.050], mass=0.028, tag_id=3,
-                          tag_size=0.030, placement_xyz=[0.0, 0.0, 0.075], color=[0.2, 0.6, 0.25, 1.0])
+        return ObjectSpec(
+            name="toy_block",
+            shape="box",
+            size=[0.050, 0.075, 0.050],
+            mass=0.028,
+            tag_id=3,
+            tag_size=0.030,
+            placement_xyz=[0.0, 0.0, 0.075],
+            color=[0.2, 0.6, 0.25, 1.0],
+        )
     if name == "flat_screwdriver":
         # Lying across the fingers (axis along the palm's y), where the thumb pushes it
         # against the two fingers' proximal links (a power grasp: a 32 mm handle is narrow
         # for this hand); tag on the side facing the palm.
-        return ObjectSpec(name="flat_screwdriver", shape="cylinder", size=[0.016, 0.090], mass=0.098, tag_id=4,
-                          tag_size=0.020, tag_face="-y", placement_xyz=[-0.02, 0.0, 0.07],
-                          placement_rpy_deg=[90.0, 0.0, 0.0], color=[0.9, 0.8, 0.1, 1.0])
+        return ObjectSpec(
+            name="flat_screwdriver",
+            shape="cylinder",
+            size=[0.016, 0.090],
+            mass=0.098,
+            tag_id=4,
+            tag_size=0.020,
+            tag_face="-y",
+            placement_xyz=[-0.02, 0.0, 0.07],
+            placement_rpy_deg=[90.0, 0.0, 0.0],
+            color=[0.9, 0.8, 0.1, 1.0],
+        )
     if name == "gelatin_box":
-        return ObjectSpec(name="gelatin_box", shape="box", size=[0.073, 0.089, 0.028], mass=0.097, tag_id=5,
-                          tag_size=0.030, placement_xyz=[0.0, 0.0, 0.085], color=[0.85, 0.3, 0.5, 1.0])
+        return ObjectSpec(
+            name="gelatin_box",
+            shape="box",
+            size=[0.073, 0.089, 0.028],
+            mass=0.097,
+            tag_id=5,
+            tag_size=0.030,
+            placement_xyz=[0.0, 0.0, 0.085],
+            color=[0.85, 0.3, 0.5, 1.0],
+        )
     cups = {"cup_1": 0.0375, "cup_2": 0.035, "cup_3": 0.0325, "cup_4": 0.030, "cup_target": 0.041}
     if name in cups:
         r = cups[name]
         k = CUP_NAMES.index(name)
         return _cylinder(name, r, 0.060, 0.02, 10 + k, 0.025, 0.075, [0.2, 0.4 + 0.1 * k, 0.9, 1.0])
     if name == "marble_maze":
-        return ObjectSpec(name="marble_maze", shape="box", size=[0.075, 0.090, 0.008], mass=0.06, tag_id=20,
-                          tag_size=0.025, placement_xyz=[0.0, 0.0, 0.09], color=[0.6, 0.45, 0.3, 1.0],
-                          marble_radius=0.006, marble_mass=0.007, rim_height=0.008)
+        return ObjectSpec(
+            name="marble_maze",
+            shape="box",
+            size=[0.075, 0.090, 0.008],
+            mass=0.06,
+            tag_id=20,
+            tag_size=0.025,
+            placement_xyz=[0.0, 0.0, 0.09],
+            color=[0.6, 0.45, 0.3, 1.0],
+            marble_radius=0.006,
+            marble_mass=0.007,
+            rim_height=0.008,
+        )
     raise ValueError(f"unknown object preset '{name}' (known: {', '.join(preset_names())})")
 
 
@@ -279,20 +340,31 @@ def _tag_obj(tag_id: int) -> str:
     """A unit quad in the tag frame's xy plane, facing +z, textured with the tag image (the
     image's top row at +y). Scaled in the SDF to the printed size with its quiet zone."""
     name = _tag_mesh_name(tag_id)
-    return "\n".join([
-        f"mtllib {name}.mtl",
-        "v -0.5 -0.5 0", "v 0.5 -0.5 0", "v 0.5 0.5 0", "v -0.5 0.5 0",
-        "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1",
-        "vn 0 0 1",
-        f"usemtl {name}",
-        "f 1/1/1 2/2/1 3/3/1", "f 1/1/1 3/3/1 4/4/1", "",
-    ])
+    return "\n".join(
+        [
+            f"mtllib {name}.mtl",
+            "v -0.5 -0.5 0",
+            "v 0.5 -0.5 0",
+            "v 0.5 0.5 0",
+            "v -0.5 0.5 0",
+            "vt 0 0",
+            "vt 1 0",
+            "vt 1 1",
+            "vt 0 1",
+            "vn 0 0 1",
+            f"usemtl {name}",
+            "f 1/1/1 2/2/1 3/3/1",
+            "f 1/1/1 3/3/1 4/4/1",
+            "",
+        ]
+    )
 
 
 def _tag_mtl(tag_id: int) -> str:
     name = _tag_mesh_name(tag_id)
-    return "\n".join([f"newmtl {name}", "Ka 1 1 1", "Kd 1 1 1", "Ks 0 0 0", "d 1",
-                      f"map_Kd textures/{name}.png", ""])
+    return "\n".join(
+        [f"newmtl {name}", "Ka 1 1 1", "Kd 1 1 1", "Ks 0 0 0", "d 1", f"map_Kd textures/{name}.png", ""]
+    )
 
 
 def _fmt(*v: float) -> str:
@@ -316,8 +388,10 @@ def _geometry(spec: ObjectSpec) -> str:
 
 
 def _friction(mu: float) -> str:
-    return (f"<drake:proximity_properties><drake:mu_dynamic>{mu:.17g}</drake:mu_dynamic>"
-            f"<drake:mu_static>{mu:.17g}</drake:mu_static></drake:proximity_properties>")
+    return (
+        f"<drake:proximity_properties><drake:mu_dynamic>{mu:.17g}</drake:mu_dynamic>"
+        f"<drake:mu_static>{mu:.17g}</drake:mu_static></drake:proximity_properties>"
+    )
 
 
 def object_sdf(spec: ObjectSpec) -> str:
@@ -390,8 +464,9 @@ def _rim(spec: ObjectSpec) -> list[str]:
                 f'      <{kind} name="rim_{kind}{j}">',
                 f"        <pose>{_fmt(*c)} 0 0 0</pose>",
                 f"        <geometry><box><size>{_fmt(*size)}</size></box></geometry>",
-                f"        {_friction(spec.friction)}" if kind == "collision" else
-                f"        <material><diffuse>{_fmt(*spec.color)}</diffuse></material>",
+                f"        {_friction(spec.friction)}"
+                if kind == "collision"
+                else f"        <material><diffuse>{_fmt(*spec.color)}</diffuse></material>",
                 f"      </{kind}>",
             ]
     return out
@@ -477,4 +552,3 @@ def copy_spec(spec: ObjectSpec, **changes) -> ObjectSpec:
             raise ValueError(f"ObjectSpec has no field '{k}'")
         setattr(out, k, v)
     return out
-

@@ -30,8 +30,14 @@ from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
 __all__ = ["CheckResult", "exploration_step", "run_check", "main"]
 
 
-def exploration_step(rng: np.random.Generator, current: np.ndarray, center: np.ndarray, step: float,
-                     window: float, tendon_range: np.ndarray) -> np.ndarray:
+def exploration_step(
+    rng: np.random.Generator,
+    current: np.ndarray,
+    center: np.ndarray,
+    step: float,
+    window: float,
+    tendon_range: np.ndarray,
+) -> np.ndarray:
     """A random action dl (uniform in +-step per tendon) such that current + dl stays within
     center +- window and the tendon range, reflecting at the bounds."""
     lo = np.maximum(center - window, tendon_range[:, 0])
@@ -72,9 +78,16 @@ class CheckResult:
         return dict(self.__dict__)
 
 
-def run_check(obj: ObjectSpec | str, hand_name: str = "model_o", actions: int = 50, seed: int = 0,
-              physics: PhysicsConfig | None = None, camera: CameraConfig | None = None,
-              step: float = 0.0015, window: float = 0.004) -> CheckResult:
+def run_check(
+    obj: ObjectSpec | str,
+    hand_name: str = "model_o",
+    actions: int = 50,
+    seed: int = 0,
+    physics: PhysicsConfig | None = None,
+    camera: CameraConfig | None = None,
+    step: float = 0.0015,
+    window: float = 0.004,
+) -> CheckResult:
     """Grasp ``obj`` with ``hand_name`` and apply ``actions`` random actions (see module doc)."""
     obj = preset(obj) if isinstance(obj, str) else obj
     rng = np.random.default_rng(seed)
@@ -101,7 +114,9 @@ def run_check(obj: ObjectSpec | str, hand_name: str = "model_o", actions: int = 
         dl = exploration_step(rng, ph.command(root), center, step, window, rng_T)
         r = ph.apply_action(sim, dl, render=camera is not None)
         l_meas = ph.output(root, "tendon_position_measured")
-        violation = max(violation, float(np.max(np.concatenate([rng_T[:, 0] - l_meas, l_meas - rng_T[:, 1]]))))
+        violation = max(
+            violation, float(np.max(np.concatenate([rng_T[:, 0] - l_meas, l_meas - rng_T[:, 1]])))
+        )
         min_T = min(min_T, float(np.min(r.tension)))
         p = contacts_O(r.X_PO, r.contacts)
         drift.append(np.linalg.norm(p - prev_p, axis=1))
@@ -119,21 +134,30 @@ def run_check(obj: ObjectSpec | str, hand_name: str = "model_o", actions: int = 
     drift = np.array(drift).reshape(-1, N)
     total = np.linalg.norm(prev_p - p_O0, axis=1)
     return CheckResult(
-        object=obj.name, hand=hand_name, actions=actions, held=first_loss is None, first_loss=first_loss,
-        grasp_settled=g.settled, grasp_tension_N=[float(x) for x in g.tension],
-        contact_drift_per_action_mm_mean=[float(x) for x in 1e3 * drift.mean(axis=0)] if actions else [0.0] * N,
+        object=obj.name,
+        hand=hand_name,
+        actions=actions,
+        held=first_loss is None,
+        first_loss=first_loss,
+        grasp_settled=g.settled,
+        grasp_tension_N=[float(x) for x in g.tension],
+        contact_drift_per_action_mm_mean=[float(x) for x in 1e3 * drift.mean(axis=0)]
+        if actions
+        else [0.0] * N,
         contact_drift_per_action_mm_max=[float(x) for x in 1e3 * drift.max(axis=0)] if actions else [0.0] * N,
         contact_drift_total_mm=[float(x) for x in 1e3 * total],
         pom_motion_per_action_mm_mean=float(1e3 * np.mean(pom_dp)) if actions else 0.0,
         pom_rotation_per_action_deg_mean=float(np.rad2deg(np.mean(pom_dr))) if actions else 0.0,
-        min_tension_N=min_T, max_command_violation_m=violation,
+        min_tension_N=min_T,
+        max_command_violation_m=violation,
         settled_fraction=float(np.mean(settled)) if actions else 1.0,
         settle_time_s_mean=float(np.mean(t_settle)) if actions else 0.0,
         creep_mm_per_s_max=float(np.max(creep)) if actions else 0.0,
         wall_per_action_s_mean=float(np.mean(wall)) if actions else 0.0,
         wall_physics_s_mean=float(np.mean(wall_p)) if actions else 0.0,
         wall_render_s_mean=float(np.mean(wall_r)) if actions else 0.0,
-        wall_grasp_s=g.wall_s)
+        wall_grasp_s=g.wall_s,
+    )
 
 
 def main(argv: list[str] | None = None) -> list[CheckResult]:
@@ -155,16 +179,24 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     for name in args.objects:
         r = run_check(name, args.hand, args.actions, args.seed, physics, camera)
         results.append(r)
-        print(f"{r.object:17s} held={r.held!s:5s} drift/action [mm] mean {np.round(r.contact_drift_per_action_mm_mean, 2)} "
-              f"max {np.round(r.contact_drift_per_action_mm_max, 2)} total {np.round(r.contact_drift_total_mm, 1)} | "
-              f"POM {r.pom_motion_per_action_mm_mean:.2f} mm {r.pom_rotation_per_action_deg_mean:.2f} deg/action | "
-              f"T_min {r.min_tension_N:.1f} N | settled {100 * r.settled_fraction:.0f}% "
-              f"({r.settle_time_s_mean:.2f} s) creep<= {r.creep_mm_per_s_max:.2f} mm/s | wall/action "
-              f"{r.wall_per_action_s_mean:.3f} s (physics {r.wall_physics_s_mean:.3f}, render {r.wall_render_s_mean:.3f})")
+        print(
+            f"{r.object:17s} held={r.held!s:5s} drift/action [mm] mean {np.round(r.contact_drift_per_action_mm_mean, 2)} "
+            f"max {np.round(r.contact_drift_per_action_mm_max, 2)} total {np.round(r.contact_drift_total_mm, 1)} | "
+            f"POM {r.pom_motion_per_action_mm_mean:.2f} mm {r.pom_rotation_per_action_deg_mean:.2f} deg/action | "
+            f"T_min {r.min_tension_N:.1f} N | settled {100 * r.settled_fraction:.0f}% "
+            f"({r.settle_time_s_mean:.2f} s) creep<= {r.creep_mm_per_s_max:.2f} mm/s | wall/action "
+            f"{r.wall_per_action_s_mean:.3f} s (physics {r.wall_physics_s_mean:.3f}, render {r.wall_render_s_mean:.3f})"
+        )
     print(f"total wall {time.perf_counter() - t0:.1f} s")
     if args.json:
-        out = {"hand": args.hand, "actions": args.actions, "seed": args.seed,
-               "physics": dict(physics.__dict__), "camera": bool(camera), "results": [r.as_dict() for r in results]}
+        out = {
+            "hand": args.hand,
+            "actions": args.actions,
+            "seed": args.seed,
+            "physics": dict(physics.__dict__),
+            "camera": bool(camera),
+            "results": [r.as_dict() for r in results],
+        }
         with open(args.json, "w") as f:
             json.dump(out, f, indent=2)
     return results

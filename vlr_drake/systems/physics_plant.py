@@ -51,7 +51,14 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, ContactResults, MultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import BasicVector, Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.framework import (
+    BasicVector,
+    Context,
+    Diagram,
+    DiagramBuilder,
+    DiscreteValues,
+    LeafSystem,
+)
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
@@ -129,19 +136,36 @@ class PhysicsConfig:
 
     def validate(self) -> "PhysicsConfig":
         if not self.time_step > 0:
-            raise ValueError(f"physics: 'time_step' must be positive (a discrete plant), got {self.time_step}")
+            raise ValueError(
+                f"physics: 'time_step' must be positive (a discrete plant), got {self.time_step}"
+            )
         if self.contact_model not in ("point", "hydroelastic", "hydroelastic_with_fallback"):
             raise ValueError(f"physics: unknown 'contact_model' '{self.contact_model}'")
         if self.discrete_contact_approximation not in ("sap", "lagged", "similar"):
-            raise ValueError(f"physics: 'discrete_contact_approximation' must be sap, lagged or similar, got "
-                             f"'{self.discrete_contact_approximation}'")
+            raise ValueError(
+                f"physics: 'discrete_contact_approximation' must be sap, lagged or similar, got "
+                f"'{self.discrete_contact_approximation}'"
+            )
         if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
             raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
-        for name in ["ramp_time", "tendon_damping", "pretension", "thumb_factor", "settle_max", "grasp_settle_max", "fixed_settle_time"]:
+        for name in [
+            "ramp_time",
+            "tendon_damping",
+            "pretension",
+            "thumb_factor",
+            "settle_max",
+            "grasp_settle_max",
+            "fixed_settle_time",
+        ]:
             if getattr(self, name) < 0:
                 raise ValueError(f"physics: '{name}' must be >= 0, got {getattr(self, name)}")
-        for name in ["ramp_update_period", "settle_window", "contact_sample_period", "fall_distance",
-                     "penetration_allowance"]:
+        for name in [
+            "ramp_update_period",
+            "settle_window",
+            "contact_sample_period",
+            "fall_distance",
+            "penetration_allowance",
+        ]:
             if not getattr(self, name) > 0:
                 raise ValueError(f"physics: '{name}' must be positive, got {getattr(self, name)}")
         return self
@@ -169,20 +193,26 @@ class ImageDownsampler(LeafSystem):
     def __init__(self, width: int, height: int, scale: int, noise_std: float = 0.0, seed: int = 0):
         super().__init__()
         if scale < 1 or width <= 0 or height <= 0:
-            raise ValueError(f"ImageDownsampler: need width, height > 0 and scale >= 1, got {width}, {height}, {scale}")
+            raise ValueError(
+                f"ImageDownsampler: need width, height > 0 and scale >= 1, got {width}, {height}, {scale}"
+            )
         self._w, self._h, self._s = int(width), int(height), int(scale)
         self._noise = float(noise_std)
         self._rng = np.random.default_rng(seed)
         self.image_input = self.DeclareAbstractInputPort(
-            name="image_in", model_value=AbstractValue.Make(ImageRgba8U(self._w * self._s, self._h * self._s)))
+            name="image_in", model_value=AbstractValue.Make(ImageRgba8U(self._w * self._s, self._h * self._s))
+        )
         self.image_output = self.DeclareAbstractOutputPort(
-            name="rgb_image", alloc=lambda: AbstractValue.Make(ImageRgba8U(self._w, self._h)), calc=self._calc)
+            name="rgb_image", alloc=lambda: AbstractValue.Make(ImageRgba8U(self._w, self._h)), calc=self._calc
+        )
 
     def _calc(self, context: Context, output: AbstractValue) -> None:
         img = self.image_input.Eval(context)
         src = np.asarray(img.data)
         if src.shape[:2] != (self._h * self._s, self._w * self._s):
-            raise ValueError(f"image_in must be {self._w * self._s} x {self._h * self._s}, got {src.shape[1]} x {src.shape[0]}")
+            raise ValueError(
+                f"image_in must be {self._w * self._s} x {self._h * self._s}, got {src.shape[1]} x {src.shape[0]}"
+            )
         if self._s > 1:
             dst = cv2.resize(src, (self._w, self._h), interpolation=cv2.INTER_AREA)
         else:
@@ -205,8 +235,17 @@ class HandTruth(LeafSystem):
     sampled (every ``sample_period``) is held, expressed on the last link so it moves with it.
     """
 
-    def __init__(self, plant: MultibodyPlant, hand: HandModel, position_indices, palm_body_index,
-                 last_link_indices, object_body_index, X_BO: RigidTransform, sample_period: float = 0.005):
+    def __init__(
+        self,
+        plant: MultibodyPlant,
+        hand: HandModel,
+        position_indices,
+        palm_body_index,
+        last_link_indices,
+        object_body_index,
+        X_BO: RigidTransform,
+        sample_period: float = 0.005,
+    ):
         super().__init__()
         self._N = hand.N
         self._qi = np.asarray(position_indices, int)
@@ -218,24 +257,38 @@ class HandTruth(LeafSystem):
         nx = plant.num_multibody_states()
         self.state_input = self.DeclareVectorInputPort(name="state", size=nx)
         self.body_poses_input = self.DeclareAbstractInputPort(
-            name="body_poses", model_value=AbstractValue.Make([RigidTransform()] * plant.num_bodies()))
+            name="body_poses", model_value=AbstractValue.Make([RigidTransform()] * plant.num_bodies())
+        )
         self.contact_results_input = self.DeclareAbstractInputPort(
-            name="contact_results", model_value=AbstractValue.Make(ContactResults()))
+            name="contact_results", model_value=AbstractValue.Make(ContactResults())
+        )
         # Held contacts, in each last link's frame (3N) + valid flags (N).
         self._held = self.DeclareDiscreteState(4 * self._N)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=sample_period, offset_sec=0.0, update=self._sample)
         self.theta_output = self.DeclareVectorOutputPort(
-            name="theta_true", size=hand.num_angles, calc=self._calc_theta,
-            prerequisites_of_calc={self.input_port_ticket(self.state_input.get_index())})
+            name="theta_true",
+            size=hand.num_angles,
+            calc=self._calc_theta,
+            prerequisites_of_calc={self.input_port_ticket(self.state_input.get_index())},
+        )
         self.X_PO_output = self.DeclareAbstractOutputPort(
-            name="X_PO_true", alloc=lambda: AbstractValue.Make(RigidTransform()), calc=self._calc_X_PO,
-            prerequisites_of_calc={self.input_port_ticket(self.body_poses_input.get_index())})
+            name="X_PO_true",
+            alloc=lambda: AbstractValue.Make(RigidTransform()),
+            calc=self._calc_X_PO,
+            prerequisites_of_calc={self.input_port_ticket(self.body_poses_input.get_index())},
+        )
         self.contacts_output = self.DeclareVectorOutputPort(
-            name="contacts_true", size=3 * self._N, calc=self._calc_contacts,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+            name="contacts_true",
+            size=3 * self._N,
+            calc=self._calc_contacts,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+        )
         self.along_output = self.DeclareVectorOutputPort(
-            name="contact_along_link_true", size=self._N, calc=self._calc_along,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+            name="contact_along_link_true",
+            size=self._N,
+            calc=self._calc_along,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+        )
 
     def _current(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
         """Current contacts in the world (N, 3) and a has-contact mask (N,)."""
@@ -383,7 +436,9 @@ class PhysicsHand:
         return lc
 
     def command(self, root_context: Context) -> np.ndarray:
-        return self.tendons.clamp(self.diagram.GetInputPort("tendon_command").Eval(self.hand_context(root_context)))
+        return self.tendons.clamp(
+            self.diagram.GetInputPort("tendon_command").Eval(self.hand_context(root_context))
+        )
 
     def output(self, root_context: Context, name: str):
         """Evaluate an exported output; returns a copy (never a reference into the cache)."""
@@ -450,24 +505,31 @@ class PhysicsHand:
             qq[self.position_indices[i * K : (i + 1) * K]] = th
             plant.SetPositions(pctx, qq)
             qo = sg.get_query_output_port().Eval(sg_ctx)
-            return min(qo.ComputeSignedDistancePairClosestPoints(g, h).distance
-                       for g in self.pad_geometries[i] for h in self.object_geometries)
+            return min(
+                qo.ComputeSignedDistancePairClosestPoints(g, h).distance
+                for g in self.pad_geometries[i]
+                for h in self.object_geometries
+            )
 
         s_max = float(np.min(self.hand.joint_upper / W))
         for i in range(N):
             grid = np.linspace(0.0, s_max, steps)
             d0 = distance(i, 0.0)
             if d0 <= 0:
-                raise RuntimeError(f"finger '{self.hand.names[i]}': pad already penetrates the object when straight; "
-                                   "move the object's placement_xyz")
+                raise RuntimeError(
+                    f"finger '{self.hand.names[i]}': pad already penetrates the object when straight; "
+                    "move the object's placement_xyz"
+                )
             hi = None
             for s in grid[1:]:
                 if distance(i, s) <= 0:
                     hi = s
                     break
             if hi is None:
-                raise RuntimeError(f"finger '{self.hand.names[i]}': pad never reaches object '{self.obj.name}'; "
-                                   "move the object's placement_xyz")
+                raise RuntimeError(
+                    f"finger '{self.hand.names[i]}': pad never reaches object '{self.obj.name}'; "
+                    "move the object's placement_xyz"
+                )
             lo = hi - (grid[1] - grid[0])
             for _ in range(40):
                 mid = 0.5 * (lo + hi)
@@ -507,12 +569,18 @@ class PhysicsHand:
         X_PO = self.output(root, "X_PO_true")
         self.grasp_X_PO = X_PO
         return GraspResult(
-            theta=self.output(root, "theta_true").copy(), theta_placed=theta0, command=l,
-            tension=self.output(root, "tension").copy(), X_PO=X_PO,
-            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(), in_contact=self.in_contact(root),
-            settled=settled, settle_time=t_settle,
+            theta=self.output(root, "theta_true").copy(),
+            theta_placed=theta0,
+            command=l,
+            tension=self.output(root, "tension").copy(),
+            X_PO=X_PO,
+            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(),
+            in_contact=self.in_contact(root),
+            settled=settled,
+            settle_time=t_settle,
             object_shift_mm=1e3 * float(np.linalg.norm(X_PO.translation() - X_PO0.translation())),
-            wall_s=time.perf_counter() - t0)
+            wall_s=time.perf_counter() - t0,
+        )
 
     def _object_pose(self, root: Context) -> RigidTransform:
         return self.plant.EvalBodyPoseInWorld(self.plant_context(root), self.object_body)
@@ -544,7 +612,11 @@ class PhysicsHand:
             w = (X0.rotation().inverse() @ X1.rotation()).ToAngleAxis().angle() / dt
             qd = np.max(np.abs(th1 - th0)) / dt
             creep = float(v)
-            if v < ph.settle_object_speed and w < ph.settle_object_angular_speed and qd < ph.settle_joint_speed:
+            if (
+                v < ph.settle_object_speed
+                and w < ph.settle_object_angular_speed
+                and qd < ph.settle_joint_speed
+            ):
                 return True, root.get_time() - t_start, creep
         return False, root.get_time() - t_start, creep
 
@@ -565,10 +637,18 @@ class PhysicsHand:
             self.output(root, "rgb_image")
         t2 = time.perf_counter()
         return ActionResult(
-            command=l, clamped=bool(np.any(np.abs(l - want) > 1e-12)), settled=settled, settle_time=t_settle,
-            creep_mm_per_s=1e3 * creep, X_PO=self.output(root, "X_PO_true"),
-            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(), in_contact=self.in_contact(root),
-            tension=self.output(root, "tension").copy(), wall_physics_s=t1 - t0, wall_render_s=t2 - t1)
+            command=l,
+            clamped=bool(np.any(np.abs(l - want) > 1e-12)),
+            settled=settled,
+            settle_time=t_settle,
+            creep_mm_per_s=1e3 * creep,
+            X_PO=self.output(root, "X_PO_true"),
+            contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(),
+            in_contact=self.in_contact(root),
+            tension=self.output(root, "tension").copy(),
+            wall_physics_s=t1 - t0,
+            wall_render_s=t2 - t1,
+        )
 
     def object_fell(self, root_context: Context) -> bool:
         """POM moved more than ``fall_distance`` from the grasp, or a pad lost the object."""
@@ -585,8 +665,14 @@ def _ensure_object_assets(obj: ObjectSpec) -> None:
         write_object_models(specs=[obj])
 
 
-def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, physics: PhysicsConfig,
-                     camera: CameraConfig | None = None, meshcat: Meshcat | None = None) -> PhysicsHand:
+def add_physics_hand(
+    builder: DiagramBuilder,
+    hand: HandSpec,
+    obj: ObjectSpec,
+    physics: PhysicsConfig,
+    camera: CameraConfig | None = None,
+    meshcat: Meshcat | None = None,
+) -> PhysicsHand:
     """Add the Diagram ``hand`` (plant, scene graph, tendons, truth, camera) to ``builder``.
 
     The palm is welded to the world at ``physics.X_WP()``; the object is a free body. Its
@@ -603,9 +689,11 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
 
     inner = DiagramBuilder()
     cfg = MultibodyPlantConfig(
-        time_step=physics.time_step, contact_model=physics.contact_model,
+        time_step=physics.time_step,
+        contact_model=physics.contact_model,
         discrete_contact_approximation=physics.discrete_contact_approximation,
-        penetration_allowance=physics.penetration_allowance)
+        penetration_allowance=physics.penetration_allowance,
+    )
     plant, sg = AddMultibodyPlant(cfg, inner)
     parser = Parser(plant)
     configure_parser(parser)
@@ -616,7 +704,9 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
     plant.Finalize()
 
     N, K = model.N, model.K
-    joints = [plant.GetJointByName(joint_name(n, k), hand_instance) for n in model.names for k in range(1, K + 1)]
+    joints = [
+        plant.GetJointByName(joint_name(n, k), hand_instance) for n in model.names for k in range(1, K + 1)
+    ]
     qi = np.array([j.position_start() for j in joints])
     vi = np.array([j.velocity_start() for j in joints])
     last_links = [plant.GetBodyByName(link_name(n, K), hand_instance) for n in model.names]
@@ -632,17 +722,36 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
         pad_geoms.append(pads)
     obj_geoms = list(plant.GetCollisionGeometriesForBody(obj_body))
 
-    tendons = inner.AddNamedSystem("tendons", TendonForces(
-        model, qi, vi, plant.num_positions(), plant.num_velocities(),
-        ramp_time=physics.ramp_time, update_period=physics.ramp_update_period,
-        damping=[physics.tendon_damping] * N if physics.tendon_damping > 0 else None))
+    tendons = inner.AddNamedSystem(
+        "tendons",
+        TendonForces(
+            model,
+            qi,
+            vi,
+            plant.num_positions(),
+            plant.num_velocities(),
+            ramp_time=physics.ramp_time,
+            update_period=physics.ramp_update_period,
+            damping=[physics.tendon_damping] * N if physics.tendon_damping > 0 else None,
+        ),
+    )
     inner.Connect(plant.get_state_output_port(), tendons.state_input)
     inner.Connect(tendons.generalized_force_output, plant.get_applied_generalized_force_input_port())
 
     X_BO = plant.GetFrameByName("pom", obj_instances).GetFixedPoseInBodyFrame()
-    truth = inner.AddNamedSystem("truth", HandTruth(
-        plant, model, qi, palm.index(), [b.index() for b in last_links], obj_body.index(), X_BO,
-        sample_period=physics.contact_sample_period))
+    truth = inner.AddNamedSystem(
+        "truth",
+        HandTruth(
+            plant,
+            model,
+            qi,
+            palm.index(),
+            [b.index() for b in last_links],
+            obj_body.index(),
+            X_BO,
+            sample_period=physics.contact_sample_period,
+        ),
+    )
     inner.Connect(plant.get_state_output_port(), truth.state_input)
     inner.Connect(plant.get_body_poses_output_port(), truth.body_poses_input)
     inner.Connect(plant.get_contact_results_output_port(), truth.contact_results_input)
@@ -652,15 +761,26 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
     if camera is not None:
         sg.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams()))
         s = camera.render_scale
-        core = RenderCameraCore(RENDERER_NAME, CameraInfo(camera.width * s, camera.height * s,
-                                                          np.deg2rad(camera.fov_y_deg)),
-                                ClippingRange(camera.near, camera.far), RigidTransform())
-        sensor = inner.AddNamedSystem("camera", RgbdSensor(
-            parent_id=plant.GetBodyFrameIdOrThrow(palm.index()), X_PB=camera.X_PC(),
-            color_camera=ColorRenderCamera(core, False), depth_camera=DepthRenderCamera(core, DepthRange(camera.near, camera.far * 0.99))))
+        core = RenderCameraCore(
+            RENDERER_NAME,
+            CameraInfo(camera.width * s, camera.height * s, np.deg2rad(camera.fov_y_deg)),
+            ClippingRange(camera.near, camera.far),
+            RigidTransform(),
+        )
+        sensor = inner.AddNamedSystem(
+            "camera",
+            RgbdSensor(
+                parent_id=plant.GetBodyFrameIdOrThrow(palm.index()),
+                X_PB=camera.X_PC(),
+                color_camera=ColorRenderCamera(core, False),
+                depth_camera=DepthRenderCamera(core, DepthRange(camera.near, camera.far * 0.99)),
+            ),
+        )
         inner.Connect(sg.get_query_output_port(), sensor.query_object_input_port())
-        down = inner.AddNamedSystem("downsample", ImageDownsampler(
-            camera.width, camera.height, s, camera.pixel_noise_std, physics.seed))
+        down = inner.AddNamedSystem(
+            "downsample",
+            ImageDownsampler(camera.width, camera.height, s, camera.pixel_noise_std, physics.seed),
+        )
         inner.Connect(sensor.color_image_output_port(), down.image_input)
         inner.ExportOutput(down.image_output, "rgb_image")
     inner.ExportOutput(truth.theta_output, "theta_true")
@@ -672,7 +792,9 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
 
     vis = None
     if meshcat is not None:
-        vis = MeshcatVisualizer.AddToBuilder(inner, sg, meshcat, MeshcatVisualizerParams(role=Role.kIllustration))
+        vis = MeshcatVisualizer.AddToBuilder(
+            inner, sg, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
+        )
         if camera is not None:
             draw_camera_frustum(meshcat, camera, physics.X_WP())
 
@@ -680,30 +802,61 @@ def add_physics_hand(builder: DiagramBuilder, hand: HandSpec, obj: ObjectSpec, p
     diagram.set_name("hand")
     builder.AddNamedSystem("hand", diagram)
     return PhysicsHand(
-        diagram=diagram, plant=plant, scene_graph=sg, tendons=tendons, truth=truth, hand=model, obj=obj,
-        physics=physics, camera=camera, sensor=sensor, downsampler=down, visualizer=vis, meshcat=meshcat,
-        object_body=obj_body, palm_body=palm, position_indices=qi, last_links=last_links,
-        pad_geometries=pad_geoms, object_geometries=obj_geoms)
+        diagram=diagram,
+        plant=plant,
+        scene_graph=sg,
+        tendons=tendons,
+        truth=truth,
+        hand=model,
+        obj=obj,
+        physics=physics,
+        camera=camera,
+        sensor=sensor,
+        downsampler=down,
+        visualizer=vis,
+        meshcat=meshcat,
+        object_body=obj_body,
+        palm_body=palm,
+        position_indices=qi,
+        last_links=last_links,
+        pad_geometries=pad_geoms,
+        object_geometries=obj_geoms,
+    )
 
 
-def draw_camera_frustum(meshcat: Meshcat, camera: CameraConfig, X_WP: RigidTransform, depth: float = 0.12,
-                        path: str = "camera_frustum") -> None:
+def draw_camera_frustum(
+    meshcat: Meshcat,
+    camera: CameraConfig,
+    X_WP: RigidTransform,
+    depth: float = 0.12,
+    path: str = "camera_frustum",
+) -> None:
     """Draw the palm camera's viewing frustum (to ``depth`` metres) as line segments."""
     Kmat = camera.intrinsic_matrix()
-    corners_px = [(-0.5, -0.5), (camera.width - 0.5, -0.5), (camera.width - 0.5, camera.height - 0.5),
-                  (-0.5, camera.height - 0.5)]
+    corners_px = [
+        (-0.5, -0.5),
+        (camera.width - 0.5, -0.5),
+        (camera.width - 0.5, camera.height - 0.5),
+        (-0.5, camera.height - 0.5),
+    ]
     X_WC = X_WP @ camera.X_PC()
     o = X_WC.translation()
-    far = [X_WC @ (depth * np.array([(u - Kmat[0, 2]) / Kmat[0, 0], (v - Kmat[1, 2]) / Kmat[1, 1], 1.0]))
-           for u, v in corners_px]
+    far = [
+        X_WC @ (depth * np.array([(u - Kmat[0, 2]) / Kmat[0, 0], (v - Kmat[1, 2]) / Kmat[1, 1], 1.0]))
+        for u, v in corners_px
+    ]
     start = [o] * 4 + far
     end = far + far[1:] + far[:1]
     meshcat.SetLineSegments(path, np.array(start).T, np.array(end).T, 1.0, Rgba(0.1, 0.6, 1.0, 1.0))
 
 
-def build_physics_hand(hand: HandSpec, obj: ObjectSpec, physics: PhysicsConfig | None = None,
-                       camera: CameraConfig | None = None, meshcat: Meshcat | None = None
-                       ) -> tuple[Diagram, PhysicsHand, Simulator]:
+def build_physics_hand(
+    hand: HandSpec,
+    obj: ObjectSpec,
+    physics: PhysicsConfig | None = None,
+    camera: CameraConfig | None = None,
+    meshcat: Meshcat | None = None,
+) -> tuple[Diagram, PhysicsHand, Simulator]:
     """A root diagram holding only the physics hand (tendon command left to be fixed), and
     its Simulator (initialised)."""
     builder = DiagramBuilder()
@@ -721,6 +874,8 @@ def grasp(simulator: Simulator, physics_hand: PhysicsHand) -> GraspResult:
     return physics_hand.grasp(simulator)
 
 
-def apply_action(simulator: Simulator, physics_hand: PhysicsHand, dl: np.ndarray, render: bool = True) -> ActionResult:
+def apply_action(
+    simulator: Simulator, physics_hand: PhysicsHand, dl: np.ndarray, render: bool = True
+) -> ActionResult:
     """See :meth:`PhysicsHand.apply_action`."""
     return physics_hand.apply_action(simulator, dl, render)

@@ -28,8 +28,14 @@ from vlr_drake.hand import HandModel
 __all__ = ["TendonForces", "tendon_tension"]
 
 
-def tendon_tension(hand: HandModel, l: np.ndarray, theta: np.ndarray, theta_dot: np.ndarray | None = None,
-                   l_dot: np.ndarray | None = None, damping: np.ndarray | None = None) -> np.ndarray:
+def tendon_tension(
+    hand: HandModel,
+    l: np.ndarray,
+    theta: np.ndarray,
+    theta_dot: np.ndarray | None = None,
+    l_dot: np.ndarray | None = None,
+    damping: np.ndarray | None = None,
+) -> np.ndarray:
     """Tendon tensions T (N,) for pulls ``l`` (N,) and angles ``theta`` (N*K, finger-major):
     T_i = max(0, kappa_i s_i + c_i ds_i/dt) where the stretch s_i > 0, else 0."""
     R = hand.R
@@ -56,21 +62,33 @@ class TendonForces(LeafSystem):
     Discrete state: applied pull (N), ramp start (N), ramp target (N), ramp start time (1).
     """
 
-    def __init__(self, hand: HandModel, position_indices: Sequence[int], velocity_indices: Sequence[int],
-                 num_positions: int, num_velocities: int, ramp_time: float = 0.2, update_period: float = 0.001,
-                 damping: Sequence[float] | None = None):
+    def __init__(
+        self,
+        hand: HandModel,
+        position_indices: Sequence[int],
+        velocity_indices: Sequence[int],
+        num_positions: int,
+        num_velocities: int,
+        ramp_time: float = 0.2,
+        update_period: float = 0.001,
+        damping: Sequence[float] | None = None,
+    ):
         super().__init__()
         self._hand = hand
         N, nk = hand.N, hand.num_angles
         self._qi = np.asarray(position_indices, dtype=int)
         self._vi = np.asarray(velocity_indices, dtype=int)
         if self._qi.shape != (nk,) or self._vi.shape != (nk,):
-            raise ValueError(f"position_indices and velocity_indices must have N*K = {nk} entries "
-                             f"(finger-major), got {self._qi.shape} and {self._vi.shape}")
+            raise ValueError(
+                f"position_indices and velocity_indices must have N*K = {nk} entries "
+                f"(finger-major), got {self._qi.shape} and {self._vi.shape}"
+            )
         if np.any(self._qi >= num_positions) or np.any(self._vi >= num_velocities):
             raise ValueError("position_indices / velocity_indices out of range of the plant's state")
         if not ramp_time >= 0 or not update_period > 0:
-            raise ValueError(f"ramp_time must be >= 0 and update_period > 0, got {ramp_time}, {update_period}")
+            raise ValueError(
+                f"ramp_time must be >= 0 and update_period > 0, got {ramp_time}, {update_period}"
+            )
         self._nq, self._nv = num_positions, num_velocities
         self._ramp_time = float(ramp_time)
         self._period = float(update_period)
@@ -88,16 +106,27 @@ class TendonForces(LeafSystem):
         init = np.concatenate([np.repeat(self._lo, 3), [-1e9]])
         init[:N] = init[N : 2 * N] = init[2 * N : 3 * N] = self._lo
         self._ramp_state = self.DeclareDiscreteState(BasicVector(init))
-        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self._period, offset_sec=0.0, update=self._update_ramp)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            period_sec=self._period, offset_sec=0.0, update=self._update_ramp
+        )
         self.generalized_force_output = self.DeclareVectorOutputPort(
-            name="generalized_force", size=num_velocities, calc=self._calc_force,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+            name="generalized_force",
+            size=num_velocities,
+            calc=self._calc_force,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+        )
         self.tension_output = self.DeclareVectorOutputPort(
-            name="tension", size=N, calc=self._calc_tension,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()})
+            name="tension",
+            size=N,
+            calc=self._calc_tension,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+        )
         self.tendon_position_output = self.DeclareVectorOutputPort(
-            name="tendon_position_measured", size=N, calc=self._calc_position,
-            prerequisites_of_calc={self.xd_ticket()})
+            name="tendon_position_measured",
+            size=N,
+            calc=self._calc_position,
+            prerequisites_of_calc={self.xd_ticket()},
+        )
 
     # -- helpers --------------------------------------------------------------------------
 
