@@ -220,7 +220,9 @@ class DynamixelEmulator:
         with self._lock:
             out = []
             for t, i, inst, p in self.log:
-                if inst == instruction and (address is None or (len(p) >= 2 and p[0] | (p[1] << 8) == address)):
+                if inst == instruction and (
+                    address is None or (len(p) >= 2 and p[0] | (p[1] << 8) == address)
+                ):
                     out.append((t, i, p))
             return out
 
@@ -351,7 +353,9 @@ class DynamixelEmulator:
             return ERR_DATA_LENGTH
         if addr < EEPROM_END and m.table[ADDR_TORQUE_ENABLE]:
             return ERR_ACCESS  # EEPROM is locked while torque is on
-        if addr <= ADDR_PRESENT_CURRENT < addr + len(data) or addr <= ADDR_PRESENT_POSITION < addr + len(data):
+        if addr <= ADDR_PRESENT_CURRENT < addr + len(data) or addr <= ADDR_PRESENT_POSITION < addr + len(
+            data
+        ):
             return ERR_ACCESS  # read-only area
         if addr == ADDR_TORQUE_ENABLE and data[0] and not m.table[ADDR_TORQUE_ENABLE]:
             m.position = float(m.get(ADDR_PRESENT_POSITION, "<i"))

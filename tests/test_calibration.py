@@ -74,7 +74,9 @@ def test_charuco_calibration(rng):
     import cv2
 
     squares, square, marker = (7, 5), 0.04, 0.03
-    board = cv2.aruco.CharucoBoard(squares, square, marker, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100))
+    board = cv2.aruco.CharucoBoard(
+        squares, square, marker, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
+    )
     px = 60
     tex = board.generateImage((squares[0] * px, squares[1] * px), marginSize=0, borderBits=1)
     tex = np.pad(tex, px // 2, constant_values=255)

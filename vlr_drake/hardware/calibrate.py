@@ -71,12 +71,21 @@ def _calibrate(object_points, image_points, size, used, fix_aspect: bool) -> Cal
     import cv2
 
     if len(object_points) < 3:
-        raise ValueError(f"calibration needs the target in at least 3 images, found it in {len(object_points)} of {len(used)}")
+        raise ValueError(
+            f"calibration needs the target in at least 3 images, found it in {len(object_points)} of {len(used)}"
+        )
     flags = cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0
     K0 = np.eye(3)
     rms, K, dist, _, _ = cv2.calibrateCamera(object_points, image_points, size, K0, None, flags=flags)
     intr = CameraIntrinsics(K=K, dist=dist.ravel(), width=int(size[0]), height=int(size[1])).validate()
-    log.info("calibrated from %d of %d images: rms %.3f px, fx %.2f fy %.2f", len(object_points), len(used), rms, K[0, 0], K[1, 1])
+    log.info(
+        "calibrated from %d of %d images: rms %.3f px, fx %.2f fy %.2f",
+        len(object_points),
+        len(used),
+        rms,
+        K[0, 0],
+        K[1, 1],
+    )
     return CalibrationResult(intrinsics=intr, rms_px=float(rms), used=used)
 
 
@@ -108,7 +117,9 @@ def calibrate_chessboard(
         if size is None:
             size = (gray.shape[1], gray.shape[0])
         elif size != (gray.shape[1], gray.shape[0]):
-            raise ValueError(f"all calibration images must have one size: {size} vs {(gray.shape[1], gray.shape[0])}")
+            raise ValueError(
+                f"all calibration images must have one size: {size} vs {(gray.shape[1], gray.shape[0])}"
+            )
         found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_ACCURACY)
         used.append(bool(found))
         if found:
@@ -133,7 +144,12 @@ def calibrate_charuco(
 
     aruco = cv2.aruco
     dictionary = aruco.DICT_5X5_100 if dictionary is None else dictionary
-    board = aruco.CharucoBoard(tuple(int(s) for s in squares), float(square_size), float(marker_size), aruco.getPredefinedDictionary(dictionary))
+    board = aruco.CharucoBoard(
+        tuple(int(s) for s in squares),
+        float(square_size),
+        float(marker_size),
+        aruco.getPredefinedDictionary(dictionary),
+    )
     detector = aruco.CharucoDetector(board)
     object_points, image_points, used, size = [], [], [], None
     for image in images:
@@ -194,7 +210,12 @@ def render_planar_target(
     f = int(supersample)
     S = np.array([[f, 0.0, (f - 1) / 2.0], [0.0, f, (f - 1) / 2.0], [0.0, 0.0, 1.0]])
     big = cv2.warpPerspective(
-        texture, S @ H, (size[0] * f, size[1] * f), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=background
+        texture,
+        S @ H,
+        (size[0] * f, size[1] * f),
+        flags=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=background,
     )
     return cv2.resize(big, size, interpolation=cv2.INTER_AREA) if f > 1 else big
 
@@ -206,7 +227,9 @@ def _pair(text: str) -> tuple[int, int]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: images -> intrinsics YAML (see the module docstring)."""
-    p = argparse.ArgumentParser(prog="python -m vlr_drake.hardware.calibrate", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m vlr_drake.hardware.calibrate", description=__doc__.split("\n")[0]
+    )
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--pattern", type=_pair, help="chessboard inner corners, e.g. 9x6")
     g.add_argument("--charuco", type=_pair, help="ChArUco squares, e.g. 7x5")
@@ -224,7 +247,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         res = calibrate_chessboard(a.images, a.pattern, a.square, fix_aspect=a.fix_aspect)
     res.save(a.out)
     K = res.intrinsics.K
-    print(f"{sum(res.used)} of {len(res.used)} images used, rms {res.rms_px:.3f} px, fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} -> {a.out}")
+    print(
+        f"{sum(res.used)} of {len(res.used)} images used, rms {res.rms_px:.3f} px, fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} -> {a.out}"
+    )
     return 0
 
 

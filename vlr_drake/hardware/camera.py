@@ -46,14 +46,20 @@ class CameraIntrinsics:
     def validate(self) -> CameraIntrinsics:
         K = np.asarray(self.K, float)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)):
-            raise ValueError(f"intrinsics: 'camera_matrix' must be a finite 3 x 3 matrix, got shape {K.shape}")
+            raise ValueError(
+                f"intrinsics: 'camera_matrix' must be a finite 3 x 3 matrix, got shape {K.shape}"
+            )
         if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
             raise ValueError(f"intrinsics: 'camera_matrix' is not a pinhole matrix: {K.tolist()}")
         d = np.asarray(self.dist, float).ravel()
         if d.size not in (0, 4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
-            raise ValueError(f"intrinsics: 'distortion_coefficients' must have 4, 5, 8, 12 or 14 finite entries, got {d.size}")
+            raise ValueError(
+                f"intrinsics: 'distortion_coefficients' must have 4, 5, 8, 12 or 14 finite entries, got {d.size}"
+            )
         if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"intrinsics: 'image_width' and 'image_height' must be positive, got {self.width} x {self.height}")
+            raise ValueError(
+                f"intrinsics: 'image_width' and 'image_height' must be positive, got {self.width} x {self.height}"
+            )
         self.K, self.dist = K, d
         return self
 
@@ -99,7 +105,9 @@ def read_intrinsics(path: str | Path) -> CameraIntrinsics:
     finally:
         fs.release()
     if K is None or dist is None:
-        raise CameraError(f"camera calibration file '{path}': 'camera_matrix' and 'distortion_coefficients' must be matrices")
+        raise CameraError(
+            f"camera calibration file '{path}': 'camera_matrix' and 'distortion_coefficients' must be matrices"
+        )
     try:
         return CameraIntrinsics(K=K, dist=dist.ravel(), width=width, height=height).validate()
     except ValueError as e:
@@ -176,7 +184,9 @@ class FrameSource:
             cap = fut.result(timeout=max(self.timeout_s, 5.0))
         except cf.TimeoutError as e:
             self._pool.shutdown(wait=False)
-            raise CameraError(f"camera '{self.source}' did not open within {max(self.timeout_s, 5.0)} s") from e
+            raise CameraError(
+                f"camera '{self.source}' did not open within {max(self.timeout_s, 5.0)} s"
+            ) from e
         if cap is None or not cap.isOpened():
             self._pool.shutdown(wait=False)
             raise CameraError(f"cannot open camera '{self.source}' (device index, file or URL)")

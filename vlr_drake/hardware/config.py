@@ -16,8 +16,8 @@ Tendon limits default to the hand's ``tendon_range`` (:class:`vlr_drake.hand.Han
 the hand's numbers stay in one place; a hardware build may narrow them here.
 """
 
-from __future__ import annotations
-
+# No ``from __future__ import annotations``: Drake's yaml_load_typed reads the dataclass
+# field types at run time.
 import math
 from dataclasses import dataclass, field
 
@@ -83,7 +83,7 @@ class HardwareConfig:
     def num_motors(self) -> int:
         return len(self.motor_ids)
 
-    def validate(self, num_fingers: int | None = None) -> HardwareConfig:
+    def validate(self, num_fingers: int | None = None) -> "HardwareConfig":
         """Check the config and raise ``ValueError`` naming the offending field.
 
         ``num_fingers`` (optional) is the hand's finger count that ``motor_ids`` must match.
@@ -107,7 +107,9 @@ class HardwareConfig:
         if not (math.isfinite(self.spool_radius) and self.spool_radius > 0):
             raise ValueError(f"{where}: 'spool_radius' must be positive, got {self.spool_radius}")
         if len(self.zero_offset_ticks) != n:
-            raise ValueError(f"{where}: 'zero_offset_ticks' must have {n} entries (one per motor), got {len(self.zero_offset_ticks)}")
+            raise ValueError(
+                f"{where}: 'zero_offset_ticks' must have {n} entries (one per motor), got {len(self.zero_offset_ticks)}"
+            )
         if len(self.direction) != n or any(d not in (1, -1) for d in self.direction):
             raise ValueError(f"{where}: 'direction' must have {n} entries of +1 or -1, got {self.direction}")
         if self.ticks_per_rev <= 0:
@@ -123,11 +125,15 @@ class HardwareConfig:
         if self.tendon_lower and not np.all(np.asarray(self.tendon_lower) < np.asarray(self.tendon_upper)):
             raise ValueError(f"{where}: 'tendon_lower' must be below 'tendon_upper'")
         if self.operating_mode not in MULTI_TURN_MODES:
-            raise ValueError(f"{where}: 'operating_mode' must be 4 (extended position) or 5 (current-based position), got {self.operating_mode}")
+            raise ValueError(
+                f"{where}: 'operating_mode' must be 4 (extended position) or 5 (current-based position), got {self.operating_mode}"
+            )
         if not 0 <= self.goal_current_raw <= 32767:
             raise ValueError(f"{where}: 'goal_current_raw' must be in 0..32767, got {self.goal_current_raw}")
         if not isinstance(self.camera, int | str) or (isinstance(self.camera, str) and not self.camera):
-            raise ValueError(f"{where}: 'camera' must be an int device index or a non-empty path/URL, got {self.camera!r}")
+            raise ValueError(
+                f"{where}: 'camera' must be an int device index or a non-empty path/URL, got {self.camera!r}"
+            )
         for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -144,10 +150,14 @@ class HardwareConfig:
         if self.tendon_lower:
             return np.asarray(self.tendon_lower, float), np.asarray(self.tendon_upper, float)
         if hand is None:
-            raise ValueError("hardware config: no 'tendon_lower'/'tendon_upper' given and no hand to take tendon_range from")
+            raise ValueError(
+                "hardware config: no 'tendon_lower'/'tendon_upper' given and no hand to take tendon_range from"
+            )
         rng = np.array([f.tendon_range for f in hand.fingers], float)
         if len(rng) != self.num_motors:
-            raise ValueError(f"hardware config: 'motor_ids' has {self.num_motors} motors but the hand has {len(rng)} fingers")
+            raise ValueError(
+                f"hardware config: 'motor_ids' has {self.num_motors} motors but the hand has {len(rng)} fingers"
+            )
         return rng[:, 0].copy(), rng[:, 1].copy()
 
 
@@ -166,7 +176,9 @@ class TendonMotorMap:
         self.upper = np.asarray(upper, float)
         n = len(self.zero)
         if self.lower.shape != (n,) or self.upper.shape != (n,):
-            raise ValueError(f"tendon limits must have shape ({n},), got {self.lower.shape} and {self.upper.shape}")
+            raise ValueError(
+                f"tendon limits must have shape ({n},), got {self.lower.shape} and {self.upper.shape}"
+            )
 
     def to_ticks(self, l: np.ndarray) -> np.ndarray:
         """Goal ticks (N,) int64 for tendon pulls ``l`` (N,) [m] (no clipping here)."""

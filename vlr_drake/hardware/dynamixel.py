@@ -97,8 +97,14 @@ class TendonMotors:
         n = len(self.motor_ids)
         if lo.shape != (n,) or hi.shape != (n,):
             raise ValueError(f"tick_limits must be two arrays of shape ({n},), got {lo.shape} and {hi.shape}")
-        if np.any(lo > hi) or np.any(np.abs(lo) > EXTENDED_POSITION_LIMIT) or np.any(np.abs(hi) > EXTENDED_POSITION_LIMIT):
-            raise ValueError(f"tick_limits must satisfy lo <= hi within +-{EXTENDED_POSITION_LIMIT}, got {lo} and {hi}")
+        if (
+            np.any(lo > hi)
+            or np.any(np.abs(lo) > EXTENDED_POSITION_LIMIT)
+            or np.any(np.abs(hi) > EXTENDED_POSITION_LIMIT)
+        ):
+            raise ValueError(
+                f"tick_limits must satisfy lo <= hi within +-{EXTENDED_POSITION_LIMIT}, got {lo} and {hi}"
+            )
         self.tick_lower, self.tick_upper = lo, hi
         self.operating_mode = int(operating_mode)
         self.goal_current_raw = int(goal_current_raw)
@@ -166,7 +172,9 @@ class TendonMotors:
                 if self.operating_mode == 5 and self.goal_current_raw > 0:
                     self._call(
                         f"set goal current of motor id {dxl_id}",
-                        lambda i=dxl_id: self._ph.write2ByteTxRx(self._port, i, ADDR_GOAL_CURRENT, self.goal_current_raw),
+                        lambda i=dxl_id: self._ph.write2ByteTxRx(
+                            self._port, i, ADDR_GOAL_CURRENT, self.goal_current_raw
+                        ),
                         dxl_id,
                     )
             self._sync_write = sdk.GroupSyncWrite(self._port, self._ph, ADDR_GOAL_POSITION, 4)
@@ -182,7 +190,9 @@ class TendonMotors:
         except BaseException:
             self.close()
             raise
-        log.info("Dynamixel bus %s open, motors %s at %s ticks, torque on", self.port_name, self.motor_ids, ticks)
+        log.info(
+            "Dynamixel bus %s open, motors %s at %s ticks, torque on", self.port_name, self.motor_ids, ticks
+        )
         return ticks
 
     def close(self) -> None:
@@ -299,7 +309,11 @@ class TendonMotors:
                 last = self._ph.getTxRxResult(result)
             else:
                 last = self._ph.getRxPacketError(error)
-        who = f" (motor id {dxl_id} on '{self.port_name}' at {self.baud_rate} baud)" if dxl_id is not None else ""
+        who = (
+            f" (motor id {dxl_id} on '{self.port_name}' at {self.baud_rate} baud)"
+            if dxl_id is not None
+            else ""
+        )
         if result == sdk.COMM_RX_TIMEOUT and dxl_id is not None:
             raise DynamixelError(f"{what}: motor id {dxl_id} does not answer{who}: {last}")
         raise DynamixelError(f"{what}{who}: {last}")
@@ -325,7 +339,9 @@ class TendonMotors:
                 raise DynamixelError(f"sync write of goal positions on '{self.port_name}' failed: {e}") from e
             if result == sdk.COMM_SUCCESS:
                 return
-        raise DynamixelError(f"sync write of goal positions on '{self.port_name}': {self._ph.getTxRxResult(result)}")
+        raise DynamixelError(
+            f"sync write of goal positions on '{self.port_name}': {self._ph.getTxRxResult(result)}"
+        )
 
     def _read_once(self) -> tuple[np.ndarray, np.ndarray]:
         import dynamixel_sdk as sdk
@@ -335,13 +351,30 @@ class TendonMotors:
             try:
                 result = self._sync_read.txRxPacket()
             except Exception as e:
-                raise DynamixelError(f"sync read of present position on '{self.port_name}' failed: {e}") from e
-            missing = [i for i in self.motor_ids if not self._sync_read.isAvailable(i, READ_BLOCK_START, READ_BLOCK_LENGTH)]
+                raise DynamixelError(
+                    f"sync read of present position on '{self.port_name}' failed: {e}"
+                ) from e
+            missing = [
+                i
+                for i in self.motor_ids
+                if not self._sync_read.isAvailable(i, READ_BLOCK_START, READ_BLOCK_LENGTH)
+            ]
             if result == sdk.COMM_SUCCESS and not missing:
-                pos = [_signed(self._sync_read.getData(i, ADDR_PRESENT_POSITION, 4), 32) for i in self.motor_ids]
-                cur = [_signed(self._sync_read.getData(i, ADDR_PRESENT_CURRENT, 2), 16) for i in self.motor_ids]
+                pos = [
+                    _signed(self._sync_read.getData(i, ADDR_PRESENT_POSITION, 4), 32) for i in self.motor_ids
+                ]
+                cur = [
+                    _signed(self._sync_read.getData(i, ADDR_PRESENT_CURRENT, 2), 16) for i in self.motor_ids
+                ]
                 return np.array(pos, np.int64), np.array(cur, np.int64)
             # The SDK stops at the first motor that fails; name it.
-            failed = next((i for i in self.motor_ids if len(self._sync_read.data_dict.get(i, [])) != READ_BLOCK_LENGTH), None)
-            what = f"{self._ph.getTxRxResult(result)}" + (f" (first failing motor id {failed})" if failed is not None else "")
-        raise DynamixelError(f"sync read of present position on '{self.port_name}' at {self.baud_rate} baud: {what}")
+            failed = next(
+                (i for i in self.motor_ids if len(self._sync_read.data_dict.get(i, [])) != READ_BLOCK_LENGTH),
+                None,
+            )
+            what = f"{self._ph.getTxRxResult(result)}" + (
+                f" (first failing motor id {failed})" if failed is not None else ""
+            )
+        raise DynamixelError(
+            f"sync read of present position on '{self.port_name}' at {self.baud_rate} baud: {what}"
+        )

@@ -86,8 +86,14 @@ class HardwareInterface(LeafSystem):
         self.motor_map = TendonMotorMap(config, lower, upper)
         self.intrinsics = (intrinsics or read_intrinsics(config.calibration_file)).validate()
         w, h = self.intrinsics.width, self.intrinsics.height
-        self.motors = motors if motors is not None else TendonMotors.from_config(config, self.motor_map.tick_limits())
-        self.camera = camera if camera is not None else FrameSource(config.camera, config.camera_timeout_s, expected_size=(w, h))
+        self.motors = (
+            motors if motors is not None else TendonMotors.from_config(config, self.motor_map.tick_limits())
+        )
+        self.camera = (
+            camera
+            if camera is not None
+            else FrameSource(config.camera, config.camera_timeout_s, expected_size=(w, h))
+        )
         self._finalizer = weakref.finalize(self, _shutdown, self.motors, self.camera)
         self._blank = np.zeros((h, w, 4), np.uint8)
         self._blank[..., 3] = 255
@@ -98,13 +104,21 @@ class HardwareInterface(LeafSystem):
         self._current_index = self.DeclareDiscreteState(N)
         self._valid_index = self.DeclareDiscreteState(1)
         self._image_index = self.DeclareAbstractState(model_value=self._image_value(self._blank))
-        self._measured_port = self.DeclareStateOutputPort(name="tendon_position_measured", state_index=self._measured_index)
+        self._measured_port = self.DeclareStateOutputPort(
+            name="tendon_position_measured", state_index=self._measured_index
+        )
         self._image_port = self.DeclareStateOutputPort(name="rgb_image", state_index=self._image_index)
         self._valid_port = self.DeclareStateOutputPort(name="camera_valid", state_index=self._valid_index)
-        self._sent_port = self.DeclareStateOutputPort(name="tendon_command_sent", state_index=self._sent_index)
-        self._current_port = self.DeclareStateOutputPort(name="motor_current", state_index=self._current_index)
+        self._sent_port = self.DeclareStateOutputPort(
+            name="tendon_command_sent", state_index=self._sent_index
+        )
+        self._current_port = self.DeclareStateOutputPort(
+            name="motor_current", state_index=self._current_index
+        )
         self.DeclareInitializationUnrestrictedUpdateEvent(update=self._initialize)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=config.period_s, offset_sec=0.0, update=self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=config.period_s, offset_sec=0.0, update=self._update
+        )
         self.DeclareForcedUnrestrictedUpdateEvent(update=self._update)
         #: Updates done, and how many of them had a command clipped at a limit.
         self.num_updates = 0
@@ -148,7 +162,9 @@ class HardwareInterface(LeafSystem):
             raise
         l = self.motor_map.to_tendon(ticks)
         state.get_mutable_discrete_state(self._measured_index).set_value(l)
-        state.get_mutable_discrete_state(self._sent_index).set_value(np.clip(l, self.motor_map.lower, self.motor_map.upper))
+        state.get_mutable_discrete_state(self._sent_index).set_value(
+            np.clip(l, self.motor_map.lower, self.motor_map.upper)
+        )
         log.info("hardware interface started: tendons %s m", np.round(l, 5))
 
     def _update(self, context, state) -> None:
@@ -172,7 +188,9 @@ class HardwareInterface(LeafSystem):
         self.num_clipped += bool(np.any(clipped))
         state.get_mutable_discrete_state(self._sent_index).set_value(sent)
         state.get_mutable_discrete_state(self._measured_index).set_value(self.motor_map.to_tendon(ticks))
-        state.get_mutable_discrete_state(self._current_index).set_value(np.asarray(current, float) * self.config.current_unit_a)
+        state.get_mutable_discrete_state(self._current_index).set_value(
+            np.asarray(current, float) * self.config.current_unit_a
+        )
         state.get_mutable_discrete_state(self._valid_index).set_value([1.0 if ok else 0.0])
         rgba = cv2.cvtColor(frame, cv2.COLOR_BGR2RGBA) if ok else self._blank
         state.get_mutable_abstract_state(self._image_index).set_value(self._image_value(rgba).get_value())
@@ -243,7 +261,9 @@ def build_hardware_diagram(
     return diagram, hw
 
 
-def run_hardware(diagram, interface: HardwareInterface, duration: float, realtime_rate: float = 1.0, monitor=None):
+def run_hardware(
+    diagram, interface: HardwareInterface, duration: float, realtime_rate: float = 1.0, monitor=None
+):
     """Run ``diagram`` in (scaled) real time with Drake's Simulator for ``duration`` [s];
     the interface is closed (torque off) on the way out, also on errors. Returns the
     simulator. ``monitor`` (optional) is passed to ``Simulator.set_monitor``."""
@@ -259,4 +279,3 @@ def run_hardware(diagram, interface: HardwareInterface, duration: float, realtim
     finally:
         interface.close()
     return simulator
-

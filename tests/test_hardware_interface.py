@@ -1,0 +1,525 @@
+"""The hardware interface system, on the Dynamixel pty emulator and a video file as camera.
+
+No real hardware: the motors are emulated X-series servos behind a pseudo-terminal, reached
+through the real dynamixel_sdk; the camera is an MJPG video of an AprilTag rendered at known
+poses with a known K, played through cv2.VideoCapture.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+from dynamixel_emulator import ADDR_GOAL_POSITION, SYNC_WRITE, DynamixelEmulator
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, EventStatus
+from pydrake.systems.primitives import ConstantVectorSource
+
+from vlr_drake.hand import model_o
+from vlr_drake.hardware.calibrate import render_planar_target
+from vlr_drake.hardware.camera import (
+    CameraError,
+    CameraIntrinsics,
+    FrameSource,
+    read_intrinsics,
+    write_intrinsics,
+)
+from vlr_drake.hardware.config import HardwareConfig, TendonMotorMap, load_hardware_config
+from vlr_drake.hardware.dynamixel import DynamixelError
+from vlr_drake.perception.apriltag import tag_image
+from vlr_drake.systems.hardware_interface import (
+    HardwareInterface,
+    add_hardware_interface,
+    build_hardware_diagram,
+    run_hardware,
+)
+
+# Bus calls and camera reads are bounded: a hang would trip this.
+pytestmark = pytest.mark.timeout(30)
+
+IDS = [11, 12, 13]
+ZERO = [1000, 2000, -500]
+DIRECTION = [1, -1, 1]
+W, H = 320, 240
+K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+TAG_SIZE = 0.03
+R_FACING = np.diag([1.0, -1.0, -1.0])  # tag frame facing the camera
+
+
+def intrinsics() -> CameraIntrinsics:
+    return CameraIntrinsics(K=K.copy(), dist=np.zeros(5), width=W, height=H)
+
+
+def tag_poses(n: int) -> list[RigidTransform]:
+    """Poses X_CT of the tag in the camera frame, a small wobble 0.12 m in front of it."""
+    out = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        R = (
+            RotationMatrix(R_FACING)
+            @ RollPitchYaw(0.15 * np.sin(a), 0.12 * np.cos(a), 0.1 * a).ToRotationMatrix()
+        )
+        out.append(RigidTransform(R, [0.01 * np.cos(a), 0.008 * np.sin(a), 0.12 + 0.01 * np.sin(2 * a)]))
+    return out
+
+
+def write_tag_video(path, poses) -> None:
+    """MJPG video, one frame per pose, of tag 0 rendered with K (a few kB per frame)."""
+    ppc = 16
+    tex = tag_image(0, pixels_per_cell=ppc)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (W, H))
+    assert writer.isOpened()
+    for X in poses:
+        gray = render_planar_target(
+            tex, TAG_SIZE / (8 * ppc), K, X.rotation().matrix(), X.translation(), (W, H), background=200
+        )
+        writer.write(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+    writer.release()
+
+
+@pytest.fixture
+def emulator():
+    emu = DynamixelEmulator(IDS, initial_positions=dict(zip(IDS, [1300, 1500, -100], strict=True)))
+    emu.start()
+    yield emu
+    emu.stop()
+
+
+@pytest.fixture(scope="module")
+def tag_video(tmp_path_factory):
+    path = tmp_path_factory.mktemp("video") / "tag.avi"
+    poses = tag_poses(10)
+    write_tag_video(path, poses)
+    return path, poses
+
+
+def make_config(emu: DynamixelEmulator, camera, **kw) -> HardwareConfig:
+    cfg = HardwareConfig(
+        port=emu.port_name,
+        motor_ids=list(IDS),
+        zero_offset_ticks=list(ZERO),
+        direction=list(DIRECTION),
+        spool_radius=0.005,
+        camera=camera,
+        camera_timeout_s=0.5,
+        latency_timer_ms=30.0,
+        period_s=0.05,
+    )
+    for k, v in kw.items():
+        setattr(cfg, k, v)
+    return cfg
+
+
+def expected_ticks(l) -> list[int]:
+    ticks_per_m = 4096 / (2 * np.pi * 0.005)
+    return [z + d * int(np.round(x * ticks_per_m)) for z, d, x in zip(ZERO, DIRECTION, l, strict=True)]
+
+
+class FakeCapture:
+    """A VideoCapture stand-in: ``n`` grey frames, then ``read`` blocks until released."""
+
+    def __init__(self, n: int, size=(W, H)):
+        self.n, self.size = n, size
+        self.release_event = threading.Event()
+
+    def __call__(self, source):
+        return self
+
+    def isOpened(self):  # noqa: N802 (OpenCV name)
+        return True
+
+    def read(self):
+        if self.n > 0:
+            self.n -= 1
+            return True, np.full((self.size[1], self.size[0], 3), 77, np.uint8)
+        self.release_event.wait(timeout=30.0)
+        return False, None
+
+    def release(self):
+        self.release_event.set()
+
+
+# --- config --------------------------------------------------------------------------------
+def test_config_loads_from_yaml(tmp_path):
+    text = """
+port: /dev/ttyUSB1
+baud_rate: 57600
+motor_ids: [4, 5, 6]
+spool_radius: 0.006
+zero_offset_ticks: [10, 20, 30]
+direction: [1, -1, 1]
+camera: rtsp://camera.local/stream
+tendon_lower: [0.0, 0.0, 0.001]
+tendon_upper: [0.04, 0.04, 0.03]
+"""
+    (tmp_path / "hw.yaml").write_text(text)
+    cfg = load_hardware_config(filename=str(tmp_path / "hw.yaml"), data="camera: 2\n")
+    assert cfg.motor_ids == [4, 5, 6] and cfg.baud_rate == 57600 and cfg.camera == 2
+    cfg.validate(num_fingers=3)
+    lo, hi = cfg.tendon_limits()
+    assert lo.tolist() == [0.0, 0.0, 0.001] and hi.tolist() == [0.04, 0.04, 0.03]
+    cfg = yaml_load_typed(schema=HardwareConfig, data="camera: /videos/run.avi\n")
+    assert cfg.camera == "/videos/run.avi"
+
+
+def test_tendon_limits_default_to_the_hand():
+    hand = model_o()
+    lo, hi = HardwareConfig().tendon_limits(hand)
+    assert lo.tolist() == [f.tendon_range[0] for f in hand.fingers]
+    assert hi.tolist() == [f.tendon_range[1] for f in hand.fingers]
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("baud_rate", 12345),
+        ("motor_ids", [1, 1, 2]),
+        ("spool_radius", -0.01),
+        ("zero_offset_ticks", [0, 0]),
+        ("direction", [1, 0, 1]),
+        ("tendon_lower", [0.0, 0.0]),
+        ("operating_mode", 3),
+        ("camera", ""),
+        ("period_s", 0.0),
+        ("protocol_version", 1.0),
+    ],
+)
+def test_config_validate_names_bad_field(field, value):
+    cfg = HardwareConfig()
+    setattr(cfg, field, value)
+    with pytest.raises(ValueError, match=f"'{field}'"):
+        cfg.validate()
+
+
+def test_config_validate_checks_finger_count():
+    with pytest.raises(ValueError, match="'motor_ids' has 3 motors but the hand has 4"):
+        HardwareConfig().validate(num_fingers=4)
+
+
+def test_tendon_motor_map_round_trip_and_clip():
+    cfg = HardwareConfig(zero_offset_ticks=ZERO, direction=DIRECTION, spool_radius=0.005)
+    m = TendonMotorMap(cfg, np.zeros(3), np.full(3, 0.04))
+    l = np.array([0.0, 0.01, 0.0375])
+    ticks = m.to_ticks(l)
+    assert ticks.tolist() == expected_ticks(l)
+    assert np.allclose(m.to_tendon(ticks), l, atol=2 * np.pi * 0.005 / 4096)
+    c, clipped = m.clip(np.array([-0.01, 0.02, 0.05]))
+    assert c.tolist() == [0.0, 0.02, 0.04] and clipped.tolist() == [True, False, True]
+    lo, hi = m.tick_limits()
+    assert lo.tolist() == [1000, expected_ticks([0, 0.04, 0])[1], -500]
+    assert np.all(lo <= hi)
+    with pytest.raises(ValueError, match="not finite"):
+        m.clip(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match="shape"):
+        m.to_ticks(np.zeros(2))
+
+
+# --- camera --------------------------------------------------------------------------------
+def test_intrinsics_yaml_round_trip(tmp_path):
+    intr = CameraIntrinsics(K=K, dist=np.array([0.1, -0.2, 0.001, 0.002, 0.05]), width=W, height=H)
+    write_intrinsics(tmp_path / "cam.yaml", intr, rms_px=0.2)
+    text = (tmp_path / "cam.yaml").read_text()
+    assert text.startswith("%YAML") and "camera_matrix" in text and "distortion_coefficients" in text
+    back = read_intrinsics(tmp_path / "cam.yaml")
+    assert np.allclose(back.K, K) and np.allclose(back.dist, intr.dist)
+    assert (back.width, back.height) == (W, H)
+
+
+def test_intrinsics_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.yaml"):
+        read_intrinsics(tmp_path / "nope.yaml")
+    (tmp_path / "bad.yaml").write_text("%YAML:1.0\n---\nimage_width: 320\nimage_height: 240\n")
+    with pytest.raises(CameraError, match="no 'camera_matrix'"):
+        read_intrinsics(tmp_path / "bad.yaml")
+    with pytest.raises(ValueError, match="camera_matrix"):
+        CameraIntrinsics(K=np.eye(2), dist=np.zeros(5), width=W, height=H).validate()
+
+
+def test_frame_source_plays_a_file_then_reports_no_frame(tag_video):
+    path, poses = tag_video
+    with FrameSource(str(path), timeout_s=1.0, expected_size=(W, H)) as cam:
+        frames = [cam.read() for _ in range(len(poses) + 3)]
+    assert all(ok for ok, _ in frames[: len(poses)])
+    assert frames[0][1].shape == (H, W, 3)
+    assert not any(ok for ok, _ in frames[len(poses) :])
+    assert cam.ended and cam.frames == len(poses) and cam.misses == 3
+
+
+def test_frame_source_times_out_instead_of_hanging():
+    fake = FakeCapture(1)
+    cam = FrameSource(0, timeout_s=0.05, capture_factory=fake).open()
+    assert cam.read()[0]
+    assert cam.read() == (False, None)
+    assert cam.read() == (False, None)
+    assert cam.misses == 2 and not cam.ended
+    cam.release()
+
+
+def test_frame_source_errors(tmp_path):
+    with pytest.raises(CameraError, match="cannot open camera"):
+        FrameSource(str(tmp_path / "missing.avi")).open()
+    cam = FrameSource(0, expected_size=(W, H), capture_factory=FakeCapture(2, size=(64, 48))).open()
+    with pytest.raises(CameraError, match="64 x 48 frames but the calibration is for 320 x 240"):
+        cam.read()
+    cam.release()
+
+
+# --- the system ----------------------------------------------------------------------------
+def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
+    path, poses = tag_video
+    hw = HardwareInterface(model_o(), make_config(emulator, str(path)), intrinsics=intrinsics())
+    try:
+        names = {hw.get_output_port(i).get_name() for i in range(hw.num_output_ports())}
+        assert names == {
+            "tendon_position_measured",
+            "rgb_image",
+            "camera_valid",
+            "tendon_command_sent",
+            "motor_current",
+        }
+        assert hw.get_input_port().get_name() == "tendon_command"
+        assert np.allclose(hw.camera_matrix(), K) and hw.distortion_coefficients().shape == (5,)
+        ctx = hw.CreateDefaultContext()
+        hw.ExecuteInitializationEvents(ctx)
+        # measured tendons from the initial motor positions
+        start = hw.motor_map.to_tendon(np.array([1300, 1500, -100]))
+        assert np.allclose(hw.get_tendon_position_measured_output_port().Eval(ctx), start)
+        assert all(emulator.torque_enabled(i) for i in IDS)
+        assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 0.0  # no frame yet
+        command = np.array([0.012, 0.03, 0.02])
+        hw.get_tendon_command_input_port().FixValue(ctx, command)
+        hw.ExecuteForcedEvents(ctx)
+        emulator.wait_idle()
+        assert [emulator.goal_position(i) for i in IDS] == expected_ticks(command)
+        assert np.allclose(hw.get_tendon_position_measured_output_port().Eval(ctx), command, atol=1e-5)
+        assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 1.0
+        image = hw.get_rgb_image_output_port().Eval(ctx)
+        assert (image.width(), image.height()) == (W, H)
+        rgba = np.asarray(image.data)
+        assert rgba[..., 3].min() == 255 and rgba[..., :3].max() > 150  # a real frame
+    finally:
+        hw.close()
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+    assert hw.closed
+
+
+def test_end_to_end_with_tag_observer(emulator, tag_video):
+    """The interface under Drake's Simulator in real time: commands reach the motors as the
+    right ticks (clipped at the limits), the AprilTag observer sees the video's poses, the
+    camera turns invalid when the video ends, and torque is off afterwards."""
+    from vlr_drake.perception.tag_pose import TagObserverConfig
+    from vlr_drake.systems.tag_observer import TagObserver
+
+    path, poses = tag_video
+    hand = model_o()
+    cfg = make_config(emulator, str(path))
+    lo, hi = cfg.tendon_limits(hand)
+    command = np.array([0.01, -0.005, hi[2] + 0.01])  # finger 1 below, finger 2 above its limit
+    builder = DiagramBuilder()
+    hw = add_hardware_interface(builder, hand, cfg, intrinsics=intrinsics())
+    src = builder.AddNamedSystem("command", ConstantVectorSource(command))
+    builder.Connect(src.get_output_port(), hw.get_tendon_command_input_port())
+    observer = builder.AddNamedSystem(
+        "tag_observer",
+        TagObserver(
+            TagObserverConfig(tag_id=0, tag_size=TAG_SIZE),
+            K=hw.camera_matrix(),
+            dist=hw.distortion_coefficients(),
+            X_PC=RigidTransform(),
+            update_period_sec=cfg.period_s,
+        ),
+    )
+    builder.Connect(hw.get_rgb_image_output_port(), observer.rgb_image_input_port())
+    diagram = builder.Build()
+
+    records = []
+
+    def monitor(root):
+        ctx = hw.GetMyContextFromRoot(root)
+        octx = observer.GetMyContextFromRoot(root)
+        records.append(
+            (
+                root.get_time(),
+                hw.camera.frames,
+                hw.get_camera_valid_output_port().Eval(ctx)[0],
+                observer.X_PO_valid_output_port().Eval(octx)[0],
+                RigidTransform(
+                    observer.X_PO_measured_output_port().Eval(octx)
+                ),  # a copy: Eval returns the cache
+                hw.get_tendon_position_measured_output_port().Eval(ctx).copy(),
+            )
+        )
+        return EventStatus.Succeeded()
+
+    duration = (len(poses) + 4) * cfg.period_s
+    sim = run_hardware(diagram, hw, duration, realtime_rate=1.0, monitor=monitor)
+    assert sim.get_target_realtime_rate() == 1.0 and sim.get_context().get_time() == pytest.approx(duration)
+    assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
+
+    # ticks: the command, clipped to the limits, through spool radius, offset and direction
+    sent = np.clip(command, lo, hi)
+    assert sent[1] == lo[1] and sent[2] == hi[2]
+    assert [emulator.goal_position(i) for i in IDS] == expected_ticks(sent)
+    goal_writes = emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)
+    lo_t, hi_t = hw.motor_map.tick_limits()
+    for _, _, p in goal_writes:  # nothing outside the limits ever went on the bus
+        for k in range(3):
+            dxl_id, value = p[4 + 5 * k], int.from_bytes(p[5 + 5 * k : 9 + 5 * k], "little", signed=True)
+            j = IDS.index(dxl_id)
+            assert lo_t[j] <= value <= hi_t[j]
+    assert hw.num_clipped == hw.num_updates > len(poses)
+    assert np.allclose(records[-1][5], sent, atol=1e-5)
+
+    # camera: valid while the video lasts, then invalid (and the observer sees no tag)
+    valid = [r for r in records if r[2] == 1.0]
+    invalid_after = [r for r in records if r[1] == len(poses) and r[2] == 0.0]
+    assert len(valid) >= len(poses) - 1 and invalid_after
+    assert all(r[3] == 0.0 for r in invalid_after)
+    # the observer's pose matches the frame's rendered pose
+    errors = []
+    for _, frames, _, tag_ok, X, _ in valid:
+        assert tag_ok == 1.0
+        X_true = poses[frames - 1]
+        errors.append(np.linalg.norm(X.translation() - X_true.translation()))
+        angle = np.rad2deg(
+            np.arccos(
+                np.clip((np.trace(X.rotation().matrix().T @ X_true.rotation().matrix()) - 1) / 2, -1, 1)
+            )
+        )
+        assert angle < 3.0
+    assert max(errors) < 2e-3
+
+
+def test_build_hardware_diagram_exports_ports(emulator, tag_video):
+    path, _ = tag_video
+    diagram, hw = build_hardware_diagram(model_o(), make_config(emulator, str(path)), intrinsics=intrinsics())
+    try:
+        for name in (
+            "tendon_position_measured",
+            "rgb_image",
+            "camera_valid",
+            "tendon_command_sent",
+            "motor_current",
+        ):
+            assert diagram.HasOutputPort(name)
+        assert diagram.HasInputPort("tendon_command")
+        sim = Simulator(diagram)
+        diagram.GetInputPort("tendon_command").FixValue(sim.get_mutable_context(), [0.005, 0.005, 0.005])
+        sim.Initialize()
+        sim.AdvanceTo(0.12)
+        emulator.wait_idle()
+        assert [emulator.goal_position(i) for i in IDS] == expected_ticks([0.005] * 3)
+    finally:
+        hw.close()
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def _run_with_fault(hw, diagram, inject, at_time=0.15, duration=1.0):
+    def monitor(root):
+        if root.get_time() >= at_time:
+            inject()
+        return EventStatus.Succeeded()
+
+    with pytest.raises(DynamixelError) as info:
+        run_hardware(diagram, hw, duration, realtime_rate=0.0, monitor=monitor)
+    assert hw.closed
+    return info.value
+
+
+def test_corrupt_packets_stop_the_run_with_torque_off(emulator, tag_video):
+    path, _ = tag_video
+    diagram, hw = build_hardware_diagram(
+        model_o(),
+        make_config(emulator, str(path)),
+        command_source=ConstantVectorSource([0.01] * 3),
+        intrinsics=intrinsics(),
+    )
+    err = _run_with_fault(hw, diagram, lambda: emulator.corrupt_ids.add(12))
+    assert "Incorrect status packet" in str(err) and "motor id 12" in str(err)
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+    assert hw.camera._cap is None  # camera released too
+
+
+def test_motor_that_stops_answering_stops_the_run(emulator, tag_video):
+    path, _ = tag_video
+    diagram, hw = build_hardware_diagram(
+        model_o(),
+        make_config(emulator, str(path)),
+        command_source=ConstantVectorSource([0.01] * 3),
+        intrinsics=intrinsics(),
+    )
+    err = _run_with_fault(hw, diagram, lambda: emulator.missing_ids.add(13))
+    assert "motor id 13" in str(err)
+    assert not emulator.torque_enabled(11) and not emulator.torque_enabled(12)
+
+
+def test_disconnected_port_stops_the_run(emulator, tag_video):
+    path, _ = tag_video
+    diagram, hw = build_hardware_diagram(
+        model_o(),
+        make_config(emulator, str(path)),
+        command_source=ConstantVectorSource([0.01] * 3),
+        intrinsics=intrinsics(),
+    )
+    err = _run_with_fault(hw, diagram, emulator.disconnect)
+    assert "failed" in str(err)
+
+
+def test_missing_motor_at_start_is_named(emulator, tag_video):
+    path, _ = tag_video
+    emulator.missing_ids.add(12)
+    diagram, hw = build_hardware_diagram(model_o(), make_config(emulator, str(path)), intrinsics=intrinsics())
+    with pytest.raises(DynamixelError, match="motor id 12 does not answer"):
+        run_hardware(diagram, hw, 0.5, realtime_rate=0.0)
+    assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def test_camera_that_stops_delivering_gives_invalid_frames(emulator):
+    fake = FakeCapture(3)
+    cfg = make_config(emulator, 0, camera_timeout_s=0.03)
+    camera = FrameSource(0, timeout_s=cfg.camera_timeout_s, expected_size=(W, H), capture_factory=fake)
+    diagram, hw = build_hardware_diagram(
+        model_o(),
+        cfg,
+        command_source=ConstantVectorSource([0.02] * 3),
+        intrinsics=intrinsics(),
+        camera=camera,
+    )
+    flags = []
+
+    def monitor(root):
+        ctx = hw.GetMyContextFromRoot(root)
+        flags.append(
+            (
+                hw.get_camera_valid_output_port().Eval(ctx)[0],
+                np.asarray(hw.get_rgb_image_output_port().Eval(ctx).data)[..., :3].max(),
+            )
+        )
+        return EventStatus.Succeeded()
+
+    run_hardware(diagram, hw, 0.5, realtime_rate=0.0, monitor=monitor)
+    valid = [f for f, _ in flags]
+    assert 1.0 in valid and valid[-1] == 0.0
+    assert all(m == 0 for f, m in flags if f == 0.0)  # invalid frames are black
+    assert all(m == 77 for f, m in flags if f == 1.0)
+    assert camera.frames == 3 and camera.misses >= 5
+    assert [emulator.goal_position(i) for i in IDS] == expected_ticks([0.02] * 3)  # motors kept running
+    assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def test_nonfinite_command_stops_with_torque_off(emulator, tag_video):
+    path, _ = tag_video
+    hw = HardwareInterface(model_o(), make_config(emulator, str(path)), intrinsics=intrinsics())
+    ctx = hw.CreateDefaultContext()
+    hw.ExecuteInitializationEvents(ctx)
+    n_writes = len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION))
+    hw.get_tendon_command_input_port().FixValue(ctx, [0.01, np.nan, 0.01])
+    with pytest.raises(ValueError, match="not finite"):
+        hw.ExecuteForcedEvents(ctx)
+    emulator.wait_idle()
+    assert len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)) == n_writes
+    assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
