@@ -14,7 +14,7 @@ renders at ``render_scale`` x the delivered resolution; the observer downsamples
 Measured property of drake 1.51.1's RenderEngineVtk (checked with the box silhouette and
 the tag edges at 1x and 2x): its images are shifted by -0.5 rendered pixels in x and y
 relative to ``CameraInfo``'s principal point, i.e. -0.5 / render_scale delivered pixels.
-``render_intrinsics`` puts that shift into the observer's K.
+``vtk_render_intrinsics`` puts that shift into the observer's K.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from test_tag_pose import pose_errors, render_tag_view
 from vlr_drake.perception.apriltag import tag_image
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.perception.image_noise import downsample_area
-from vlr_drake.perception.tag_pose import TagObserverConfig
+from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver, rotation_from_vector
 
 #: The two tags of the rendered scene: (id, black-square size [m]).
@@ -59,11 +59,8 @@ AWAY = RigidTransform([0.0, 0.0, -1.0])
 
 
 def render_intrinsics(camera: CameraConfig) -> np.ndarray:
-    """K of the delivered (downsampled) image of Drake's VTK camera: ``CameraConfig``'s K
-    with the renderer's -0.5 rendered-pixel shift (see the module docstring)."""
-    K = camera.intrinsic_matrix()
-    K[:2, 2] -= 0.5 / camera.render_scale
-    return K
+    """K of the delivered (downsampled) image of Drake's VTK camera."""
+    return vtk_render_intrinsics(camera)
 
 
 def to_rgba(gray: np.ndarray) -> ImageRgba8U:

@@ -3,28 +3,34 @@
 Pure functions, no Drake systems (the LeafSystem wrapper is
 ``vlr_drake.systems.tag_observer.TagObserver``):
 
-- :func:`make_detector` / :func:`detect_tag`: OpenCV's aruco ``ArucoDetector`` for tag36h11
-  with corner refinement APRILTAG by default. DESIGN section 8 measured it against Drake's
-  rendered images: APRILTAG refinement has no pixel-convention bias, while NONE / SUBPIX /
-  CONTOUR sat about -0.5 px off (a 0.3-0.45 mm depth bias).
+- :func:`make_detector` / :func:`detect_tag`: OpenCV's aruco ``ArucoDetector`` for tag36h11,
+  corner refinement APRILTAG by default (configurable).
+- :func:`refine_corners_edges`: sub-pixel corners from the tag's four outer edges (on by
+  default in :class:`TagObserverConfig`).
 - :func:`estimate_tag_pose`: ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE`` (two
-  candidate poses), keeping the candidate with the lowest reprojection error among those
-  whose tag faces the camera (IPPE_SQUARE alone once returned a pose flipped by 180 deg).
+  candidate poses) plus SQPnP, keeping the candidate with the lowest reprojection error
+  among those whose tag faces the camera (IPPE_SQUARE alone can return a flipped pose).
 - :func:`observe_pom`: the measured POM pose X_PO = X_PC X_CT X_TO (DESIGN section 5).
+- :func:`vtk_render_intrinsics`: K of an image rendered by Drake's VTK engine.
 
 Frames (monogram notation): P palm, C camera (+z optical axis, +x right, +y down in the
 image; OpenCV's and Drake's convention), T tag (``vlr_drake.perception.apriltag``: origin
 at the tag centre, x right and y up in the tag image, z out of the printed face), O the POM
 frame (the tag frame offset by a known X_TO).
 
-Pixel convention: OpenCV's, integer pixel centres (``CameraConfig.intrinsic_matrix()``
-and Drake's ``CameraInfo`` put the principal point at c = size / 2 - 0.5 there). Measured
-here (opencv 5.0, exact synthetic images): APRILTAG-refined corners sit +0.43 px (x and y)
-off that convention, SUBPIX corners +0.004 px; :func:`detect_tag` removes the APRILTAG offset
-(``APRILTAG_CORNER_OFFSET_PX``), so the corners it returns are in OpenCV's convention
-whichever refinement ran. (Drake's VTK renderer, separately, draws its images shifted by
--0.5 px of the rendered image; that belongs to the simulated camera's intrinsics, see
-``tests/test_tag_observer.py``.)
+Pixel convention: OpenCV's, integer pixel centres (``CameraConfig.intrinsic_matrix()`` and
+Drake's ``CameraInfo`` put the principal point at c = size / 2 - 0.5 there). Measured here
+(opencv 5.0, exact synthetic images, tests/test_tag_pose.py):
+- APRILTAG-refined corners sit +0.43 px (x and y) off that convention, SUBPIX corners
+  0.00 px; :func:`detect_tag` removes the APRILTAG offset (``APRILTAG_CORNER_OFFSET_PX``).
+- Drake 1.51's RenderEngineVtk draws its images shifted by -0.5 rendered px in x and y
+  from ``CameraInfo``'s principal point (-0.5 / render_scale px after downsampling). The
+  two together are why DESIGN section 8 saw "no bias" with APRILTAG at 1x rendering.
+  :func:`vtk_render_intrinsics` puts the renderer's shift into K.
+- The aruco refinements quantise edges that are aligned with the pixel grid: on rendered,
+  near-frontal, axis-aligned tags APRILTAG gave 0.26 deg mean rotation error (0.03-0.08 deg
+  once turned a few degrees). The edge refinement gives 0.04 deg there, 0.006 deg mean on
+  random views (tests/test_tag_observer.py reports the numbers).
 """
 
 from __future__ import annotations
@@ -61,6 +67,9 @@ class TagObserverConfig:
     # Corner refinement: "apriltag" (default, unbiased on rendered images), "subpix",
     # "contour" or "none".
     corner_refinement: str = "apriltag"
+    # Refine the detector's corners from the four outer edges (refine_corners_edges);
+    # falls back to the detector's corners when the edges cannot be measured.
+    edge_refinement: bool = True
     # Added to detected corners [px]; None: undo the refinement's measured offset
     # (-APRILTAG_CORNER_OFFSET_PX for "apriltag", 0 otherwise).
     corner_offset_px: float | None = None
@@ -162,6 +171,101 @@ def detect_tag(
     return np.asarray(hits[0], dtype=np.float64).reshape(4, 2) + float(corner_offset_px)
 
 
+def _line_intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection of two lines given as (point, unit direction) rows of 2 x 2 arrays."""
+    (p, d), (q, e) = a, b
+    A = np.column_stack([d, -e])
+    t = np.linalg.solve(A, q - p)
+    return p + t[0] * d
+
+
+def refine_corners_edges(
+    image: np.ndarray,
+    corners: np.ndarray,
+    K: np.ndarray | None = None,
+    dist: np.ndarray | None = None,
+    half_width_px: float = 3.0,
+) -> np.ndarray | None:
+    """Sub-pixel corners from the four outer edges of the tag's black square.
+
+    Along each edge (the middle 70 %, one sample per pixel), the intensity profile across
+    the edge is read with bilinear interpolation over +-w px (w = ``half_width_px``, at most
+    0.4 of a tag cell, so it stays in the black border and the white quiet zone). With f the
+    profile normalised from the black level (0) to the white level (1), the edge lies at
+    s_e = w - integral_{-w}^{w} f(s) ds from the sample point along the outward normal:
+    exact for a step blurred by any symmetric kernel, and free of the pixel-grid
+    quantisation that the aruco refinements show on edges aligned with the image axes
+    (measured here: APRILTAG refinement 0.26 deg mean rotation error on axis-aligned
+    near-frontal tags, against 0.03-0.08 deg when turned a few degrees). A line is fitted
+    to each edge's points (total least squares, outliers beyond 3 median deviations
+    dropped: occlusion) and the corners are the intersections of adjacent lines. With
+    ``dist`` the lines are fitted in undistorted pixel coordinates and the corners mapped
+    back. Coordinates follow OpenCV's convention (integer pixel centres).
+
+    Returns the refined corners (4 x 2) or None when an edge has too few good samples.
+    """
+    gray = to_gray(image).astype(np.float32)
+    corners = np.asarray(corners, dtype=np.float64).reshape(4, 2)
+    use_dist = dist is not None and np.any(np.asarray(dist) != 0)
+    if use_dist and K is None:
+        raise ValueError("K: needed to undistort the edges when dist is given")
+    centre = corners.mean(axis=0)
+    side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    w = min(half_width_px, 0.4 * side / 8.0)
+    if w < 0.75:
+        return None
+    offsets = np.arange(-w, w + 1e-9, 0.25)
+    lines = []
+    for k in range(4):
+        a, b = corners[k], corners[(k + 1) % 4]
+        length = float(np.linalg.norm(b - a))
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        if n @ (0.5 * (a + b) - centre) < 0:
+            n = -n  # outward: from the black square towards the white quiet zone
+        t = np.linspace(0.15, 0.85, max(8, int(0.7 * length)))
+        base = a + t[:, None] * (b - a)
+        samples = base[:, None, :] + offsets[None, :, None] * n[None, None, :]
+        map_x = samples[..., 0].astype(np.float32)
+        map_y = samples[..., 1].astype(np.float32)
+        profile = cv2.remap(gray, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(
+            float
+        )
+        black = profile[:, :2].mean(axis=1)
+        white = profile[:, -2:].mean(axis=1)
+        contrast = white - black
+        good = contrast > 0.25 * max(float(np.median(contrast)), 1e-6)
+        if np.count_nonzero(good) < 5:
+            return None
+        f = np.clip((profile[good] - black[good, None]) / contrast[good, None], 0.0, 1.0)
+        # Trapezoid integral over [-w, w] of the normalised profile.
+        area = np.sum(0.5 * (f[:, 1:] + f[:, :-1]), axis=1) * 0.25
+        s_edge = offsets[-1] - area
+        points = base[good] + s_edge[:, None] * n
+        if use_dist:
+            points = cv2.undistortPoints(points.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+        for _ in range(2):
+            mean = points.mean(axis=0)
+            direction = np.linalg.svd(points - mean, full_matrices=False)[2][0]
+            normal = np.array([-direction[1], direction[0]])
+            residual = (points - mean) @ normal
+            mad = float(np.median(np.abs(residual - np.median(residual))))
+            keep = np.abs(residual) <= max(3.0 * 1.4826 * mad, 0.05)
+            if np.count_nonzero(keep) < 5:
+                return None
+            points = points[keep]
+        mean = points.mean(axis=0)
+        direction = np.linalg.svd(points - mean, full_matrices=False)[2][0]
+        lines.append(np.array([mean, direction]))
+    refined = np.array([_line_intersection(lines[(k - 1) % 4], lines[k]) for k in range(4)])
+    if use_dist:
+        normalized = np.column_stack([refined, np.ones(4)]) @ np.linalg.inv(K).T
+        refined = cv2.projectPoints(normalized, np.zeros(3), np.zeros(3), K, dist)[0].reshape(4, 2)
+    if np.max(np.linalg.norm(refined - corners, axis=1)) > 2.0:
+        return None  # the edges moved far from the detection: do not trust them
+    return refined
+
+
 def _check_intrinsics(K: np.ndarray, dist: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
@@ -239,7 +343,9 @@ def observe_pom(
     identity). Returns (X_PO or None, info) where info has ``valid`` (bool), ``reason``
     ("ok", "not_detected", "too_small", "no_facing_solution", "reprojection_error"),
     ``corners`` (4 x 2 or None), ``reprojection_error_px`` (nan when not detected) and
-    ``X_CT`` (RigidTransform or None). A rejected detection returns None, never raises.
+    ``X_CT`` (RigidTransform or None); with a detection also ``detector_corners`` and
+    ``edge_refined`` (whether :func:`refine_corners_edges` succeeded). A rejected detection
+    returns None, never raises (bad arguments do).
     """
     from pydrake.math import RigidTransform, RotationMatrix
 
@@ -252,9 +358,16 @@ def observe_pom(
     }
     if detector is None:
         detector = make_detector(config.corner_refinement, config.detector_overrides)
-    corners = detect_tag(image, config.tag_id, detector, config.corner_offset_px)
+    gray = to_gray(image)
+    corners = detect_tag(gray, config.tag_id, detector, config.corner_offset_px)
     if corners is None:
         return None, info
+    info["detector_corners"] = corners
+    if config.edge_refinement:
+        refined = refine_corners_edges(gray, corners, K, dist)
+        info["edge_refined"] = refined is not None
+        if refined is not None:
+            corners = refined
     info["corners"] = corners
     side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
     if side < config.min_tag_side_px:
@@ -277,3 +390,14 @@ def observe_pom(
     info["valid"] = True
     info["reason"] = "ok"
     return X_PO, info
+
+
+def vtk_render_intrinsics(camera: Any) -> np.ndarray:
+    """K of the delivered image of a camera rendered by Drake's RenderEngineVtk at
+    ``camera.render_scale`` and downsampled with INTER_AREA (``CameraConfig``): its
+    ``intrinsic_matrix()`` with the renderer's measured -0.5 rendered-pixel shift of the
+    principal point, i.e. c -= 0.5 / render_scale (drake 1.51.1; tests/test_tag_observer.py
+    checks it through the pose accuracy)."""
+    K = np.array(camera.intrinsic_matrix(), dtype=np.float64)
+    K[:2, 2] -= 0.5 / int(camera.render_scale)
+    return K
