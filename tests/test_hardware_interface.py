@@ -523,3 +523,57 @@ def test_nonfinite_command_stops_with_torque_off(emulator, tag_video):
     emulator.wait_idle()
     assert len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)) == n_writes
     assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def test_example_files_load_and_build(emulator, tmp_path):
+    """The example hardware section and intrinsics in tests/data load; a relative
+    calibration file is resolved against the scenario folder by add_hardware_interface."""
+    from pathlib import Path
+
+    data = Path(__file__).parent / "data"
+    cfg = load_hardware_config(filename=str(data / "hardware_model_o.yaml"))
+    cfg.validate(num_fingers=3)
+    assert cfg.calibration_file == "camera_intrinsics.yaml" and cfg.camera == 0
+    # run it against the emulator with a stand-in camera
+    cfg.port, cfg.motor_ids, cfg.latency_timer_ms = emulator.port_name, list(IDS), 30.0
+    builder = DiagramBuilder()
+    camera = FrameSource(
+        0, timeout_s=0.05, expected_size=(640, 480), capture_factory=FakeCapture(5, size=(640, 480))
+    )
+    hw = add_hardware_interface(builder, model_o(), cfg, base_dir=data, camera=camera)
+    try:
+        assert cfg.calibration_file == "camera_intrinsics.yaml"  # the caller's config is untouched
+        assert hw.camera_matrix()[0, 0] == pytest.approx(612.4)
+        assert hw.distortion_coefficients().tolist() == pytest.approx([0.082, -0.154, 0.0007, -0.0011, 0.061])
+        ctx = hw.CreateDefaultContext()
+        hw.ExecuteInitializationEvents(ctx)
+        hw.get_tendon_command_input_port().FixValue(ctx, [0.01, 0.01, 0.01])
+        hw.ExecuteForcedEvents(ctx)
+        emulator.wait_idle()
+        # direction [1, -1, 1] and zero offsets 2048 from the file
+        ticks = int(np.round(0.01 * 4096 / (2 * np.pi * 0.005)))
+        assert [emulator.goal_position(i) for i in IDS] == [2048 + ticks, 2048 - ticks, 2048 + ticks]
+    finally:
+        hw.close()
+    with pytest.raises(FileNotFoundError, match="camera_intrinsics.yaml"):
+        HardwareInterface(model_o(), load_hardware_config(filename=str(data / "hardware_model_o.yaml")))
+
+
+def test_measured_position_lags_the_goal():
+    """With a first-order motor lag the measured tendon trails the command."""
+    with DynamixelEmulator(IDS, lag_s=1.0) as emu:
+        cfg = make_config(emu, 0, zero_offset_ticks=[0, 0, 0], direction=[1, 1, 1])
+        camera = FrameSource(0, timeout_s=0.05, expected_size=(W, H), capture_factory=FakeCapture(5))
+        hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics(), camera=camera)
+        try:
+            ctx = hw.CreateDefaultContext()
+            hw.ExecuteInitializationEvents(ctx)
+            hw.get_tendon_command_input_port().FixValue(ctx, [0.02, 0.02, 0.02])
+            hw.ExecuteForcedEvents(ctx)
+            hw.ExecuteForcedEvents(ctx)
+            measured = hw.get_tendon_position_measured_output_port().Eval(ctx)
+            assert np.all(measured > 0.0) and np.all(measured < 0.02)
+            assert np.allclose(hw.GetOutputPort("tendon_command_sent").Eval(ctx), 0.02)
+            assert np.all(hw.GetOutputPort("motor_current").Eval(ctx) > 0.0)  # pulling towards the goal
+        finally:
+            hw.close()
