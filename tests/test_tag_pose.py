@@ -27,6 +27,7 @@ from vlr_drake.perception.tag_pose import (
     faces_camera,
     make_detector,
     observe_pom,
+    refine_corners_edges,
     to_gray,
 )
 
@@ -118,21 +119,80 @@ def test_apriltag_corner_offset_is_removed(K, views):
     assert np.sqrt(np.mean(corrected**2)) < 0.15
 
 
-def test_pose_accuracy_on_synthetic_views(K, views):
+def distort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The image a lens with distortion ``dist`` would see, from an ideal pinhole image:
+    each distorted pixel samples the pinhole image at its undistorted position."""
+    h, w = image.shape[:2]
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    ideal = cv2.undistortPoints(pixels, K, dist, P=K).reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(image, ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def test_edge_refinement_fixes_axis_aligned_edges(K):
+    """Edges along the pixel grid: the aruco corners are quantised, the edge fit is not."""
+    raw_errors, refined_errors = [], []
+    for k, dz in enumerate([0.04, 0.05, 0.065]):
+        X_CT = RigidTransform(RotationMatrix.MakeXRotation(np.pi + 0.004 * k), [0.0013 * k, -0.0007 * k, dz])
+        image = render_tag_view(X_CT, K)
+        corners = detect_tag(image, TAG_ID)
+        refined = refine_corners_edges(image, corners)
+        raw_errors.append(corners - project(X_CT, K))
+        refined_errors.append(refined - project(X_CT, K))
+    raw_rms = np.sqrt(np.mean(np.concatenate(raw_errors) ** 2))
+    refined_rms = np.sqrt(np.mean(np.concatenate(refined_errors) ** 2))
+    assert refined_rms < 0.05
+    assert refined_rms < 0.5 * raw_rms
+
+
+def test_edge_refinement_gives_up_on_a_covered_edge(K, views):
+    X_CT, image = views[3]
+    corners = detect_tag(image, TAG_ID)
+    covered = image.copy()
+    cv2.fillConvexPoly(covered, np.round(corners).astype(np.int32), 0)  # black up to and past the edges
+    cv2.circle(
+        covered, tuple(np.round(corners.mean(axis=0)).astype(int)), 3 * int(np.ptp(corners[:, 0])), 0, -1
+    )
+    assert refine_corners_edges(covered, corners) is None
+    # Too small to measure.
+    assert refine_corners_edges(image, corners.mean(axis=0) + 0.05 * (corners - corners.mean(axis=0))) is None
+
+
+def test_pose_with_lens_distortion(K):
+    dist = np.array([-0.25, 0.08, 0.0005, -0.0008, 0.0])
+    X_CT = RigidTransform(RotationMatrix(RollPitchYaw(np.pi + 0.25, -0.15, 0.6)), [0.012, -0.008, 0.06])
+    image = distort_image(render_tag_view(X_CT, K), K, dist)
     config = TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE)
+    X_PO, info = observe_pom(image, config, K, dist, RigidTransform())
+    assert info["valid"] and info["edge_refined"]
+    dp, dr = pose_errors(X_PO, X_CT)
+    assert dp < 0.02 and dr < 0.05
+    # Ignoring the distortion is visibly worse.
+    X_bad, _ = observe_pom(image, config, K, None, RigidTransform())
+    assert pose_errors(X_bad, X_CT)[0] > 10 * dp
+
+
+@pytest.mark.parametrize("edge_refinement", [True, False])
+def test_pose_accuracy_on_synthetic_views(K, views, edge_refinement):
+    config = TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE, edge_refinement=edge_refinement)
     errors = []
     for X_CT, image in views:
         X_PO, info = observe_pom(image, config, K, None, RigidTransform())
         assert info["valid"] and info["reason"] == "ok", info["reason"]
         assert info["reprojection_error_px"] < 0.5
         errors.append(pose_errors(X_PO, X_CT))
+        assert info["edge_refined"] if edge_refinement else "edge_refined" not in info
     errors = np.array(errors)
     print(
-        f"synthetic: position mean {errors[:, 0].mean():.4f} max {errors[:, 0].max():.4f} mm, "
-        f"rotation mean {errors[:, 1].mean():.3f} max {errors[:, 1].max():.3f} deg"
+        f"synthetic (edge refinement {edge_refinement}): position mean {errors[:, 0].mean():.4f} max "
+        f"{errors[:, 0].max():.4f} mm, rotation mean {errors[:, 1].mean():.3f} max {errors[:, 1].max():.3f} deg"
     )
-    assert errors[:, 0].mean() < 0.05 and errors[:, 0].max() < 0.3
-    assert errors[:, 1].mean() < 0.15 and errors[:, 1].max() < 0.5
+    if edge_refinement:
+        assert errors[:, 0].mean() < 0.01 and errors[:, 0].max() < 0.05
+        assert errors[:, 1].mean() < 0.03 and errors[:, 1].max() < 0.1
+    else:
+        assert errors[:, 0].mean() < 0.05 and errors[:, 0].max() < 0.3
+        assert errors[:, 1].mean() < 0.15 and errors[:, 1].max() < 0.5
 
 
 @pytest.mark.parametrize(
