@@ -43,9 +43,9 @@ def emulator():
 
 def make_motors(emu: DynamixelEmulator, **kwargs) -> TendonMotors:
     # A generous latency keeps a loaded test machine from faking timeouts.
-    kw = dict(latency_timer_ms=30.0, comm_retries=2)
+    kw = dict(tick_limits=LIMITS, latency_timer_ms=30.0, comm_retries=2)
     kw.update(kwargs)
-    return TendonMotors(emu.port_name, 1000000, IDS, LIMITS, **kw)
+    return TendonMotors(emu.port_name, 1000000, IDS, **kw)
 
 
 def test_crc_matches_sdk_and_protocol_example(rng):
@@ -136,6 +136,33 @@ def test_limits_refused_before_sending(emulator):
         assert len(emulator.instructions(SYNC_WRITE)) == n_writes
         assert [emulator.goal_position(i) for i in IDS] == [100, 200, 300]
         assert motors.torque_on
+
+
+def test_start_far_outside_the_limits_is_refused(emulator):
+    """A wrong zero offset (motor far outside its limits) must not move anything."""
+    # motor 1 sits at 1200: 300 ticks below its lower limit, beyond the 256-tick tolerance
+    motors = make_motors(emulator, tick_limits=(np.array([1500, -400, 0]), np.array([3000, 400, 100])))
+    with pytest.raises(DynamixelError, match=r"motor ids \[1\] start at \[1200\] ticks"):
+        motors.open()
+    assert not motors.is_open and not any(emulator.torque_enabled(i) for i in IDS)
+    assert not emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)  # no goal was ever sent
+
+
+def test_start_slightly_outside_is_clamped(emulator):
+    lo, hi = np.array([1000, -250, 0]), np.array([3000, 400, 100])  # motor 2 at -300: 50 below
+    with make_motors(emulator, tick_limits=(lo, hi)) as motors:
+        assert motors.torque_on
+        assert [emulator.goal_position(i) for i in IDS] == [1200, -250, 5]
+
+
+def test_open_without_torque(emulator):
+    motors = make_motors(emulator)
+    ticks = motors.open(enable_torque=False)
+    try:
+        assert ticks.tolist() == [1200, -300, 5]
+        assert not motors.torque_on and not any(emulator.torque_enabled(i) for i in IDS)
+    finally:
+        motors.close()
 
 
 def test_missing_port_is_a_clear_error():

@@ -536,6 +536,8 @@ def test_example_files_load_and_build(emulator, tmp_path):
     assert cfg.calibration_file == "camera_intrinsics.yaml" and cfg.camera == 0
     # run it against the emulator with a stand-in camera
     cfg.port, cfg.motor_ids, cfg.latency_timer_ms = emulator.port_name, list(IDS), 30.0
+    for i in IDS:
+        emulator.set_present_position(i, 2048)  # taut and straight: at the zero offsets
     builder = DiagramBuilder()
     camera = FrameSource(
         0, timeout_s=0.05, expected_size=(640, 480), capture_factory=FakeCapture(5, size=(640, 480))

@@ -76,6 +76,9 @@ class HardwareConfig:
     latency_timer_ms: float = 16.0
     # Retries of a failed bus transaction (timeout or corrupt reply) before giving up.
     comm_retries: int = 2
+    # A motor found farther than this outside its tendon limits at start [ticks] stops the
+    # start (a wrong zero offset); within it, the first goal is clamped into the limits.
+    start_tolerance_ticks: int = 256
     # Period of the hardware interface's update: send commands, read motors and camera [s].
     period_s: float = 0.05
 
@@ -138,6 +141,10 @@ class HardwareConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{where}: '{name}' must be positive, got {v}")
+        if self.start_tolerance_ticks < 0:
+            raise ValueError(
+                f"{where}: 'start_tolerance_ticks' must be >= 0, got {self.start_tolerance_ticks}"
+            )
         if self.comm_retries < 0:
             raise ValueError(f"{where}: 'comm_retries' must be >= 0, got {self.comm_retries}")
         return self

@@ -10,7 +10,8 @@ Safe start (:meth:`TendonMotors.open`):
   2. ping every motor (an id that does not answer is named in the error);
   3. torque off, then set the operating mode (address 11; 4 = extended position,
      5 = current-based position) and, in mode 5, the goal current (address 102);
-  4. read all present positions with one sync read (address 132);
+  4. read all present positions with one sync read (address 132); a motor far outside its
+     limits (a wrong zero offset) stops the start with torque off;
   5. set each goal position to the position just read, so nothing jumps;
   6. only then enable torque (address 64), confirmed motor by motor.
 
@@ -77,6 +78,8 @@ class TendonMotors:
         goal_current_raw: goal current written in mode 5 (0: leave the motor's value).
         latency_timer_ms: status-packet timeout slack of the adapter [ms].
         comm_retries: retries of a failed transaction before :class:`DynamixelError`.
+        start_tolerance_ticks: how far outside its limits a motor may start (it is then
+            clamped into them when torque comes on); farther is an error.
     """
 
     def __init__(
@@ -89,6 +92,7 @@ class TendonMotors:
         goal_current_raw: int = 0,
         latency_timer_ms: float = 16.0,
         comm_retries: int = 2,
+        start_tolerance_ticks: int = 256,
     ):
         self.port_name = str(port)
         self.baud_rate = int(baud_rate)
@@ -110,6 +114,7 @@ class TendonMotors:
         self.goal_current_raw = int(goal_current_raw)
         self.latency_timer_ms = float(latency_timer_ms)
         self.comm_retries = int(comm_retries)
+        self.start_tolerance_ticks = int(start_tolerance_ticks)
         self.is_open = False
         self.torque_on = False
         self._port = None
@@ -129,11 +134,18 @@ class TendonMotors:
             goal_current_raw=config.goal_current_raw,
             latency_timer_ms=config.latency_timer_ms,
             comm_retries=config.comm_retries,
+            start_tolerance_ticks=config.start_tolerance_ticks,
         )
 
     # --- life cycle -------------------------------------------------------------------------
-    def open(self) -> np.ndarray:
-        """Safe start (module docstring, steps 1-6). Returns the first positions (N,) [ticks]."""
+    def open(self, enable_torque: bool = True) -> np.ndarray:
+        """Safe start (module docstring, steps 1-6). Returns the first positions (N,) [ticks].
+
+        A motor found more than ``start_tolerance_ticks`` outside its tick limits is an error
+        (a wrong zero offset, e.g. after a power cycle reset the multi-turn count): nothing
+        moves. Within the tolerance the first goal is the present position clamped into the
+        limits. ``enable_torque=False`` stops after the first read (for bring-up tools).
+        """
         import dynamixel_sdk as sdk
 
         if self.is_open:
@@ -182,16 +194,31 @@ class TendonMotors:
             for dxl_id in self.motor_ids:
                 self._sync_read.addParam(dxl_id)
             ticks, _ = self._read_once()
-            # Hold where the motors are: goal = present (clamped into the limits), then torque on.
-            self._send_goal(np.clip(ticks, self.tick_lower, self.tick_upper))
-            for dxl_id in self.motor_ids:
-                self._write1(dxl_id, ADDR_TORQUE_ENABLE, 1, "torque on")
-                self.torque_on = True
+            outside = np.maximum(self.tick_lower - ticks, ticks - self.tick_upper)
+            far = outside > self.start_tolerance_ticks
+            if np.any(far):
+                ids = [i for i, f in zip(self.motor_ids, far, strict=True) if f]
+                raise DynamixelError(
+                    f"motor ids {ids} start at {ticks[far].tolist()} ticks, more than "
+                    f"{self.start_tolerance_ticks} ticks outside their limits [{self.tick_lower[far].tolist()}, "
+                    f"{self.tick_upper[far].tolist()}]; check zero_offset_ticks (a power cycle resets the "
+                    "multi-turn count). Torque stays off."
+                )
+            if enable_torque:
+                # Hold where the motors are: goal = present (clamped into the limits), then torque on.
+                self._send_goal(np.clip(ticks, self.tick_lower, self.tick_upper))
+                for dxl_id in self.motor_ids:
+                    self._write1(dxl_id, ADDR_TORQUE_ENABLE, 1, "torque on")
+                    self.torque_on = True
         except BaseException:
             self.close()
             raise
         log.info(
-            "Dynamixel bus %s open, motors %s at %s ticks, torque on", self.port_name, self.motor_ids, ticks
+            "Dynamixel bus %s open, motors %s at %s ticks, torque %s",
+            self.port_name,
+            self.motor_ids,
+            ticks,
+            "on" if self.torque_on else "off",
         )
         return ticks
 
