@@ -579,3 +579,28 @@ def test_measured_position_lags_the_goal():
             assert np.all(hw.GetOutputPort("motor_current").Eval(ctx) > 0.0)  # pulling towards the goal
         finally:
             hw.close()
+
+
+def test_bring_up_tool(emulator, tag_video, tmp_path):
+    import io
+
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    path, poses = tag_video
+    write_intrinsics(tmp_path / "cam.yaml", intrinsics())
+    override = (
+        f"port: {emulator.port_name}\nmotor_ids: {IDS}\nzero_offset_ticks: {ZERO}\ndirection: {DIRECTION}\n"
+        f"tendon_lower: [0.0, 0.0, 0.0]\ntendon_upper: [0.01, 0.01, 0.01]\nlatency_timer_ms: 30.0\n"
+        f"camera: {path}\ncalibration_file: {tmp_path / 'cam.yaml'}\n"
+    )
+    out = io.StringIO()
+    assert bring_up(["zero", "--set", override], out=out) == 0
+    assert out.getvalue().strip() == "zero_offset_ticks: [1300, 1500, -100]"
+    out = io.StringIO()
+    assert bring_up(["status", "--set", override], out=out) == 0
+    text = out.getvalue()
+    assert "motor 12: 1500 ticks" in text and "motors [11, 12, 13] answer" in text
+    assert not any(emulator.torque_enabled(i) for i in IDS)  # the tool never enables torque
+    out = io.StringIO()
+    assert bring_up(["camera", "--set", override, "--frames", str(len(poses) + 2)], out=out) == 0
+    assert f"{len(poses)} of {len(poses) + 2} frames, sizes [({W}, {H})]" in out.getvalue()

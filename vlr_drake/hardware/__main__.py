@@ -1,0 +1,96 @@
+"""Bring-up tool for the real hand: check the motors and the camera, measure zero offsets.
+
+    python -m vlr_drake.hardware status --config hw.yaml   # ping, read, torque stays off
+    python -m vlr_drake.hardware zero   --config hw.yaml   # zero_offset_ticks to paste
+    python -m vlr_drake.hardware camera --config hw.yaml --frames 30
+
+``--config`` is a hardware section (:class:`vlr_drake.hardware.config.HardwareConfig`);
+``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. No command enables torque.
+``zero``: straighten every finger by hand with its tendon just taut, then run it; it prints
+the present positions as ``zero_offset_ticks`` (measure again after a motor power cycle, which
+resets the multi-turn count).
+"""
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+import numpy as np
+
+from vlr_drake.hardware.config import load_hardware_config
+
+__all__ = ["main"]
+
+
+def _motors(config):
+    from vlr_drake.hardware.dynamixel import EXTENDED_POSITION_LIMIT, TendonMotors
+
+    unlimited = (
+        np.full(config.num_motors, -EXTENDED_POSITION_LIMIT),
+        np.full(config.num_motors, EXTENDED_POSITION_LIMIT),
+    )
+    return TendonMotors.from_config(config, unlimited)
+
+
+def main(argv: Sequence[str] | None = None, out=None) -> int:
+    """Command line entry (see the module docstring). Returns the exit status."""
+    out = out or sys.stdout
+    p = argparse.ArgumentParser(prog="python -m vlr_drake.hardware", description=__doc__.split("\n")[0])
+    p.add_argument("command", choices=["status", "zero", "camera"])
+    p.add_argument("--config", help="hardware section YAML file")
+    p.add_argument("--set", default=None, help="YAML text overriding config fields")
+    p.add_argument("--frames", type=int, default=30, help="camera: frames to read")
+    a = p.parse_args(argv)
+    config = load_hardware_config(filename=a.config, data=a.set).validate()
+
+    if a.command in ("status", "zero"):
+        from vlr_drake.hardware.config import TendonMotorMap
+
+        motors = _motors(config)
+        try:
+            ticks = motors.open(enable_torque=False)
+            _, current = motors.read()
+        finally:
+            motors.close()
+        if a.command == "zero":
+            print(f"zero_offset_ticks: {ticks.tolist()}", file=out)
+            return 0
+        zero = TendonMotorMap(config, np.zeros(config.num_motors), np.zeros(config.num_motors))
+        tendon = zero.to_tendon(ticks)
+        print(f"port {config.port} at {config.baud_rate} baud: motors {config.motor_ids} answer", file=out)
+        for i, t, l, c in zip(config.motor_ids, ticks, tendon, current, strict=True):
+            line = f"  motor {i}: {int(t)} ticks, tendon {l * 1000:.2f} mm, current {c * config.current_unit_a:.3f} A"
+            if config.tendon_lower:
+                k = config.motor_ids.index(i)
+                if not config.tendon_lower[k] <= l <= config.tendon_upper[k]:
+                    line += "  (outside the tendon limits)"
+            print(line, file=out)
+        return 0
+
+    from vlr_drake.hardware.camera import FrameSource, read_intrinsics
+
+    size = None
+    try:
+        intr = read_intrinsics(config.calibration_file)
+        size = (intr.width, intr.height)
+        print(
+            f"calibration {config.calibration_file}: {intr.width} x {intr.height}, fx {intr.K[0, 0]:.1f}",
+            file=out,
+        )
+    except (FileNotFoundError, RuntimeError) as e:
+        print(f"calibration: {e}", file=out)
+    with FrameSource(config.camera, config.camera_timeout_s) as cam:
+        shapes = set()
+        for _ in range(a.frames):
+            ok, frame = cam.read()
+            if ok:
+                shapes.add((frame.shape[1], frame.shape[0]))
+    print(f"camera {config.camera!r}: {cam.frames} of {a.frames} frames, sizes {sorted(shapes)}", file=out)
+    if size is not None and shapes and shapes != {size}:
+        print(f"  frame size differs from the calibration ({size[0]} x {size[1]})", file=out)
+        return 1
+    return 0 if cam.frames > 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
