@@ -57,7 +57,7 @@ TOL_CONSTRAINT = 1e-15
 TOL_TENDON = 1e-13
 #: Largest joint-angle change of one Newton step [rad].
 MAX_STEP = 0.15
-MAX_ITER = 40
+MAX_ITER = 20
 
 
 class TendonLimitError(ValueError):
@@ -183,25 +183,21 @@ def _constraint_jacobian(Pc, Jc, pairs, D2, g, G):  # pragma: no cover - numba
 @njit(cache=True)
 def _newton_one(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, theta, lam, T, s_out, resid,
+    ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
 ):  # pragma: no cover - numba
     """Newton on the KKT system of one particle; returns (ok, iterations).
 
-    ``resid`` (3,) receives the final max residuals (torque, constraint, tendon)."""
+    ``resid`` (3,) receives the final max residuals (torque, constraint, tendon);
+    ``work`` holds the scratch arrays (see :func:`_make_work`), reused across particles."""
     N, K = theta0.shape
     n = N * K
     m = pairs.shape[0]
     nc = N if ideal else 0
     dim = n + m + nc
-    Pc = np.empty((N, 3))
-    Jc = np.empty((N, 3, K))
-    Hc = np.empty((N, 3, K, K))
-    g = np.empty(m)
-    G = np.empty((m, n))
-    A = np.empty((dim, dim))
-    F = np.empty(dim)
-    mu = np.zeros(N)
-    sp = np.empty(N)
+    Pc, Jc, Hc, g, G, Afull, Ffull, mu, sp, Bfull, f0, BBtfull, rhsfull = work
+    A = Afull[:dim, :dim]
+    F = Ffull[:dim]
+    mu[:] = 0.0
     for i in range(N):
         for k in range(K):
             theta[i, k] = theta0[i, k]
@@ -210,8 +206,10 @@ def _newton_one(
     _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
     _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
     nb = m + nc
-    B = np.zeros((nb, n))
-    f0 = np.empty(n)
+    B = Bfull[:nb]
+    B[:, :] = 0.0
+    BBt = BBtfull[:nb, :nb]
+    rhs = rhsfull[:nb]
     for i in range(N):
         for k in range(K):
             f0[i * K + k] = kst[i, k] * (theta[i, k] - rest[i, k])
@@ -224,8 +222,16 @@ def _newton_one(
         for i in range(N):
             for k in range(K):
                 B[m + i, i * K + k] = rarm[i, k]
-    BBt = B @ B.T
-    rhs = -(B @ f0)
+    for r1 in range(nb):
+        v = 0.0
+        for q in range(n):
+            v += B[r1, q] * f0[q]
+        rhs[r1] = -v
+        for r2 in range(nb):
+            v = 0.0
+            for q in range(n):
+                v += B[r1, q] * B[r2, q]
+            BBt[r1, r2] = v
     if _solve(BBt, rhs):
         for c in range(m):
             lam[c] = rhs[c]
@@ -278,8 +284,8 @@ def _newton_one(
         if res_f < TOL_TORQUE and res_g < TOL_CONSTRAINT and res_t < TOL_TENDON:
             ok = True
             break
-        if it == max_iter:
-            break
+        if it == max_iter or (it >= 10 and res_f > 1e-6):
+            break  # out of iterations, or not in Newton's quadratic range after 10 steps
         # KKT matrix
         A[:, :] = 0.0
         for i in range(N):
@@ -358,48 +364,80 @@ def _newton_one(
     return ok, it
 
 
+@njit(cache=True)
+def _make_work(N, K, m):  # pragma: no cover - numba
+    """Scratch arrays of one Newton solve (sized for the ideal model, the larger one)."""
+    n = N * K
+    dim = n + m + N
+    return (
+        np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K)), np.empty(m), np.empty((m, n)),
+        np.empty((dim, dim)), np.empty(dim), np.zeros(N), np.empty(N), np.empty((m + N, n)), np.empty(n),
+        np.empty((m + N, m + N)), np.empty(m + N),
+    )
+
+
+@njit(cache=True)
+def _move_one(
+    theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
+    ideal, max_iter, max_step, max_substeps, theta, lam, T, s_out, resid, work, th_c, s_c,
+):  # pragma: no cover - numba
+    o, it = _newton_one(
+        theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest,
+        kappa, pairs, ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
+    )
+    # Continuation: a failed particle is retried with the action ramped in substeps,
+    # following the quasi-static branch from the current configuration.
+    nsub = 4
+    while not o and nsub <= max_substeps:
+        th_c[:, :] = theta0
+        s_c[:] = s0
+        ddl = dl / nsub
+        it = 0
+        for _ in range(nsub):
+            o, it_k = _newton_one(
+                th_c, s_c, ddl, a, L, kst, D2, pad, base, u, rarm, rest,
+                kappa, pairs, ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
+            )
+            it += it_k
+            if not o:
+                break
+            th_c[:, :] = theta
+            s_c[:] = s_out
+        if not o:
+            theta[:, :] = theta0
+            s_out[:] = s0
+            for i in range(theta0.shape[0]):
+                T[i] = kappa[i] * s0[i]
+        nsub *= 4
+    return o, it
+
+
 @njit(cache=True, parallel=True)
 def _move_kernel(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
     ideal, max_iter, max_step, max_substeps, theta, lam, T, s_out, ok, iters, resid,
 ):  # pragma: no cover - numba
-    P = theta0.shape[0]
-    for pp in prange(P):
-        p = np.int64(pp)
-        pl = p if L.shape[0] > 1 else 0
-        pk = p if kst.shape[0] > 1 else 0
-        pd = p if dl.shape[0] > 1 else 0
-        o, it = _newton_one(
-            theta0[p], s0[p], dl[pd], a[p], L[pl], kst[pk], D2[p], pad, base, u, rarm, rest,
-            kappa, pairs, ideal, max_iter, max_step, theta[p], lam[p], T[p], s_out[p], resid[p],
-        )
-        # Continuation: a failed particle is retried with the action ramped in substeps,
-        # following the quasi-static branch from the current configuration.
-        nsub = 4
-        while not o and nsub <= max_substeps:
-            th_c = theta0[p].copy()
-            s_c = s0[p].copy()
-            ddl = dl[pd] / nsub
-            it = 0
-            for _ in range(nsub):
-                o, it_k = _newton_one(
-                    th_c, s_c, ddl, a[p], L[pl], kst[pk], D2[p], pad, base, u, rarm, rest,
-                    kappa, pairs, ideal, max_iter, max_step, theta[p], lam[p], T[p], s_out[p], resid[p],
-                )
-                it += it_k
-                if not o:
-                    break
-                th_c[:, :] = theta[p]
-                s_c[:] = s_out[p]
-            if not o:
-                for i in range(theta0.shape[1]):
-                    for k in range(theta0.shape[2]):
-                        theta[p, i, k] = theta0[p, i, k]
-                    s_out[p, i] = s0[p, i]
-                    T[p, i] = kappa[i] * s0[p, i]
-            nsub *= 4
-        ok[p] = o
-        iters[p] = it
+    P, N, K = theta0.shape
+    m = pairs.shape[0]
+    chunk = 256
+    nchunks = (P + chunk - 1) // chunk
+    for cc in prange(nchunks):
+        work = _make_work(N, K, m)
+        th_c = np.empty((N, K))
+        s_c = np.empty(N)
+        start = np.int64(cc) * chunk
+        stop = min(start + chunk, P)
+        for p in range(start, stop):
+            pl = p if L.shape[0] > 1 else 0
+            pk = p if kst.shape[0] > 1 else 0
+            pd = p if dl.shape[0] > 1 else 0
+            o, it = _move_one(
+                theta0[p], s0[p], dl[pd], a[p], L[pl], kst[pk], D2[p], pad, base, u, rarm, rest,
+                kappa, pairs, ideal, max_iter, max_step, max_substeps, theta[p], lam[p], T[p], s_out[p],
+                resid[p], work, th_c, s_c,
+            )
+            ok[p] = o
+            iters[p] = it
 
 
 @njit(cache=True)
@@ -516,7 +554,7 @@ def move(
     l_now=None,
     max_iter: int = MAX_ITER,
     max_step: float = MAX_STEP,
-    max_substeps: int = 16,
+    max_substeps: int = 4,
 ) -> MoveResult:
     """Gamma (Eq. 4/9): move every particle by the tendon action ``dl``.
 

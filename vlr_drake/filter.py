@@ -1,0 +1,521 @@
+"""Self-identification by particle filtering (Algorithm 1; DESIGN.md section 6).
+
+A particle is one hypothesis xi = (theta, a, Omega) of the hand-object system: joint angles
+(N, K), contact positions along the last links (N,), and, when the experiment asks, the
+physical parameters being identified (joint stiffness, link lengths of novel fingers).
+Each particle also carries derived state: the tendon stretch that holds it in equilibrium
+(:func:`vlr_drake.motion.equilibrium`) and its *attachment* p_i^O, the contacts expressed
+in the POM frame, which fixes the E^C links (Eq. 1) and so the grasp distances (Eq. 8).
+
+One iteration (one action dl and one camera measurement of the POM):
+
+1. move every particle with Gamma (Eq. 4/9, batched Newton),
+2. predict its POM pose with Lambda (Eq. 5),
+3. weigh: log w = -0.5 (|dp|^2 / sigma_p^2 + angle(dR)^2 / sigma_r^2), minus infinity for
+   particles whose solve failed, whose joints left their limits, or whose implied tendon
+   tension is negative (a pushing tendon is not a grasp),
+4. temper: if the effective sample size (ESS) would fall below ``ess_fraction * M``, the
+   log-likelihood is scaled by beta in (0, 1], found by bisection, so that the ESS stays
+   there (weight collapse locks a filter into wrong modes),
+5. resample (systematic, every iteration that had a valid measurement),
+6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h std eps, a = sqrt(1 - h^2),
+   which keeps the cloud's mean and variance), recompute the equilibrium stretch, and
+7. re-anchor the attachment a fraction ``anchor_fraction`` of the way from the particle's own
+   predicted POM pose towards the measured one (holding it fixed for ever makes the filter
+   overconfident; DESIGN.md section 3).
+
+The estimate is the mean of the (equally weighted, resampled) cloud; the 95% interval of a
+quantity is its 2.5-97.5 percentile range. The filter has converged when the average over
+joint angles of the 95% interval (half-width by default; full width selectable) is below
+``convergence_deg``. If every particle becomes implausible (the best one is many sigma
+away, or every solve failed), the filter re-initialises around its last estimate and says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vlr_drake import kinematics, motion, observation
+from vlr_drake.hand import HandModel
+
+__all__ = [
+    "FilterConfig",
+    "PriorConfig",
+    "ParticleSet",
+    "StepReport",
+    "SelfIdentificationFilter",
+    "systematic_resample",
+    "effective_sample_size",
+    "temper",
+    "interval95",
+]
+
+
+# --------------------------------------------------------------------------------------
+# Pure building blocks (tested against their definitions)
+# --------------------------------------------------------------------------------------
+
+
+def effective_sample_size(log_w: np.ndarray) -> float:
+    """ESS = 1 / sum(w_i^2) of the normalised weights exp(log_w)."""
+    log_w = np.asarray(log_w, float)
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        return 0.0
+    w = np.exp(log_w - log_w[finite].max())
+    w[~finite] = 0.0
+    w /= w.sum()
+    return float(1.0 / np.sum(w * w))
+
+
+def normalise(log_w: np.ndarray) -> np.ndarray:
+    """Normalised weights from log weights (-inf allowed; all -inf gives uniform)."""
+    log_w = np.asarray(log_w, float)
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        return np.full(log_w.shape, 1.0 / log_w.size)
+    w = np.exp(log_w - log_w[finite].max())
+    w[~finite] = 0.0
+    return w / w.sum()
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Systematic (low-variance) resampling: ancestor indices for normalised ``weights``.
+
+    One uniform draw u ~ U[0, 1/M); particle j is copied once for each of the points
+    u + k/M (k = 0..M-1) that falls in its slice of the cumulative weights.
+    """
+    w = np.asarray(weights, float)
+    M = w.size
+    if M == 0 or not np.isclose(w.sum(), 1.0) or np.any(w < 0):
+        raise ValueError("systematic_resample needs non-negative weights that sum to 1")
+    positions = (rng.random() + np.arange(M)) / M
+    cdf = np.cumsum(w)
+    cdf[-1] = 1.0
+    return np.searchsorted(cdf, positions, side="right").clip(0, M - 1)
+
+
+def temper(log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> float:
+    """Largest beta in (0, 1] with ESS(beta * log_lik) >= ess_target (bisection).
+
+    Returns 1 when the full likelihood keeps the ESS above the target.
+    """
+    if effective_sample_size(log_lik) >= ess_target:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        if effective_sample_size(mid * log_lik) >= ess_target:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-6)
+
+
+def _temper_increment(log_w0: np.ndarray, log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> float:
+    """Largest beta in (0, 1] with ESS(log_w0 + beta * log_lik) >= ess_target."""
+    if effective_sample_size(log_w0 + log_lik) >= ess_target:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        if effective_sample_size(log_w0 + mid * log_lik) >= ess_target:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-6)
+
+
+def interval95(x: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted 2.5 and 97.5 percentiles over the particle axis (axis 0).
+
+    With weights, the quantile is the smallest sample whose cumulative normalised weight
+    reaches the level (the inverse of the weighted empirical CDF)."""
+    x = np.asarray(x, float)
+    if w is None:
+        lo, hi = np.percentile(x, [2.5, 97.5], axis=0)
+        return lo, hi
+    flat = x.reshape(x.shape[0], -1)
+    order = np.argsort(flat, axis=0)
+    cw = np.cumsum(np.asarray(w)[order], axis=0)
+    cw /= cw[-1]
+    cols = np.arange(flat.shape[1])
+    out = []
+    for q in (0.025, 0.975):
+        k = np.argmax(cw >= q, axis=0)
+        out.append(flat[order[k, cols], cols].reshape(x.shape[1:]))
+    return out[0], out[1]
+
+
+# --------------------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class PriorConfig:
+    """Where the hypotheses start: uniform boxes around a nominal grasp (documented ranges).
+
+    Every range is a half-width around the centre; centres default to the nominal grasp
+    that the caller passes (e.g. from the scenario's object placement).
+    """
+
+    # Half-width of the proximal (first) joint angles [rad].
+    proximal_half_width: float = 0.15
+    # Half-width of the other joint angles [rad].
+    distal_half_width: float = 0.25
+    # Half-width of the contact positions along the last links [m].
+    contact_half_width: float = 0.008
+    # Unknown joint stiffness: (finger, joint) pairs, with the range [min, max] [N m/rad].
+    stiffness_unknown: list[tuple[int, int]] = field(default_factory=list)
+    stiffness_range: tuple[float, float] = (0.05, 0.40)
+    # Fingers whose proximal link lengths are unknown, with the range [min, max] [m].
+    links_unknown: list[int] = field(default_factory=list)
+    link_range: tuple[float, float] = (0.030, 0.075)
+    # Contact positions must stay on the pad: [min, max] along the last link [m].
+    contact_limits: tuple[float, float] = (0.005, 0.048)
+    # Smallest implied tendon tension of a prior draw [N].
+    min_tension: float = 0.0
+
+
+@dataclass
+class FilterConfig:
+    """Likelihood, resampling and convergence settings (DESIGN.md section 6)."""
+
+    # Number of particles M (the paper: 60,000).
+    particles: int = 20_000
+    # Position noise of the POM measurement plus model error, sigma_p [m].
+    sigma_position: float = 0.3e-3
+    # Rotation noise of the POM measurement plus model error, sigma_r [rad].
+    sigma_rotation: float = np.deg2rad(1.0)
+    # Tendon model of Gamma: "elastic" (default; stiffness identifiable) or "ideal".
+    tendon: str = "elastic"
+    # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
+    roughening: float = 0.1
+    # Temper the likelihood when ESS would fall below this fraction of M.
+    ess_fraction: float = 0.1
+    # Resample (then roughen) when the ESS of the accumulated weights falls below this
+    # fraction of M; weights accumulate over iterations until then.
+    resample_fraction: float = 0.5
+    # Fraction of the way each attachment moves towards the measured POM per iteration.
+    anchor_fraction: float = 0.3
+    # Convergence: mean 95% interval of the joint angles below this [deg] ...
+    convergence_deg: float = 2.0
+    # ... measured as the "half_width" or the "full_width" of the interval.
+    convergence_measure: str = "half_width"
+    # Re-initialise when the best particle is further than this many sigmas (Mahalanobis).
+    divergence_sigmas: float = 12.0
+
+    def validate(self) -> FilterConfig:
+        if self.particles < 10:
+            raise ValueError(f"filter: 'particles' must be >= 10, got {self.particles}")
+        if self.sigma_position <= 0 or self.sigma_rotation <= 0:
+            raise ValueError("filter: 'sigma_position' and 'sigma_rotation' must be positive")
+        if self.tendon not in motion.TENDON_MODELS:
+            raise ValueError(f"filter: 'tendon' must be one of {motion.TENDON_MODELS}, got '{self.tendon}'")
+        if not 0 < self.roughening < 1:
+            raise ValueError("filter: 'roughening' must be in (0, 1)")
+        if not 0 < self.ess_fraction <= 1:
+            raise ValueError("filter: 'ess_fraction' must be in (0, 1]")
+        if not 0 <= self.anchor_fraction <= 1:
+            raise ValueError("filter: 'anchor_fraction' must be in [0, 1]")
+        if self.convergence_measure not in ("half_width", "full_width"):
+            raise ValueError("filter: 'convergence_measure' must be 'half_width' or 'full_width'")
+        return self
+
+
+# --------------------------------------------------------------------------------------
+# Particles
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class ParticleSet:
+    """M hypotheses, particles on the leading axis."""
+
+    theta: np.ndarray  # (M, N, K)
+    a: np.ndarray  # (M, N)
+    stiffness: np.ndarray  # (M, N, K) or (1, N, K) when known
+    link_lengths: np.ndarray  # (M, N, K-1) or (1, N, K-1) when known
+    stretch: np.ndarray  # (M, N) equilibrium tendon stretch
+    p_O: np.ndarray  # (M, N, 3) attachment: contacts in the POM frame
+    log_w: np.ndarray  # (M,)
+
+    @property
+    def size(self) -> int:
+        return self.theta.shape[0]
+
+    def take(self, idx: np.ndarray) -> ParticleSet:
+        def pick(x):
+            return x[idx] if x.shape[0] > 1 else x
+
+        return ParticleSet(
+            self.theta[idx], self.a[idx], pick(self.stiffness), pick(self.link_lengths),
+            self.stretch[idx], self.p_O[idx], np.zeros(len(idx)),
+        )
+
+
+@dataclass
+class StepReport:
+    """What one filter iteration did (for logs, plots and the LeafSystem's outputs)."""
+
+    iteration: int
+    measured: bool
+    ess: float
+    beta: float
+    solve_failures: int
+    infeasible: int
+    reinitialised: bool
+    best_mahalanobis: float
+    mean_interval_deg: float
+    converged: bool
+
+
+class SelfIdentificationFilter:
+    """Algorithm 1 on the VLR model. The math only; ``systems/`` wraps it for Drake."""
+
+    def __init__(self, hand: HandModel, config: FilterConfig, prior: PriorConfig, rng: np.random.Generator):
+        self.hand = hand
+        self.config = config.validate()
+        self.prior = prior
+        self.rng = rng
+        self.particles: ParticleSet | None = None
+        self.iteration = 0
+        self.history: list[StepReport] = []
+        self.estimates: list[dict] = []
+        self.reinitialisations = 0
+        self.resamples = 0
+        N, K = hand.N, hand.K
+        for fi, j in prior.stiffness_unknown:
+            if not (0 <= fi < N and 0 <= j < K):
+                raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
+        for fi in prior.links_unknown:
+            if not 0 <= fi < N:
+                raise ValueError(f"prior: links_unknown entry {fi} is not a finger of a {N}-finger hand")
+
+    # ---------------------------------------------------------------- initialisation
+    def initialise(self, theta_center, a_center, R_PO, t_PO, stiffness_center=None, link_center=None,
+                   scale: float = 1.0) -> ParticleSet:
+        """Draw M hypotheses from the prior box around a nominal grasp and attach them to
+        the measured POM pose (R_PO, t_PO). ``scale`` shrinks the box (re-initialisation)."""
+        h, pr, M = self.hand, self.prior, self.config.particles
+        theta_center = np.asarray(theta_center, float).reshape(h.N, h.K)
+        a_center = np.asarray(a_center, float).reshape(h.N)
+        kept = []
+        total = 0
+        for _ in range(50):
+            n = 2 * M
+            theta = np.empty((n, h.N, h.K))
+            theta[..., 0] = theta_center[:, 0] + scale * pr.proximal_half_width * self.rng.uniform(-1, 1, (n, h.N))
+            theta[..., 1:] = theta_center[:, 1:] + scale * pr.distal_half_width * self.rng.uniform(-1, 1, (n, h.N, h.K - 1))
+            a = a_center + scale * pr.contact_half_width * self.rng.uniform(-1, 1, (n, h.N))
+            a = np.clip(a, *pr.contact_limits)
+            stiff = self._draw_stiffness(n, stiffness_center, scale)
+            links = self._draw_links(n, link_center, scale)
+            eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff)
+            good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & self._within_limits(eq.theta)
+            idx = np.flatnonzero(good)
+            if idx.size:
+                kept.append((eq.theta[idx], a[idx], stiff[idx] if stiff.shape[0] > 1 else stiff,
+                             links[idx] if links.shape[0] > 1 else links, eq.stretch[idx]))
+                total += idx.size
+            if total >= M:
+                break
+        if total < M:
+            raise RuntimeError(
+                f"prior: only {total} of {M} draws are physical grasps (positive tension, joints within "
+                "limits); check the nominal grasp and the prior ranges"
+            )
+        def cat(i):
+            parts = [k[i] for k in kept]
+            if i in (2, 3) and parts[0].shape[0] == 1:  # a known (shared) hand parameter
+                return parts[0]
+            return np.concatenate(parts)[:M]
+
+        theta, a, stiff, links, stretch = (cat(i) for i in range(5))
+        p = kinematics.contacts(h, theta, a, links)
+        p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
+        self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M))
+        self._theta_center, self._a_center = theta_center, a_center
+        self.estimates.append(self.estimate())
+        return self.particles
+
+    def _draw_stiffness(self, n, center, scale):
+        h, pr = self.hand, self.prior
+        if not pr.stiffness_unknown:
+            return h.stiffness[None].copy()
+        k = np.broadcast_to(h.stiffness, (n, h.N, h.K)).copy()
+        lo, hi = pr.stiffness_range
+        for fi, j in pr.stiffness_unknown:
+            if center is None:
+                k[:, fi, j] = self.rng.uniform(lo, hi, n)
+            else:
+                half = 0.5 * scale * (hi - lo)
+                k[:, fi, j] = np.clip(center[fi, j] + half * self.rng.uniform(-1, 1, n), lo, hi)
+        return k
+
+    def _draw_links(self, n, center, scale):
+        h, pr = self.hand, self.prior
+        if not pr.links_unknown:
+            return h.link_lengths[None].copy()
+        L = np.broadcast_to(h.link_lengths, (n, h.N, h.K - 1)).copy()
+        lo, hi = pr.link_range
+        for fi in pr.links_unknown:
+            if center is None:
+                L[:, fi, 0] = self.rng.uniform(lo, hi, n)
+            else:
+                half = 0.5 * scale * (hi - lo)
+                L[:, fi, 0] = np.clip(center[fi, 0] + half * self.rng.uniform(-1, 1, n), lo, hi)
+        return L
+
+    def _within_limits(self, theta):
+        h = self.hand
+        return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
+
+    # ---------------------------------------------------------------- one iteration
+    def step(self, dl, R_meas=None, t_meas=None, valid: bool = True) -> StepReport:
+        """One iteration of Algorithm 1 for action ``dl`` (N,) and the measured POM pose.
+
+        With ``valid`` False (lost tag) the particles are moved but not weighed,
+        resampled or re-anchored: nothing is learnt and nothing is corrupted.
+        """
+        if self.particles is None:
+            raise RuntimeError("filter: call initialise() before step()")
+        cfg, h, ps = self.config, self.hand, self.particles
+        dl = np.asarray(dl, float).reshape(h.N)
+        self.iteration += 1
+        D2 = motion.contact_distances_sq(h, ps.p_O)
+        res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
+                          stiffness=ps.stiffness, tendon=cfg.tendon)
+        p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
+        R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
+        feasible = res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)
+        ps.theta, ps.stretch = res.theta, res.stretch
+        if not valid or R_meas is None:
+            report = self._report(False, float(ps.size), 1.0, res, feasible, False, np.nan)
+            return report
+        R_meas = np.asarray(R_meas, float).reshape(3, 3)
+        t_meas = np.asarray(t_meas, float).reshape(3)
+        dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
+        maha2 = (dp / cfg.sigma_position) ** 2 + (ang / cfg.sigma_rotation) ** 2
+        log_lik = np.where(feasible, -0.5 * maha2, -np.inf)
+        best = float(np.sqrt(np.min(maha2[feasible]))) if feasible.any() else np.inf
+        if not feasible.any() or best > cfg.divergence_sigmas:
+            self._reinitialise(R_meas, t_meas)
+            return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best)
+        prior_w = np.where(np.isfinite(ps.log_w), ps.log_w, -np.inf)
+        beta = temper(prior_w + log_lik - prior_w.max(), cfg.ess_fraction * ps.size) if np.isfinite(prior_w).any() else 1.0
+        if beta < 1.0:  # temper the increment only, relative to the weights carried so far
+            beta = _temper_increment(prior_w, log_lik, cfg.ess_fraction * ps.size)
+        log_w = prior_w + beta * log_lik
+        ess = effective_sample_size(log_w)
+        # Re-anchoring (DESIGN.md section 3): blend each particle's predicted POM pose
+        # towards the measured one, then re-express its contacts in that frame.
+        R_anchor, t_anchor = _blend_poses(R_pred, t_pred, R_meas, t_meas, cfg.anchor_fraction)
+        if ess < cfg.resample_fraction * ps.size:
+            idx = systematic_resample(normalise(log_w), self.rng)
+            new = ps.take(idx)
+            R_anchor, t_anchor = R_anchor[idx], t_anchor[idx]
+            self._roughen(new)
+            self.resamples += 1
+        else:
+            new = ps
+            new.log_w = log_w - log_w[np.isfinite(log_w)].max()
+        p_now = kinematics.contacts(h, new.theta, new.a, new.link_lengths)
+        new.p_O = np.einsum("pji,pnj->pni", R_anchor, p_now - t_anchor[:, None, :])
+        self.particles = new
+        return self._report(True, ess, beta, res, feasible, False, best)
+
+    def _roughen(self, ps: ParticleSet) -> None:
+        """Liu-West shrinkage and jitter of the unknowns; recompute the equilibrium."""
+        h, cfg, pr = self.hand, self.config, self.prior
+        hh = cfg.roughening
+        shrink = np.sqrt(1.0 - hh * hh)
+
+        def kernel(x, lo=None, hi=None):
+            mean = x.mean(axis=0)
+            std = x.std(axis=0)
+            out = shrink * x + (1.0 - shrink) * mean + hh * std * self.rng.standard_normal(x.shape)
+            if lo is not None:
+                out = np.clip(out, lo, hi)
+            return out
+
+        ps.theta = kernel(ps.theta)
+        ps.a = kernel(ps.a, *pr.contact_limits)
+        if pr.stiffness_unknown:
+            k = ps.stiffness.copy()
+            for fi, j in pr.stiffness_unknown:
+                k[:, fi, j] = kernel(k[:, fi, j], *pr.stiffness_range)
+            ps.stiffness = k
+        if pr.links_unknown:
+            L = ps.link_lengths.copy()
+            for fi in pr.links_unknown:
+                L[:, fi, 0] = kernel(L[:, fi, 0], *pr.link_range)
+            ps.link_lengths = L
+        eq = motion.equilibrium(h, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+        ps.theta = eq.theta
+        ps.stretch = eq.stretch
+
+    def _reinitialise(self, R_meas, t_meas) -> None:
+        est = self.estimates[-1] if self.estimates else None
+        self.reinitialisations += 1
+        if est is None:
+            theta_c, a_c, k_c, L_c = self._theta_center, self._a_center, None, None
+        else:
+            theta_c, a_c = est["theta"], est["a"]
+            k_c = est["stiffness"] if self.prior.stiffness_unknown else None
+            L_c = est["link_lengths"] if self.prior.links_unknown else None
+        self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0)
+        self.estimates.pop()  # initialise appended one; the report below appends the current
+
+    def _report(self, measured, ess, beta, res, feasible, reinit, best) -> StepReport:
+        est = self.estimate()
+        self.estimates.append(est)
+        width = est["theta_half_width"] if self.config.convergence_measure == "half_width" else est["theta_full_width"]
+        mean_int = float(np.rad2deg(width.mean()))
+        report = StepReport(
+            iteration=self.iteration, measured=measured, ess=ess, beta=beta,
+            solve_failures=int((~res.ok).sum()), infeasible=int((~feasible).sum()), reinitialised=reinit,
+            best_mahalanobis=best, mean_interval_deg=mean_int,
+            converged=bool(mean_int < self.config.convergence_deg and not reinit),
+        )
+        self.history.append(report)
+        return report
+
+    # ---------------------------------------------------------------- estimate
+    def estimate(self) -> dict:
+        """Weighted mean and 95% intervals of every identified quantity."""
+        ps = self.particles
+        w = normalise(ps.log_w)
+        out = {}
+        for name, x in [("theta", ps.theta), ("a", ps.a), ("stiffness", ps.stiffness),
+                        ("link_lengths", ps.link_lengths)]:
+            mean = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
+            out[name] = mean
+            if x.shape[0] > 1:
+                lo, hi = interval95(x, w)
+            else:
+                lo = hi = x[0]
+            out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
+        out["theta_full_width"] = (out["theta_hi"] - out["theta_lo"]).ravel()
+        out["theta_half_width"] = 0.5 * out["theta_full_width"]
+        out["contacts"] = kinematics.contacts(self.hand, out["theta"][None], out["a"][None],
+                                              out["link_lengths"][None])[0]
+        return out
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.history and self.history[-1].converged)
+
+
+def _blend_poses(R_a, t_a, R_b, t_b, fraction):
+    """Poses a fraction of the way from (R_a, t_a) (P, ...) to one pose (R_b, t_b)."""
+    if fraction == 0.0:
+        return R_a, t_a
+    dR = np.einsum("pji,jk->pik", R_a, R_b)  # R_a^T R_b
+    w = observation.rotvec(dR) * fraction
+    R = np.einsum("pij,pjk->pik", R_a, observation.rotvec_to_matrix(w))
+    t = (1.0 - fraction) * t_a + fraction * t_b[None]
+    return R, t

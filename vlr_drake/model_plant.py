@@ -1,0 +1,94 @@
+"""The model plant: the quasi-static VLR model itself with hidden true parameters.
+
+For fast experiments and for tests where the truth must be exact (DESIGN.md section 8).
+The true hand-object state evolves by the same motion function Gamma (Eq. 9) that the
+filter uses, with the true stiffness, link lengths, contacts and attachment; the POM pose
+is then measured with seeded Gaussian noise (position sigma [m], rotation sigma [rad] as a
+random rotation vector), and a measurement can drop out (a lost tag).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlr_drake import kinematics, motion, observation
+from vlr_drake.hand import HandModel
+
+__all__ = ["ModelPlantState", "ModelPlant"]
+
+
+@dataclass
+class ModelPlantState:
+    theta: np.ndarray  # (N, K)
+    a: np.ndarray  # (N,)
+    stretch: np.ndarray  # (N,)
+    tendon_command: np.ndarray  # (N,) absolute pull l [m]
+    R_PO: np.ndarray  # (3, 3)
+    t_PO: np.ndarray  # (3,)
+
+
+class ModelPlant:
+    """A hand holding an object, simulated by the VLR model with hidden truth."""
+
+    def __init__(self, hand: HandModel, theta, a, R_PO, t_PO, rng: np.random.Generator, *,
+                 stiffness=None, link_lengths=None, sigma_position: float = 0.2e-3,
+                 sigma_rotation: float = np.deg2rad(0.5), dropout: float = 0.0, tendon: str = "elastic",
+                 contact_drift: float = 0.0):
+        self.hand = hand
+        self.rng = rng
+        self.stiffness = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
+        self.link_lengths = (hand.link_lengths.copy() if link_lengths is None
+                             else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1))
+        self.sigma_position, self.sigma_rotation, self.dropout = sigma_position, sigma_rotation, dropout
+        self.tendon = tendon
+        self.contact_drift = contact_drift
+        theta = np.asarray(theta, float).reshape(hand.N, hand.K)
+        a = np.asarray(a, float).reshape(hand.N)
+        eq = motion.equilibrium(hand, theta[None], a=a[None], link_lengths=self.link_lengths[None],
+                                stiffness=self.stiffness[None])
+        if not eq.ok[0] or np.any(eq.tension[0] < 0):
+            raise ValueError(f"model plant: the initial grasp is not physical (tensions {eq.tension[0]} N)")
+        theta = eq.theta[0]
+        l0 = (hand.moment_arms * theta).sum(axis=1) + eq.stretch[0]
+        self.state = ModelPlantState(theta, a, eq.stretch[0], l0, np.asarray(R_PO, float), np.asarray(t_PO, float))
+        p = self.contacts()
+        self.p_O = observation.attach(p[None], self.state.R_PO[None], self.state.t_PO[None])[0]
+
+    def contacts(self) -> np.ndarray:
+        s = self.state
+        return kinematics.contacts(self.hand, s.theta[None], s.a[None], self.link_lengths[None])[0]
+
+    def apply_action(self, dl) -> bool:
+        """Move the true system by ``dl``; returns False (and stays put) if the model has
+        no nearby equilibrium for it (the tendon command is not changed then)."""
+        h, s = self.hand, self.state
+        dl = np.asarray(dl, float).reshape(h.N)
+        D2 = motion.contact_distances_sq(h, self.p_O[None])
+        res = motion.move(h, s.theta[None], dl, a=s.a[None], D2=D2, stretch=s.stretch[None],
+                          link_lengths=self.link_lengths[None], stiffness=self.stiffness[None], tendon=self.tendon,
+                          l_now=s.tendon_command)
+        if not res.ok[0]:
+            return False
+        s.theta, s.stretch = res.theta[0], res.stretch[0]
+        s.tendon_command = s.tendon_command + dl
+        p = self.contacts()
+        R, t, _ = observation.pom_pose(self.p_O[None], p[None])
+        s.R_PO, s.t_PO = R[0], t[0]
+        if self.contact_drift > 0:  # contacts roll a little on the fingers (physics does)
+            s.a = s.a + self.contact_drift * self.rng.standard_normal(h.N)
+            self.p_O = observation.attach(self.contacts()[None], s.R_PO[None], s.t_PO[None])[0]
+            eq = motion.equilibrium(h, s.theta[None], a=s.a[None], link_lengths=self.link_lengths[None],
+                                    stiffness=self.stiffness[None])
+            s.stretch = eq.stretch[0]
+        return True
+
+    def measure(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Noisy POM pose (R, t, valid)."""
+        s = self.state
+        if self.dropout > 0 and self.rng.random() < self.dropout:
+            return s.R_PO.copy(), s.t_PO.copy(), False
+        t = s.t_PO + self.sigma_position * self.rng.standard_normal(3)
+        dR = observation.rotvec_to_matrix(self.sigma_rotation * self.rng.standard_normal(3))[0]
+        return s.R_PO @ dR, t, True
