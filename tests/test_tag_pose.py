@@ -309,6 +309,8 @@ def test_bad_inputs_raise_clear_errors(K, views):
         TagObserverConfig(tag_size=0.0).validate()
     with pytest.raises(ValueError, match="max_reprojection_error_px"):
         TagObserverConfig(max_reprojection_error_px=0.0).validate()
+    with pytest.raises(ValueError, match="K"):
+        refine_corners_edges(image, project(views[0][0], K), None, np.array([0.1, 0, 0, 0, 0]))
     with pytest.raises(ValueError, match="noSuchField"):
         make_detector("apriltag", {"noSuchField": 1.0})
 

@@ -64,8 +64,8 @@ class TagObserverConfig:
     tag_id: int = 0
     # Side of the tag's black square [m] (not counting the white quiet zone).
     tag_size: float = 0.03
-    # Corner refinement: "apriltag" (default, unbiased on rendered images), "subpix",
-    # "contour" or "none".
+    # The aruco detector's corner refinement: "apriltag" (default; its measured +0.43 px
+    # offset is removed), "subpix", "contour" or "none".
     corner_refinement: str = "apriltag"
     # Refine the detector's corners from the four outer edges (refine_corners_edges);
     # falls back to the detector's corners when the edges cannot be measured.
@@ -206,9 +206,11 @@ def refine_corners_edges(
     """
     gray = to_gray(image).astype(np.float32)
     corners = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    use_dist = dist is not None and np.any(np.asarray(dist) != 0)
-    if use_dist and K is None:
-        raise ValueError("K: needed to undistort the edges when dist is given")
+    use_dist = dist is not None and bool(np.any(np.asarray(dist) != 0))
+    if use_dist:
+        if K is None:
+            raise ValueError("K: needed to undistort the edges when dist is given")
+        K, dist = _check_intrinsics(K, dist)
     centre = corners.mean(axis=0)
     side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
     w = min(half_width_px, 0.4 * side / 8.0)
@@ -257,7 +259,10 @@ def refine_corners_edges(
         mean = points.mean(axis=0)
         direction = np.linalg.svd(points - mean, full_matrices=False)[2][0]
         lines.append(np.array([mean, direction]))
-    refined = np.array([_line_intersection(lines[(k - 1) % 4], lines[k]) for k in range(4)])
+    try:
+        refined = np.array([_line_intersection(lines[(k - 1) % 4], lines[k]) for k in range(4)])
+    except np.linalg.LinAlgError:
+        return None  # parallel adjacent edges: not a tag
     if use_dist:
         normalized = np.column_stack([refined, np.ones(4)]) @ np.linalg.inv(K).T
         refined = cv2.projectPoints(normalized, np.zeros(3), np.zeros(3), K, dist)[0].reshape(4, 2)
