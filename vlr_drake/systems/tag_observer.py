@@ -15,10 +15,12 @@ it never raises and never reports a stale pose as valid.
 
 Held-pose update (the documented choice): an unrestricted update event stores the current
 measurement in the state when it is valid. With ``update_period_sec`` the event is periodic
-(use the action period: the plant settles, then the observer and the filter read it; this is
-the default use, and it keeps a rendered camera from being evaluated at every integrator
-step); with ``update_period_sec=None`` it is a per-step event (every simulator step, fine
-for discrete-time diagrams). A forced unrestricted update does the same (tests use it). So
+(use the action period: the plant settles, then the observer and the filter read it; this
+is the intended use beside the physics plant, and it keeps the rendered camera from being
+evaluated at every simulator step); with ``update_period_sec=None`` (the constructor's
+default) it is a per-step event, which evaluates the input at *every* simulator step: fine
+for a discrete diagram stepping at the action period, far too slow beside a physics plant
+stepping at 1 ms with a rendered camera (about 0.1 s per render). A forced unrestricted update does the same (tests use it). So
 the held pose is the last valid measurement *at an update event*.
 """
 
