@@ -8,6 +8,7 @@ poses with a known K, played through cv2.VideoCapture.
 from __future__ import annotations
 
 import threading
+import time
 
 import cv2
 import numpy as np
@@ -242,6 +243,7 @@ def test_intrinsics_errors(tmp_path):
 def test_frame_source_plays_a_file_then_reports_no_frame(tag_video):
     path, poses = tag_video
     with FrameSource(str(path), timeout_s=1.0, expected_size=(W, H)) as cam:
+        assert cam.mode == "sequential"  # auto: an existing file
         frames = [cam.read() for _ in range(len(poses) + 3)]
     assert all(ok for ok, _ in frames[: len(poses)])
     assert frames[0][1].shape == (H, W, 3)
@@ -257,6 +259,51 @@ def test_frame_source_times_out_instead_of_hanging():
     assert cam.read() == (False, None)
     assert cam.misses == 2 and not cam.ended
     cam.release()
+
+
+class CountingCapture:
+    """A VideoCapture stand-in whose k-th frame carries k (blue: k mod 256, green: k // 256),
+    one frame per ~2 ms."""
+
+    def __init__(self):
+        self.count = 0
+
+    def __call__(self, source):
+        return self
+
+    def isOpened(self):  # noqa: N802 (OpenCV name)
+        return True
+
+    def read(self):
+        time.sleep(0.002)
+        self.count += 1
+        frame = np.zeros((H, W, 3), np.uint8)
+        frame[..., 0], frame[..., 1] = self.count % 256, self.count // 256
+        return True, frame
+
+    def release(self):
+        pass
+
+
+def test_frame_source_latest_mode_returns_the_newest_frame():
+    fake = CountingCapture()
+    cam = FrameSource(0, timeout_s=1.0, mode="latest", capture_factory=fake).open()
+    assert cam.mode == "latest"
+    try:
+
+        def index(frame):
+            return int(frame[0, 0, 0]) + 256 * int(frame[0, 0, 1])
+
+        ok, first = cam.read()
+        assert ok
+        while fake.count < index(first) + 10:  # the camera runs on ahead ...
+            time.sleep(0.001)
+        ok, second = cam.read()
+        # ... and the next read skips the stale frames in between
+        assert ok and index(second) >= index(first) + 10
+    finally:
+        cam.release()
+    assert FrameSource(0).mode == "latest"  # auto: a device index
 
 
 def test_frame_source_errors(tmp_path):
@@ -478,10 +525,13 @@ def test_missing_motor_at_start_is_named(emulator, tag_video):
     assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
 
 
-def test_camera_that_stops_delivering_gives_invalid_frames(emulator):
+@pytest.mark.parametrize("mode", ["sequential", "latest"])
+def test_camera_that_stops_delivering_gives_invalid_frames(emulator, mode):
     fake = FakeCapture(3)
     cfg = make_config(emulator, 0, camera_timeout_s=0.03)
-    camera = FrameSource(0, timeout_s=cfg.camera_timeout_s, expected_size=(W, H), capture_factory=fake)
+    camera = FrameSource(
+        0, timeout_s=cfg.camera_timeout_s, expected_size=(W, H), mode=mode, capture_factory=fake
+    )
     diagram, hw = build_hardware_diagram(
         model_o(),
         cfg,
@@ -506,7 +556,9 @@ def test_camera_that_stops_delivering_gives_invalid_frames(emulator):
     assert 1.0 in valid and valid[-1] == 0.0
     assert all(m == 0 for f, m in flags if f == 0.0)  # invalid frames are black
     assert all(m == 77 for f, m in flags if f == 1.0)
-    assert camera.frames == 3 and camera.misses >= 5
+    # sequential: each of the 3 frames once; latest: the newest of them (maybe fewer)
+    assert (camera.frames == 3) if mode == "sequential" else (1 <= camera.frames <= 3)
+    assert camera.misses >= 5
     assert [emulator.goal_position(i) for i in IDS] == expected_ticks([0.02] * 3)  # motors kept running
     assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
 

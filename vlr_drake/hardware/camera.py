@@ -4,6 +4,11 @@
 (``cv2.VideoCapture``). A read never waits longer than ``timeout_s``: the capture runs on one
 worker thread, and a frame that does not arrive in time, or the end of a file, is reported as
 "no frame" (the hardware interface turns that into ``camera_valid = 0``), never as a hang.
+Two modes: "sequential" (every frame in order, one capture read per :meth:`FrameSource.read`;
+for video files) and "latest" (a grabber thread reads continuously and :meth:`FrameSource.read`
+returns the newest frame not yet returned, so a camera faster than the control period is
+never read from a stale buffer; for devices and streams). "auto" picks sequential for an
+existing file, latest otherwise.
 
 Intrinsics use OpenCV's own YAML format (``cv2.FileStorage``), the one ``calibrateCamera``
 tools write: nodes ``camera_matrix`` (3 x 3), ``distortion_coefficients`` (1 x n, OpenCV's
@@ -17,12 +22,16 @@ import concurrent.futures as cf
 import logging
 import queue
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["CameraError", "CameraIntrinsics", "FrameSource", "read_intrinsics", "write_intrinsics"]
+
+#: Frame source modes (:class:`FrameSource`).
+CAMERA_MODES = ("auto", "sequential", "latest")
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +157,7 @@ class FrameSource:
         timeout_s: longest wait for one frame [s]; then :meth:`read` reports no frame.
         expected_size: (width, height) that frames must have (from the calibration);
             another size raises :class:`CameraError` (the intrinsics would be wrong).
+        mode: "sequential", "latest" or "auto" (module docstring).
         capture_factory: builds the capture object from ``source`` (default
             ``cv2.VideoCapture``); tests pass a stand-in.
     """
@@ -157,10 +167,16 @@ class FrameSource:
         source: int | str,
         timeout_s: float = 1.0,
         expected_size: tuple[int, int] | None = None,
+        mode: str = "auto",
         capture_factory=None,
     ):
         if timeout_s <= 0:
             raise ValueError(f"camera: 'timeout_s' must be positive, got {timeout_s}")
+        if mode not in CAMERA_MODES:
+            raise ValueError(f"camera: 'mode' must be one of {CAMERA_MODES}, got {mode!r}")
+        if mode == "auto":
+            mode = "sequential" if isinstance(source, str) and Path(source).is_file() else "latest"
+        self.mode = mode
         self.source = source
         self.timeout_s = float(timeout_s)
         self.expected_size = expected_size
@@ -173,6 +189,13 @@ class FrameSource:
         self.misses = 0
         #: True once the capture reported the end of the stream (a file ran out).
         self.ended = False
+        # latest mode: the grabber's newest frame and its sequence number
+        self._cond = threading.Condition()
+        self._latest: np.ndarray | None = None
+        self._seq = 0
+        self._taken = 0
+        self._grab_failed = False
+        self._stop = threading.Event()
 
     def open(self) -> FrameSource:
         import cv2
@@ -191,12 +214,46 @@ class FrameSource:
             self._pool.shutdown(wait=False)
             raise CameraError(f"cannot open camera '{self.source}' (device index, file or URL)")
         self._cap = cap
+        if self.mode == "latest":
+            self._pool.submit(self._grab_loop, cap)
         return self
+
+    def _grab_loop(self, cap) -> None:
+        """latest mode: read frames continuously, keep the newest (runs on the worker)."""
+        while not self._stop.is_set():
+            try:
+                ok, frame = cap.read()
+            except Exception as e:
+                log.warning("camera '%s': read failed: %s", self.source, e)
+                ok, frame = False, None
+            with self._cond:
+                if ok and frame is not None:
+                    self._latest, self._seq, self._grab_failed = frame, self._seq + 1, False
+                else:
+                    self._grab_failed = True
+                self._cond.notify_all()
+            if not ok:
+                time.sleep(0.01)  # a dead device fails at once: do not spin
+
+    def _read_latest(self) -> tuple[bool, np.ndarray | None]:
+        with self._cond:
+            self._cond.wait_for(lambda: self._seq > self._taken or self._grab_failed, timeout=self.timeout_s)
+            if self._seq > self._taken:
+                self._taken = self._seq
+                return True, self._latest
+            self.ended = self._grab_failed
+        return False, None
 
     def read(self) -> tuple[bool, np.ndarray | None]:
         """(True, BGR frame) or (False, None) when no frame came within ``timeout_s``."""
         if self._cap is None:
             raise CameraError(f"camera '{self.source}' is not open")
+        if self.mode == "latest":
+            ok, frame = self._read_latest()
+            if not ok:
+                self.misses += 1
+                return False, None
+            return self._accept(frame)
         if self._pending is None:
             self._pending = self._pool.submit(self._cap.read)
         try:
@@ -216,6 +273,9 @@ class FrameSource:
             self.ended = True
             return False, None
         self.ended = False
+        return self._accept(frame)
+
+    def _accept(self, frame: np.ndarray) -> tuple[bool, np.ndarray]:
         if self.expected_size is not None and (frame.shape[1], frame.shape[0]) != tuple(self.expected_size):
             raise CameraError(
                 f"camera '{self.source}' delivers {frame.shape[1]} x {frame.shape[0]} frames but the "
@@ -226,6 +286,7 @@ class FrameSource:
 
     def release(self) -> None:
         """Release the capture on its worker thread (after any pending read) without waiting."""
+        self._stop.set()
         if self._cap is not None and self._pool is not None:
             self._pool.submit(self._cap.release)
             self._pool.shutdown(wait=False)

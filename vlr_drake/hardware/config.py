@@ -71,6 +71,9 @@ class HardwareConfig:
     calibration_file: str = "camera_intrinsics.yaml"
     # Longest wait for one camera frame before the frame is reported invalid [s].
     camera_timeout_s: float = 1.0
+    # "sequential" (every frame in order: video files), "latest" (newest frame from a
+    # grabber thread: devices and streams) or "auto" (sequential for an existing file).
+    camera_mode: str = "auto"
     # Status-packet timeout slack added by the bus adapter (USB latency timer) [ms]; the
     # SDK waits 2 * this + 2 ms plus the transfer time for each reply.
     latency_timer_ms: float = 16.0
@@ -136,6 +139,10 @@ class HardwareConfig:
         if not isinstance(self.camera, int | str) or (isinstance(self.camera, str) and not self.camera):
             raise ValueError(
                 f"{where}: 'camera' must be an int device index or a non-empty path/URL, got {self.camera!r}"
+            )
+        if self.camera_mode not in ("auto", "sequential", "latest"):
+            raise ValueError(
+                f"{where}: 'camera_mode' must be auto, sequential or latest, got {self.camera_mode!r}"
             )
         for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a"):
             v = getattr(self, name)

@@ -92,7 +92,9 @@ class HardwareInterface(LeafSystem):
         self.camera = (
             camera
             if camera is not None
-            else FrameSource(config.camera, config.camera_timeout_s, expected_size=(w, h))
+            else FrameSource(
+                config.camera, config.camera_timeout_s, expected_size=(w, h), mode=config.camera_mode
+            )
         )
         self._finalizer = weakref.finalize(self, _shutdown, self.motors, self.camera)
         self._blank = np.zeros((h, w, 4), np.uint8)
