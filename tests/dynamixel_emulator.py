@@ -13,7 +13,9 @@ checks their CRC, removes byte stuffing and answers like X-series servos:
   velocity 128, present position 132); EEPROM (address < 64) is read-only while torque is
   on (access error 7), as on the real servo;
 - a present position that follows the goal position while torque is on, immediately or with
-  a first-order lag (time constant ``lag_s``).
+  a first-order lag (time constant ``lag_s``);
+- hardware errors (:meth:`DynamixelEmulator.set_hardware_error`): torque off, the alert bit
+  in every status packet, the cause at address 70.
 
 Fault injection: ``missing_ids`` (motors that never answer), ``corrupt_ids`` (replies with a
 broken CRC), ``corrupt_next`` (the next n replies are broken: a transient fault), ``silent``
@@ -39,6 +41,8 @@ BROADCAST_ID = 0xFE
 ERR_CRC, ERR_INSTRUCTION, ERR_DATA_LENGTH, ERR_ACCESS = 3, 2, 5, 7
 ADDR_MODEL_NUMBER, ADDR_FIRMWARE, ADDR_ID, ADDR_OPERATING_MODE = 0, 6, 7, 11
 ADDR_TORQUE_ENABLE, ADDR_GOAL_CURRENT, ADDR_GOAL_POSITION = 64, 102, 116
+ADDR_HARDWARE_ERROR_STATUS = 70
+ERRBIT_ALERT = 0x80
 ADDR_PRESENT_CURRENT, ADDR_PRESENT_VELOCITY, ADDR_PRESENT_POSITION = 126, 128, 132
 EEPROM_END = 64
 TABLE_SIZE = 147
@@ -209,6 +213,14 @@ class DynamixelEmulator:
         with self._lock:
             return self.motors[dxl_id].table[ADDR_OPERATING_MODE]
 
+    def set_hardware_error(self, dxl_id: int, status: int) -> None:
+        """Raise a hardware error (address 70 bits, e.g. 0x20 overload): like the real servo,
+        the motor switches its torque off and flags the alert bit in every status packet."""
+        with self._lock:
+            m = self.motors[dxl_id]
+            m.table[ADDR_HARDWARE_ERROR_STATUS] = status
+            m.table[ADDR_TORQUE_ENABLE] = 0
+
     def set_present_position(self, dxl_id: int, ticks: int) -> None:
         with self._lock:
             m = self.motors[dxl_id]
@@ -294,6 +306,8 @@ class DynamixelEmulator:
     def _status(self, dxl_id: int, error: int, params: bytes = b"") -> bytes:
         corrupt = dxl_id in self.corrupt_ids or self.corrupt_next > 0
         self.corrupt_next = max(0, self.corrupt_next - 1)
+        if self.motors[dxl_id].table[ADDR_HARDWARE_ERROR_STATUS]:
+            error |= ERRBIT_ALERT
         return status_packet(dxl_id, error, params, corrupt=corrupt)
 
     def _handle(self, pkt: bytes) -> bytes:

@@ -212,6 +212,15 @@ def test_motor_that_stops_answering(emulator):
         assert not emulator.torque_enabled(2) and not emulator.torque_enabled(3)
 
 
+def test_hardware_error_is_named(emulator):
+    with make_motors(emulator) as motors:
+        emulator.set_hardware_error(2, 0x20)  # overload: the servo shuts its torque off
+        with pytest.raises(DynamixelError, match=r"motor id 2 .* hardware error: overload \(status 0x20\)"):
+            motors.read()
+        assert not motors.is_open
+        assert not any(emulator.torque_enabled(i) for i in IDS)
+
+
 def test_silent_bus_does_not_hang(emulator):
     with make_motors(emulator) as motors:
         emulator.silent = True

@@ -296,7 +296,8 @@ def test_frame_source_latest_mode_returns_the_newest_frame():
 
         ok, first = cam.read()
         assert ok
-        while fake.count < index(first) + 10:  # the camera runs on ahead ...
+        # the camera runs on ahead (count leads the published frame by at most one) ...
+        while fake.count < index(first) + 11:
             time.sleep(0.001)
         ok, second = cam.read()
         # ... and the next read skips the stale frames in between

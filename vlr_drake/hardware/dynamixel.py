@@ -17,7 +17,9 @@ Safe start (:meth:`TendonMotors.open`):
 
 Running: :meth:`write_goal_ticks` refuses goals outside the tick limits before anything is
 sent; one sync write (address 116, 4 bytes) moves all motors; :meth:`read` returns present
-positions and currents from one sync read of addresses 126..135. A failed transaction is
+positions and currents from one sync read of addresses 126..135. A status packet with the
+alert bit set makes the driver read the motor's hardware error status (address 70) and stop
+with an error naming it (overload, overheating, ...). A failed transaction is
 retried ``comm_retries`` times; then torque is switched off (best effort) and
 :class:`DynamixelError` names what failed. :meth:`close` (also on leaving a ``with`` block)
 switches torque off and closes the port. Every SDK call is bounded by the SDK's status
@@ -46,18 +48,56 @@ log = logging.getLogger(__name__)
 # X-series control table (protocol 2.0).
 ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
 ADDR_TORQUE_ENABLE = 64  # 1 byte
+ADDR_HARDWARE_ERROR_STATUS = 70  # 1 byte, bits below
 ADDR_GOAL_CURRENT = 102  # 2 bytes
 ADDR_GOAL_POSITION = 116  # 4 bytes
 ADDR_PRESENT_CURRENT = 126  # 2 bytes, signed
 ADDR_PRESENT_POSITION = 132  # 4 bytes, signed
 #: One sync read covers present current (126), velocity (128) and position (132).
 READ_BLOCK_START, READ_BLOCK_LENGTH = ADDR_PRESENT_CURRENT, 10
+#: Alert bit of a status packet's error byte: the motor has a hardware error.
+ERRBIT_ALERT = 0x80
+#: Hardware error status bits (address 70) of X-series servos.
+HARDWARE_ERROR_BITS = {
+    0: "input voltage",
+    2: "overheating",
+    3: "motor encoder",
+    4: "electrical shock",
+    5: "overload",
+}
 #: Goal position range of extended position mode [ticks].
 EXTENDED_POSITION_LIMIT = 1_048_575
 
 
 class DynamixelError(RuntimeError):
     """A bus or motor failure (torque has been switched off where the bus still answers)."""
+
+
+def hardware_error_text(status: int) -> str:
+    """Names of the bits set in a hardware error status byte (address 70)."""
+    names = [name for bit, name in HARDWARE_ERROR_BITS.items() if status & (1 << bit)]
+    return ", ".join(names) or f"unknown (0x{status:02x})"
+
+
+def _sync_read_class(sdk):
+    class _SyncRead(sdk.GroupSyncRead):
+        """GroupSyncRead that keeps each status packet's error byte (whose alert bit says the
+        motor has a hardware error); the SDK's own rxPacket drops it."""
+
+        def rxPacket(self):  # noqa: N802 (SDK name)
+            self.errors = {}
+            self.last_result = False
+            result = sdk.COMM_RX_FAIL
+            for dxl_id in self.data_dict:
+                self.data_dict[dxl_id], result, self.errors[dxl_id] = self.ph.readRx(
+                    self.port, dxl_id, self.data_length
+                )
+                if result != sdk.COMM_SUCCESS:
+                    return result
+            self.last_result = result == sdk.COMM_SUCCESS
+            return result
+
+    return _SyncRead
 
 
 def _signed(value: int, bits: int) -> int:
@@ -190,7 +230,7 @@ class TendonMotors:
                         dxl_id,
                     )
             self._sync_write = sdk.GroupSyncWrite(self._port, self._ph, ADDR_GOAL_POSITION, 4)
-            self._sync_read = sdk.GroupSyncRead(self._port, self._ph, READ_BLOCK_START, READ_BLOCK_LENGTH)
+            self._sync_read = _sync_read_class(sdk)(self._port, self._ph, READ_BLOCK_START, READ_BLOCK_LENGTH)
             for dxl_id in self.motor_ids:
                 self._sync_read.addParam(dxl_id)
             ticks, _ = self._read_once()
@@ -315,8 +355,9 @@ class TendonMotors:
                 raise
             raise DynamixelError(f"Dynamixel bus '{self.port_name}' failed: {e}") from e
 
-    def _call(self, what: str, fn, dxl_id: int | None = None):
-        """Run one SDK transaction with retries. ``fn`` returns (value..., result, error)."""
+    def _call(self, what: str, fn, dxl_id: int | None = None, allow_alert: bool = False):
+        """Run one SDK transaction with retries. ``fn`` returns (value..., result, error).
+        ``allow_alert``: a status error byte that is only the alert bit counts as success."""
         import dynamixel_sdk as sdk
 
         last = ""
@@ -330,6 +371,8 @@ class TendonMotors:
                 value, result, error = out
             else:
                 value, (result, error) = None, out
+            if allow_alert:
+                error &= ~ERRBIT_ALERT
             if result == sdk.COMM_SUCCESS and error == 0:
                 return value
             if result != sdk.COMM_SUCCESS:
@@ -370,6 +413,23 @@ class TendonMotors:
             f"sync write of goal positions on '{self.port_name}': {self._ph.getTxRxResult(result)}"
         )
 
+    def _check_alerts(self) -> None:
+        """Raise naming the motor and its hardware error (overload, overheating, ...) when a
+        status packet of the last sync read had the alert bit set."""
+        for dxl_id in self.motor_ids:
+            if self._sync_read.errors.get(dxl_id, 0) & ERRBIT_ALERT:
+                status = self._call(
+                    f"read hardware error status of motor id {dxl_id}",
+                    lambda i=dxl_id: self._ph.read1ByteTxRx(self._port, i, ADDR_HARDWARE_ERROR_STATUS),
+                    dxl_id,
+                    allow_alert=True,
+                )
+                raise DynamixelError(
+                    f"motor id {dxl_id} on '{self.port_name}' reports a hardware error: "
+                    f"{hardware_error_text(status)} (status 0x{status:02x}); the motor has shut its "
+                    "torque off and needs a reboot"
+                )
+
     def _read_once(self) -> tuple[np.ndarray, np.ndarray]:
         import dynamixel_sdk as sdk
 
@@ -387,6 +447,7 @@ class TendonMotors:
                 if not self._sync_read.isAvailable(i, READ_BLOCK_START, READ_BLOCK_LENGTH)
             ]
             if result == sdk.COMM_SUCCESS and not missing:
+                self._check_alerts()
                 pos = [
                     _signed(self._sync_read.getData(i, ADDR_PRESENT_POSITION, 4), 32) for i in self.motor_ids
                 ]
