@@ -196,3 +196,27 @@ def test_meshcat_recording_saves_html(tmp_path):
     text = open(path).read()
     assert "<html" in text.lower() and len(text) > 10_000
     assert meshcat.HasPath("camera_frustum")
+
+
+def test_balanced_pretension_cancels_the_pad_forces_in_the_palm_plane():
+    """For a box squeezed between the thumb and two equal fingers the balance is exact:
+    the thumb carries twice a finger's tension; the in-plane forces then cancel."""
+    _, ph, sim = build_physics_hand(
+        model_o(), preset("gelatin_box"), PhysicsConfig(pretension_mode="balanced")
+    )
+    root = sim.get_mutable_context()
+    ph.plant.SetFreeBodyPose(ph.plant_context(root), ph.object_body, ph.physics.X_WP() @ ph.obj.X_PB())
+    ph.place_fingers(root)
+    w = ph.balanced_tension_factors(root)
+    np.testing.assert_allclose(w, [2.0, 1.0, 1.0], atol=0.02)
+    F = ph.pad_forces_per_tension(root)
+    assert np.linalg.norm((w[:, None] * F)[:, :2].sum(axis=0)) < 0.01 * np.linalg.norm(F[0])
+    # Fingers push the object, not pull it: thumb towards -x, fingers towards +x.
+    assert F[0, 0] < 0 < F[1, 0] and F[2, 0] > 0
+    np.testing.assert_allclose(ph.pretensions(root), ph.physics.pretension * w)
+
+
+def test_novel_hand_balanced_pretension_holds():
+    r = run_check("gelatin_box", "NH1", actions=5, seed=2, physics=PhysicsConfig(pretension_mode="balanced"))
+    assert r.held and r.grasp_settled
+    assert r.grasp_tension_N[0] > r.grasp_tension_N[1]

@@ -168,11 +168,14 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-camera", action="store_true", help="skip rendering")
     ap.add_argument("--time-step", type=float, default=None, help="plant time step [s]")
+    ap.add_argument("--pretension-mode", default=None, help="thumb_factor or balanced")
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
     physics = PhysicsConfig()
     if args.time_step:
         physics.time_step = args.time_step
+    if args.pretension_mode:
+        physics.pretension_mode = args.pretension_mode
     camera = None if args.no_camera else CameraConfig()
     results = []
     t0 = time.perf_counter()

@@ -110,8 +110,12 @@ class PhysicsConfig:
     tendon_damping: float = 150.0
     # Tendon pretension at the grasp [N]: 20-25 N held a box; 8 N dropped it.
     pretension: float = 20.0
-    # Pretension factor of the thumb (finger names starting with "thumb"): opposing two
-    # fingers it needs about 1.7x their tension or the object drifts to it and drops.
+    # How tendons share the pretension: "thumb_factor" (the thumb, i.e. fingers whose name
+    # starts with "thumb", gets thumb_factor x) or "balanced" (solved from the placed
+    # grasp so the pad forces cancel in the palm plane; for other hands and objects).
+    pretension_mode: str = "thumb_factor"
+    # Pretension factor of the thumb: opposing two fingers it needs about 1.7x their
+    # tension or the object drifts to it and drops.
     thumb_factor: float = 1.7
     # Settle test: window length [s], cap on the settle time after the ramp [s] ...
     settle_window: float = 0.01
@@ -145,6 +149,10 @@ class PhysicsConfig:
             raise ValueError(
                 f"physics: 'discrete_contact_approximation' must be sap, lagged or similar, got "
                 f"'{self.discrete_contact_approximation}'"
+            )
+        if self.pretension_mode not in ("thumb_factor", "balanced"):
+            raise ValueError(
+                f"physics: 'pretension_mode' must be thumb_factor or balanced, got '{self.pretension_mode}'"
             )
         if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
             raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
@@ -416,6 +424,7 @@ class PhysicsHand:
     object_body: object
     palm_body: object
     position_indices: np.ndarray
+    velocity_indices: np.ndarray
     last_links: list
     pad_geometries: list  # per finger: list of GeometryIds of the pad spheres
     object_geometries: list
@@ -542,10 +551,77 @@ class PhysicsHand:
         plant.SetPositions(pctx, q)
         return theta.reshape(-1)
 
-    def pretensions(self) -> np.ndarray:
-        """Pretension per tendon at the grasp [N] (thumb x thumb_factor)."""
+    def pretensions(self, root_context: Context | None = None) -> np.ndarray:
+        """Pretension per tendon at the grasp [N].
+
+        ``pretension_mode`` "thumb_factor": ``pretension`` on every tendon, times
+        ``thumb_factor`` on fingers whose name starts with "thumb". "balanced": tensions
+        >= ``pretension`` whose pad forces cancel in the palm plane at the placed
+        configuration (needs ``root_context`` with the fingers placed; see
+        :meth:`balanced_tension_factors`).
+        """
+        if self.physics.pretension_mode == "balanced":
+            if root_context is None:
+                raise ValueError("balanced pretensions need the context with the fingers placed")
+            return self.physics.pretension * self.balanced_tension_factors(root_context)
         f = np.array([self.physics.thumb_factor if n.startswith("thumb") else 1.0 for n in self.hand.names])
         return self.physics.pretension * f
+
+    def pad_forces_per_tension(self, root_context: Context) -> np.ndarray:
+        """Force on the object per newton of tendon tension, per finger, in P (N, 3).
+
+        At the current configuration, finger i's pad pushes along the contact normal n_i
+        (from the signed-distance query between its pad spheres and the object). With the
+        contact Jacobian J_i (3 x K), a pure normal force lambda_i n_i balances the tendon
+        torque R_i^T T_i in the least-squares sense: lambda_i = (J_i^T n_i) . R_i^T T_i /
+        |J_i^T n_i|^2 (joint springs neglected: they are small next to the pretension).
+        """
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        plant, sg = self.plant, self.scene_graph
+        pctx = self.plant_context(root_context)
+        qo = sg.get_query_output_port().Eval(sg.GetMyMutableContextFromRoot(root_context))
+        X_PW = plant.EvalBodyPoseInWorld(pctx, self.palm_body).inverse()
+        K = self.hand.K
+        out = np.zeros((self.hand.N, 3))
+        for i in range(self.hand.N):
+            pairs = [
+                qo.ComputeSignedDistancePairClosestPoints(g, h)
+                for g in self.pad_geometries[i]
+                for h in self.object_geometries
+            ]
+            dmin = min(p.distance for p in pairs)
+            near = [p for p in pairs if p.distance < dmin + 1e-3]
+            n_W = -np.mean([p.nhat_BA_W for p in near], axis=0)
+            n_W /= np.linalg.norm(n_W)
+            p_W = np.mean([qo.GetPoseInWorld(p.id_A) @ p.p_ACa for p in near], axis=0)
+            link = self.last_links[i]
+            p_L = plant.EvalBodyPoseInWorld(pctx, link).inverse() @ p_W
+            J = plant.CalcJacobianTranslationalVelocity(
+                pctx, JacobianWrtVariable.kV, link.body_frame(), p_L, plant.world_frame(), plant.world_frame()
+            )[:, self.velocity_indices[i * K : (i + 1) * K]]
+            g = J.T @ n_W
+            lam = float(g @ self.hand.moment_arms[i]) / float(g @ g)
+            out[i] = lam * (X_PW.rotation() @ n_W)
+        return out
+
+    def balanced_tension_factors(self, root_context: Context) -> np.ndarray:
+        """Factors w >= 1 (N,) on the pretension that make the pad forces cancel in the palm
+        plane: min |sum_i w_i F_i,xy|^2 + 1e-3 |w - 1|^2 subject to w >= 1 (a small QP)."""
+        from pydrake.solvers import MathematicalProgram, Solve
+
+        F = self.pad_forces_per_tension(root_context)
+        A = F[:, :2].T  # 2 x N
+        N = self.hand.N
+        prog = MathematicalProgram()
+        w = prog.NewContinuousVariables(N, "w")
+        eps = 1e-3 * float(np.max(np.sum(A * A, axis=0)))
+        prog.AddQuadraticCost(2 * (A.T @ A + eps * np.eye(N)), -2 * eps * np.ones(N), w, is_convex=True)
+        prog.AddBoundingBoxConstraint(np.ones(N), np.full(N, 5.0), w)
+        result = Solve(prog)
+        if not result.is_success():
+            raise RuntimeError(f"balanced pretension QP failed ({result.get_solver_id().name()})")
+        return np.asarray(result.GetSolution(w))
 
     def grasp(self, simulator: Simulator) -> GraspResult:
         """Close the hand on the object from its initial placement: place the pads on the
@@ -559,7 +635,7 @@ class PhysicsHand:
         plant.SetFreeBodyPose(pctx, self.object_body, X_WP @ self.obj.X_PB())
         plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
         theta0 = self.place_fingers(root)
-        l = self.hand.R @ theta0 + self.pretensions() / self.hand.kappa
+        l = self.hand.R @ theta0 + self.pretensions(root) / self.hand.kappa
         if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
             raise RuntimeError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
         l = self.set_command(root, l)
@@ -818,6 +894,7 @@ def add_physics_hand(
         object_body=obj_body,
         palm_body=palm,
         position_indices=qi,
+        velocity_indices=vi,
         last_links=last_links,
         pad_geometries=pad_geoms,
         object_geometries=obj_geoms,
