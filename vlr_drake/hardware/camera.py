@@ -4,11 +4,12 @@
 (``cv2.VideoCapture``). A read never waits longer than ``timeout_s``: the capture runs on one
 worker thread, and a frame that does not arrive in time, or the end of a file, is reported as
 "no frame" (the hardware interface turns that into ``camera_valid = 0``), never as a hang.
-Two modes: "sequential" (every frame in order, one capture read per :meth:`FrameSource.read`;
-for video files) and "latest" (a grabber thread reads continuously and :meth:`FrameSource.read`
-returns the newest frame not yet returned, so a camera faster than the control period is
-never read from a stale buffer; for devices and streams). "auto" picks sequential for an
-existing file, latest otherwise.
+Two modes: "sequential" (every frame in order, one capture read per :meth:`FrameSource.read`,
+waiting up to ``timeout_s``; for video files) and "latest" (a grabber thread reads
+continuously and :meth:`FrameSource.read` returns at once the newest frame if it is at most
+``timeout_s`` old, so the control loop never waits on the camera and never reads a stale
+buffer; for devices and streams). "auto" picks sequential for an existing file, latest
+otherwise.
 
 Intrinsics use OpenCV's own YAML format (``cv2.FileStorage``), the one ``calibrateCamera``
 tools write: nodes ``camera_matrix`` (3 x 3), ``distortion_coefficients`` (1 x n, OpenCV's
@@ -187,11 +188,14 @@ class FrameSource:
         #: Frames delivered, and reads that delivered nothing (timeout or end of stream).
         self.frames = 0
         self.misses = 0
+        #: latest mode: reads that returned an already returned (still fresh) frame again.
+        self.repeats = 0
         #: True once the capture reported the end of the stream (a file ran out).
         self.ended = False
         # latest mode: the grabber's newest frame and its sequence number
         self._cond = threading.Condition()
         self._latest: np.ndarray | None = None
+        self._latest_time = 0.0
         self._seq = 0
         self._taken = 0
         self._grab_failed = False
@@ -216,6 +220,8 @@ class FrameSource:
         self._cap = cap
         if self.mode == "latest":
             self._pool.submit(self._grab_loop, cap)
+            with self._cond:  # give the first frame up to timeout_s to arrive
+                self._cond.wait_for(lambda: self._seq > 0 or self._grab_failed, timeout=self.timeout_s)
         return self
 
     def _grab_loop(self, cap) -> None:
@@ -229,6 +235,7 @@ class FrameSource:
             with self._cond:
                 if ok and frame is not None:
                     self._latest, self._seq, self._grab_failed = frame, self._seq + 1, False
+                    self._latest_time = time.monotonic()
                 else:
                     self._grab_failed = True
                 self._cond.notify_all()
@@ -236,16 +243,20 @@ class FrameSource:
                 time.sleep(0.01)  # a dead device fails at once: do not spin
 
     def _read_latest(self) -> tuple[bool, np.ndarray | None]:
+        """latest mode, without waiting: the newest frame if it arrived within ``timeout_s``
+        (a frame already returned is returned again while it is that fresh)."""
         with self._cond:
-            self._cond.wait_for(lambda: self._seq > self._taken or self._grab_failed, timeout=self.timeout_s)
-            if self._seq > self._taken:
+            fresh = self._latest is not None and time.monotonic() - self._latest_time <= self.timeout_s
+            if fresh:
+                self.repeats += self._seq == self._taken
                 self._taken = self._seq
                 return True, self._latest
             self.ended = self._grab_failed
         return False, None
 
     def read(self) -> tuple[bool, np.ndarray | None]:
-        """(True, BGR frame) or (False, None) when no frame came within ``timeout_s``."""
+        """(True, BGR frame), or (False, None) when no frame came within ``timeout_s`` (module
+        docstring: sequential waits for the next frame, latest takes the newest fresh one)."""
         if self._cap is None:
             raise CameraError(f"camera '{self.source}' is not open")
         if self.mode == "latest":
