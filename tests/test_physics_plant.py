@@ -220,3 +220,41 @@ def test_novel_hand_balanced_pretension_holds():
     r = run_check("gelatin_box", "NH1", actions=5, seed=2, physics=PhysicsConfig(pretension_mode="balanced"))
     assert r.held and r.grasp_settled
     assert r.grasp_tension_N[0] > r.grasp_tension_N[1]
+
+
+def test_hydroelastic_contact_option_reports_contacts():
+    """With compliant hydroelastic contact the pads' contact surfaces are found too."""
+    physics = PhysicsConfig(contact_model="hydroelastic_with_fallback", settle_max=0.2)
+    _, ph, sim = build_physics_hand(model_o(), preset("gelatin_box"), physics)
+    g = ph.grasp(sim)
+    root = sim.get_context()
+    results = ph.plant.get_contact_results_output_port().Eval(ph.plant_context(root))
+    assert results.num_hydroelastic_contacts() >= 3
+    assert np.all(g.in_contact)
+    distal = np.array([f.distal_length for f in ph.hand.spec.fingers])
+    np.testing.assert_allclose(ph.output(root, "contact_along_link_true"), PAD_FRACTION * distal, atol=0.008)
+
+
+def test_hand_inside_a_larger_diagram_driven_by_a_source():
+    """The hand's tendon_command driven by another system: place, feed the commands, settle."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from vlr_drake.systems.physics_plant import add_physics_hand
+
+    builder = DiagramBuilder()
+    ph = add_physics_hand(builder, model_o(), preset("apple"), PhysicsConfig())
+    source = builder.AddNamedSystem("commands", ConstantVectorSource(np.zeros(3)))
+    builder.Connect(source.get_output_port(), ph.diagram.GetInputPort("tendon_command"))
+    builder.ExportOutput(ph.diagram.GetOutputPort("X_PO_true"), "hand.X_PO_true")
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    root = sim.get_mutable_context()
+    _, l = ph.place(root)
+    source.get_mutable_source_value(source.GetMyMutableContextFromRoot(root)).set_value(l)
+    g = ph.grasp(sim, fix_command=False)
+    assert g.settled and np.all(g.in_contact)
+    np.testing.assert_allclose(ph.output(root, "tendon_position_measured"), l)
+    X = diagram.GetOutputPort("hand.X_PO_true").Eval(root)
+    assert X.IsNearlyEqualTo(g.X_PO, 1e-12)

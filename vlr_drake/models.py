@@ -62,6 +62,9 @@ PAD_SPHERE_SPACING = 0.012
 #: Position of the pad along the last link, as a fraction of the distal length. Mid-pad
 #: contacts, away from the fingertip's end cap (end caps make objects roll).
 PAD_FRACTION = 0.6
+#: Hydroelastic modulus of the finger pads and links (soft rubber), used only with the
+#: hydroelastic contact model [Pa].
+PAD_HYDROELASTIC_MODULUS = 1.0e6
 #: Density used for the links' inertia (ABS-like plastic) [kg/m^3].
 LINK_DENSITY = 1100.0
 #: Palm mass (welded in the plant; only for a well-formed model) [kg].
@@ -190,7 +193,7 @@ def _finger_links(
                 f"{indent}    <pose>{_fmt(0, 0, L / 2)} 0 0 0</pose>",
                 f"{indent}    <geometry><capsule><radius>{f.link_radius:.17g}</radius>"
                 f"<length>{L:.17g}</length></capsule></geometry>",
-                _friction(f, indent + "    "),
+                _friction(f, indent + "    ", hint=0.5 * f.link_radius),
                 f"{indent}  </collision>",
             ]
         else:
@@ -236,10 +239,15 @@ def _finger_links(
     return out
 
 
-def _friction(f: FingerSpec, indent: str) -> str:
+def _friction(f: FingerSpec, indent: str, hint: float = PAD_SPHERE_RADIUS / 2) -> str:
+    """Friction, plus compliant-hydroelastic properties that only the hydroelastic contact
+    model uses (the default point contact ignores them)."""
     return (
         f"{indent}<drake:proximity_properties><drake:mu_dynamic>{f.friction:.17g}</drake:mu_dynamic>"
-        f"<drake:mu_static>{f.friction:.17g}</drake:mu_static></drake:proximity_properties>"
+        f"<drake:mu_static>{f.friction:.17g}</drake:mu_static>"
+        f"<drake:compliant_hydroelastic/><drake:hydroelastic_modulus>{PAD_HYDROELASTIC_MODULUS:.17g}"
+        f"</drake:hydroelastic_modulus><drake:mesh_resolution_hint>{hint:.17g}</drake:mesh_resolution_hint>"
+        f"</drake:proximity_properties>"
     )
 
 

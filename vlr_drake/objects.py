@@ -387,10 +387,23 @@ def _geometry(spec: ObjectSpec) -> str:
     return f"<capsule><radius>{s[0]:.17g}</radius><length>{s[1]:.17g}</length></capsule>"
 
 
-def _friction(mu: float) -> str:
+#: Hydroelastic modulus of the objects (stiff plastic), used only with the hydroelastic
+#: contact model [Pa].
+OBJECT_HYDROELASTIC_MODULUS = 1.0e7
+
+
+def _friction(mu: float, hint: float | None = None) -> str:
+    """Friction, plus compliant-hydroelastic properties (with a mesh resolution ``hint``
+    [m]) that only the hydroelastic contact model uses."""
+    hydro = ""
+    if hint is not None:
+        hydro = (
+            f"<drake:compliant_hydroelastic/><drake:hydroelastic_modulus>{OBJECT_HYDROELASTIC_MODULUS:.17g}"
+            f"</drake:hydroelastic_modulus><drake:mesh_resolution_hint>{hint:.17g}</drake:mesh_resolution_hint>"
+        )
     return (
         f"<drake:proximity_properties><drake:mu_dynamic>{mu:.17g}</drake:mu_dynamic>"
-        f"<drake:mu_static>{mu:.17g}</drake:mu_static></drake:proximity_properties>"
+        f"<drake:mu_static>{mu:.17g}</drake:mu_static>{hydro}</drake:proximity_properties>"
     )
 
 
@@ -414,7 +427,7 @@ def object_sdf(spec: ObjectSpec) -> str:
         f"<izz>{izz:.17g}</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
         '      <collision name="collision">',
         f"        <geometry>{_geometry(spec)}</geometry>",
-        f"        {_friction(spec.friction)}",
+        f"        {_friction(spec.friction, hint=0.25 * min(spec.size))}",
         "      </collision>",
         '      <visual name="visual">',
         f"        <geometry>{_geometry(spec)}</geometry>",
@@ -464,7 +477,7 @@ def _rim(spec: ObjectSpec) -> list[str]:
                 f'      <{kind} name="rim_{kind}{j}">',
                 f"        <pose>{_fmt(*c)} 0 0 0</pose>",
                 f"        <geometry><box><size>{_fmt(*size)}</size></box></geometry>",
-                f"        {_friction(spec.friction)}"
+                f"        {_friction(spec.friction, hint=0.002)}"
                 if kind == "collision"
                 else f"        <material><diffuse>{_fmt(*spec.color)}</diffuse></material>",
                 f"      </{kind}>",

@@ -90,7 +90,8 @@ class PhysicsConfig:
     # Discrete time step of the MultibodyPlant [s]. 0.5-1 ms holds objects with SAP; 2 ms
     # lets an object loaded along its contacts creep.
     time_step: float = 0.001
-    # Contact model: "point" (default, fast) or "hydroelastic_with_fallback" (smoother, 5-10x slower).
+    # Contact model: "point" (default, fast) or "hydroelastic_with_fallback" (compliant pads
+    # and objects; smoother, slower: see the module docstring).
     contact_model: str = "point"
     # Discrete contact approximation (solver): "sap" (default). TAMSI is deprecated in drake 1.51.
     discrete_contact_approximation: str = "sap"
@@ -253,8 +254,15 @@ class HandTruth(LeafSystem):
         object_body_index,
         X_BO: RigidTransform,
         sample_period: float = 0.005,
+        last_link_geometries: list | None = None,
+        object_geometries: list | None = None,
     ):
         super().__init__()
+        # Geometry ids (for hydroelastic contact surfaces): last links' -> finger, object's.
+        self._geom_finger = {
+            int(g.get_value()): i for i, gs in enumerate(last_link_geometries or []) for g in gs
+        }
+        self._geom_obj = {int(g.get_value()) for g in (object_geometries or [])}
         self._N = hand.N
         self._qi = np.asarray(position_indices, int)
         self._palm = palm_body_index
@@ -313,6 +321,17 @@ class HandTruth(LeafSystem):
             else:
                 continue
             sums[i] += info.contact_point()
+            counts[i] += 1
+        for k in range(results.num_hydroelastic_contacts()):
+            surface = results.hydroelastic_contact_info(k).contact_surface()
+            m, n = int(surface.id_M().get_value()), int(surface.id_N().get_value())
+            if m in self._geom_obj and n in self._geom_finger:
+                i = self._geom_finger[n]
+            elif n in self._geom_obj and m in self._geom_finger:
+                i = self._geom_finger[m]
+            else:
+                continue
+            sums[i] += surface.centroid()
             counts[i] += 1
         has = counts > 0
         p_W = np.zeros((self._N, 3))
@@ -623,23 +642,36 @@ class PhysicsHand:
             raise RuntimeError(f"balanced pretension QP failed ({result.get_solver_id().name()})")
         return np.asarray(result.GetSolution(w))
 
-    def grasp(self, simulator: Simulator) -> GraspResult:
-        """Close the hand on the object from its initial placement: place the pads on the
-        object, set each command to the matching tendon length plus pretension/kappa, settle
-        with the object's weight on (capped at ``grasp_settle_max``)."""
-        t0 = time.perf_counter()
-        root = simulator.get_mutable_context()
-        pctx = self.plant_context(root)
-        X_WP = self.physics.X_WP()
+    def place(self, root_context: Context) -> tuple[np.ndarray, np.ndarray]:
+        """First half of the grasp, no simulation: put the object at its initial placement,
+        the pads on it (:meth:`place_fingers`), and the tendons' applied pull at the matching
+        lengths plus pretension/kappa. Returns (theta placed (N*K), tendon commands (N)).
+
+        When the ``tendon_command`` input is driven by another system (a controller), call
+        this, make that system output the returned commands, then simulate to settle.
+        """
+        pctx = self.plant_context(root_context)
         plant = self.plant
-        plant.SetFreeBodyPose(pctx, self.object_body, X_WP @ self.obj.X_PB())
+        plant.SetFreeBodyPose(pctx, self.object_body, self.physics.X_WP() @ self.obj.X_PB())
         plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
-        theta0 = self.place_fingers(root)
-        l = self.hand.R @ theta0 + self.pretensions(root) / self.hand.kappa
+        theta0 = self.place_fingers(root_context)
+        l = self.hand.R @ theta0 + self.pretensions(root_context) / self.hand.kappa
         if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
             raise RuntimeError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
-        l = self.set_command(root, l)
-        self.tendons.set_applied(self.tendons.GetMyMutableContextFromRoot(root), l)
+        l = self.tendons.clamp(l)
+        self.tendons.set_applied(self.tendons.GetMyMutableContextFromRoot(root_context), l)
+        return theta0, l
+
+    def grasp(self, simulator: Simulator, fix_command: bool = True) -> GraspResult:
+        """Close the hand on the object from its initial placement: :meth:`place`, fix the
+        ``tendon_command`` input to the grasp's commands (unless ``fix_command`` is False:
+        then the system driving the input must already output ``place``'s commands), and
+        settle with the object's weight on (capped at ``grasp_settle_max``)."""
+        t0 = time.perf_counter()
+        root = simulator.get_mutable_context()
+        theta0, l = self.place(root)
+        if fix_command:
+            self.set_command(root, l)
         X_PO0 = self.output(root, "X_PO_true")
         settled, t_settle, _ = self._settle(simulator, self.physics.grasp_settle_max)
         X_PO = self.output(root, "X_PO_true")
@@ -826,6 +858,8 @@ def add_physics_hand(
             obj_body.index(),
             X_BO,
             sample_period=physics.contact_sample_period,
+            last_link_geometries=[list(plant.GetCollisionGeometriesForBody(b)) for b in last_links],
+            object_geometries=obj_geoms,
         ),
     )
     inner.Connect(plant.get_state_output_port(), truth.state_input)
