@@ -89,6 +89,18 @@ def test_read_and_write_with_stuffing_through_the_sdk(emulator):
         port.closePort()
 
 
+def test_emulator_answers_a_bad_crc_with_a_crc_error(emulator):
+    import serial
+
+    ping = bytearray([0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01])
+    crc = crc16(ping) ^ 0x0001  # one bit off
+    with serial.Serial(emulator.port_name, 1000000, timeout=1.0) as port:
+        port.write(bytes(ping) + bytes([crc & 0xFF, crc >> 8]))
+        reply = port.read(11)
+    assert reply == status_packet(1, 3)  # error 3: CRC error, no parameters
+    assert emulator.bad_crc_count == 1 and not emulator.instructions(PING)
+
+
 def test_safe_start_order(emulator):
     t_open = time.monotonic()
     with make_motors(emulator) as motors:

@@ -334,6 +334,7 @@ def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
         }
         assert hw.get_input_port().get_name() == "tendon_command"
         assert np.allclose(hw.camera_matrix(), K) and hw.distortion_coefficients().shape == (5,)
+        assert hw.image_size() == (W, H)
         ctx = hw.CreateDefaultContext()
         hw.ExecuteInitializationEvents(ctx)
         # measured tendons from the initial motor positions
@@ -382,6 +383,7 @@ def test_end_to_end_with_tag_observer(emulator, tag_video):
             dist=hw.distortion_coefficients(),
             X_PC=RigidTransform(),
             update_period_sec=cfg.period_s,
+            image_size=hw.image_size(),
         ),
     )
     builder.Connect(hw.get_rgb_image_output_port(), observer.rgb_image_input_port())

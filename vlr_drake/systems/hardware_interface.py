@@ -7,17 +7,19 @@ has the simulated hand's ports plus the camera's:
     input  tendon_command            (N,) commanded tendon pull l [m] (0 = taut, straight finger)
     output tendon_position_measured  (N,) tendon pull measured by the motor encoders [m]
     output rgb_image                 ImageRgba8U, the latest camera frame (abstract)
-    output camera_valid              (1,) 1 if a frame arrived in the last update, else 0
+    output camera_valid              (1,) 1 if the last update got a camera frame, else 0
     output tendon_command_sent       (N,) the command after the limits, as sent [m]
     output motor_current             (N,) present motor current [A]
 
 A periodic unrestricted update (``config.period_s``) clips the command to the tendon limits
 (the config's or the hand's ``tendon_range``), converts it to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
-positions with one sync read, and grabs a camera frame. When no frame arrives within the
-camera timeout (or a video file ends), ``camera_valid`` is 0 and ``rgb_image`` is a black
-frame, so an AprilTag observer that only sees the image reports "no tag" instead of re-using
-a stale frame.
+positions with one sync read, and takes a camera frame (a device or stream: the newest frame
+if it is fresher than ``config.camera_timeout_s``, without waiting; a video file: the next
+frame, waiting at most that long; :class:`vlr_drake.hardware.camera.FrameSource`). Without a
+frame (a stalled camera, the end of a video), ``camera_valid`` is 0 and ``rgb_image`` is a
+black frame, so an AprilTag observer that only sees the image reports "no tag" instead of
+re-using a stale frame.
 
 Safe start and stop: the motors are opened by an initialization event (ping, first read, goal
 = present position, then torque on: :class:`vlr_drake.hardware.dynamixel.TendonMotors`).
@@ -134,6 +136,10 @@ class HardwareInterface(LeafSystem):
     def distortion_coefficients(self) -> np.ndarray:
         """OpenCV distortion coefficients of ``rgb_image``."""
         return np.array(self.intrinsics.dist, float)
+
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of ``rgb_image`` [px] (the calibration's image size)."""
+        return self.intrinsics.width, self.intrinsics.height
 
     # --- life cycle ---------------------------------------------------------------------------
     def close(self) -> None:
