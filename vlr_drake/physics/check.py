@@ -11,6 +11,7 @@ action (ramp + settle, and render when a camera is used).
 
     python -m vlr_drake.physics.check                 # 5 objects x 50 actions, with camera
     python -m vlr_drake.physics.check --actions 10 --objects apple --json out.json
+    python -m vlr_drake.physics.check --actions 10 --objects apple --html-dir /tmp/html
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import argparse
 import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -87,13 +89,22 @@ def run_check(
     camera: CameraConfig | None = None,
     step: float = 0.0015,
     window: float = 0.004,
+    html: str | None = None,
 ) -> CheckResult:
-    """Grasp ``obj`` with ``hand_name`` and apply ``actions`` random actions (see module doc)."""
+    """Grasp ``obj`` with ``hand_name`` and apply ``actions`` random actions (see module doc).
+    With ``html``, the run is recorded in Meshcat and saved there as static HTML."""
     obj = preset(obj) if isinstance(obj, str) else obj
     rng = np.random.default_rng(seed)
     physics = physics or PhysicsConfig()
-    _, ph, sim = build_physics_hand(hand_by_name(hand_name), obj, physics, camera)
+    meshcat = None
+    if html:
+        from pydrake.geometry import Meshcat
+
+        meshcat = Meshcat()
+    _, ph, sim = build_physics_hand(hand_by_name(hand_name), obj, physics, camera, meshcat)
     root = sim.get_mutable_context()
+    if meshcat is not None:
+        ph.start_recording()
     g = ph.grasp(sim)
     N = ph.hand.N
     center = g.command.copy()
@@ -131,6 +142,9 @@ def run_check(
         wall.append(r.wall_physics_s + r.wall_render_s)
         if first_loss is None and ph.object_fell(root):
             first_loss = k
+    if meshcat is not None:
+        ph.publish_recording()
+        ph.save_html(html)
     drift = np.array(drift).reshape(-1, N)
     total = np.linalg.norm(prev_p - p_O0, axis=1)
     return CheckResult(
@@ -169,6 +183,9 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap.add_argument("--no-camera", action="store_true", help="skip rendering")
     ap.add_argument("--time-step", type=float, default=None, help="plant time step [s]")
     ap.add_argument("--pretension-mode", default=None, help="thumb_factor or balanced")
+    ap.add_argument(
+        "--html-dir", default=None, help="save a Meshcat recording per object here (<object>.html)"
+    )
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
     physics = PhysicsConfig()
@@ -180,7 +197,11 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     results = []
     t0 = time.perf_counter()
     for name in args.objects:
-        r = run_check(name, args.hand, args.actions, args.seed, physics, camera)
+        html = None
+        if args.html_dir:
+            Path(args.html_dir).mkdir(parents=True, exist_ok=True)
+            html = str(Path(args.html_dir) / f"{name}.html")
+        r = run_check(name, args.hand, args.actions, args.seed, physics, camera, html=html)
         results.append(r)
         print(
             f"{r.object:17s} held={r.held!s:5s} drift/action [mm] mean {np.round(r.contact_drift_per_action_mm_mean, 2)} "
