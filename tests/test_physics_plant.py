@@ -258,3 +258,44 @@ def test_hand_inside_a_larger_diagram_driven_by_a_source():
     np.testing.assert_allclose(ph.output(root, "tendon_position_measured"), l)
     X = diagram.GetOutputPort("hand.X_PO_true").Eval(root)
     assert X.IsNearlyEqualTo(g.X_PO, 1e-12)
+
+
+def _vlr_contacts(hand, theta, a):
+    """DESIGN.md section 2: p_i = q_K + d_i e(phi_K + gamma_i), d = |(a, n)|, gamma = atan2(n, a)."""
+    z = np.array([0.0, 0.0, 1.0])
+    out = []
+    for i in range(hand.N):
+        u = hand.u[i]
+
+        def e(x, u=u):
+            return np.sin(x) * u + np.cos(x) * z
+
+        q, phi = hand.base[i].copy(), 0.0
+        for k in range(hand.K - 1):
+            phi += theta[i, k]
+            q = q + hand.link_lengths[i, k] * e(phi)
+        phi += theta[i, -1]
+        n = hand.pad[i]
+        out.append(q + np.hypot(a[i], n) * e(phi + np.arctan2(n, a[i])))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", ["apple", "gelatin_box"])
+def test_truth_agrees_with_the_vlr_kinematics_in_the_finger_plane(name):
+    """theta_true and contact_along_link_true, put through the VLR's forward kinematics,
+    give the physical contacts projected on each finger's flexion plane (within the pad's
+    curvature: a sphere's contact sits up to a few mm off the pad plane). Out of the plane,
+    the side fingers touch a round object with the inner pad sphere (~10 mm off-plane)."""
+    _, ph, sim = build_physics_hand(model_o(), preset(name), PhysicsConfig())
+    ph.grasp(sim)
+    root = sim.get_context()
+    hand = ph.hand
+    theta = ph.output(root, "theta_true").reshape(hand.N, hand.K)
+    a = ph.output(root, "contact_along_link_true")
+    c = ph.output(root, "contacts_true").reshape(-1, 3)
+    w = np.cross([0.0, 0.0, 1.0], hand.u)
+    off_plane = np.einsum("ij,ij->i", c - hand.base, w)
+    c_plane = c - off_plane[:, None] * w
+    err = np.linalg.norm(_vlr_contacts(hand, theta, a) - c_plane, axis=1)
+    assert np.all(err < 0.0025), err
+    assert np.all(np.abs(off_plane) < 0.015)
