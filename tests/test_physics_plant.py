@@ -299,3 +299,15 @@ def test_truth_agrees_with_the_vlr_kinematics_in_the_finger_plane(name):
     err = np.linalg.norm(_vlr_contacts(hand, theta, a) - c_plane, axis=1)
     assert np.all(err < 0.0025), err
     assert np.all(np.abs(off_plane) < 0.015)
+
+
+def test_fixed_action_period():
+    physics = PhysicsConfig(fixed_settle_time=0.1)
+    _, ph, sim = build_physics_hand(model_o(), preset("apple"), physics)
+    ph.grasp(sim)
+    t0 = sim.get_context().get_time()
+    r = ph.apply_action(sim, np.array([0.001, -0.001, 0.0005]), render=False)
+    assert r.settle_time == pytest.approx(0.1)
+    elapsed = sim.get_context().get_time() - t0
+    assert elapsed == pytest.approx(physics.action_period)
+    assert np.isfinite(r.creep_mm_per_s) and np.all(r.in_contact)

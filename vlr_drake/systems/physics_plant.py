@@ -193,8 +193,10 @@ class PhysicsConfig:
 
     @property
     def action_period(self) -> float:
-        """Simulated time of one action when the settle is fixed (ramp + settle) [s]."""
-        return self.ramp_time + (self.fixed_settle_time if self.fixed_settle_time > 0 else self.settle_max)
+        """Simulated time of one action [s]: ramp (plus two ramp updates) and the fixed
+        settle time, or the settle cap when the settle is tested (an upper bound)."""
+        settle = self.fixed_settle_time if self.fixed_settle_time > 0 else self.settle_max
+        return self.ramp_time + 2 * self.ramp_update_period + settle
 
 
 # --------------------------------------------------------------------------------------
@@ -710,7 +712,7 @@ class PhysicsHand:
         t_start = root.get_time()
         dt = ph.settle_window
         if ph.fixed_settle_time > 0:
-            X0 = self._object_pose(root)
+            dt = min(dt, ph.fixed_settle_time)
             simulator.AdvanceTo(t_start + ph.fixed_settle_time - dt)
             X0 = self._object_pose(root)
             simulator.AdvanceTo(t_start + ph.fixed_settle_time)
