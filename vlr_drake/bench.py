@@ -74,3 +74,57 @@ def format_motion(r: dict) -> str:
         f"MathematicalProgram, one solve: IPOPT {r['ipopt_solve_s'] * 1e3:.2f} ms, SNOPT {r['snopt_solve_s'] * 1e3:.2f} ms\n"
         f"speed-up per particle: {r['speedup_per_particle']:.0f}x vs IPOPT, {r['speedup_per_particle_snopt']:.0f}x vs SNOPT"
     )
+
+
+def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 5) -> dict:
+    """Time full filter iterations (move, predict, weigh, resample, roughen) on the model
+    plant, and a short known-hand identification split into its parts."""
+    from vlr_drake import filter as pf
+    from vlr_drake.identify import Exploration, _truth_grasp
+    from vlr_drake.model_plant import ModelPlant
+
+    h = hand_by_name("model_o").model()
+    rng = np.random.default_rng(seed)
+    theta, a = _truth_grasp(h, rng)
+    plant = ModelPlant(h, theta, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(seed + 1))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=particles), pf.PriorConfig(),
+                                    np.random.default_rng(seed + 2))
+    R, t, _ = plant.measure()
+    t0 = time.perf_counter()
+    f.initialise(theta, a, R, t)
+    init_s = time.perf_counter() - t0
+    explore = Exploration(plant.state.tendon_command, h.tendon_range, 1.5e-3, 4e-3, np.random.default_rng(seed + 3))
+    # warm-up (compilation) on a tiny filter
+    small = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=100), pf.PriorConfig(), np.random.default_rng(0))
+    small.initialise(theta, a, R, t)
+    small.step(np.zeros(h.N), R, t)
+    times, resampled = [], []
+    for _ in range(iterations):
+        dl = explore.next_action()
+        if not plant.apply_action(dl):
+            continue
+        explore.commit(dl)
+        R, t, v = plant.measure()
+        n0 = f.resamples
+        t0 = time.perf_counter()
+        f.step(dl, R, t, v)
+        times.append(time.perf_counter() - t0)
+        resampled.append(f.resamples > n0)
+    it_s = float(np.median(times))
+    return {
+        "benchmark": "filter",
+        "particles": particles,
+        "iteration_s": it_s,
+        "iteration_max_s": float(np.max(times)),
+        "resampled_fraction": float(np.mean(resampled)),
+        "particles_per_s": particles / it_s,
+        "initialise_s": init_s,
+        "threads": _threads(),
+    }
+
+
+def format_filter(r: dict) -> str:
+    return (f"filter iteration with {r['particles']} particles ({r['threads']} threads): median "
+            f"{r['iteration_s'] * 1e3:.0f} ms, max {r['iteration_max_s'] * 1e3:.0f} ms "
+            f"({r['particles_per_s']:.0f} particles/s; resampled in {100 * r['resampled_fraction']:.0f}% of "
+            f"iterations); initialisation {r['initialise_s']:.1f} s")

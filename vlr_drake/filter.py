@@ -428,33 +428,51 @@ class SelfIdentificationFilter:
         self.particles = new
         return self._report(True, ess, beta, res, feasible, False, best)
 
-    def _roughen(self, ps: ParticleSet) -> None:
-        """Liu-West shrinkage and jitter of the unknowns; recompute the equilibrium."""
-        h, cfg, pr = self.hand, self.config, self.prior
-        hh = cfg.roughening
-        shrink = np.sqrt(1.0 - hh * hh)
+    def _unknowns(self, ps: ParticleSet) -> np.ndarray:
+        """The identified quantities as one (M, D) matrix: theta, a, then extras."""
+        cols = [ps.theta.reshape(ps.size, -1), ps.a]
+        for fi, j in self.prior.stiffness_unknown:
+            cols.append(ps.stiffness[:, fi, j][:, None])
+        for fi in self.prior.links_unknown:
+            cols.append(ps.link_lengths[:, fi, 0][:, None])
+        return np.concatenate(cols, axis=1)
 
-        def kernel(x, lo=None, hi=None):
-            mean = x.mean(axis=0)
-            std = x.std(axis=0)
-            out = shrink * x + (1.0 - shrink) * mean + hh * std * self.rng.standard_normal(x.shape)
-            if lo is not None:
-                out = np.clip(out, lo, hi)
-            return out
-
-        ps.theta = kernel(ps.theta)
-        ps.a = kernel(ps.a, *pr.contact_limits)
+    def _set_unknowns(self, ps: ParticleSet, x: np.ndarray) -> None:
+        h, pr = self.hand, self.prior
+        n = h.N * h.K
+        ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
+        ps.a = np.clip(x[:, n : n + h.N], *pr.contact_limits)
+        c = n + h.N
         if pr.stiffness_unknown:
             k = ps.stiffness.copy()
             for fi, j in pr.stiffness_unknown:
-                k[:, fi, j] = kernel(k[:, fi, j], *pr.stiffness_range)
+                k[:, fi, j] = np.clip(x[:, c], *pr.stiffness_range)
+                c += 1
             ps.stiffness = k
         if pr.links_unknown:
             L = ps.link_lengths.copy()
             for fi in pr.links_unknown:
-                L[:, fi, 0] = kernel(L[:, fi, 0], *pr.link_range)
+                L[:, fi, 0] = np.clip(x[:, c], *pr.link_range)
+                c += 1
             ps.link_lengths = L
-        eq = motion.equilibrium(h, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+
+    def _roughen(self, ps: ParticleSet) -> None:
+        """Liu-West kernel shrinkage with the cloud's full covariance; recompute equilibria.
+
+        x <- a x + (1 - a) mean + h C^(1/2) eps,  a = sqrt(1 - h^2): the cloud keeps its mean
+        and covariance. The full covariance matters: joint angles and contact positions of a
+        finger form a nearly degenerate ridge, and per-coordinate jitter would knock
+        particles off it.
+        """
+        hh = self.config.roughening
+        shrink = np.sqrt(1.0 - hh * hh)
+        x = self._unknowns(ps)
+        mean = x.mean(axis=0)
+        cov = np.cov(x, rowvar=False) + 1e-18 * np.eye(x.shape[1])
+        Lc = np.linalg.cholesky(cov)
+        x = shrink * x + (1.0 - shrink) * mean + hh * self.rng.standard_normal(x.shape) @ Lc.T
+        self._set_unknowns(ps, x)
+        eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
         ps.theta = eq.theta
         ps.stretch = eq.stretch
 

@@ -1,0 +1,230 @@
+"""The ``vlr-drake`` command line.
+
+    vlr-drake demo        the main job: self-check, then a self-identification run with a
+                          summary table and convergence plots
+    vlr-drake selfcheck   build the default hand, move it with both solvers, compare
+    vlr-drake identify    one of the paper's identification experiments (JSON + plots)
+    vlr-drake bench       benchmarks that print their figures (motion, filter)
+
+Every run takes ``--seed`` and writes JSON with ``--json PATH``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def write_json(result: dict, path: str | None) -> None:
+    if not path:
+        return
+    clean = {k: v for k, v in result.items() if not k.startswith("_")}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(clean, indent=2, default=_json_default))
+    print(f"wrote {path}")
+
+
+# ------------------------------------------------------------------------------ selfcheck
+def selfcheck(seed: int = 0, actions: int = 5) -> dict:
+    """Build the default hand, move one grasp through a few random tendon actions with the
+    batched solver and with IPOPT and SNOPT, and report how far apart they are."""
+    from vlr_drake import grasps, kinematics, motion
+    from vlr_drake import motion_reference as ref
+    from vlr_drake.hand import model_o
+
+    hand = model_o().model()
+    rng = np.random.default_rng(seed)
+    g = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
+                             contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+    theta, a, s, D2 = g.theta, g.a, g.stretch, g.D2
+    print(f"hand '{hand.spec.name}': {hand.N} fingers x {hand.K} joints ({', '.join(hand.names)})")
+    print(f"grasp: proximal {np.rad2deg(theta[0, :, 0]).round(1)} deg, distal {np.rad2deg(theta[0, :, 1]).round(1)} deg, "
+          f"contacts {1e3 * a[0].round(4)} mm, tensions {g.tension[0].round(2)} N")
+    worst = {"ipopt": 0.0, "snopt": 0.0}
+    for k in range(actions):
+        dl = rng.uniform(-1e-3, 1e-3, hand.N)
+        res = motion.move(hand, theta, dl, a=a, D2=D2, stretch=s)
+        line = f"action {k + 1}: dl = {1e3 * dl.round(5)} mm"
+        if not res.ok[0]:
+            print(line + "  -> no nearby equilibrium (flagged)")
+            continue
+        for solver in worst:
+            r = ref.solve_move(hand, theta[0], dl, a=a[0], D2=D2[0], stretch=s[0], solver=solver)
+            worst[solver] = max(worst[solver], float(np.abs(r.theta - res.theta[0]).max()))
+        p = kinematics.contacts(hand, res.theta, a)
+        dist_err = np.abs(np.sqrt(motion.contact_distances_sq(hand, p)) - np.sqrt(D2)).max()
+        print(f"{line}  -> dtheta {np.rad2deg(res.theta[0] - theta[0]).ravel().round(2)} deg, "
+              f"tensions {res.tension[0].round(2)} N, grasp distance error {dist_err:.1e} m")
+        theta, s = res.theta, res.stretch
+    print(f"batched Newton vs MathematicalProgram: max |dtheta| IPOPT {worst['ipopt']:.1e} rad, "
+          f"SNOPT {worst['snopt']:.1e} rad")
+    return {"check": "selfcheck", "seed": seed, "max_difference_ipopt_rad": worst["ipopt"],
+            "max_difference_snopt_rad": worst["snopt"]}
+
+
+# ------------------------------------------------------------------------------ identify
+def _identify_options(args):
+    from vlr_drake import filter as pf
+    from vlr_drake.identify import IdentifyOptions
+
+    return IdentifyOptions(
+        experiment=args.experiment, plant=args.plant, object=args.object, hand=args.hand, seed=args.seed,
+        particles=args.particles, max_iterations=args.iterations, filter=pf.FilterConfig(),
+        progress=not args.no_progress, scenario=args.scenario,
+    )
+
+
+def print_summary(result: dict) -> None:
+    names = result.get("_finger_names", [])
+    est = result["_estimates"][-1]
+    truth = result["_truths"][-1]
+    print(f"\n{result['experiment']} on the {result['plant']} plant, seed {result['seed']}, "
+          f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
+          f"after {result['iterations']} iterations")
+    print(f"{'quantity':28s} {'estimate':>10s} {'95% interval':>20s} {'truth':>10s} {'error':>8s}")
+    for i, n in enumerate(names):
+        for j, label in enumerate(["proximal", "distal"][: est["theta"].shape[1]] + [f"joint{j}" for j in range(2, est["theta"].shape[1])]):
+            e, lo, hi, t = (np.rad2deg(x[i, j]) for x in (est["theta"], est["theta_lo"], est["theta_hi"], truth["theta"]))
+            print(f"{n + ' ' + label + ' [deg]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
+        e, lo, hi, t = (1e3 * x[i] for x in (est["a"], est["a_lo"], est["a_hi"], truth["a"]))
+        print(f"{n + ' contact [mm]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
+    if result.get("stiffness_error_Nm_per_rad") is not None:
+        print(f"{'thumb distal k [N m/rad]':28s} {result['stiffness_estimate_Nm_per_rad']:10.4f} {'':>20s} "
+              f"{result['stiffness_true_Nm_per_rad']:10.4f} {result['stiffness_error_Nm_per_rad']:8.4f}")
+    if result.get("link_length_error_mm"):
+        for n, e in result["link_length_error_mm"].items():
+            print(f"{n + ' proximal length error [mm]':28s} {e:10.2f}")
+    print(f"mean joint error {result['joint_error_deg_mean']:.2f} deg; mean 95% half-width "
+          f"{result['interval_half_width_deg_mean']:.2f} deg; truth inside 95%: "
+          f"{100 * result['truth_inside_95_theta']:.0f}% of joints, {100 * result['truth_inside_95_contact']:.0f}% of contacts")
+    t = result["timing_s"]
+    print("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()))
+
+
+def identify(args) -> dict:
+    from vlr_drake.identify import run_identification
+
+    result = run_identification(_identify_options(args))
+    print_summary(result)
+    out = Path(args.out)
+    _plots(result, out)
+    write_json(result, args.json or str(out / f"identify_{args.experiment}_seed{args.seed}.json"))
+    return result
+
+
+def _plots(result: dict, out: Path) -> None:
+    from vlr_drake import plots
+
+    out.mkdir(parents=True, exist_ok=True)
+    est, truths, names = result["_estimates"], result["_truths"], result["_finger_names"]
+    stem = out / f"{result['experiment']}_seed{result['seed']}"
+    written = [
+        plots.plot_joint_angles(est, truths, names, f"{stem}_proximal.png", joints="proximal"),
+        plots.plot_contacts(est, truths, names, f"{stem}_contacts.png"),
+        plots.plot_convergence(result["_history"], f"{stem}_convergence.png"),
+    ]
+    if result.get("stiffness_error_Nm_per_rad") is not None:
+        written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=[(0, 1)]))
+    if result.get("link_length_error_mm"):
+        fingers = [names.index(n) for n in result["link_length_error_mm"]]
+        written.append(plots.plot_link_lengths(est, truths, names, f"{stem}_links.png", fingers=fingers))
+    for p in written:
+        print(f"wrote {p}")
+
+
+# ------------------------------------------------------------------------------ bench
+def bench(args) -> dict:
+    from vlr_drake import bench as b
+
+    if args.what == "motion":
+        r = b.bench_motion(particles=args.particles, seed=args.seed)
+        print(b.format_motion(r))
+    else:
+        r = b.bench_filter(particles=args.particles, seed=args.seed, iterations=args.iterations)
+        print(b.format_filter(r))
+    write_json(r, args.json)
+    return r
+
+
+# ------------------------------------------------------------------------------ demo
+def demo(args) -> None:
+    t0 = time.perf_counter()
+    print("== self-check: the motion function, batched vs MathematicalProgram ==")
+    selfcheck(args.seed)
+    print("\n== self-identification: Model O holding an object, known hand ==")
+    args.experiment, args.hand = "known_hand", "model_o"
+    identify(args)
+    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; outputs in {args.out}/")
+
+
+def _common(p: argparse.ArgumentParser, particles: int, iterations: int) -> None:
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--particles", type=int, default=particles, help=f"number of particles (default {particles})")
+    p.add_argument("--iterations", type=int, default=iterations, help=f"iteration budget (default {iterations})")
+    p.add_argument("--json", default=None, help="write the result as JSON to this path")
+    p.add_argument("--out", default="out", help="output folder for plots and results (default ./out)")
+    p.add_argument("--scenario", default="default", help="scenario name recorded in the result")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="vlr-drake", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("selfcheck", help="move the default hand with both solvers and compare")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None)
+
+    for name, help_text in [("identify", "run a self-identification experiment"),
+                            ("demo", "the main job: self-check and a self-identification run")]:
+        p = sub.add_parser(name, help=help_text)
+        _common(p, particles=20_000, iterations=120)
+        if name == "identify":
+            p.add_argument("experiment", choices=["known_hand", "stiffness", "novel_fingers"],
+                           help="known_hand: angles and contacts; stiffness: also the thumb's distal spring; "
+                                "novel_fingers: also the proximal lengths of replaced fingers")
+        p.add_argument("--plant", choices=["model", "physics"], default="model",
+                       help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant "
+                            "with the rendered camera")
+        p.add_argument("--object", default="apple", help="object held (physics plant)")
+        p.add_argument("--hand", default="model_o", help="model_o, or NH1/NH2/NH3 for novel_fingers")
+        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("bench", help="benchmarks that print their figures")
+    p.add_argument("what", choices=["motion", "filter"])
+    p.add_argument("--particles", type=int, default=60_000)
+    p.add_argument("--iterations", type=int, default=5)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None)
+
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "selfcheck":
+            write_json(selfcheck(args.seed), args.json)
+        elif args.command == "identify":
+            identify(args)
+        elif args.command == "demo":
+            demo(args)
+        elif args.command == "bench":
+            bench(args)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"vlr-drake {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,275 @@
+"""The paper's self-identification experiments (its Fig. 4, 5 and 8), on either plant.
+
+``run_identification`` runs one trial: grasp, then random exploratory actions, each
+followed by a camera measurement of the POM and one filter iteration (Algorithm 1), until
+the filter has converged (DESIGN.md section 6) or the iteration budget is spent. Errors
+are measured against the plant's ground truth, as the paper measured them against extra
+tags: proximal joint angles, all joint angles, contact points, and the identified physical
+parameters. The result dict carries the fields of DESIGN.md section 11.
+
+Experiments:
+- ``known_hand``: joint angles and contacts are unknown (Model O, known springs).
+- ``stiffness``: additionally the thumb's distal spring, replaced by an unknown one.
+- ``novel_fingers``: hands NH1/NH2/NH3; the proximal link lengths of the replaced fingers
+  are unknown.
+
+Plants: ``model`` (the VLR model with hidden truth and Gaussian pose noise; fast) and
+``physics`` (Drake MultibodyPlant, rendered camera, AprilTag observer).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vlr_drake import filter as pf
+from vlr_drake import grasps
+from vlr_drake.hand import NOVEL_HANDS, hand_by_name, model_o
+from vlr_drake.model_plant import ModelPlant
+
+__all__ = ["EXPERIMENTS", "IdentifyOptions", "run_identification", "Exploration"]
+
+EXPERIMENTS = ("known_hand", "stiffness", "novel_fingers")
+#: Objects of the known-hand experiment (the paper's Fig. 4).
+KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
+#: Range of the unknown thumb distal stiffness drawn for the truth and searched by the prior.
+STIFFNESS_RANGE = (0.08, 0.32)
+
+
+@dataclass
+class IdentifyOptions:
+    """One identification trial."""
+
+    # "known_hand" | "stiffness" | "novel_fingers".
+    experiment: str = "known_hand"
+    # "model" (fast, exact truth) or "physics" (MultibodyPlant + rendered camera).
+    plant: str = "model"
+    # Object (physics plant); also names the trial on the model plant.
+    object: str = "apple"
+    # Hand for novel fingers: "NH1" | "NH2" | "NH3" (model_o otherwise).
+    hand: str = "model_o"
+    seed: int = 0
+    particles: int = 20_000
+    # Iteration budget; the run stops earlier once converged (plus ``extra_iterations``).
+    max_iterations: int = 120
+    extra_iterations: int = 0
+    # Exploration: uniform actions of +-action_range per tendon [m], reflected inside a
+    # window of +-window around the grasp's tendon commands.
+    action_range: float = 1.5e-3
+    window: float = 4.0e-3
+    # Pose noise of the model plant's camera stand-in.
+    sigma_position: float = 0.2e-3
+    sigma_rotation_deg: float = 0.5
+    filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
+    progress: bool = True
+    scenario: str = "default"
+
+    def validate(self) -> IdentifyOptions:
+        if self.experiment not in EXPERIMENTS:
+            raise ValueError(f"experiment must be one of {EXPERIMENTS}, got '{self.experiment}'")
+        if self.plant not in ("model", "physics"):
+            raise ValueError(f"plant must be 'model' or 'physics', got '{self.plant}'")
+        if self.experiment == "novel_fingers" and self.hand not in NOVEL_HANDS:
+            raise ValueError(f"novel_fingers needs hand NH1, NH2 or NH3, got '{self.hand}'")
+        if self.max_iterations < 1:
+            raise ValueError("max_iterations must be >= 1")
+        return self
+
+
+class Exploration:
+    """Random exploratory actions (DESIGN.md section 6): uniform in +-``span`` per tendon,
+    reflected at the edges of a window around the grasp's tendon commands and of the
+    tendon range, so the random walk never slackens a tendon or leaves its limits."""
+
+    def __init__(self, l_grasp, tendon_range, span: float, window: float, rng: np.random.Generator):
+        self.l = np.array(l_grasp, float)
+        self.lo = np.maximum(self.l - window, tendon_range[:, 0])
+        self.hi = np.minimum(self.l + window, tendon_range[:, 1])
+        self.span, self.rng = span, rng
+
+    def next_action(self) -> np.ndarray:
+        want = self.l + self.rng.uniform(-self.span, self.span, self.l.shape)
+        want = np.where(want > self.hi, 2 * self.hi - want, want)
+        want = np.where(want < self.lo, 2 * self.lo - want, want)
+        want = np.clip(want, self.lo, self.hi)
+        return want - self.l
+
+    def commit(self, dl) -> None:
+        self.l = self.l + np.asarray(dl)
+
+
+def _hands(opts: IdentifyOptions, rng):
+    """(true hand spec, filter's hand spec, prior config, true stiffness or None)."""
+    prior = pf.PriorConfig()
+    if opts.experiment == "known_hand":
+        spec = model_o()
+        return spec, spec, prior, None
+    if opts.experiment == "stiffness":
+        true_spec = model_o()
+        k_true = float(rng.uniform(*STIFFNESS_RANGE))
+        true_spec.fingers[0].stiffness = [true_spec.fingers[0].stiffness[0], k_true]
+        prior.stiffness_unknown = [(0, 1)]
+        prior.stiffness_range = (0.05, 0.40)
+        return true_spec, model_o(), prior, k_true
+    true_spec = hand_by_name(opts.hand)
+    # The filter knows which fingers were replaced, not how long their proximal links are:
+    # its hand carries nominal Model O lengths there and the prior searches a range.
+    filt_spec = hand_by_name(opts.hand)
+    replaced = list(NOVEL_HANDS[opts.hand])  # names of the Model O fingers that were swapped
+    names = filt_spec.finger_names()  # replaced fingers are named "<old>_<NFx>"
+    prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
+    prior.link_range = (0.030, 0.075)
+    return true_spec, filt_spec, prior, None
+
+
+def _truth_grasp(hand, rng, link_lengths=None):
+    gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
+                              contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+    return gs.theta[0], gs.a[0]
+
+
+def run_identification(opts: IdentifyOptions) -> dict:
+    """Run one identification trial; returns the DESIGN.md section 11 result dict plus the
+    filter's estimate history (``_estimates``, ``_history``, ``_truths``: not JSON)."""
+    opts.validate()
+    opts.filter.particles = opts.particles
+    rng = np.random.default_rng(opts.seed)
+    true_spec, filt_spec, prior, k_true = _hands(opts, rng)
+    true_hand, filt_hand = true_spec.model(), filt_spec.model()
+    timing = {"physics": 0.0, "render": 0.0, "detect": 0.0, "filter": 0.0, "total": 0.0}
+    t_start = time.perf_counter()
+    if opts.plant == "model":
+        plant = _ModelAdapter(opts, true_hand, rng)
+    else:
+        from vlr_drake.physics_identify import PhysicsAdapter
+
+        plant = PhysicsAdapter(opts, true_spec, rng)
+    theta_c, a_c, R0, t0 = plant.start(prior)
+    f = pf.SelfIdentificationFilter(filt_hand, opts.filter, prior, np.random.default_rng(opts.seed + 1))
+    k_center = None
+    L_center = None
+    tf = time.perf_counter()
+    f.initialise(theta_c, a_c, R0, t0, k_center, L_center)
+    timing["filter"] += time.perf_counter() - tf
+    explore = Exploration(plant.tendon_command(), filt_hand.tendon_range, opts.action_range, opts.window,
+                          np.random.default_rng(opts.seed + 2))
+    truths = [plant.truth()]
+    converged_at = None
+    lost = 0
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=opts.max_iterations, disable=not opts.progress, desc=f"identify {opts.experiment}",
+               unit="it", leave=False)
+    for it in range(1, opts.max_iterations + 1):
+        dl = explore.next_action()
+        moved = plant.act(dl, timing)
+        if not moved:
+            continue
+        explore.commit(dl)
+        R, t, valid = plant.measure(timing)
+        lost += not valid
+        tf = time.perf_counter()
+        rep = f.step(dl, R, t, valid)
+        timing["filter"] += time.perf_counter() - tf
+        truths.append(plant.truth())
+        bar.update(1)
+        bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
+        if rep.converged and converged_at is None:
+            converged_at = it
+        if converged_at is not None and it >= converged_at + opts.extra_iterations:
+            break
+    bar.close()
+    timing["total"] = time.perf_counter() - t_start
+    est = f.estimates[-1]
+    truth = truths[-1]
+    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, k_true, f, lost)
+    result["_estimates"] = f.estimates
+    result["_history"] = f.history
+    result["_truths"] = truths
+    result["_finger_names"] = filt_hand.names
+    return result
+
+
+def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k_true, f, lost) -> dict:
+    th_err = np.rad2deg(np.abs(est["theta"] - truth["theta"]))
+    c_err = 1e3 * np.linalg.norm(est["contacts"] - truth["contacts"], axis=1)
+    inside_theta = (truth["theta"] >= est["theta_lo"]) & (truth["theta"] <= est["theta_hi"])
+    inside_a = (truth["a"] >= est["a_lo"]) & (truth["a"] <= est["a_hi"])
+    res = {
+        "experiment": opts.experiment,
+        "scenario": opts.scenario,
+        "object": opts.object,
+        "hand": opts.hand if opts.experiment == "novel_fingers" else "model_o",
+        "seed": opts.seed,
+        "particles": opts.filter.particles,
+        "plant": opts.plant,
+        "converged": converged_at is not None,
+        "iterations": int(converged_at if converged_at is not None else last_it),
+        "proximal_joint_error_deg": th_err[:, 0].tolist(),
+        "joint_error_deg_mean": float(th_err.mean()),
+        "contact_error_mm": c_err.tolist(),
+        "stiffness_error_Nm_per_rad": None,
+        "link_length_error_mm": None,
+        "timing_s": timing,
+        "interval_half_width_deg_mean": float(np.rad2deg(est["theta_half_width"].mean())),
+        "interval_full_width_deg_mean": float(np.rad2deg(est["theta_full_width"].mean())),
+        "truth_inside_95_theta": float(inside_theta.mean()),
+        "truth_inside_95_contact": float(inside_a.mean()),
+        "reinitialisations": f.reinitialisations,
+        "lost_measurements": int(lost),
+    }
+    if prior.stiffness_unknown:
+        fi, j = prior.stiffness_unknown[0]
+        res["stiffness_true_Nm_per_rad"] = k_true
+        res["stiffness_estimate_Nm_per_rad"] = float(est["stiffness"][fi, j])
+        res["stiffness_error_Nm_per_rad"] = float(abs(est["stiffness"][fi, j] - k_true))
+        res["stiffness_inside_95"] = bool(est["stiffness_lo"][fi, j] <= k_true <= est["stiffness_hi"][fi, j])
+    if prior.links_unknown:
+        errs = {}
+        for fi in prior.links_unknown:
+            errs[hand.names[fi]] = float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))
+        res["link_length_error_mm"] = errs
+    return res
+
+
+class _ModelAdapter:
+    """The model plant behind the interface the identification loop uses."""
+
+    def __init__(self, opts: IdentifyOptions, hand, rng):
+        self.opts, self.hand, self.rng = opts, hand, rng
+
+    def start(self, prior: pf.PriorConfig):
+        h, rng = self.hand, self.rng
+        theta, a = _truth_grasp(h, rng)
+        R0 = np.eye(3)
+        t0 = np.array([0.0, 0.0, 0.11])
+        self.plant = ModelPlant(h, theta, a, R0, t0, np.random.default_rng(self.opts.seed + 3),
+                                sigma_position=self.opts.sigma_position,
+                                sigma_rotation=np.deg2rad(self.opts.sigma_rotation_deg))
+        # The filter's nominal grasp: the truth displaced by up to 60% of the prior's
+        # half-widths (on hardware this is the grasp planner's guess).
+        theta_c = theta.copy()
+        theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
+        theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
+        a_c = a + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+        R, t, _ = self.plant.measure()
+        return theta_c, a_c, R, t
+
+    def tendon_command(self):
+        return self.plant.state.tendon_command.copy()
+
+    def act(self, dl, timing) -> bool:
+        t0 = time.perf_counter()
+        ok = self.plant.apply_action(dl)
+        timing["physics"] += time.perf_counter() - t0
+        return ok
+
+    def measure(self, timing):
+        return self.plant.measure()
+
+    def truth(self) -> dict:
+        s = self.plant.state
+        return {"theta": s.theta.copy(), "a": s.a.copy(), "contacts": self.plant.contacts(),
+                "stiffness": self.plant.stiffness.copy(), "link_lengths": self.plant.link_lengths.copy()}
