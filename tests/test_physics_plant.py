@@ -311,3 +311,22 @@ def test_fixed_action_period():
     elapsed = sim.get_context().get_time() - t0
     assert elapsed == pytest.approx(physics.action_period)
     assert np.isfinite(r.creep_mm_per_s) and np.all(r.in_contact)
+
+
+def test_placement_checks_and_auto_placement():
+    from vlr_drake.objects import copy_spec
+
+    # Sunk into the palm: refused, naming what it penetrates.
+    low = copy_spec(preset("apple"), placement_xyz=[0.0, 0.0, 0.03])
+    _, ph, sim = build_physics_hand(model_o(), low, PhysicsConfig(auto_place_range=0.0))
+    with pytest.raises(RuntimeError, match="palm_collision"):
+        ph.place(sim.get_mutable_context())
+    # Out of the pads' reach: the grasp moves it along the palm normal until they reach it.
+    high = copy_spec(preset("apple"), placement_xyz=[0.0, 0.0, 0.125])
+    _, ph, sim = build_physics_hand(model_o(), high, PhysicsConfig(auto_place_range=0.0))
+    with pytest.raises(RuntimeError, match="never reaches"):
+        ph.place(sim.get_mutable_context())
+    _, ph, sim = build_physics_hand(model_o(), high, PhysicsConfig(auto_place_range=0.03))
+    g = ph.grasp(sim)
+    assert 0.095 <= ph.placement_X_PB.translation()[2] < 0.125
+    assert g.settled and np.all(g.in_contact)

@@ -279,7 +279,7 @@ def preset(name: str) -> ObjectSpec:
             tag_id=4,
             tag_size=0.020,
             tag_face="-y",
-            placement_xyz=[-0.02, 0.0, 0.07],
+            placement_xyz=[-0.015, 0.0, 0.07],
             placement_rpy_deg=[90.0, 0.0, 0.0],
             color=[0.9, 0.8, 0.1, 1.0],
         )

@@ -90,6 +90,8 @@ __all__ = [
 ]
 
 RENDERER_NAME = "vtk"
+#: Automatic placement goes this much further than the first shift at which the pads reach [m].
+AUTO_PLACE_MARGIN = 0.01
 
 
 @dataclass
@@ -137,6 +139,9 @@ class PhysicsConfig:
     settle_joint_speed: float = 0.02
     # If > 0, skip the settle test and settle for exactly this long after the ramp [s].
     fixed_settle_time: float = 0.0
+    # When a pad cannot reach the object at its preset placement (e.g. a novel hand), the
+    # grasp tries placements shifted along the palm normal up to this far [m] (0: never).
+    auto_place_range: float = 0.03
     # Settle time of the grasp [s] (capped settle, same test).
     grasp_settle_max: float = 1.0
     # Period of the contact sampler that holds the last contact of each finger [s].
@@ -459,6 +464,7 @@ class PhysicsHand:
     pad_geometries: list  # per finger: list of GeometryIds of the pad spheres
     object_geometries: list
     grasp_X_PO: RigidTransform | None = None
+    placement_X_PB: RigidTransform | None = None  # where the grasp placed the object
 
     # -- context access -------------------------------------------------------------------
 
@@ -579,6 +585,18 @@ class PhysicsHand:
             theta[i] = np.clip(hi * W[i], self.hand.joint_lower[i], self.hand.joint_upper[i])
             q[self.position_indices[i * K : (i + 1) * K]] = theta[i]
         plant.SetPositions(pctx, q)
+        # Nothing but the pads may touch the object (the palm, the links) at the start.
+        qo = sg.get_query_output_port().Eval(sg_ctx)
+        pads = {int(g.get_value()) for gs in self.pad_geometries for g in gs}
+        objs = {int(g.get_value()) for g in self.object_geometries}
+        for pair in qo.ComputeSignedDistancePairwiseClosestPoints(max_distance=0.0):
+            a, b = int(pair.id_A.get_value()), int(pair.id_B.get_value())
+            if (a in objs) != (b in objs) and not ({a, b} & pads) and pair.distance < -1e-3:
+                other = pair.id_B if a in objs else pair.id_A
+                raise RuntimeError(
+                    f"object '{self.obj.name}' penetrates '{sg.model_inspector().GetName(other)}' by "
+                    f"{-1e3 * pair.distance:.1f} mm at its placement; move the object's placement_xyz"
+                )
         return theta.reshape(-1)
 
     def pretensions(self, root_context: Context | None = None) -> np.ndarray:
@@ -663,9 +681,41 @@ class PhysicsHand:
         """
         pctx = self.plant_context(root_context)
         plant = self.plant
-        plant.SetFreeBodyPose(pctx, self.object_body, self.physics.X_WP() @ self.obj.X_PB())
         plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
-        theta0 = self.place_fingers(root_context)
+        X_PB = self.obj.X_PB()
+        # The preset placement first; if a pad cannot reach the object there (another hand),
+        # the nearest placement along the palm normal where every pad can (auto_place_range).
+        step = 0.0025
+        n = int(round(self.physics.auto_place_range / step))
+        offsets = [0.0] + [sign * k * step for k in range(1, n + 1) for sign in (1.0, -1.0)]
+        q0 = plant.GetPositions(pctx).copy()
+        error = None
+
+        def attempt(dz: float) -> np.ndarray | None:
+            nonlocal error
+            X = RigidTransform(X_PB.rotation(), X_PB.translation() + [0.0, 0.0, dz])
+            plant.SetPositions(pctx, q0)
+            plant.SetFreeBodyPose(pctx, self.object_body, self.physics.X_WP() @ X)
+            try:
+                theta = self.place_fingers(root_context)
+            except RuntimeError as e:
+                error = error or e
+                return None
+            self.placement_X_PB = X
+            return theta
+
+        for dz in offsets:
+            theta0 = attempt(dz)
+            if theta0 is not None:
+                if dz != 0.0:
+                    # The first feasible shift only just reaches: go a margin further if possible.
+                    deeper = attempt(dz + np.sign(dz) * AUTO_PLACE_MARGIN)
+                    theta0 = deeper if deeper is not None else attempt(dz)
+                break
+        else:
+            raise RuntimeError(
+                f"{error} (also tried +-{self.physics.auto_place_range} m along the palm normal)"
+            )
         l = self.hand.R @ theta0 + self.pretensions(root_context) / self.hand.kappa
         if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
             raise RuntimeError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
