@@ -330,3 +330,26 @@ def test_placement_checks_and_auto_placement():
     g = ph.grasp(sim)
     assert 0.095 <= ph.placement_X_PB.translation()[2] < 0.125
     assert g.settled and np.all(g.in_contact)
+
+
+def test_custom_object_with_a_new_tag_renders_without_touching_the_repository():
+    from vlr_drake.models import models_dir
+    from vlr_drake.objects import ObjectSpec
+
+    spec = ObjectSpec(
+        name="mug",
+        shape="cylinder",
+        size=[0.034, 0.07],
+        mass=0.1,
+        tag_id=321,
+        tag_size=0.025,
+        placement_xyz=[0.0, 0.0, 0.075],
+    )
+    before = sorted(p.name for p in (models_dir() / "objects").rglob("*"))
+    camera = CameraConfig(width=320, height=240)
+    _, ph, sim = build_physics_hand(model_o(), spec, PhysicsConfig(), camera)
+    ph.grasp(sim)
+    gray = cv2.cvtColor(np.asarray(ph.output(sim.get_context(), "rgb_image").data), cv2.COLOR_RGBA2GRAY)
+    _, ids, _ = cv2.aruco.ArucoDetector(dictionary(), cv2.aruco.DetectorParameters()).detectMarkers(gray)
+    assert ids is not None and 321 in np.ravel(ids)
+    assert sorted(p.name for p in (models_dir() / "objects").rglob("*")) == before

@@ -34,6 +34,7 @@ __all__ = [
     "object_model_path",
     "write_object_models",
     "tag_texture_path",
+    "tag_mesh_uri",
 ]
 
 #: Shapes an object may have, with the meaning of ``size`` for each.
@@ -407,12 +408,14 @@ def _friction(mu: float, hint: float | None = None) -> str:
     )
 
 
-def object_sdf(spec: ObjectSpec) -> str:
+def object_sdf(spec: ObjectSpec, tag_mesh_uri: str | None = None) -> str:
     """SDFormat of an object: body ``body`` (frame B at the shape centre), tag quad with the
     tag36h11 texture on ``tag_face``, frames ``tag`` (T) and ``pom`` (O). The tag mesh is
     referenced as ``package://vlr_drake/objects/tag36h11_<id>.obj`` (written by
-    :func:`write_object_models`)."""
+    :func:`write_object_models`) unless ``tag_mesh_uri`` is given (see :func:`tag_mesh_uri`)."""
     spec.validate()
+    if tag_mesh_uri is None:
+        tag_mesh_uri = f"package://vlr_drake/objects/{_tag_mesh_name(spec.tag_id)}.obj"
     ixx, iyy, izz = spec.inertia()
     color = _fmt(*spec.color)
     X_BT = spec.X_BT()
@@ -435,7 +438,7 @@ def object_sdf(spec: ObjectSpec) -> str:
         "      </visual>",
         '      <visual name="tag_visual">',
         f"        <pose>{_pose(X_BT)}</pose>",
-        f"        <geometry><mesh><uri>package://vlr_drake/objects/{_tag_mesh_name(spec.tag_id)}.obj</uri>"
+        f"        <geometry><mesh><uri>{tag_mesh_uri}</uri>"
         f"<scale>{_fmt(plate, plate, 1.0)}</scale></mesh></geometry>",
         "      </visual>",
     ]
@@ -519,6 +522,33 @@ def generated_object_files(names: list[str] | None = None) -> dict[str, str]:
         out[f"objects/{_tag_mesh_name(spec.tag_id)}.obj"] = _tag_obj(spec.tag_id)
         out[f"objects/{_tag_mesh_name(spec.tag_id)}.mtl"] = _tag_mtl(spec.tag_id)
     return out
+
+
+_TAG_TEMP_DIR: Path | None = None
+
+
+def tag_mesh_uri(tag_id: int) -> str:
+    """URI of the textured tag quad for ``tag_id``: the package's copy under models/objects
+    when it exists (the presets' tags), else one written once to a temporary directory (so a
+    custom object never writes into the repository)."""
+    from vlr_drake.models import models_dir
+
+    name = _tag_mesh_name(tag_id)
+    if (models_dir() / "objects" / f"{name}.obj").exists() and tag_texture_path(tag_id).exists():
+        return f"package://vlr_drake/objects/{name}.obj"
+    global _TAG_TEMP_DIR
+    if _TAG_TEMP_DIR is None:
+        import tempfile
+
+        _TAG_TEMP_DIR = Path(tempfile.mkdtemp(prefix="vlr_drake_tags_"))
+    root = _TAG_TEMP_DIR
+    obj = root / "objects" / f"{name}.obj"
+    if not obj.exists():
+        obj.parent.mkdir(parents=True, exist_ok=True)
+        (root / "objects" / f"{name}.mtl").write_text(_tag_mtl(tag_id))
+        write_tag_texture(tag_id, root)
+        obj.write_text(_tag_obj(tag_id))
+    return obj.as_uri()
 
 
 def write_tag_texture(tag_id: int, root: Path | None = None) -> Path:

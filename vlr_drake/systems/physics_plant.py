@@ -72,7 +72,7 @@ from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
 from vlr_drake.models import configure_parser, hand_sdf, joint_name, link_name, pad_geometry_name
-from vlr_drake.objects import ObjectSpec, object_sdf, tag_texture_path, write_object_models
+from vlr_drake.objects import ObjectSpec, object_sdf, tag_mesh_uri
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.systems.tendons import TendonForces
 
@@ -828,12 +828,6 @@ class PhysicsHand:
         return bool(far or not np.all(self.in_contact(root_context)))
 
 
-def _ensure_object_assets(obj: ObjectSpec) -> None:
-    """Write the tag mesh and texture of ``obj`` under models/objects when missing."""
-    if not tag_texture_path(obj.tag_id).exists():
-        write_object_models(specs=[obj])
-
-
 def add_physics_hand(
     builder: DiagramBuilder,
     hand: HandSpec,
@@ -854,7 +848,6 @@ def add_physics_hand(
     model = hand.model()
     if camera is not None:
         camera.validate()
-    _ensure_object_assets(obj)
 
     inner = DiagramBuilder()
     cfg = MultibodyPlantConfig(
@@ -867,7 +860,7 @@ def add_physics_hand(
     parser = Parser(plant)
     configure_parser(parser)
     (hand_instance,) = parser.AddModelsFromString(hand_sdf(hand), "sdf")
-    (obj_instances,) = parser.AddModelsFromString(object_sdf(obj), "sdf")
+    (obj_instances,) = parser.AddModelsFromString(object_sdf(obj, tag_mesh_uri(obj.tag_id)), "sdf")
     palm = plant.GetBodyByName("palm", hand_instance)
     plant.WeldFrames(plant.world_frame(), palm.body_frame(), physics.X_WP())
     plant.Finalize()
