@@ -34,6 +34,21 @@ over 10 ms windows (SAP's regularised friction leaves a slow creep) with a 0.5 s
 0.1-0.17 s of wall time for the physics and 0.08-0.13 s for the 2x render and downsample.
 The tendon damping (150 N s/m, the motor's position loop) damps the 4 Hz ringing of the
 thumb against the fingers that the spec's 5 N s/m left.
+
+What the truth means: ``contacts_true`` are physical contact points. A side finger touching
+a round object does so with its inner pad sphere, about 10 mm out of the finger's flexion
+plane; projected onto that plane they agree with the VLR's forward kinematics of
+``theta_true`` and ``contact_along_link_true`` to about 2 mm (a sphere's contact sits off the
+pad plane). With the spec's springs and tendon stiffness the grasp is compliant along the
+thumb-finger axis: a random +-1.5 mm action moves the POM 3-6 mm and 1-3 degrees.
+
+Usage (a quasi-static loop; inside a larger diagram connect ``tendon_command`` instead and
+use :meth:`PhysicsHand.place` + ``grasp(fix_command=False)``)::
+
+    diagram, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(), CameraConfig())
+    g = ph.grasp(sim)                       # GraspResult
+    r = ph.apply_action(sim, dl)            # ActionResult: ramp, settle, render
+    image = ph.output(sim.get_context(), "rgb_image")
 """
 
 import time
