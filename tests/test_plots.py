@@ -1,0 +1,196 @@
+"""Plots of the identification history: files are written and the drawn data are the inputs."""
+
+import matplotlib
+import numpy as np
+import pytest
+
+from vlr_drake import plots
+from vlr_drake.filter import StepReport
+
+N, K, T = 3, 2, 6
+NAMES = ["thumb", "index", "middle"]
+
+
+def _history(rng, truth_every=1):
+    """Synthetic estimates whose intervals shrink around a drifting truth."""
+    estimates, truths = [], []
+    for t in range(T):
+        width = 0.5 / (t + 1)
+        truth = {
+            "theta": np.deg2rad(20.0 + 5 * rng.standard_normal((N, K))),
+            "a": 0.02 + 0.005 * rng.standard_normal(N),
+            "stiffness": 0.1 + 0.01 * rng.standard_normal((N, K)),
+            "link_lengths": 0.05 + 0.005 * rng.standard_normal((N, K - 1)),
+        }
+        est = {}
+        for key, v in truth.items():
+            mean = v + width * 0.1 * rng.standard_normal(v.shape) * np.abs(v)
+            est[key] = mean
+            est[f"{key}_lo"] = mean - width * np.abs(v)
+            est[f"{key}_hi"] = mean + width * np.abs(v) * 1.3
+        estimates.append(est)
+        truths.append(truth if t % truth_every == 0 else None)
+    return estimates, truths
+
+
+def _check_band(ax, x, mean, lo, hi, truth):
+    """The band polygon spans [lo, hi] at every x, the lines are the mean and the truth."""
+    poly = ax.collections[0].get_paths()[0].vertices
+    for xi, l, h in zip(x, lo, hi, strict=True):
+        ys = poly[np.isclose(poly[:, 0], xi), 1]
+        np.testing.assert_allclose([ys.min(), ys.max()], [l, h], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(ax.lines[0].get_xdata(), x)
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), mean)
+    if truth is None:
+        assert len(ax.lines) == 1
+    else:
+        assert ax.lines[1].get_linestyle() == "--"
+        np.testing.assert_allclose(ax.lines[1].get_ydata(), truth, equal_nan=True)
+
+
+def test_joint_angles_proximal_in_degrees(rng):
+    est, tr = _history(rng)
+    fig = plots.make_joint_angles_figure(est, tr, NAMES, joints="proximal")
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == N
+    for i, ax in enumerate(axes):
+        assert NAMES[i] in ax.get_title()
+        _check_band(
+            ax,
+            np.arange(T),
+            [np.rad2deg(e["theta"][i, 0]) for e in est],
+            [np.rad2deg(e["theta_lo"][i, 0]) for e in est],
+            [np.rad2deg(e["theta_hi"][i, 0]) for e in est],
+            [np.rad2deg(t["theta"][i, 0]) for t in tr],
+        )
+
+
+def test_joint_angles_all_joints_missing_truths_are_gaps(rng):
+    est, tr = _history(rng, truth_every=2)
+    fig = plots.make_joint_angles_figure(est, tr, NAMES, joints="all", iterations=np.arange(T) + 10)
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == N * K
+    ax = axes[1 * K + 1]  # finger 1, joint 2
+    truth = [np.rad2deg(t["theta"][1, 1]) if t is not None else np.nan for t in tr]
+    _check_band(
+        ax,
+        np.arange(T) + 10,
+        [np.rad2deg(e["theta"][1, 1]) for e in est],
+        [np.rad2deg(e["theta_lo"][1, 1]) for e in est],
+        [np.rad2deg(e["theta_hi"][1, 1]) for e in est],
+        truth,
+    )
+    assert np.isnan(ax.lines[1].get_ydata()[1])
+
+
+def test_contacts_in_mm_without_truth(rng):
+    est, _ = _history(rng)
+    fig = plots.make_contacts_figure(est, None, NAMES)
+    ax = fig.axes[2]
+    _check_band(
+        ax,
+        np.arange(T),
+        [1e3 * e["a"][2] for e in est],
+        [1e3 * e["a_lo"][2] for e in est],
+        [1e3 * e["a_hi"][2] for e in est],
+        None,
+    )
+    assert "mm" in ax.get_ylabel()
+
+
+def test_stiffness_and_link_lengths(rng):
+    est, tr = _history(rng)
+    fig = plots.make_stiffness_figure(est, tr, NAMES, which=[(0, 1), (2, 0)])
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 2
+    _check_band(
+        axes[1],
+        np.arange(T),
+        [e["stiffness"][2, 0] for e in est],
+        [e["stiffness_lo"][2, 0] for e in est],
+        [e["stiffness_hi"][2, 0] for e in est],
+        [t["stiffness"][2, 0] for t in tr],
+    )
+    fig = plots.make_link_lengths_figure(est, tr, NAMES, fingers=[1])
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == K - 1
+    _check_band(
+        axes[0],
+        np.arange(T),
+        [1e3 * e["link_lengths"][1, 0] for e in est],
+        [1e3 * e["link_lengths_lo"][1, 0] for e in est],
+        [1e3 * e["link_lengths_hi"][1, 0] for e in est],
+        [1e3 * t["link_lengths"][1, 0] for t in tr],
+    )
+
+
+def _reports():
+    widths = [20.0, 9.0, 4.0, 30.0, 1.5, 0.8]
+    return [
+        StepReport(
+            iteration=i + 1,
+            measured=True,
+            ess=100.0 - i,
+            beta=1.0,
+            solve_failures=0,
+            infeasible=0,
+            reinitialised=(i == 3),
+            best_mahalanobis=1.0,
+            mean_interval_deg=w,
+            converged=w < 2.0,
+        )
+        for i, w in enumerate(widths)
+    ]
+
+
+def test_convergence_lines():
+    hist = _reports()
+    fig = plots.make_convergence_figure(hist, threshold_deg=2.0)
+    ax, ax_ess = fig.axes
+    np.testing.assert_allclose(ax.lines[0].get_xdata(), np.arange(1, 7))
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), [r.mean_interval_deg for r in hist])
+    np.testing.assert_allclose(ax.lines[1].get_ydata(), [2.0, 2.0])
+    vlines = {(tuple(line.get_xdata()), line.get_color()) for line in ax.lines[2:]}
+    assert ((4, 4), "tab:red") in vlines  # the re-initialisation
+    assert ((5, 5), "tab:green") in vlines  # first converged iteration
+    np.testing.assert_allclose(ax_ess.lines[0].get_ydata(), [r.ess for r in hist])
+
+
+def test_files_written_and_no_pyplot_state(tmp_path, rng):
+    est, tr = _history(rng)
+    before = matplotlib.get_backend()
+    written = [
+        plots.plot_joint_angles(est, tr, NAMES, tmp_path / "a" / "proximal.png", joints="proximal"),
+        plots.plot_contacts(est, tr, NAMES, str(tmp_path / "contacts.png")),
+        plots.plot_stiffness(est, tr, NAMES, tmp_path / "stiffness.png", which=[(0, 1)]),
+        plots.plot_link_lengths(est, tr, NAMES, tmp_path / "links.svg", fingers=[0, 2]),
+        plots.plot_convergence(_reports(), tmp_path / "convergence.png"),
+    ]
+    for p in written:
+        assert p.exists() and p.stat().st_size > 1000, p
+    assert written[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert matplotlib.get_backend() == before
+    import sys
+
+    if "matplotlib.pyplot" in sys.modules:  # imported by someone else: it must hold no figure of ours
+        import matplotlib.pyplot as plt
+
+        assert plt.get_fignums() == []
+
+
+def test_bad_inputs_name_the_field(rng):
+    est, tr = _history(rng)
+    with pytest.raises(ValueError, match="names"):
+        plots.make_contacts_figure(est, tr, NAMES[:2])
+    with pytest.raises(ValueError, match="truths"):
+        plots.make_contacts_figure(est, tr[:-1], NAMES)
+    with pytest.raises(ValueError, match="joints"):
+        plots.make_joint_angles_figure(est, tr, NAMES, joints="distal")
+    with pytest.raises(ValueError, match="which"):
+        plots.make_stiffness_figure(est, tr, NAMES, which=[(3, 0)])
+    bad = [dict(e) for e in est]
+    bad[2]["a_lo"] = np.zeros(N + 1)
+    with pytest.raises(ValueError, match=r"estimates\[2\]\['a_lo'\]"):
+        plots.make_contacts_figure(bad, tr, NAMES)
+    with pytest.raises(ValueError, match="empty"):
+        plots.make_convergence_figure([])

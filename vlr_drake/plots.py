@@ -1,0 +1,395 @@
+"""Plots of a self-identification run, in the style of the paper's Fig. 4C, 5B and 8E.
+
+Each identified quantity is drawn against the filter iteration: the estimate (the mean of
+the particle cloud) as a solid line, its 95% interval (2.5-97.5 percentiles, DESIGN.md
+section 6) as a shaded band, and the ground truth, where known, dashed.
+
+Inputs are the filter's history as :class:`vlr_drake.filter.SelfIdentificationFilter`
+keeps it:
+
+- ``estimates``: list of dicts from ``SelfIdentificationFilter.estimate()``, one per
+  iteration, the first one at initialisation (iteration 0). Keys used: ``theta``,
+  ``theta_lo``, ``theta_hi`` (N, K) [rad]; ``a``, ``a_lo``, ``a_hi`` (N,) [m];
+  ``stiffness``/``_lo``/``_hi`` (N, K) [N m/rad]; ``link_lengths``/``_lo``/``_hi``
+  (N, K-1) [m].
+- ``truths``: ``None`` or a list of the same length of dicts (or ``None`` entries) with
+  keys ``theta``, ``a``, ``stiffness``, ``link_lengths``; a missing entry is not drawn.
+- ``names``: the finger names (N,).
+
+Every ``make_*_figure`` function returns a :class:`matplotlib.figure.Figure` (for tests
+and notebooks); every ``plot_*`` function saves that figure and returns the path written.
+Figures are made with the object-oriented API and the Agg canvas only: no pyplot, no
+global state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+__all__ = [
+    "Panel",
+    "band_figure",
+    "make_joint_angles_figure",
+    "make_contacts_figure",
+    "make_stiffness_figure",
+    "make_link_lengths_figure",
+    "make_convergence_figure",
+    "plot_joint_angles",
+    "plot_contacts",
+    "plot_stiffness",
+    "plot_link_lengths",
+    "plot_convergence",
+    "save_figure",
+]
+
+#: Colours: the band and the estimate line share one colour; the truth is black, dashed.
+ESTIMATE_COLOR = "tab:blue"
+TRUTH_COLOR = "black"
+BAND_ALPHA = 0.3
+
+
+@dataclass
+class Panel:
+    """One axes of a band figure: a scalar quantity over the iterations (display units)."""
+
+    title: str
+    mean: np.ndarray  # (T,)
+    lo: np.ndarray  # (T,) lower end of the 95% interval
+    hi: np.ndarray  # (T,) upper end of the 95% interval
+    truth: np.ndarray | None  # (T,) with NaN where unknown, or None
+
+
+# ------------------------------------------------------------------------------ inputs
+def _stack(estimates: Sequence[dict], key: str, shape: tuple) -> np.ndarray:
+    """Stack ``estimates[t][key]`` into a (T, *shape) array; errors name the key and t."""
+    out = np.empty((len(estimates), *shape))
+    for t, est in enumerate(estimates):
+        if est is None or key not in est:
+            raise ValueError(f"estimates[{t}] has no '{key}'")
+        value = np.asarray(est[key], dtype=float)
+        if value.shape != shape:
+            raise ValueError(f"estimates[{t}]['{key}'] must have shape {shape}, got {value.shape}")
+        out[t] = value
+    return out
+
+
+def _truth_series(truths: Sequence[dict | None] | None, key: str, shape: tuple, T: int) -> np.ndarray | None:
+    """Stack ``truths[t][key]`` into (T, *shape), NaN where a truth is missing; None if none."""
+    if truths is None:
+        return None
+    if len(truths) != T:
+        raise ValueError(
+            f"truths has {len(truths)} entries but estimates has {T}: they must align per iteration"
+        )
+    out = np.full((T, *shape), np.nan)
+    any_known = False
+    for t, tr in enumerate(truths):
+        if tr is None or tr.get(key) is None:
+            continue
+        value = np.asarray(tr[key], dtype=float)
+        if value.shape != shape:
+            raise ValueError(f"truths[{t}]['{key}'] must have shape {shape}, got {value.shape}")
+        out[t] = value
+        any_known = True
+    return out if any_known else None
+
+
+def _dims(estimates: Sequence[dict], names: Sequence[str]) -> tuple[int, int]:
+    """(N, K) from the first estimate's ``theta``, checked against ``names``."""
+    if len(estimates) == 0:
+        raise ValueError("estimates is empty: nothing to plot")
+    theta = np.asarray(estimates[0].get("theta"))
+    if theta.ndim != 2:
+        raise ValueError(f"estimates[0]['theta'] must have shape (N, K), got {theta.shape}")
+    N, K = theta.shape
+    if len(names) != N:
+        raise ValueError(f"names has {len(names)} entries but the estimates have {N} fingers")
+    return N, K
+
+
+def _quantity(estimates, truths, key: str, shape: tuple, scale: float):
+    """(mean, lo, hi, truth) series of one estimate key, in display units (times ``scale``)."""
+    T = len(estimates)
+    mean = scale * _stack(estimates, key, shape)
+    lo = scale * _stack(estimates, f"{key}_lo", shape)
+    hi = scale * _stack(estimates, f"{key}_hi", shape)
+    truth = _truth_series(truths, key, shape, T)
+    return mean, lo, hi, None if truth is None else scale * truth
+
+
+def _iterations(iterations: Sequence[int] | None, T: int) -> np.ndarray:
+    if iterations is None:
+        return np.arange(T)
+    it = np.asarray(iterations, dtype=float)
+    if it.shape != (T,):
+        raise ValueError(f"iterations must have shape ({T},) to match the estimates, got {it.shape}")
+    return it
+
+
+# ------------------------------------------------------------------------------ figures
+def band_figure(
+    panels: Sequence[Panel], iterations: np.ndarray, ylabel: str, title: str, ncols: int | None = None
+) -> Figure:
+    """One axes per panel: estimate (solid), 95% band (shaded), truth (dashed).
+
+    In each axes ``ax.collections[0]`` is the band, ``ax.lines[0]`` the estimate and
+    ``ax.lines[1]`` the truth (when the panel has one).
+    """
+    if not panels:
+        raise ValueError("panels is empty: nothing to plot")
+    n = len(panels)
+    ncols = ncols or min(n, 3)
+    nrows = int(np.ceil(n / ncols))
+    fig = Figure(figsize=(4.0 * ncols, 2.8 * nrows), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True)
+    for ax, p in zip(axes.ravel()[:n], panels, strict=True):
+        ax.fill_between(
+            iterations, p.lo, p.hi, color=ESTIMATE_COLOR, alpha=BAND_ALPHA, linewidth=0, label="95% interval"
+        )
+        ax.plot(iterations, p.mean, color=ESTIMATE_COLOR, linewidth=1.5, label="estimate")
+        if p.truth is not None:
+            ax.plot(
+                iterations, p.truth, color=TRUTH_COLOR, linestyle="--", linewidth=1.2, label="ground truth"
+            )
+        ax.set_title(p.title)
+        ax.set_ylabel(ylabel)
+        ax.grid(True, alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("iteration")
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    axes.ravel()[0].legend(loc="best", fontsize="small")
+    fig.suptitle(title)
+    return fig
+
+
+def make_joint_angles_figure(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    joints: str = "proximal",
+    iterations: Sequence[int] | None = None,
+) -> Figure:
+    """Joint angles theta [deg] against iterations (Fig. 4C). ``joints``: "proximal" (one
+    panel per finger, joint 1) or "all" (one panel per joint, a row per finger)."""
+    N, K = _dims(estimates, names)
+    if joints not in ("proximal", "all"):
+        raise ValueError(f"joints must be 'proximal' or 'all', got {joints!r}")
+    mean, lo, hi, truth = _quantity(estimates, truths, "theta", (N, K), np.rad2deg(1.0))
+    js = [0] if joints == "proximal" else list(range(K))
+    panels = [
+        Panel(
+            f"{names[i]} joint {j + 1}",
+            mean[:, i, j],
+            lo[:, i, j],
+            hi[:, i, j],
+            None if truth is None else truth[:, i, j],
+        )
+        for i in range(N)
+        for j in js
+    ]
+    title = "proximal joint angles" if joints == "proximal" else "joint angles"
+    return band_figure(
+        panels,
+        _iterations(iterations, len(estimates)),
+        "angle [deg]",
+        title,
+        ncols=min(N, 3) if joints == "proximal" else K,
+    )
+
+
+def make_contacts_figure(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    iterations: Sequence[int] | None = None,
+) -> Figure:
+    """Contact positions a_i along the last links [mm] against iterations (DESIGN.md section 3)."""
+    N, _ = _dims(estimates, names)
+    mean, lo, hi, truth = _quantity(estimates, truths, "a", (N,), 1e3)
+    panels = [
+        Panel(f"{names[i]} contact a", mean[:, i], lo[:, i], hi[:, i], None if truth is None else truth[:, i])
+        for i in range(N)
+    ]
+    return band_figure(panels, _iterations(iterations, len(estimates)), "a [mm]", "contact positions")
+
+
+def make_stiffness_figure(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    which: Sequence[tuple[int, int]] = ((0, 1),),
+    iterations: Sequence[int] | None = None,
+) -> Figure:
+    """Joint stiffness [N m/rad] of the (finger, joint) pairs in ``which`` (Fig. 5B; the
+    paper's experiment identifies the thumb's distal joint, (0, 1) on the Model O)."""
+    N, K = _dims(estimates, names)
+    which = [tuple(int(v) for v in w) for w in which]
+    if not which:
+        raise ValueError("which is empty: name at least one (finger, joint)")
+    for fi, j in which:
+        if not (0 <= fi < N and 0 <= j < K):
+            raise ValueError(f"which: ({fi}, {j}) is not a joint of a {N} x {K} hand")
+    mean, lo, hi, truth = _quantity(estimates, truths, "stiffness", (N, K), 1.0)
+    panels = [
+        Panel(
+            f"{names[fi]} joint {j + 1} stiffness",
+            mean[:, fi, j],
+            lo[:, fi, j],
+            hi[:, fi, j],
+            None if truth is None else truth[:, fi, j],
+        )
+        for fi, j in which
+    ]
+    return band_figure(
+        panels, _iterations(iterations, len(estimates)), "stiffness [N m/rad]", "joint stiffness"
+    )
+
+
+def make_link_lengths_figure(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    fingers: Sequence[int] | None = None,
+    iterations: Sequence[int] | None = None,
+) -> Figure:
+    """Link lengths L_ik [mm] of the given fingers (all by default) against iterations
+    (Fig. 8E): one panel per link, a row per finger."""
+    N, K = _dims(estimates, names)
+    fingers = list(range(N)) if fingers is None else [int(f) for f in fingers]
+    if not fingers:
+        raise ValueError("fingers is empty: name at least one finger")
+    for fi in fingers:
+        if not 0 <= fi < N:
+            raise ValueError(f"fingers: {fi} is not a finger of a {N}-finger hand")
+    mean, lo, hi, truth = _quantity(estimates, truths, "link_lengths", (N, K - 1), 1e3)
+    panels = [
+        Panel(
+            f"{names[fi]} link {k + 1}",
+            mean[:, fi, k],
+            lo[:, fi, k],
+            hi[:, fi, k],
+            None if truth is None else truth[:, fi, k],
+        )
+        for fi in fingers
+        for k in range(K - 1)
+    ]
+    return band_figure(
+        panels,
+        _iterations(iterations, len(estimates)),
+        "length [mm]",
+        "link lengths",
+        ncols=max(K - 1, 1) if len(fingers) > 1 else None,
+    )
+
+
+def make_convergence_figure(history: Sequence, threshold_deg: float | None = None) -> Figure:
+    """Mean 95% interval of the joint angles per iteration (``StepReport.mean_interval_deg``)
+    with the convergence threshold (``FilterConfig.convergence_deg`` by default), and the
+    effective sample size below it. Re-initialisations are marked by red vertical lines,
+    the first converged iteration by a green one.
+
+    Axes 0: ``lines[0]`` the interval, ``lines[1]`` the threshold; axes 1: ``lines[0]`` ESS.
+    """
+    if len(history) == 0:
+        raise ValueError("history is empty: nothing to plot")
+    if threshold_deg is None:
+        from vlr_drake.filter import FilterConfig
+
+        threshold_deg = FilterConfig().convergence_deg
+    for t, rep in enumerate(history):
+        for field in ("iteration", "mean_interval_deg", "ess", "converged", "reinitialised"):
+            if not hasattr(rep, field):
+                raise ValueError(f"history[{t}] has no field '{field}' (expected a filter.StepReport)")
+    it = np.array([r.iteration for r in history], dtype=float)
+    width = np.array([r.mean_interval_deg for r in history], dtype=float)
+    ess = np.array([r.ess for r in history], dtype=float)
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax, ax_ess = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
+    ax.plot(it, width, color=ESTIMATE_COLOR, marker="o", markersize=3, label="mean 95% interval")
+    ax.axhline(threshold_deg, color=TRUTH_COLOR, linestyle="--", label=f"threshold {threshold_deg:g} deg")
+    for r in history:
+        if r.reinitialised:
+            ax.axvline(r.iteration, color="tab:red", linestyle=":", alpha=0.8)
+    first = next((r.iteration for r in history if r.converged), None)
+    if first is not None:
+        ax.axvline(first, color="tab:green", linestyle="-", alpha=0.6, label=f"converged at {first}")
+    ax.set_ylabel("interval [deg]")
+    ax.set_yscale("log" if np.all(width > 0) and width.max() > 20 * max(width.min(), 1e-12) else "linear")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    ax.set_title("convergence of the joint angle intervals")
+    ax_ess.plot(it, ess, color="tab:gray", marker=".", label="ESS")
+    ax_ess.set_ylabel("ESS")
+    ax_ess.set_xlabel("iteration")
+    ax_ess.grid(True, alpha=0.3)
+    return fig
+
+
+# ------------------------------------------------------------------------------ files
+def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
+    """Write ``fig`` (format from the suffix), creating the folder; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def plot_joint_angles(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    path: str | Path,
+    joints: str = "proximal",
+    iterations: Sequence[int] | None = None,
+) -> Path:
+    """Save :func:`make_joint_angles_figure` to ``path``; returns the path."""
+    return save_figure(make_joint_angles_figure(estimates, truths, names, joints, iterations), path)
+
+
+def plot_contacts(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    path: str | Path,
+    iterations: Sequence[int] | None = None,
+) -> Path:
+    """Save :func:`make_contacts_figure` to ``path``; returns the path."""
+    return save_figure(make_contacts_figure(estimates, truths, names, iterations), path)
+
+
+def plot_stiffness(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    path: str | Path,
+    which: Sequence[tuple[int, int]] = ((0, 1),),
+    iterations: Sequence[int] | None = None,
+) -> Path:
+    """Save :func:`make_stiffness_figure` to ``path``; returns the path."""
+    return save_figure(make_stiffness_figure(estimates, truths, names, which, iterations), path)
+
+
+def plot_link_lengths(
+    estimates: Sequence[dict],
+    truths: Sequence[dict | None] | None,
+    names: Sequence[str],
+    path: str | Path,
+    fingers: Sequence[int] | None = None,
+    iterations: Sequence[int] | None = None,
+) -> Path:
+    """Save :func:`make_link_lengths_figure` to ``path``; returns the path."""
+    return save_figure(make_link_lengths_figure(estimates, truths, names, fingers, iterations), path)
+
+
+def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float | None = None) -> Path:
+    """Save :func:`make_convergence_figure` to ``path``; returns the path."""
+    return save_figure(make_convergence_figure(history, threshold_deg), path)
