@@ -1,0 +1,300 @@
+"""Meshcat drawing of the filter's hypotheses, as in the paper's Fig. 4A (DESIGN.md section 8).
+
+For a subsample of the particles (hypotheses xi = (theta, a, Omega), DESIGN.md section 3):
+
+- magenta: the virtual links E^J of every finger, the polyline q_1 -> ... -> q_K -> p_i
+  (joints, then the contact; Eq. 2), one line-segment object per finger;
+- blue: the distal joints q_K as small cylinders along the joint axis w_i = z x u_i, merged
+  into one triangle mesh per finger;
+- yellow: the estimated contacts (the estimate's contacts, or the mean of the drawn ones),
+  one sphere per finger;
+- red: the estimated virtual links E^C (Eq. 1), segments between every pair of estimated
+  contacts and from each contact to the POM (mean predicted POM position), and a small red
+  sphere at the POM.
+
+Everything is drawn in the palm frame P under ``prefix`` (whose transform is X_WP, identity
+unless given). A call re-uses the same paths, so the scene does not grow with iterations.
+
+Replay. Meshcat's recorder (``StartRecording`` ... ``PublishRecording``) stores transforms
+and properties only, never new geometry, so line objects that change cannot be animated in
+place. With ``time_in_recording`` given, :meth:`HypothesisDrawer.draw` therefore draws the
+iteration into its own folder ``prefix/frame_NNNN`` and records that folder's ``visible``
+property (shown from its time until the next frame's); :func:`save_recording` writes the
+static HTML that holds every frame and the animation. Without a recording running, the
+static HTML shows the last frame.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Meshcat, Rgba, Sphere
+from pydrake.math import RigidTransform
+
+from vlr_drake import kinematics, observation
+from vlr_drake.filter import ParticleSet
+from vlr_drake.hand import HandModel
+
+__all__ = ["HypothesisDrawer", "cylinder_mesh", "save_recording"]
+
+#: Colours of Fig. 4: virtual links E^J magenta, joints blue, contacts yellow, E^C red.
+MAGENTA = (1.0, 0.0, 1.0)
+BLUE = Rgba(0.1, 0.3, 1.0, 1.0)
+YELLOW = Rgba(1.0, 0.9, 0.0, 1.0)
+RED = Rgba(1.0, 0.0, 0.0, 1.0)
+
+
+def cylinder_mesh(
+    centers: np.ndarray, axis: np.ndarray, radius: float, length: float, sides: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
+    """One triangle mesh of closed ``sides``-gon prisms (cylinders) of the given axis, one
+    per centre. Returns (vertices (3, V), faces (3, F) int32) as Meshcat wants them."""
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    axis = np.asarray(axis, float).reshape(3)
+    norm = np.linalg.norm(axis)
+    if norm < 1e-12:
+        raise ValueError("axis must be a non-zero 3-vector")
+    w = axis / norm
+    e1 = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(w, e1)
+    ang = 2 * np.pi * np.arange(sides) / sides
+    ring = radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)  # (S, 3)
+    half = 0.5 * length * w
+    # per cylinder: S bottom, S top, bottom centre, top centre
+    local = np.concatenate([ring - half, ring + half, -half[None], half[None]])  # (2S+2, 3)
+    nv = local.shape[0]
+    s = np.arange(sides)
+    s1 = (s + 1) % sides
+    bc, tc = 2 * sides, 2 * sides + 1
+    tri = np.concatenate(
+        [
+            np.stack([s, s1, sides + s], axis=1),  # side, lower triangles
+            np.stack([s1, sides + s1, sides + s], axis=1),  # side, upper triangles
+            np.stack([np.full(sides, bc), s1, s], axis=1),  # bottom cap
+            np.stack([np.full(sides, tc), sides + s, sides + s1], axis=1),  # top cap
+        ]
+    )
+    verts = (centers[:, None, :] + local[None]).reshape(-1, 3)
+    faces = (tri[None] + nv * np.arange(len(centers))[:, None, None]).reshape(-1, 3)
+    return np.ascontiguousarray(verts.T), np.ascontiguousarray(faces.T.astype(np.int32))
+
+
+class HypothesisDrawer:
+    """Draws hypotheses of a hand in Meshcat (Fig. 4 colours), re-using its paths.
+
+    Args:
+        meshcat: the Meshcat instance to draw into.
+        hand: the hand the particles describe (names, joint axes).
+        prefix: root path of the drawing; its transform is ``X_WP``.
+        max_particles: at most this many hypotheses are drawn per call.
+        X_WP: pose of the palm frame in Meshcat's world (identity by default).
+        line_alpha: opacity of the magenta E^J lines.
+        joint_radius, joint_length: size of the blue distal-joint cylinders [m].
+        contact_radius: radius of the yellow contact spheres [m].
+    """
+
+    def __init__(
+        self,
+        meshcat: Meshcat,
+        hand: HandModel,
+        prefix: str = "/hypotheses",
+        max_particles: int = 50,
+        X_WP: RigidTransform | None = None,
+        line_alpha: float = 0.5,
+        joint_radius: float = 0.002,
+        joint_length: float = 0.008,
+        contact_radius: float = 0.004,
+    ):
+        if max_particles < 1:
+            raise ValueError(f"max_particles must be >= 1, got {max_particles}")
+        if not prefix.startswith("/"):
+            raise ValueError(f"prefix must be an absolute Meshcat path starting with '/', got {prefix!r}")
+        self.meshcat = meshcat
+        self.hand = hand
+        self.prefix = prefix.rstrip("/")
+        self.max_particles = int(max_particles)
+        self.line_alpha = float(line_alpha)
+        self.joint_radius = float(joint_radius)
+        self.joint_length = float(joint_length)
+        self.contact_radius = float(contact_radius)
+        self.axes = np.cross(hand.z[None], hand.u)  # joint axes w_i = z x u_i (DESIGN.md section 2)
+        self.frames: list[tuple[str, float]] = []  # recorded frames: (folder, time)
+        self._spheres: set[str] = set()  # paths whose Sphere object is already set
+        self.set_palm_pose(X_WP or RigidTransform())
+
+    # ------------------------------------------------------------------ paths
+    def paths(self, root: str | None = None) -> dict[str, list[str]]:
+        """The Meshcat paths one drawing uses under ``root`` (``prefix`` by default)."""
+        root = root or self.prefix
+        names = self.hand.names
+        return {
+            "virtual_links": [f"{root}/virtual_links/{n}" for n in names],
+            "distal_joints": [f"{root}/distal_joints/{n}" for n in names],
+            "contacts": [f"{root}/contacts/{n}" for n in names],
+            "contact_links": [f"{root}/contact_links"],
+            "pom": [f"{root}/pom"],
+        }
+
+    def set_palm_pose(self, X_WP: RigidTransform) -> None:
+        """Place the drawing (palm frame P) in Meshcat's world."""
+        self.meshcat.SetTransform(self.prefix, X_WP)
+
+    # ------------------------------------------------------------------ drawing
+    def draw(
+        self,
+        joints,
+        contacts,
+        pom_position=None,
+        estimate_contacts=None,
+        time_in_recording: float | None = None,
+    ) -> int:
+        """Draw the first ``max_particles`` hypotheses; returns how many were drawn.
+
+        Args:
+            joints: joint positions q_1..q_K, (P, N, K, 3), palm frame [m].
+            contacts: contacts p_i, (P, N, 3).
+            pom_position: predicted POM positions t_PO, (P, 3), or None (no POM, E^C only
+                between contacts).
+            estimate_contacts: the estimated contacts (N, 3) drawn yellow with the E^C
+                links; None uses the mean of the drawn contacts.
+            time_in_recording: None draws at the live paths; a time draws a new frame folder
+                and records its visibility (see the module docstring).
+        """
+        N, K = self.hand.N, self.hand.K
+        joints = np.asarray(joints, float)
+        if joints.ndim != 4 or joints.shape[1:] != (N, K, 3):
+            raise ValueError(f"'joints' must have shape (P, {N}, {K}, 3), got {joints.shape}")
+        P = joints.shape[0]
+        contacts = kinematics.as_particles("contacts", contacts, (P, N, 3))
+        if pom_position is not None:
+            pom_position = kinematics.as_particles("pom_position", pom_position, (P, 3))
+        if estimate_contacts is not None:
+            estimate_contacts = np.asarray(estimate_contacts, float)
+            if estimate_contacts.shape != (N, 3):
+                raise ValueError(
+                    f"'estimate_contacts' must have shape ({N}, 3), got {estimate_contacts.shape}"
+                )
+        if P == 0:
+            raise ValueError("'joints' holds no particle")
+        n = min(P, self.max_particles)
+        joints, contacts = joints[:n], contacts[:n]
+        root = self.prefix if time_in_recording is None else self._new_frame(time_in_recording)
+        paths = self.paths(root)
+        mc = self.meshcat
+        alpha = self.line_alpha
+        for i in range(N):
+            # E^J: q_1 -> q_2 -> ... -> q_K -> p_i for every drawn particle (Eq. 2)
+            start = joints[:, i, :, :].reshape(-1, 3)
+            end = np.concatenate([joints[:, i, 1:, :], contacts[:, i, None, :]], axis=1).reshape(-1, 3)
+            mc.SetLineSegments(
+                paths["virtual_links"][i],
+                np.ascontiguousarray(start.T),
+                np.ascontiguousarray(end.T),
+                2.0,
+                Rgba(*MAGENTA, alpha),
+            )
+            verts, faces = cylinder_mesh(
+                joints[:, i, K - 1, :], self.axes[i], self.joint_radius, self.joint_length
+            )
+            mc.SetTriangleMesh(paths["distal_joints"][i], verts, faces, BLUE)
+        p_hat = contacts.mean(axis=0) if estimate_contacts is None else estimate_contacts
+        for i in range(N):
+            self._sphere(paths["contacts"][i], self.contact_radius, YELLOW, p_hat[i])
+        # E^C (Eq. 1): all pairs of contacts, and each contact to the POM
+        pairs = list(combinations(range(N), 2))
+        start = [p_hat[a] for a, _ in pairs]
+        end = [p_hat[b] for _, b in pairs]
+        if pom_position is not None:
+            pom = pom_position[:n].mean(axis=0)
+            start += list(p_hat)
+            end += [pom] * N
+            self._sphere(paths["pom"][0], 0.5 * self.contact_radius, RED, pom)
+            mc.SetProperty(paths["pom"][0], "visible", True)
+        elif mc.HasPath(paths["pom"][0]):
+            mc.SetProperty(paths["pom"][0], "visible", False)
+        if start:
+            mc.SetLineSegments(
+                paths["contact_links"][0],
+                np.ascontiguousarray(np.array(start).T),
+                np.ascontiguousarray(np.array(end).T),
+                3.0,
+                RED,
+            )
+        return n
+
+    def draw_particles(
+        self,
+        particles: ParticleSet,
+        estimate: dict | None = None,
+        rng: np.random.Generator | None = None,
+        time_in_recording: float | None = None,
+    ) -> int:
+        """Draw a subsample of a :class:`~vlr_drake.filter.ParticleSet`.
+
+        Joints and contacts follow from (theta, a, link_lengths) by the kinematics
+        (DESIGN.md section 2); the POM positions from the attachments p_O by Lambda (Eq. 5).
+        ``rng`` draws ``max_particles`` of them without replacement (None: the first ones);
+        ``estimate`` is a ``SelfIdentificationFilter.estimate()`` dict whose ``contacts``
+        are drawn yellow (None: the mean of the drawn contacts). Returns how many were drawn.
+        """
+        M = particles.size
+        n = min(M, self.max_particles)
+        idx = np.arange(n) if rng is None or n == M else np.sort(rng.choice(M, size=n, replace=False))
+        L = particles.link_lengths
+        L = L[idx] if L.shape[0] > 1 else L
+        theta, a = particles.theta[idx], particles.a[idx]
+        q = kinematics.joint_positions(self.hand, theta, L)
+        p = kinematics.contacts(self.hand, theta, a, L)
+        _, t_PO, ok = observation.pom_pose(particles.p_O[idx], p)
+        pom = t_PO[ok] if ok.any() else None
+        if pom is not None and pom.shape[0] != n:  # keep (P, 3): the mean over the valid poses
+            pom = np.repeat(pom.mean(axis=0, keepdims=True), n, axis=0)
+        est_contacts = None if estimate is None else estimate.get("contacts")
+        return self.draw(q, p, pom, est_contacts, time_in_recording)
+
+    def clear(self) -> None:
+        """Delete the drawing (live paths and recorded frames)."""
+        self.meshcat.Delete(self.prefix)
+        self._spheres.clear()
+        self.frames.clear()
+
+    # ------------------------------------------------------------------ helpers
+    def _sphere(self, path: str, radius: float, rgba: Rgba, position: np.ndarray) -> None:
+        if path not in self._spheres:
+            self.meshcat.SetObject(path, Sphere(radius), rgba)
+            self._spheres.add(path)
+        self.meshcat.SetTransform(path, RigidTransform(np.asarray(position, float)))
+
+    def _new_frame(self, time: float) -> str:
+        """A new folder for one recorded iteration: hidden until ``time``, shown until the next."""
+        time = float(time)
+        if self.frames and time <= self.frames[-1][1]:
+            raise ValueError(f"time_in_recording must increase: {time} after {self.frames[-1][1]}")
+        folder = f"{self.prefix}/frame_{len(self.frames):04d}"
+        mc = self.meshcat
+        if time > 0.0:
+            mc.SetProperty(folder, "visible", False, 0.0)
+        mc.SetProperty(folder, "visible", True, time)
+        if self.frames:
+            mc.SetProperty(self.frames[-1][0], "visible", False, time)
+        self.frames.append((folder, time))
+        return folder
+
+
+def save_recording(meshcat: Meshcat, path: str | Path, publish_recording: bool = False) -> Path:
+    """Write ``meshcat.StaticHtml()`` to ``path`` (folders created); returns the path.
+
+    With ``publish_recording`` the running recording is stopped and published first, so the
+    file carries the animation (a slider replays the recorded frames).
+    """
+    if publish_recording:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    html = meshcat.StaticHtml()
+    path.write_text(html, encoding="utf-8")
+    return path
