@@ -100,6 +100,8 @@ def sample_grasps(
     contact_range=(0.015, 0.04),
     min_tension: float = 0.5,
     stable: bool = False,
+    min_stability: float = 1e-3,
+    max_tension: float = np.inf,
     max_draws: int = 2_000_000,
 ) -> GraspSample:
     """Draw ``count`` physical grasps by rejection from uniform angle and contact ranges.
@@ -107,7 +109,9 @@ def sample_grasps(
     Proximal joints (the first) in ``proximal_range``, the others in ``distal_range`` split
     evenly over the K-1 distal joints, contacts along the last link in ``contact_range``.
     Kept: tension >= ``min_tension`` [N] on every tendon, squeeze on every contact pair,
-    and with ``stable`` a strict constrained minimum. Raises if too few are found.
+    at most ``max_tension``, and with ``stable`` a strict constrained minimum whose reduced
+    Hessian's smallest eigenvalue exceeds ``min_stability`` [N m/rad] (a margin keeps
+    the grasp away from folds where small actions snap it). Raises if too few are found.
     """
     N, K = hand.N, hand.K
     kept: list[tuple] = []
@@ -123,11 +127,12 @@ def sample_grasps(
         a = rng.uniform(*contact_range, (batch, N))
         drawn += batch
         eq = motion.equilibrium(hand, th, a=a)
-        good = eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.multipliers < 0, axis=1)
+        good = (eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.tension <= max_tension, axis=1)
+                & np.all(eq.multipliers < 0, axis=1))
         idx = np.flatnonzero(good)
         if stable and idx.size:
             eig = reduced_hessian_min_eig(hand, eq.theta[idx], a[idx], eq.multipliers[idx])
-            idx = idx[eig > 1e-3]
+            idx = idx[eig > min_stability]
         if idx.size:
             th_eq = eq.theta[idx]
             D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, th_eq, a[idx]))

@@ -126,7 +126,8 @@ def _hands(opts: IdentifyOptions, rng):
 
 def _truth_grasp(hand, rng, link_lengths=None):
     gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
-                              contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+                              contact_range=(0.02, 0.032), min_tension=2.0, max_tension=30.0, stable=True,
+                              min_stability=0.03)
     return gs.theta[0], gs.a[0]
 
 

@@ -1,0 +1,88 @@
+"""The self-identification LeafSystems: ports with FixValue, and the loop under Simulator."""
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+
+from vlr_drake import filter as pf
+from vlr_drake.diagram import build_model_identification_diagram
+from vlr_drake.hand import model_o
+from vlr_drake.identify import _truth_grasp
+from vlr_drake.model_plant import ModelPlant
+from vlr_drake.systems.self_identification import ExplorationPolicy, SelfIdentificationSystem
+
+
+def _grasp(seed=0):
+    h = model_o().model()
+    th, a = _truth_grasp(h, np.random.default_rng(seed))
+    return h, th, a
+
+
+def test_filter_system_ports_with_fixvalue():
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    sys = SelfIdentificationSystem(h, pf.FilterConfig(particles=500), pf.PriorConfig(), th, a, period_sec=1.0)
+    ctx = sys.CreateDefaultContext()
+    sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
+    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(plant.state.R_PO), plant.state.t_PO))
+    # an invalid measurement: the filter waits
+    sys.X_PO_valid_input_port().FixValue(ctx, [0.0])
+    sys.ExecuteForcedEvents(ctx)
+    assert sys.filter(ctx) is None
+    assert sys.GetOutputPort("converged").Eval(ctx)[0] == 0.0
+    np.testing.assert_allclose(sys.GetOutputPort("theta_estimate").Eval(ctx), th.ravel())
+    # a valid one initialises it around the nominal grasp
+    sys.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    sys.ExecuteForcedEvents(ctx)
+    f = sys.filter(ctx)
+    assert f is not None and f.particles.size == 500
+    width = sys.GetOutputPort("interval_half_width").Eval(ctx)
+    assert width.shape == (6,) and np.all(width > 0)
+    # one action and its measurement
+    dl = np.array([0.3e-3, 0.2e-3, -0.2e-3])
+    assert plant.apply_action(dl)
+    sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
+    R, t, _ = plant.measure()
+    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(R), t))
+    sys.ExecuteForcedEvents(ctx)
+    assert sys.filter(ctx).iteration == 1
+    est = sys.GetOutputPort("estimate").Eval(ctx)
+    assert set(["theta", "a", "theta_lo", "theta_hi"]) <= set(est)
+    assert sys.GetOutputPort("particles").Eval(ctx).size == 500
+
+
+def test_exploration_policy_stays_in_its_window():
+    h, th, a = _grasp()
+    l0 = np.full(3, 0.015)
+    pol = ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3)
+    sim = Simulator(pol)
+    ls = []
+    for k in range(1, 60):
+        sim.AdvanceTo(k + 0.5)
+        ls.append(pol.GetOutputPort("tendon_command").Eval(sim.get_context()).copy())
+    ls = np.array(ls)
+    assert np.all(np.abs(ls - l0) <= 4e-3 + 1e-12)
+    steps = np.abs(np.diff(ls, axis=0))
+    assert steps.max() <= 1.5e-3 + 1e-12 and steps.mean() > 2e-4  # it does explore
+
+
+def test_identification_loop_under_the_simulator():
+    h, th, a = _grasp(2)
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    d = build_model_identification_diagram(h, plant, pf.FilterConfig(particles=3000), pf.PriorConfig(),
+                                           th + 0.04, a + 0.002, period_sec=1.0, seed=5)
+    sim = Simulator(d.diagram)
+    ctx = sim.get_mutable_context()
+    theta_true = d.diagram.GetOutputPort("hand.theta_true")
+    theta_est = d.diagram.GetOutputPort("self_identification.theta_estimate")
+    width = d.diagram.GetOutputPort("self_identification.interval_half_width")
+    sim.AdvanceTo(1.5)
+    w0 = width.Eval(ctx).mean()
+    sim.AdvanceTo(15.5)
+    f = d.filter.filter(d.filter.GetMyContextFromRoot(ctx))
+    assert f.iteration == 14  # one filter iteration per action period
+    assert width.Eval(ctx).mean() < w0  # it learns
+    # the command the plant applied is the policy's
+    np.testing.assert_allclose(d.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx),
+                               d.plant._p(d.plant.GetMyContextFromRoot(ctx)).state.tendon_command)
+    assert np.all(np.isfinite(theta_est.Eval(ctx))) and np.all(np.isfinite(theta_true.Eval(ctx)))

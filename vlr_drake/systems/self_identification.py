@@ -1,0 +1,227 @@
+"""LeafSystems of the self-identification loop (DESIGN.md section 8).
+
+- :class:`SelfIdentificationSystem` wraps :class:`vlr_drake.filter.SelfIdentificationFilter`:
+  ``tendon_command``, ``X_PO_measured`` and ``X_PO_valid`` in; ``estimate`` (abstract dict),
+  ``theta_estimate``, ``interval_half_width``, ``converged`` and ``particles`` out.
+- :class:`ExplorationPolicy`: random exploratory tendon commands (``tendon_command`` out).
+- :class:`ModelPlantSystem`: the model plant (the VLR model with hidden truth) with the
+  physics plant's truth ports: ``tendon_command`` in; ``X_PO_true``, ``theta_true``,
+  ``contacts_true``, ``tendon_position_measured`` out.
+
+Timing within one action period T (all periodic events share T, offsets order them):
+the policy commands at k T, the model plant applies the command at k T + 0.25 T (the
+physics plant instead ramps and settles during the period), and the filter reads the
+command and the measurement at k T + ``filter_offset`` (default 0.9 T), when the plant has
+settled. The filter stores the command of its previous update, so its action is
+``dl = l_k - l_{k-1}``. It initialises itself at its first update with a valid measurement.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from vlr_drake import filter as pf
+from vlr_drake.hand import HandModel
+from vlr_drake.identify import Exploration
+from vlr_drake.model_plant import ModelPlant
+
+__all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
+
+
+class _FilterBox:
+    """Abstract-state payload: the filter object and the previous command."""
+
+    def __init__(self, flt: pf.SelfIdentificationFilter | None = None, l_prev=None):
+        self.filter = flt
+        self.l_prev = l_prev
+
+    def __deepcopy__(self, memo):  # Drake clones abstract state; share nothing mutable
+        import copy
+
+        return _FilterBox(copy.deepcopy(self.filter, memo), None if self.l_prev is None else self.l_prev.copy())
+
+
+class SelfIdentificationSystem(LeafSystem):
+    """The particle filter of Algorithm 1 as a LeafSystem.
+
+    Parameters:
+        hand: the filter's hand model.
+        config, prior: filter and prior configuration.
+        theta_center (N, K), a_center (N,): the nominal grasp the prior is drawn around.
+        period_sec: action period T; offset_sec: when in the period the filter updates.
+        seed: seed of the filter's random draws.
+    """
+
+    def __init__(self, hand: HandModel, config: pf.FilterConfig, prior: pf.PriorConfig, theta_center, a_center,
+                 period_sec: float, offset_sec: float | None = None, seed: int = 0):
+        super().__init__()
+        if not period_sec > 0:
+            raise ValueError(f"'period_sec' must be positive, got {period_sec}")
+        self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
+        self._theta_center = np.asarray(theta_center, float).reshape(hand.N, hand.K)
+        self._a_center = np.asarray(a_center, float).reshape(hand.N)
+        n = hand.N * hand.K
+        self._command = self.DeclareVectorInputPort(name="tendon_command", size=hand.N)
+        self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
+        self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
+        self._box = self.DeclareAbstractState(model_value=AbstractValue.Make(_FilterBox()))
+        self._estimate = self.DeclareAbstractOutputPort(
+            name="estimate", alloc=lambda: AbstractValue.Make({}), calc=self._calc_estimate,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        self._theta_out = self.DeclareVectorOutputPort(
+            name="theta_estimate", size=n, calc=self._calc_theta,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        self._width_out = self.DeclareVectorOutputPort(
+            name="interval_half_width", size=n, calc=self._calc_width,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        self._converged_out = self.DeclareVectorOutputPort(
+            name="converged", size=1, calc=self._calc_converged,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        self._particles_out = self.DeclareAbstractOutputPort(
+            name="particles", alloc=lambda: AbstractValue.Make(object()), calc=self._calc_particles,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        offset = 0.9 * period_sec if offset_sec is None else offset_sec
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
+        self.DeclareForcedUnrestrictedUpdateEvent(update=self._update)
+
+    # ports, kept as handles
+    def tendon_command_input_port(self):
+        return self._command
+
+    def X_PO_measured_input_port(self):
+        return self._X_PO
+
+    def X_PO_valid_input_port(self):
+        return self._valid
+
+    def filter(self, context) -> pf.SelfIdentificationFilter | None:
+        """The filter object held in ``context`` (None before the first valid measurement)."""
+        return context.get_abstract_state(self._box).get_value().filter
+
+    def _update(self, context, state):
+        box = state.get_mutable_abstract_state(self._box).get_mutable_value()
+        l_now = np.array(self._command.Eval(context), float)
+        X = self._X_PO.Eval(context)
+        valid = bool(self._valid.Eval(context)[0] > 0.5)
+        if box.filter is None:
+            if not valid:
+                return  # wait for the first valid measurement
+            flt = pf.SelfIdentificationFilter(self._hand, self._config, self._prior, np.random.default_rng(self._seed))
+            flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation())
+            box.filter, box.l_prev = flt, l_now
+            return
+        dl = l_now - box.l_prev
+        box.filter.step(dl, X.rotation().matrix(), X.translation(), valid)
+        box.l_prev = l_now
+
+    def _current(self, context):
+        return context.get_abstract_state(self._box).get_value().filter
+
+    def _calc_estimate(self, context, output):
+        f = self._current(context)
+        output.set_value({} if f is None else f.estimates[-1])
+
+    def _calc_theta(self, context, output: BasicVector):
+        f = self._current(context)
+        output.SetFromVector(self._theta_center.ravel() if f is None else f.estimates[-1]["theta"].ravel())
+
+    def _calc_width(self, context, output: BasicVector):
+        f = self._current(context)
+        if f is None:
+            output.SetFromVector(np.full(self._hand.N * self._hand.K, np.inf))
+        else:
+            output.SetFromVector(f.estimates[-1]["theta_half_width"])
+
+    def _calc_converged(self, context, output: BasicVector):
+        f = self._current(context)
+        output.SetFromVector([1.0 if (f is not None and f.converged) else 0.0])
+
+    def _calc_particles(self, context, output):
+        f = self._current(context)
+        output.set_value(None if f is None else f.particles)
+
+
+class ExplorationPolicy(LeafSystem):
+    """Random exploratory tendon commands: every ``period_sec`` the command moves by a
+    uniform draw in +-``span`` per tendon, reflected inside +-``window`` around the initial
+    (grasp) commands and inside the tendon range (see :class:`vlr_drake.identify.Exploration`)."""
+
+    def __init__(self, hand: HandModel, l_grasp, period_sec: float, span: float = 1.5e-3, window: float = 4e-3,
+                 seed: int = 0):
+        super().__init__()
+        self._l0 = np.asarray(l_grasp, float)
+        self._seed = seed
+        self._state = self.DeclareDiscreteState(self._l0)
+        self._draws = self.DeclareDiscreteState(1)
+        self._out = self.DeclareStateOutputPort("tendon_command", self._state)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=period_sec, update=self._update)
+        self._span, self._window, self._range = span, window, hand.tendon_range
+
+    def _update(self, context, discrete_state):
+        n = int(context.get_discrete_state(self._draws).GetAtIndex(0))
+        l_now = np.array(context.get_discrete_state(self._state).get_value())
+        ex = Exploration(self._l0, self._range, self._span, self._window, np.random.default_rng((self._seed, n)))
+        ex.l = l_now
+        discrete_state.get_mutable_vector(self._state).SetFromVector(l_now + ex.next_action())
+        discrete_state.get_mutable_vector(self._draws).SetAtIndex(0, n + 1)
+
+
+class ModelPlantSystem(LeafSystem):
+    """The model plant as a LeafSystem with the physics plant's truth ports."""
+
+    def __init__(self, plant: ModelPlant, period_sec: float, offset_sec: float | None = None):
+        super().__init__()
+        import copy
+
+        self._template = copy.deepcopy(plant)
+        h = plant.hand
+        self._N, self._K = h.N, h.K
+        self._command = self.DeclareVectorInputPort(name="tendon_command", size=h.N)
+        self._plant = self.DeclareAbstractState(model_value=AbstractValue.Make(copy.deepcopy(plant)))
+        ticket = {self.abstract_state_ticket(self._plant)}
+        self.DeclareAbstractOutputPort(name="X_PO_true", alloc=lambda: AbstractValue.Make(RigidTransform()),
+                                       calc=self._calc_pose, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort(name="theta_true", size=h.N * h.K, calc=self._calc_theta,
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort(name="contacts_true", size=3 * h.N, calc=self._calc_contacts,
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort(name="contact_along_link_true", size=h.N, calc=self._calc_a,
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort(name="tendon_position_measured", size=h.N, calc=self._calc_l,
+                                     prerequisites_of_calc=ticket)
+        offset = 0.25 * period_sec if offset_sec is None else offset_sec
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
+
+    def grasp_command(self) -> np.ndarray:
+        return self._template.state.tendon_command.copy()
+
+    def _update(self, context, state):
+        plant = state.get_mutable_abstract_state(self._plant).get_mutable_value()
+        l = np.array(self._command.Eval(context), float)
+        dl = l - plant.state.tendon_command
+        if np.any(np.abs(dl) > 0):
+            plant.apply_action(dl)  # a failed solve leaves the plant where it was
+
+    def _p(self, context) -> ModelPlant:
+        return context.get_abstract_state(self._plant).get_value()
+
+    def _calc_pose(self, context, output):
+        s = self._p(context).state
+        from pydrake.math import RotationMatrix
+
+        output.set_value(RigidTransform(RotationMatrix(s.R_PO), s.t_PO))
+
+    def _calc_theta(self, context, output):
+        output.SetFromVector(self._p(context).state.theta.ravel())
+
+    def _calc_contacts(self, context, output):
+        output.SetFromVector(self._p(context).contacts().ravel())
+
+    def _calc_a(self, context, output):
+        output.SetFromVector(self._p(context).state.a)
+
+    def _calc_l(self, context, output):
+        output.SetFromVector(self._p(context).state.tendon_command)
