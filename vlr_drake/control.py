@@ -1,0 +1,465 @@
+"""The Jacobian controller of the POM (the paper's Eq. 10-12, DESIGN.md section 7).
+
+Pure numpy around the motion function Gamma (:func:`vlr_drake.motion.move`) and the
+observation function Lambda (:func:`vlr_drake.observation.pom_pose`):
+
+- :class:`ControlModel`: the controller's model of the hand-object system, built from the
+  self-identification estimate (or the truth) and anchored at the *measured* POM pose, so
+  Upsilon predicts motion relative to what the camera sees.
+- :func:`upsilon`: Upsilon = Lambda o Gamma, a tendon action dl (N,) to the POM motion
+  dphi (6,) = [translation of the POM origin [m], rotation vector [rad]], both in the palm
+  frame P (rotation: R' = exp([w]x) R, left-multiplied).
+- :func:`jacobian`: the 6 x N Jacobian by central finite differences (Eq. 10), all 2N
+  perturbed actions in one batched move.
+- :func:`control_step`: dl from a 6-vector error, either the paper's transpose form
+  (Eq. 11) or damped least squares (default), on the rows the task controls (position,
+  orientation or full) with the rotational weight alpha (Eq. 12); gain and step clip.
+- :func:`servo_to`: camera-feedback iteration until the error is under tolerance, a step
+  budget is spent, or progress stalls; always returns a :class:`ServoReport` (with the
+  closest pose reached), never loops forever and never commands past the tendon range.
+
+Units of the weighted error (Eq. 12): positions are measured in ``position_unit`` (default
+1 mm) and rotations in ``rotation_unit`` (default 1 degree) before alpha weights the
+rotational rows, so alpha = 1 trades 1 mm against 1 degree and the paper's alpha = 9.5
+(cup stacking) trades 1 degree against 9.5 mm.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vlr_drake import kinematics, motion, observation
+from vlr_drake.hand import HandModel
+
+__all__ = [
+    "MODES",
+    "ROWS",
+    "ControlModel",
+    "ServoReport",
+    "upsilon",
+    "jacobian",
+    "control_step",
+    "pose_error6",
+    "limit_action",
+    "servo_to",
+    "true_model_fn",
+    "filter_model_fn",
+    "PredictedPlant",
+]
+
+MODES = ("dls", "transpose")
+ROWS = ("position", "orientation", "full")
+#: Default units of the weighted error (Eq. 12): 1 mm and 1 degree.
+POSITION_UNIT = 1e-3
+ROTATION_UNIT = np.deg2rad(1.0)
+
+
+@dataclass
+class ControlModel:
+    """The controller's model of the grasp (one VLR hypothesis, DESIGN.md section 3).
+
+    ``p_O`` are the contacts attached to the POM at the measured pose ``(R_PO, t_PO)``
+    (``observation.attach``), so the model's current POM pose equals the measurement.
+    """
+
+    hand: HandModel
+    theta: np.ndarray  # (N, K) joint angles [rad]
+    a: np.ndarray  # (N,) contact positions along the last links [m]
+    stiffness: np.ndarray  # (N, K) joint stiffness [N m/rad]
+    link_lengths: np.ndarray  # (N, K-1) [m]
+    stretch: np.ndarray  # (N,) equilibrium tendon stretch [m]
+    p_O: np.ndarray  # (N, 3) contacts in the POM frame [m]
+    R_PO: np.ndarray  # (3, 3) anchor pose (the measurement)
+    t_PO: np.ndarray  # (3,)
+    tendon: str = "elastic"
+
+    @classmethod
+    def from_estimate(cls, hand: HandModel, estimate: dict, R_PO, t_PO, *, tendon: str = "elastic") -> ControlModel:
+        """Build from an estimate dict (keys ``theta`` (N,K), ``a`` (N,), optional
+        ``stiffness`` (N,K) and ``link_lengths`` (N,K-1); e.g.
+        :meth:`vlr_drake.filter.SelfIdentificationFilter.estimate`) and a measured pose."""
+        N, K = hand.N, hand.K
+        for key in ("theta", "a"):
+            if key not in estimate:
+                raise ValueError(f"estimate is missing '{key}'")
+        theta = _shaped("estimate['theta']", estimate["theta"], (N, K))
+        a = _shaped("estimate['a']", estimate["a"], (N,))
+        k = estimate.get("stiffness")
+        k = hand.stiffness.copy() if k is None else _shaped("estimate['stiffness']", k, (N, K))
+        L = estimate.get("link_lengths")
+        L = hand.link_lengths.copy() if L is None else _shaped("estimate['link_lengths']", L, (N, K - 1))
+        R_PO = _shaped("R_PO", R_PO, (3, 3))
+        t_PO = _shaped("t_PO", t_PO, (3,))
+        eq = motion.equilibrium(hand, theta[None], a=a[None], link_lengths=L[None], stiffness=k[None])
+        theta = eq.theta[0]
+        p = kinematics.contacts(hand, theta[None], a[None], L[None])
+        p_O = observation.attach(p, R_PO[None], t_PO[None])[0]
+        return cls(hand, theta, a, k, L, eq.stretch[0], p_O, R_PO, t_PO, tendon)
+
+    @classmethod
+    def from_plant_truth(cls, plant, R_PO=None, t_PO=None) -> ControlModel:
+        """The true model of a :class:`vlr_drake.model_plant.ModelPlant` (for tests and the
+        true-model task runs), anchored at a measured pose (default: the true pose)."""
+        s = plant.state
+        est = {"theta": s.theta, "a": s.a, "stiffness": plant.stiffness, "link_lengths": plant.link_lengths}
+        return cls.from_estimate(plant.hand, est, s.R_PO if R_PO is None else R_PO, s.t_PO if t_PO is None else t_PO,
+                                 tendon=plant.tendon)
+
+
+def _shaped(name: str, x, shape: tuple) -> np.ndarray:
+    x = np.asarray(x, float)
+    if x.shape != shape:
+        raise ValueError(f"'{name}' must have shape {shape}, got {x.shape}")
+    return x
+
+
+def upsilon(model: ControlModel, dl) -> np.ndarray:
+    """Upsilon = Lambda o Gamma: POM motion dphi (6,) or (B, 6) for actions dl (N,) or (B, N).
+
+    dphi = [t' - t, rotvec(R' R^T)] in the palm frame, with (R, t) the model's pose before
+    the action. Actions whose move fails (no nearby equilibrium) give NaN rows.
+    """
+    h = model.hand
+    dl = np.asarray(dl, float)
+    single = dl.ndim == 1
+    dl = np.atleast_2d(dl)
+    if dl.shape[1] != h.N:
+        raise ValueError(f"'dl' must have {h.N} entries per action, got shape {dl.shape}")
+    B = dl.shape[0]
+    D2 = motion.contact_distances_sq(h, model.p_O[None])
+    res = motion.move(
+        h, np.broadcast_to(model.theta, (B, h.N, h.K)).copy(), dl, a=np.broadcast_to(model.a, (B, h.N)).copy(),
+        D2=np.broadcast_to(D2, (B, D2.shape[1])).copy(), stretch=np.broadcast_to(model.stretch, (B, h.N)).copy(),
+        link_lengths=model.link_lengths[None], stiffness=model.stiffness[None], tendon=model.tendon,
+    )
+    p_O = np.broadcast_to(model.p_O, (B, h.N, 3))
+    p0 = kinematics.contacts(h, model.theta[None], model.a[None], model.link_lengths[None])
+    R0, t0, _ = observation.pom_pose(model.p_O[None], p0)
+    p1 = kinematics.contacts(h, res.theta, np.broadcast_to(model.a, (B, h.N)), model.link_lengths[None])
+    R1, t1, ok = observation.pom_pose(p_O, p1)
+    out = np.concatenate([t1 - t0, observation.rotvec(np.einsum("bij,kj->bik", R1, R0[0]))], axis=1)
+    out[~(res.ok & ok)] = np.nan
+    return out[0] if single else out
+
+
+def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.ndarray:
+    """J (6, N) = dUpsilon/dl by central differences with step ``eps`` [m] (Eq. 10).
+
+    A column whose perturbed move finds no equilibrium is retried with eps/4 (``retries``
+    times), then one-sided from the side that works; raises RuntimeError if neither does.
+    """
+    if eps <= 0:
+        raise ValueError(f"'eps' must be positive, got {eps}")
+    N = model.hand.N
+    J = np.full((6, N), np.nan)
+    todo = np.arange(N)
+    h = eps
+    for attempt in range(retries + 1):
+        E = h * np.eye(N)[todo]
+        d = upsilon(model, np.concatenate([E, -E]))
+        plus, minus = d[: todo.size], d[todo.size:]
+        good = np.all(np.isfinite(plus), axis=1) & np.all(np.isfinite(minus), axis=1)
+        J[:, todo[good]] = ((plus[good] - minus[good]) / (2.0 * h)).T
+        if attempt == retries:
+            for j, col in enumerate(todo):
+                if good[j]:
+                    continue
+                if np.all(np.isfinite(plus[j])):
+                    J[:, col] = plus[j] / h
+                elif np.all(np.isfinite(minus[j])):
+                    J[:, col] = -minus[j] / h
+        todo = todo[~good]
+        if todo.size == 0:
+            break
+        h *= 0.25
+    if not np.all(np.isfinite(J)):
+        raise RuntimeError("jacobian: the model has no equilibrium for a perturbed action on either side")
+    return J
+
+
+def _row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: float) -> np.ndarray:
+    if rows not in ROWS:
+        raise ValueError(f"'rows' must be one of {ROWS}, got '{rows}'")
+    if alpha <= 0:
+        raise ValueError(f"'alpha' must be positive, got {alpha}")
+    w = np.concatenate([np.full(3, 1.0 / position_unit), np.full(3, alpha / rotation_unit)])
+    if rows == "position":
+        w[3:] = 0.0
+    elif rows == "orientation":
+        w[:3] = 0.0
+    return w
+
+
+def control_step(
+    J,
+    error6,
+    *,
+    mode: str = "dls",
+    rows: str = "full",
+    alpha: float = 1.0,
+    damping: float = 0.01,
+    gain: float = 0.7,
+    clip: float = 1.0e-3,
+    position_unit: float = POSITION_UNIT,
+    rotation_unit: float = ROTATION_UNIT,
+) -> np.ndarray:
+    """One control action dl (N,) towards the error ``error6`` = [dt [m], dw [rad]] (6,).
+
+    The error and J's rows are weighted by W = diag(1/position_unit (x3), alpha/rotation_unit
+    (x3)) (Eq. 12), rows not controlled get weight 0 (truncation). Then
+
+    - ``"dls"``: dl = gain (Jw^T Jw + lambda^2 I)^-1 Jw^T ew with lambda = ``damping`` times
+      the largest singular value of Jw (damped least squares);
+    - ``"transpose"``: dl = gain * s * Jw^T ew (Eq. 11), with the steepest-descent step
+      length s = |Jw^T ew|^2 / |Jw Jw^T ew|^2 (the paper leaves the scale to the gain).
+
+    Finally dl is scaled down (direction kept) so that max |dl_i| <= ``clip`` [m].
+    """
+    J = np.asarray(J, float)
+    e = np.asarray(error6, float).reshape(-1)
+    if J.ndim != 2 or J.shape[0] != 6:
+        raise ValueError(f"'J' must have shape (6, N), got {J.shape}")
+    if e.shape != (6,):
+        raise ValueError(f"'error6' must have 6 entries, got {e.shape}")
+    if mode not in MODES:
+        raise ValueError(f"'mode' must be one of {MODES}, got '{mode}'")
+    if gain <= 0 or clip <= 0 or damping < 0:
+        raise ValueError(f"gain and clip must be positive and damping >= 0, got {gain}, {clip}, {damping}")
+    w = _row_weights(rows, alpha, position_unit, rotation_unit)
+    Jw = w[:, None] * J
+    ew = w * e
+    g = Jw.T @ ew
+    if not np.any(g):
+        return np.zeros(J.shape[1])
+    if mode == "dls":
+        smax = np.linalg.norm(Jw, 2)
+        lam2 = (damping * smax) ** 2
+        dl = np.linalg.solve(Jw.T @ Jw + lam2 * np.eye(J.shape[1]), g)
+    else:
+        Jg = Jw @ g
+        dl = g * (g @ g) / max(Jg @ Jg, 1e-300)
+    dl = gain * dl
+    m = np.max(np.abs(dl))
+    if m > clip:
+        dl *= clip / m
+    return dl
+
+
+def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
+    """Error (6,) = [t_goal - t, rotvec(R_goal R^T)] in the palm frame (same convention as
+    :func:`upsilon`, so a step with dphi = error reaches the goal)."""
+    dw = observation.rotvec(np.asarray(R_goal) @ np.asarray(R).T)[0]
+    return np.concatenate([np.asarray(t_goal, float) - np.asarray(t, float), dw])
+
+
+def limit_action(hand: HandModel, l_now, dl) -> np.ndarray:
+    """dl with every tendon kept inside ``hand.tendon_range`` (per tendon clamp)."""
+    l_now = np.asarray(l_now, float).reshape(hand.N)
+    l_new = np.clip(l_now + np.asarray(dl, float).reshape(hand.N), hand.tendon_range[:, 0], hand.tendon_range[:, 1])
+    return l_new - l_now
+
+
+@dataclass
+class ServoReport:
+    """Outcome of :func:`servo_to` (errors of the measured pose against the goal)."""
+
+    reached: bool  # the error came under tolerance
+    reason: str  # "reached" | "budget" | "stalled" | "tendon_limit" | "no_equilibrium"
+    iterations: int  # actions applied
+    position_error: float  # final |dt| [m]
+    rotation_error: float  # final angle [rad]
+    R_closest: np.ndarray  # measured pose with the smallest weighted error
+    t_closest: np.ndarray
+    closest_position_error: float  # [m]
+    closest_rotation_error: float  # [rad]
+    at_limit: bool  # some tendon ended at its range limit
+    history: list = field(default_factory=list)  # per iteration: (position_error, rotation_error, dl)
+
+    def summary(self) -> str:
+        return (f"{self.reason} after {self.iterations} steps: error {self.position_error * 1e3:.3f} mm, "
+                f"{np.rad2deg(self.rotation_error):.3f} deg (closest {self.closest_position_error * 1e3:.3f} mm, "
+                f"{np.rad2deg(self.closest_rotation_error):.3f} deg)")
+
+
+def _tendon_command(plant) -> np.ndarray:
+    if hasattr(plant, "tendon_command"):
+        l = plant.tendon_command
+        return np.asarray(l() if callable(l) else l, float).copy()
+    return np.asarray(plant.state.tendon_command, float).copy()
+
+
+def servo_to(
+    R_goal,
+    t_goal,
+    plant,
+    model_fn: Callable[[np.ndarray, np.ndarray, np.ndarray, bool], ControlModel],
+    *,
+    rows: str = "full",
+    mode: str = "dls",
+    alpha: float = 1.0,
+    gain: float = 0.7,
+    damping: float = 0.01,
+    clip: float = 1.0e-3,
+    eps: float = 0.2e-3,
+    tol_position: float = 0.05e-3,
+    tol_rotation: float = np.deg2rad(0.2),
+    max_steps: int = 30,
+    stall_steps: int = 6,
+    backoff: int = 3,
+    position_unit: float = POSITION_UNIT,
+    rotation_unit: float = ROTATION_UNIT,
+    on_step: Callable[[int, np.ndarray, np.ndarray], None] | None = None,
+) -> ServoReport:
+    """Drive the POM to (R_goal, t_goal) with camera feedback (DESIGN.md section 7).
+
+    ``plant`` has ``measure() -> (R, t, valid)``, ``apply_action(dl) -> bool`` and a tendon
+    command (``plant.tendon_command`` or ``plant.state.tendon_command``), e.g.
+    :class:`vlr_drake.model_plant.ModelPlant`. ``model_fn(dl, R, t, valid)`` returns the
+    controller's model after the action ``dl`` (zeros before the first) and the measurement
+    (R, t, valid); a filter-backed ``model_fn`` also takes the action as evidence.
+    Tolerances apply to the controlled rows only. Stops when under tolerance, after
+    ``max_steps`` actions, or when the weighted error has not improved for
+    ``stall_steps`` steps (e.g. an unreachable goal or tendons at their limits).
+    A step for which the plant finds no equilibrium (e.g. the grip would loosen) is
+    halved up to ``backoff`` times before the run ends with ``"no_equilibrium"``.
+    ``on_step(i, R, t)`` is called after every measurement (progress, marble simulation).
+    """
+    if max_steps < 0:
+        raise ValueError(f"'max_steps' must be >= 0, got {max_steps}")
+    R_goal = _shaped("R_goal", R_goal, (3, 3))
+    t_goal = _shaped("t_goal", t_goal, (3,))
+    w = _row_weights(rows, alpha, position_unit, rotation_unit)
+    ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
+    R, t, valid = plant.measure()
+    R_last, t_last = np.asarray(R, float), np.asarray(t, float)
+    model = model_fn(np.zeros(plant.hand.N), R_last, t_last, valid)
+    hand = model.hand
+    best = None
+    since_best = 0
+    history: list = []
+    reason = "budget"
+    it = 0
+
+    def errors(R_, t_):
+        e = pose_error6(R_goal, t_goal, R_, t_)
+        return e, float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), float(np.linalg.norm(w * e))
+
+    while True:
+        e, ep, er, ew = errors(R_last, t_last)
+        if best is None or ew < best[0] - 1e-9:
+            best, since_best = (ew, R_last.copy(), t_last.copy(), ep, er), 0
+        else:
+            since_best += 1
+        if (not ctrl_pos or ep <= tol_position) and (not ctrl_rot or er <= tol_rotation):
+            reason = "reached"
+            break
+        if it >= max_steps:
+            reason = "budget"
+            break
+        if since_best >= stall_steps:
+            reason = "stalled"
+            break
+        try:
+            J = jacobian(model, eps)
+        except RuntimeError:
+            reason = "no_equilibrium"
+            break
+        dl = control_step(J, e, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
+                          position_unit=position_unit, rotation_unit=rotation_unit)
+        if np.max(np.abs(dl)) < 1e-9:
+            reason = "stalled"  # the error lies outside the motions the model can make
+            break
+        l_now = _tendon_command(plant)
+        dl_lim = limit_action(hand, l_now, dl)
+        if np.max(np.abs(dl_lim)) < 1e-9:
+            reason = "tendon_limit"
+            break
+        applied = plant.apply_action(dl_lim)
+        for _ in range(backoff):  # no equilibrium for the whole step: shorter steps
+            if applied:
+                break
+            dl_lim = 0.5 * dl_lim
+            applied = plant.apply_action(dl_lim)
+        if not applied:
+            reason = "no_equilibrium"
+            break
+        it += 1
+        R, t, valid = plant.measure()
+        if valid:
+            R_last, t_last = np.asarray(R, float), np.asarray(t, float)
+        model = model_fn(dl_lim, R_last, t_last, valid)
+        history.append((ep, er, dl_lim))
+        if on_step is not None:
+            on_step(it, R_last, t_last)
+    l_now = _tendon_command(plant)
+    at_limit = bool(np.any((l_now <= hand.tendon_range[:, 0] + 1e-9) | (l_now >= hand.tendon_range[:, 1] - 1e-9)))
+    return ServoReport(
+        reached=reason == "reached", reason=reason, iterations=it, position_error=ep, rotation_error=er,
+        R_closest=best[1], t_closest=best[2], closest_position_error=best[3], closest_rotation_error=best[4],
+        at_limit=at_limit, history=history,
+    )
+
+
+def true_model_fn(plant) -> Callable[[np.ndarray, np.ndarray, np.ndarray, bool], ControlModel]:
+    """``model_fn`` for :func:`servo_to` that uses the model plant's hidden truth,
+    anchored at the measured pose."""
+
+    def fn(dl, R, t, valid):
+        return ControlModel.from_plant_truth(plant, R, t)
+
+    return fn
+
+
+def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic"):
+    """``model_fn`` for :func:`servo_to` backed by a
+    :class:`vlr_drake.filter.SelfIdentificationFilter`: every control action (non-zero dl)
+    is also one filter iteration (evidence), so rolling contacts are tracked."""
+
+    def fn(dl, R, t, valid):
+        if np.any(dl):
+            filt.step(dl, R, t, valid)
+        return ControlModel.from_estimate(hand, filt.estimate(), R, t, tendon=tendon)
+
+    return fn
+
+
+class PredictedPlant:
+    """The controller's model used as a plant (no noise): what the model predicts the hand
+    will do. For planning (e.g. probing the reachable workspace before writing) and tests.
+    Same interface as :class:`vlr_drake.model_plant.ModelPlant` for :func:`servo_to`."""
+
+    def __init__(self, model: ControlModel, l_now):
+        self.model = copy.deepcopy(model)  # moved in place; the caller's model is kept
+        self.hand = model.hand
+        self.tendon_command = np.asarray(l_now, float).reshape(model.hand.N).copy()
+        self._D2 = motion.contact_distances_sq(model.hand, model.p_O[None])
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        m = self.model
+        p = kinematics.contacts(m.hand, m.theta[None], m.a[None], m.link_lengths[None])
+        R, t, _ = observation.pom_pose(m.p_O[None], p)
+        return R[0], t[0]
+
+    def apply_action(self, dl) -> bool:
+        m = self.model
+        dl = np.asarray(dl, float).reshape(m.hand.N)
+        res = motion.move(m.hand, m.theta[None], dl, a=m.a[None], D2=self._D2, stretch=m.stretch[None],
+                          link_lengths=m.link_lengths[None], stiffness=m.stiffness[None], tendon=m.tendon,
+                          l_now=self.tendon_command)
+        if not res.ok[0]:
+            return False
+        m.theta, m.stretch = res.theta[0], res.stretch[0]
+        self.tendon_command = self.tendon_command + dl
+        return True
+
+    def measure(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        R, t = self.pose()
+        return R, t, True
+
+    def model_fn(self, dl, R, t, valid) -> ControlModel:
+        """``model_fn`` for :func:`servo_to`: the model itself (it is the truth here)."""
+        return self.model

@@ -1,0 +1,8 @@
+"""The paper's three manipulation tasks with the Jacobian controller (its Fig. 9-11).
+
+- :func:`vlr_drake.tasks.write.run_write`: handwriting, position control only.
+- :func:`vlr_drake.tasks.maze.run_maze`: marble maze, orientation control only.
+- :func:`vlr_drake.tasks.stack.run_stack`: cup stacking, SE(3) control with alpha = 9.5.
+
+Each returns the task result dict of DESIGN.md section 11 and writes its plots to ``out``.
+"""

@@ -1,0 +1,118 @@
+"""Shared pieces of the three tasks: the grasp on the model plant, the controller's model
+(the truth or a running self-identification filter) and the error statistics of the result
+files (DESIGN.md section 11)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlr_drake import control, grasps
+from vlr_drake import filter as pf
+from vlr_drake.hand import HandModel, model_o
+from vlr_drake.model_plant import ModelPlant
+
+__all__ = ["MODELS", "TaskPlant", "make_model_plant", "make_model_fn", "stats", "grasp_config"]
+
+#: Where the controller's model comes from: the plant's hidden truth, or a particle filter
+#: that identifies the grasp first and keeps updating during control (each action is evidence).
+MODELS = ("true", "filter")
+#: Palm-frame position of the POM at the grasp [m] (the identification experiments' value).
+GRASP_T_PO = np.array([0.0, 0.0, 0.11])
+
+
+def grasp_config(hand: HandModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A realistic fingertip grasp (theta (N, K), a (N,)) drawn with ``rng``."""
+    gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
+                              contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+    return gs.theta[0], gs.a[0]
+
+
+@dataclass
+class TaskPlant:
+    """A model plant with its hand and the grasp it started from."""
+
+    hand: HandModel
+    plant: ModelPlant
+    theta0: np.ndarray
+    a0: np.ndarray
+
+
+def make_model_plant(seed: int, *, hand: HandModel | None = None, R_PO=None, t_PO=None,
+                     sigma_position: float = 0.2e-3, sigma_rotation_deg: float = 0.5,
+                     theta=None, a=None) -> TaskPlant:
+    """The model plant (DESIGN.md section 8) holding an object in a grasp drawn from ``seed``
+    (or the given ``theta``, ``a``), with the camera stand-in's Gaussian pose noise."""
+    hand = model_o().model() if hand is None else hand
+    rng = np.random.default_rng(seed)
+    if theta is None or a is None:
+        theta, a = grasp_config(hand, rng)
+    plant = ModelPlant(hand, theta, a, np.eye(3) if R_PO is None else R_PO, GRASP_T_PO if t_PO is None else t_PO,
+                       np.random.default_rng(seed + 1000), sigma_position=sigma_position,
+                       sigma_rotation=np.deg2rad(sigma_rotation_deg))
+    return TaskPlant(hand, plant, np.asarray(theta, float), np.asarray(a, float))
+
+
+def make_model_fn(
+    kind: str,
+    tp: TaskPlant,
+    *,
+    seed: int = 0,
+    particles: int = 3000,
+    identify_iterations: int = 40,
+    action_range: float = 1.5e-3,
+    window: float = 4.0e-3,
+) -> tuple[Callable, object | None]:
+    """The controller's ``model_fn`` for :func:`vlr_drake.control.servo_to`, and the filter
+    (or None).
+
+    ``"true"``: the plant's hidden truth, anchored at each measurement. ``"filter"``: a
+    :class:`vlr_drake.filter.SelfIdentificationFilter` initialised around a nominal grasp
+    (the truth displaced by up to 60% of the prior's half-widths, as in the identification
+    experiments), run for ``identify_iterations`` random exploratory actions (then the
+    tendons are returned to the grasp command), and kept running during control.
+    """
+    if kind not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
+    plant = tp.plant
+    if kind == "true":
+        return control.true_model_fn(plant), None
+    from vlr_drake.identify import Exploration
+
+    h = tp.hand
+    rng = np.random.default_rng(seed + 7)
+    prior = pf.PriorConfig()
+    theta_c = tp.theta0.copy()
+    theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
+    theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
+    a_c = tp.a0 + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+    filt = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=particles), prior, np.random.default_rng(seed + 8))
+    R, t, _ = plant.measure()
+    filt.initialise(theta_c, a_c, R, t)
+    l_grasp = plant.state.tendon_command.copy()
+    explore = Exploration(l_grasp, h.tendon_range, action_range, window, np.random.default_rng(seed + 9))
+    for _ in range(identify_iterations):
+        dl = explore.next_action()
+        if not plant.apply_action(dl):
+            continue
+        explore.commit(dl)
+        R, t, valid = plant.measure()
+        filt.step(dl, R, t, valid)
+    # back to the grasp command (in small steps, each one evidence too)
+    for _ in range(8):
+        dl = np.clip(l_grasp - plant.state.tendon_command, -action_range, action_range)
+        if np.max(np.abs(dl)) < 1e-9 or not plant.apply_action(dl):
+            break
+        R, t, valid = plant.measure()
+        filt.step(dl, R, t, valid)
+    return control.filter_model_fn(filt, h, tendon=plant.tendon), filt
+
+
+def stats(values_m_or_rad, scale: float) -> dict | None:
+    """{"mean", "sd", "max"} of the values times ``scale`` (1e3 for mm, rad2deg for deg)."""
+    v = np.asarray(values_m_or_rad, float) * scale
+    if v.size == 0:
+        return None
+    return {"mean": float(v.mean()), "sd": float(v.std()), "max": float(v.max())}

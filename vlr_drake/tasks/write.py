@@ -1,0 +1,236 @@
+"""Handwriting (the paper's Fig. 9): the POM writes a word through waypoints, position only.
+
+The grasped object is a pen whose tip is the POM origin. Each letter (stroke font of
+:mod:`vlr_drake.tasks.font`, A-Z) is written in the plane in which the grasp can move the
+POM: the plane spanned by the two strongest position directions of the controller's
+Jacobian (Eq. 10) at the grasp (for the Model O, whose fingers flex in parallel planes,
+this is the palm's x-z plane). Between letters the paper's arm moves the paper; here the
+hand returns to the grasp and the next letter is written at the same place.
+
+Placement: the model's predicted workspace is probed first (servo towards 12 directions on
+:class:`vlr_drake.control.PredictedPlant`); each letter is centred on the largest circle
+inside the probed patch and scaled to at most ``letter_height`` (the paper: at most 12 mm)
+and 1.5 times that circle's radius. On the Model O VLR the patch a grasp can reach is a few
+millimetres wide, so letters come out smaller than the paper's.
+
+Waypoints are the strokes resampled every ``spacing``; each waypoint is a
+:func:`vlr_drake.control.servo_to` goal (position rows only). Pen-up moves go to a
+stroke's start and are not scored. Errors are of the true POM position against the
+waypoint when the servo ends (the model plant knows the truth), reported as DESIGN.md
+section 11 fields.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from vlr_drake import control
+from vlr_drake.tasks import common, font
+
+__all__ = ["run_write", "writing_plane", "probe_workspace"]
+
+
+def writing_plane(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(horizontal, vertical, normal) unit vectors of the writing plane in the palm frame,
+    from the position rows of J (6, N): the normal is the weakest position direction."""
+    U, _, _ = np.linalg.svd(np.asarray(J)[:3])
+    n = U[:, 2]
+    x = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0]) - n[1] * n
+    x /= np.linalg.norm(x)
+    y = np.cross(x, n)
+    if y[2] < 0:  # letters upright: "up" away from the palm
+        y, n = -y, -n
+    return x, y, n
+
+
+def probe_workspace(model: control.ControlModel, l_now, t0, axes, radius: float, *, directions: int = 8,
+                    max_steps: int = 12) -> np.ndarray:
+    """Points (directions, 2) in plane coordinates [m] that the model predicts it can reach
+    when servoing from ``t0`` towards ``radius`` along each direction of the plane."""
+    x, y = axes
+    out = []
+    for k in range(directions):
+        ang = 2 * np.pi * k / directions
+        goal = t0 + radius * (np.cos(ang) * x + np.sin(ang) * y)
+        sim = control.PredictedPlant(model, l_now)
+        rep = control.servo_to(np.eye(3), goal, sim, sim.model_fn, rows="position", max_steps=max_steps,
+                               tol_position=0.05 * radius, clip=1e-3)
+        d = rep.t_closest - t0
+        out.append([d @ x, d @ y])
+    return np.array(out)
+
+
+def _inscribed(center: np.ndarray, poly: np.ndarray) -> float:
+    """Distance from ``center`` to the closest edge of the closed polygon ``poly`` (M, 2)."""
+    best = np.inf
+    for p, q in zip(poly, np.roll(poly, -1, axis=0)):
+        d = q - p
+        s = np.clip((center - p) @ d / max(d @ d, 1e-18), 0.0, 1.0)
+        best = min(best, np.linalg.norm(center - (p + s * d)))
+    return float(best)
+
+
+def _largest_circle(poly: np.ndarray, grid: int = 41) -> tuple[np.ndarray, float]:
+    """Centre (2,) and radius of (nearly) the largest circle inside the polygon (grid search)."""
+    from matplotlib.path import Path
+
+    lo, hi = poly.min(axis=0), poly.max(axis=0)
+    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], grid), np.linspace(lo[1], hi[1], grid))
+    cand = np.column_stack([gx.ravel(), gy.ravel()])
+    inside = Path(poly).contains_points(cand)
+    if not inside.any():
+        c = poly.mean(axis=0)
+        return c, _inscribed(c, poly)
+    cand = cand[inside]
+    r = np.array([_inscribed(c, poly) for c in cand])
+    k = int(np.argmax(r))
+    return cand[k], float(r[k])
+
+
+def run_write(
+    word: str = "SCIENCE",
+    *,
+    seed: int = 0,
+    plant: str = "model",
+    model: str = "true",
+    letter_height: float = 12e-3,
+    spacing: float = 0.5e-3,
+    tol_position: float = 0.2e-3,
+    max_steps: int = 8,
+    sigma_position: float = 0.2e-3,
+    sigma_rotation_deg: float = 0.5,
+    particles: int = 3000,
+    identify_iterations: int = 40,
+    out: str | None = None,
+    progress: bool = True,
+    scenario: str = "default",
+) -> dict:
+    """Write ``word`` with the POM; returns the task result dict (DESIGN.md section 11).
+
+    ``model``: "true" (the plant's hidden truth as the controller's model) or "filter"
+    (self-identification first, then the filter keeps updating during control).
+    ``letter_height`` is the largest letter height [m]; letters shrink to the probed
+    workspace. Plots (``out``): ``write_path.png``, the written path over the letters.
+    """
+    letters = font.word_letters(word)
+    if plant != "model":
+        raise NotImplementedError("the handwriting task runs on the model plant (plant='model'); "
+                                  "the physics plant is wired by the integrator")
+    if letter_height <= 0 or letter_height > 12e-3:
+        raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
+    from tqdm.auto import tqdm
+
+    tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+    pl = tp.plant
+    model_fn, filt = common.make_model_fn(model, tp, seed=seed, particles=particles,
+                                          identify_iterations=identify_iterations)
+    R0, t0, _ = pl.measure()
+    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
+    x, y, n = writing_plane(control.jacobian(m0))
+    t_home = t0.copy()
+    l_home = pl.state.tendon_command.copy()
+    reach = probe_workspace(m0, l_home, t_home, (x, y), letter_height, directions=12, max_steps=20)
+    center2, r_in = _largest_circle(reach)
+    height = float(np.clip(2.0 * 0.75 * r_in, 1e-3, letter_height))
+
+    wp_err, wp_err_meas, rot_drift = [], [], []
+    letters_out = []
+    servo_kw = dict(rows="position", tol_position=tol_position, max_steps=max_steps, stall_steps=4)
+    total_wp = sum(len(s) for c in letters for s in font.letter_strokes(c, height, spacing))
+    bar = tqdm(total=total_wp, disable=not progress, desc=f"write {word}", unit="wp", leave=False)
+    iterations = 0
+    failures = {}
+    for c in letters:
+        strokes = font.letter_strokes(c, height, spacing)
+        paths = []
+        for s in strokes:
+            pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
+            # pen up: go to the stroke start (not scored)
+            rep = control.servo_to(np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps,
+                                                                         "stall_steps": 8})
+            iterations += rep.iterations
+            path = []
+            for k, goal in enumerate(pts):
+                if k > 0:
+                    rep = control.servo_to(np.eye(3), goal, pl, model_fn, **servo_kw)
+                    iterations += rep.iterations
+                    if not rep.reached:
+                        failures[rep.reason] = failures.get(rep.reason, 0) + 1
+                t_true = pl.state.t_PO
+                wp_err.append(np.linalg.norm(t_true - goal))
+                wp_err_meas.append(rep.position_error)
+                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R0[None], pl.state.R_PO[None])[0]))
+                d = t_true - t_home
+                path.append([d @ x, d @ y])
+                bar.update(1)
+            paths.append(np.array(path))
+        letters_out.append((c, [center2 + s for s in strokes], paths))
+        # the arm moves the paper; the hand goes back to the grasp command
+        home = control.limit_action(tp.hand, pl.state.tendon_command, l_home - pl.state.tendon_command)
+        for _ in range(10):
+            step = np.clip(home, -1e-3, 1e-3)
+            if np.max(np.abs(step)) < 1e-9 or not pl.apply_action(step):
+                break
+            home = home - step
+            model_fn(step, *pl.measure())
+    bar.close()
+    wp_err = np.array(wp_err)
+    pos = common.stats(wp_err, 1e3)
+    result = {
+        "task": "write",
+        "scenario": scenario,
+        "seed": seed,
+        "plant": plant,
+        "model": model,
+        "word": word.upper(),
+        "position_error_mm": pos,
+        "orientation_error_deg": None,
+        # written: 95% of the waypoints within 1 mm of the target
+        "success": bool(wp_err.size and np.percentile(wp_err, 95) <= 1e-3),
+        "letter_height_mm": height * 1e3,
+        "waypoints": int(wp_err.size),
+        "control_iterations": int(iterations),
+        "measured_position_error_mm": common.stats(wp_err_meas, 1e3),
+        "pom_rotation_drift_deg_max": float(np.max(rot_drift)),
+        "servo_failures": failures,
+        "writing_plane": {"x": x.tolist(), "y": y.tolist(), "normal": n.tolist()},
+        "paper_position_error_mm": {"mean": 0.42, "sd": 0.34},
+    }
+    if filt is not None:
+        result["filter_iterations"] = int(filt.iteration)
+    if out is not None:
+        os.makedirs(out, exist_ok=True)
+        result["plots"] = [_plot(letters_out, reach, os.path.join(out, "write_path.png"), word)]
+    return result
+
+
+def _plot(letters_out, reach, path: str, word: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(letters_out)
+    fig, axes = plt.subplots(1, n, figsize=(2.2 * n, 2.6), squeeze=False)
+    for ax, (c, targets, paths) in zip(axes[0], letters_out):
+        poly = np.vstack([reach, reach[:1]]) * 1e3
+        ax.plot(poly[:, 0], poly[:, 1], ":", color="0.7", lw=0.8)
+        for i, (tgt, got) in enumerate(zip(targets, paths)):
+            ax.plot(tgt[:, 0] * 1e3, tgt[:, 1] * 1e3, "-", color="0.6", lw=3, alpha=0.5,
+                    label="target" if i == 0 else None)
+            ax.plot(got[:, 0] * 1e3, got[:, 1] * 1e3, ".-", color="C3", lw=1, ms=2,
+                    label="written (true POM)" if i == 0 else None)
+        ax.set_aspect("equal")
+        ax.set_title(c)
+        ax.set_xlabel("plane x [mm]")
+    axes[0, 0].set_ylabel("plane y [mm]")
+    axes[0, 0].legend(fontsize=6, loc="lower left")
+    fig.suptitle(f"handwriting '{word}': written path over the target letters (dotted: probed workspace)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
