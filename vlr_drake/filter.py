@@ -189,13 +189,13 @@ class FilterConfig:
     # Position noise of the POM measurement plus model error, sigma_p [m].
     sigma_position: float = 0.3e-3
     # Rotation noise of the POM measurement plus model error, sigma_r [rad].
-    sigma_rotation: float = np.deg2rad(1.0)
+    sigma_rotation: float = np.deg2rad(1.5)
     # Tendon model of Gamma: "elastic" (default; stiffness identifiable) or "ideal".
     tendon: str = "elastic"
     # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
-    roughening: float = 0.1
+    roughening: float = 0.2
     # Temper the likelihood when ESS would fall below this fraction of M.
-    ess_fraction: float = 0.1
+    ess_fraction: float = 0.3
     # Resample (then roughen) when the ESS of the accumulated weights falls below this
     # fraction of M; weights accumulate over iterations until then.
     resample_fraction: float = 0.5

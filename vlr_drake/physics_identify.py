@@ -1,0 +1,97 @@
+"""The physics plant behind the identification loop of :mod:`vlr_drake.identify`.
+
+Drake MultibodyPlant of the hand and object (SAP, point contact), tendons as a LeafSystem,
+a rendered palm camera and the AprilTag observer: one action is ramped and settled by
+:meth:`PhysicsHand.apply_action`, then the camera renders and the observer measures the POM.
+The filter's nominal grasp (the centre of its prior) is what the grasp routine *planned*
+(the angles that put the pads on the object at its scenario placement, and contacts at the
+pad's design position), never the settled truth.
+
+Truth for the error figures comes from the plant: joint angles and the contact positions
+along the last links; contact points are compared in the finger planes (the VLR's
+kinematics of the true angles and contact positions), since round objects touch the side
+fingers' pad spheres slightly off their flexion planes.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from vlr_drake import kinematics
+from vlr_drake.models import PAD_FRACTION
+from vlr_drake.objects import preset
+from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.perception.tag_pose import TagObserverConfig, make_detector, observe_pom, vtk_render_intrinsics
+from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
+
+__all__ = ["PhysicsAdapter"]
+
+
+class PhysicsAdapter:
+    """Physics plant + rendered camera + AprilTag observer for :func:`run_identification`."""
+
+    def __init__(self, opts, hand_spec, rng, physics: PhysicsConfig | None = None, camera: CameraConfig | None = None,
+                 meshcat=None):
+        self.opts = opts
+        self.spec = hand_spec
+        self.hand = hand_spec.model()
+        self.obj = preset(opts.object)
+        self.camera = (camera or CameraConfig()).validate()
+        self.physics = physics or PhysicsConfig()
+        self.diagram, self.ph, self.sim = build_physics_hand(hand_spec, self.obj, self.physics, self.camera, meshcat)
+        self.root = self.sim.get_mutable_context()
+        self.observer = TagObserverConfig(tag_id=self.obj.tag_id, tag_size=self.obj.tag_size).validate()
+        self.detector = make_detector(self.observer.corner_refinement, self.observer.detector_overrides)
+        self.K = vtk_render_intrinsics(self.camera)
+        self.X_PC, self.X_TO = self.camera.X_PC(), self.obj.X_TO()
+        self.not_settled = 0
+        self.lost = 0
+
+    def start(self, prior):
+        t0 = time.perf_counter()
+        g = self.ph.grasp(self.sim)
+        self.grasp_result = g
+        if not np.all(g.in_contact):
+            raise RuntimeError(f"grasp of '{self.obj.name}' failed: fingers in contact {g.in_contact.tolist()}")
+        self.grasp_wall_s = time.perf_counter() - t0
+        theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
+        a_c = PAD_FRACTION * self.hand.distal_length
+        timing = {"render": 0.0, "detect": 0.0}
+        R, t, valid = self.measure(timing)
+        if not valid:
+            raise RuntimeError(f"grasp of '{self.obj.name}': the palm camera does not see the tag")
+        return theta_c, a_c, R, t
+
+    def tendon_command(self) -> np.ndarray:
+        return self.ph.command(self.root).copy()
+
+    def act(self, dl, timing) -> bool:
+        r = self.ph.apply_action(self.sim, np.asarray(dl, float), render=False)
+        timing["physics"] += r.wall_physics_s
+        self.not_settled += not r.settled
+        if self.ph.object_fell(self.root):
+            raise RuntimeError(f"the {self.obj.name} fell out of the hand")
+        return True
+
+    def measure(self, timing):
+        t0 = time.perf_counter()
+        image = self.ph.output(self.root, "rgb_image").data
+        t1 = time.perf_counter()
+        X_PO, info = observe_pom(image, self.observer, self.K, None, self.X_PC, self.X_TO, self.detector)
+        t2 = time.perf_counter()
+        timing["render"] += t1 - t0
+        timing["detect"] += t2 - t1
+        if X_PO is None:
+            self.lost += 1
+            return None, None, False
+        return X_PO.rotation().matrix(), X_PO.translation(), True
+
+    def truth(self) -> dict:
+        h = self.hand
+        theta = np.asarray(self.ph.output(self.root, "theta_true"), float).reshape(h.N, h.K)
+        a = np.asarray(self.ph.output(self.root, "contact_along_link_true"), float).copy()
+        contacts = kinematics.contacts(h, theta[None], a[None])[0]
+        return {"theta": theta, "a": a, "contacts": contacts, "stiffness": h.stiffness.copy(),
+                "link_lengths": h.link_lengths.copy()}
