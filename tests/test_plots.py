@@ -194,3 +194,24 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_contacts_figure(bad, tr, NAMES)
     with pytest.raises(ValueError, match="empty"):
         plots.make_convergence_figure([])
+
+
+def test_hypotheses_still_segments_in_mm(rng, tmp_path):
+    P, N_, K_ = 4, 3, 2
+    joints = rng.uniform(-0.05, 0.05, (P, N_, K_, 3))
+    contacts = rng.uniform(-0.05, 0.05, (P, N_, 3))
+    pom = rng.uniform(-0.05, 0.05, (P, 3))
+    fig = plots.make_hypotheses_figure(joints, contacts, pom, contacts[0])
+    ax = fig.axes[0]
+    # the 3D segments as given (matplotlib keeps them in Line3DCollection._segments3d)
+    assert len(ax.collections[0]._segments3d) == P * N_ * K_
+    seg = np.asarray(ax.collections[0]._segments3d).reshape(P, N_, K_, 2, 3)
+    np.testing.assert_allclose(seg[..., 0, :], 1e3 * joints)  # starts at q_1..q_K
+    np.testing.assert_allclose(seg[:, :, -1, 1, :], 1e3 * contacts)  # the last ends at p_i
+    red = np.asarray(ax.collections[3]._segments3d)
+    assert red.shape == (3 + N_, 2, 3)  # pairs of contacts, then contact -> POM
+    np.testing.assert_allclose(red[3:, 1], np.repeat(1e3 * pom.mean(axis=0)[None], N_, axis=0))
+    out = plots.plot_hypotheses(joints, contacts, tmp_path / "hyp.png", None, None, title="it 0")
+    assert out.stat().st_size > 1000
+    with pytest.raises(ValueError, match="contacts"):
+        plots.make_hypotheses_figure(joints, contacts[:, :2])

@@ -10,7 +10,7 @@ from pydrake.geometry import Meshcat
 
 from vlr_drake import kinematics, observation
 from vlr_drake.filter import ParticleSet
-from vlr_drake.visualization import HypothesisDrawer, cylinder_mesh, save_recording
+from vlr_drake.visualization import HypothesisDrawer, cylinder_mesh, hypothesis_points, save_recording
 
 
 class Spy:
@@ -176,3 +176,20 @@ def test_bad_inputs_name_the_field(meshcat, model_o_hand, rng):
         HypothesisDrawer(meshcat, hand, max_particles=0)
     with pytest.raises(ValueError, match="prefix"):
         HypothesisDrawer(meshcat, hand, prefix="hyp")
+
+
+def test_hypothesis_points_per_particle_links_and_no_pose(model_o_hand, rng):
+    hand = model_o_hand
+    ps, t_PO = _particles(hand, rng, 12)
+    ps.link_lengths = hand.link_lengths[None] * rng.uniform(0.8, 1.2, (12, hand.N, hand.K - 1))
+    p = kinematics.contacts(hand, ps.theta, ps.a, ps.link_lengths)
+    ps.p_O = observation.attach(p, np.eye(3)[None], t_PO[None])
+    q, pc, pom = hypothesis_points(hand, ps, 5, np.random.default_rng(7))
+    idx = np.sort(np.random.default_rng(7).choice(12, size=5, replace=False))
+    np.testing.assert_allclose(q, kinematics.joint_positions(hand, ps.theta[idx], ps.link_lengths[idx]))
+    np.testing.assert_allclose(pc, p[idx])
+    np.testing.assert_allclose(pom, np.repeat(t_PO[None], 5, axis=0), atol=1e-9)
+    ps.p_O = np.zeros_like(ps.p_O)  # coincident attachments: no POM pose follows
+    assert hypothesis_points(hand, ps, 50)[2] is None
+    with pytest.raises(ValueError, match="max_particles"):
+        hypothesis_points(hand, ps, 0)

@@ -40,11 +40,13 @@ __all__ = [
     "make_stiffness_figure",
     "make_link_lengths_figure",
     "make_convergence_figure",
+    "make_hypotheses_figure",
     "plot_joint_angles",
     "plot_contacts",
     "plot_stiffness",
     "plot_link_lengths",
     "plot_convergence",
+    "plot_hypotheses",
     "save_figure",
 ]
 
@@ -334,6 +336,75 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     return fig
 
 
+def make_hypotheses_figure(
+    joints: np.ndarray,
+    contacts: np.ndarray,
+    pom_position: np.ndarray | None = None,
+    estimate_contacts: np.ndarray | None = None,
+    title: str = "hypotheses",
+) -> Figure:
+    """A still of the hypotheses in the colours of Fig. 4A (the PNG twin of
+    :class:`vlr_drake.visualization.HypothesisDrawer`), palm frame, in mm.
+
+    ``joints`` (P, N, K, 3) and ``contacts`` (P, N, 3) of the drawn particles (see
+    :func:`vlr_drake.visualization.hypothesis_points`), ``pom_position`` (P, 3) or None,
+    ``estimate_contacts`` (N, 3) or None (the mean of ``contacts``).
+    ``ax.collections``: [0] the magenta E^J segments, [1] the blue distal joints, [2] the
+    yellow contacts, [3] the red E^C segments.
+    """
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    joints = np.asarray(joints, dtype=float)
+    if joints.ndim != 4 or joints.shape[-1] != 3:
+        raise ValueError(f"joints must have shape (P, N, K, 3), got {joints.shape}")
+    P, N, K, _ = joints.shape
+    contacts = np.asarray(contacts, dtype=float)
+    if contacts.shape != (P, N, 3):
+        raise ValueError(f"contacts must have shape ({P}, {N}, 3), got {contacts.shape}")
+    p_hat = contacts.mean(axis=0) if estimate_contacts is None else np.asarray(estimate_contacts, dtype=float)
+    if p_hat.shape != (N, 3):
+        raise ValueError(f"estimate_contacts must have shape ({N}, 3), got {p_hat.shape}")
+    mm = 1e3
+    # E^J: q_1 -> ... -> q_K -> p_i per particle and finger
+    chain = np.concatenate([joints, contacts[:, :, None, :]], axis=2) * mm  # (P, N, K+1, 3)
+    seg_j = np.stack([chain[:, :, :-1], chain[:, :, 1:]], axis=-2).reshape(-1, 2, 3)
+    # E^C: pairs of estimated contacts, and each to the POM
+    seg_c = [(p_hat[a] * mm, p_hat[b] * mm) for a in range(N) for b in range(a + 1, N)]
+    if pom_position is not None:
+        pom = np.asarray(pom_position, dtype=float).reshape(-1, 3).mean(axis=0) * mm
+        seg_c += [(p_hat[i] * mm, pom) for i in range(N)]
+    fig = Figure(figsize=(6.0, 5.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Line3DCollection(seg_j, colors=[(1.0, 0.0, 1.0, 0.4)], linewidths=0.8))
+    distal = joints[:, :, K - 1].reshape(-1, 3) * mm
+    ax.scatter(distal[:, 0], distal[:, 1], distal[:, 2], color=(0.1, 0.3, 1.0), s=6, depthshade=False)
+    ax.scatter(
+        p_hat[:, 0] * mm,
+        p_hat[:, 1] * mm,
+        p_hat[:, 2] * mm,
+        color=(1.0, 0.9, 0.0),
+        s=40,
+        edgecolors="k",
+        depthshade=False,
+    )
+    ax.add_collection3d(Line3DCollection(np.array(seg_c).reshape(-1, 2, 3), colors="red", linewidths=1.5))
+    pts = np.concatenate(
+        [chain.reshape(-1, 3), seg_j.reshape(-1, 3)] + ([np.array(seg_c).reshape(-1, 3)] if seg_c else [])
+    )
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre, half = 0.5 * (lo + hi), 0.5 * max((hi - lo).max(), 1e-6) * 1.05
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1.0, 1.0, 1.0))
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_zlabel("z [mm]")
+    ax.set_title(title)
+    return fig
+
+
 # ------------------------------------------------------------------------------ files
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
     """Write ``fig`` (format from the suffix), creating the folder; returns the path."""
@@ -393,3 +464,15 @@ def plot_link_lengths(
 def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float | None = None) -> Path:
     """Save :func:`make_convergence_figure` to ``path``; returns the path."""
     return save_figure(make_convergence_figure(history, threshold_deg), path)
+
+
+def plot_hypotheses(
+    joints: np.ndarray,
+    contacts: np.ndarray,
+    path: str | Path,
+    pom_position: np.ndarray | None = None,
+    estimate_contacts: np.ndarray | None = None,
+    title: str = "hypotheses",
+) -> Path:
+    """Save :func:`make_hypotheses_figure` to ``path`` (a per-iteration still); returns the path."""
+    return save_figure(make_hypotheses_figure(joints, contacts, pom_position, estimate_contacts, title), path)

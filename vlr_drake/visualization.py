@@ -37,7 +37,7 @@ from vlr_drake import kinematics, observation
 from vlr_drake.filter import ParticleSet
 from vlr_drake.hand import HandModel
 
-__all__ = ["HypothesisDrawer", "cylinder_mesh", "save_recording"]
+__all__ = ["HypothesisDrawer", "cylinder_mesh", "hypothesis_points", "save_recording"]
 
 #: Colours of Fig. 4: virtual links E^J magenta, joints blue, contacts yellow, E^C red.
 MAGENTA = (1.0, 0.0, 1.0)
@@ -80,6 +80,34 @@ def cylinder_mesh(
     verts = (centers[:, None, :] + local[None]).reshape(-1, 3)
     faces = (tri[None] + nv * np.arange(len(centers))[:, None, None]).reshape(-1, 3)
     return np.ascontiguousarray(verts.T), np.ascontiguousarray(faces.T.astype(np.int32))
+
+
+def hypothesis_points(
+    hand: HandModel, particles: ParticleSet, max_particles: int = 50, rng: np.random.Generator | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The points one drawing of a particle subsample needs: (joints (n, N, K, 3),
+    contacts (n, N, 3), POM positions (n, 3) or None), palm frame, n = min(M, max_particles).
+
+    Joints and contacts follow from (theta, a, link_lengths) by the kinematics (DESIGN.md
+    section 2), the POM positions from the attachments p_O by Lambda (Eq. 5); particles
+    whose contacts give no pose get the mean of the others (None if none has one). ``rng``
+    picks the subsample without replacement (None: the first particles).
+    """
+    if max_particles < 1:
+        raise ValueError(f"max_particles must be >= 1, got {max_particles}")
+    M = particles.size
+    n = min(M, max_particles)
+    idx = np.arange(n) if rng is None or n == M else np.sort(rng.choice(M, size=n, replace=False))
+    L = particles.link_lengths
+    L = L[idx] if L.shape[0] > 1 else L
+    theta, a = particles.theta[idx], particles.a[idx]
+    q = kinematics.joint_positions(hand, theta, L)
+    p = kinematics.contacts(hand, theta, a, L)
+    _, t_PO, ok = observation.pom_pose(particles.p_O[idx], p)
+    if not ok.any():
+        return q, p, None
+    pom = np.where(ok[:, None], t_PO, t_PO[ok].mean(axis=0))
+    return q, p, pom
 
 
 class HypothesisDrawer:
@@ -240,18 +268,7 @@ class HypothesisDrawer:
         ``estimate`` is a ``SelfIdentificationFilter.estimate()`` dict whose ``contacts``
         are drawn yellow (None: the mean of the drawn contacts). Returns how many were drawn.
         """
-        M = particles.size
-        n = min(M, self.max_particles)
-        idx = np.arange(n) if rng is None or n == M else np.sort(rng.choice(M, size=n, replace=False))
-        L = particles.link_lengths
-        L = L[idx] if L.shape[0] > 1 else L
-        theta, a = particles.theta[idx], particles.a[idx]
-        q = kinematics.joint_positions(self.hand, theta, L)
-        p = kinematics.contacts(self.hand, theta, a, L)
-        _, t_PO, ok = observation.pom_pose(particles.p_O[idx], p)
-        pom = t_PO[ok] if ok.any() else None
-        if pom is not None and pom.shape[0] != n:  # keep (P, 3): the mean over the valid poses
-            pom = np.repeat(pom.mean(axis=0, keepdims=True), n, axis=0)
+        q, p, pom = hypothesis_points(self.hand, particles, self.max_particles, rng)
         est_contacts = None if estimate is None else estimate.get("contacts")
         return self.draw(q, p, pom, est_contacts, time_in_recording)
 
