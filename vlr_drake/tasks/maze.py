@@ -1,0 +1,352 @@
+"""Marble maze (the paper's Fig. 10): tilt a maze plate so a marble rolls to the goal.
+
+The grasped object is a maze plate whose frame is the POM frame O (plate in the O x-y
+plane, normal z_O). Orientation control only: a precomputed sequence of plate orientations
+(one per straight run of the maze path) is tracked by :func:`vlr_drake.control.servo_to`
+with ``rows="orientation"``, one control action per control period; the marble is
+simulated by :class:`MarbleMaze` in between.
+
+Axes. The grasp can tilt the plate about the strongest rotation direction k of the
+controller's Jacobian (Eq. 10) at the grasp; for the Model O, whose fingers flex in
+parallel planes, that is the only rotation it can make (the palm's y axis). Tilting by phi
+about k (in the plate frame) adds the in-plane gravity phi g (k x z_O): the *steering*
+axis s = k x z_O. The arm holds the plate with a small constant bias tilt beta so that
+gravity also pulls along the *fall* axis f = z_O x s. The maze's columns run along s and
+its rows along f, so the path is a switchback: horizontal runs steered by +-phi, and
+one-cell drops through gaps, during which the plate is tilted by half the previous run's
+tilt to hold the marble in the corner above the gap.
+
+:class:`MarbleMaze` is a small rolling-ball simulator: a solid sphere rolling without
+slipping on a tilted plane accelerates at (5/7) of the in-plane gravity, with viscous
+rolling resistance ``damping`` [1/s]; walls on the cell grid stop it with restitution
+``restitution``; semi-implicit Euler with 1 ms steps. The layout is ASCII art (``MAZE``).
+(A Drake marble on the physics plant is not implemented.)
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlr_drake import control, observation
+from vlr_drake.tasks import common
+
+__all__ = ["MAZE", "MarbleMaze", "parse_maze", "maze_path", "orientation_sequence", "run_maze"]
+
+#: The default maze (row 0 at the top; rows fall along f, columns along s). S start, G goal.
+MAZE = """
++--+--+--+--+
+|S       |  |
++--+--+  +--+
+|        |  |
++  +--+--+--+
+|           |
++--+--+--+  +
+|  |  |  | G|
++--+--+--+--+
+"""
+
+GRAVITY = 9.81
+
+
+def parse_maze(text: str) -> dict:
+    """Walls of an ASCII maze: ``right[r, c]`` (wall between (r, c) and (r, c+1)) and
+    ``down[r, c]`` (wall between (r, c) and (r+1, c)), the outer border closed; start and
+    goal cells."""
+    lines = [ln for ln in text.strip("\n").splitlines() if ln.strip()]
+    rows = (len(lines) - 1) // 2
+    cols = (len(lines[0].rstrip()) - 1) // 3
+    if rows < 1 or cols < 1:
+        raise ValueError("maze text must have at least one cell")
+    lines = [ln.ljust(3 * cols + 1) for ln in lines]
+    right = np.ones((rows, cols), bool)
+    down = np.ones((rows, cols), bool)
+    start = goal = None
+    for r in range(rows):
+        for c in range(cols):
+            cell = lines[2 * r + 1][3 * c + 1: 3 * c + 3]
+            if "S" in cell:
+                start = (r, c)
+            if "G" in cell:
+                goal = (r, c)
+            if c < cols - 1:
+                right[r, c] = lines[2 * r + 1][3 * c + 3] == "|"
+            if r < rows - 1:
+                down[r, c] = lines[2 * r + 2][3 * c + 1] == "-"
+    if start is None or goal is None:
+        raise ValueError("maze text must mark a start 'S' and a goal 'G'")
+    return {"rows": rows, "cols": cols, "right": right, "down": down, "start": start, "goal": goal}
+
+
+def _neighbours(maze: dict, r: int, c: int):
+    if c + 1 < maze["cols"] and not maze["right"][r, c]:
+        yield r, c + 1
+    if c > 0 and not maze["right"][r, c - 1]:
+        yield r, c - 1
+    if r + 1 < maze["rows"] and not maze["down"][r, c]:
+        yield r + 1, c
+    if r > 0 and not maze["down"][r - 1, c]:
+        yield r - 1, c
+
+
+def maze_path(maze: dict) -> list[tuple[int, int]]:
+    """Cells from start to goal (breadth-first search); ValueError if there is none."""
+    prev = {maze["start"]: None}
+    q = deque([maze["start"]])
+    while q:
+        cell = q.popleft()
+        if cell == maze["goal"]:
+            break
+        for nb in _neighbours(maze, *cell):
+            if nb not in prev:
+                prev[nb] = cell
+                q.append(nb)
+    if maze["goal"] not in prev:
+        raise ValueError("maze has no path from start to goal")
+    path, cell = [], maze["goal"]
+    while cell is not None:
+        path.append(cell)
+        cell = prev[cell]
+    return path[::-1]
+
+
+def orientation_sequence(path: list[tuple[int, int]], tilt: float) -> list[dict]:
+    """Runs of the path with their steering tilt [rad] about k: horizontal runs +-tilt,
+    drops (one row down) half the previous run's tilt. Raises for a path that climbs."""
+    runs = []
+    k = 0
+    last = 0.0
+    while k < len(path) - 1:
+        dr, dc = path[k + 1][0] - path[k][0], path[k + 1][1] - path[k][1]
+        if dr < 0:
+            raise ValueError("the maze path climbs against the fall axis; design it as a switchback")
+        j = k
+        while j < len(path) - 1 and (path[j + 1][0] - path[j][0], path[j + 1][1] - path[j][1]) == (dr, dc):
+            j += 1
+        if dc != 0:
+            phi = np.sign(dc) * tilt
+            last = phi
+        else:
+            phi = 0.5 * last
+        runs.append({"cells": path[k: j + 1], "end": path[j], "tilt": float(phi), "kind": "drop" if dr else "run"})
+        k = j
+    return runs
+
+
+@dataclass
+class MarbleMaze:
+    """A marble rolling on the maze plate (plate coordinates (s, f) [m], origin at the
+    outer corner of cell (0, 0))."""
+
+    maze: dict
+    cell: float = 0.025  # cell size [m]
+    radius: float = 0.006  # marble radius [m]
+    damping: float = 3.0  # viscous rolling resistance [1/s] (felt-lined plate: slow marble)
+    restitution: float = 0.3  # wall bounce
+    dt: float = 1e-3  # integration step [s]
+
+    def __post_init__(self):
+        if not 0 < self.radius < 0.5 * self.cell:
+            raise ValueError(f"marble radius must be in (0, cell/2), got {self.radius}")
+        r, c = self.maze["start"]
+        self.pos = np.array([(c + 0.5) * self.cell, (r + 0.5) * self.cell])
+        self.vel = np.zeros(2)
+
+    def cell_of(self) -> tuple[int, int]:
+        c = int(np.clip(self.pos[0] // self.cell, 0, self.maze["cols"] - 1))
+        r = int(np.clip(self.pos[1] // self.cell, 0, self.maze["rows"] - 1))
+        return r, c
+
+    def _wall(self, r: int, c: int, axis: int, sign: int) -> bool:
+        m = self.maze
+        if axis == 0:
+            cc = c if sign > 0 else c - 1
+            return cc < 0 or cc >= m["cols"] - 1 or bool(m["right"][r, cc])
+        rr = r if sign > 0 else r - 1
+        return rr < 0 or rr >= m["rows"] - 1 or bool(m["down"][r if sign > 0 else rr, c])
+
+    def step(self, g_plate: np.ndarray, duration: float) -> None:
+        """Advance by ``duration`` [s] under gravity ``g_plate`` (3,) in the plate frame
+        expressed along (s, f, normal)."""
+        acc = (5.0 / 7.0) * np.asarray(g_plate, float)[:2]
+        for _ in range(max(1, int(round(duration / self.dt)))):
+            self.vel += self.dt * (acc - self.damping * self.vel)
+            for axis in (0, 1):
+                r, c = self.cell_of()
+                new = self.pos[axis] + self.dt * self.vel[axis]
+                idx = c if axis == 0 else r
+                lo, hi = idx * self.cell + self.radius, (idx + 1) * self.cell - self.radius
+                if new > hi and self._wall(r, c, axis, +1):
+                    new, self.vel[axis] = hi, -self.restitution * self.vel[axis]
+                elif new < lo and self._wall(r, c, axis, -1):
+                    new, self.vel[axis] = lo, -self.restitution * self.vel[axis]
+                self.pos[axis] = new
+
+
+def run_maze(
+    *,
+    seed: int = 0,
+    plant: str = "model",
+    model: str = "true",
+    maze_text: str = MAZE,
+    tilt_deg: float = 3.0,
+    bias_deg: float = 1.5,
+    period: float = 0.2,
+    segment_time: float = 12.0,
+    tol_rotation_deg: float = 0.5,
+    sigma_position: float = 0.2e-3,
+    sigma_rotation_deg: float = 0.5,
+    particles: int = 3000,
+    identify_iterations: int = 40,
+    out: str | None = None,
+    progress: bool = True,
+    scenario: str = "default",
+) -> dict:
+    """Steer the marble through the maze; returns the task result dict (DESIGN.md 11).
+
+    One control period (``period`` [s] of marble time) = at most one control action.
+    Orientation errors are those of the true plate orientation against the current goal,
+    sampled every period once the servo has settled on that goal (reached its tolerance
+    or stopped; the last sample of a goal that the marble left earlier); a run whose marble has not left it after ``segment_time`` [s] fails.
+    Plots (``out``): ``maze.png`` (orientation error over time; marble path in the maze).
+    """
+    if plant != "model":
+        raise NotImplementedError("the marble maze runs on the model plant (plant='model')")
+    from tqdm.auto import tqdm
+
+    mz = parse_maze(maze_text)
+    cells = maze_path(mz)
+    order = {cell: i for i, cell in enumerate(cells)}
+    runs = orientation_sequence(cells, np.deg2rad(tilt_deg))
+    tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+    pl = tp.plant
+    model_fn, filt = common.make_model_fn(model, tp, seed=seed, particles=particles,
+                                          identify_iterations=identify_iterations)
+    R0, t0, _ = pl.measure()
+    R_PO0 = pl.state.R_PO.copy()  # the plate's level orientation (arm's frame of reference)
+    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
+    J = control.jacobian(m0)
+    U, S, _ = np.linalg.svd(J[3:])
+    k_P = U[:, 0]
+    k = R_PO0.T @ k_P  # tilt axis in the plate frame
+    z = np.array([0.0, 0.0, 1.0])
+    s_ax = np.cross(k, z)
+    if np.linalg.norm(s_ax) < 0.3:
+        raise RuntimeError("the grasp cannot tilt the plate (its rotation axis is the plate normal)")
+    s_ax /= np.linalg.norm(s_ax)
+    f_ax = np.cross(z, s_ax)
+    k = f_ax  # the in-plane part of the tilt axis: tilting by phi about it steers along s
+    beta = np.deg2rad(bias_deg)
+    g_M0 = GRAVITY * (-np.cos(beta) * z + np.sin(beta) * f_ax)
+    g_P = R_PO0 @ g_M0
+    marble = MarbleMaze(mz)
+
+    def g_plate():
+        g = pl.state.R_PO.T @ g_P
+        return np.array([g @ s_ax, g @ f_ax, g @ z])
+
+    times, errs, settled_err, track = [], [], [], [marble.pos.copy()]
+    switch_times = []
+    time_s = 0.0
+    success = True
+    bar = tqdm(total=len(runs), disable=not progress, desc="maze", unit="run", leave=False)
+    iterations = 0
+    for run in runs:
+        R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
+        switch_times.append(time_s)
+        t_run = 0.0
+        settled = False
+        run_samples = 0
+        while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
+            if t_run > segment_time:
+                success = False
+                break
+            rep = control.servo_to(R_goal, np.zeros(3), pl, model_fn, rows="orientation", max_steps=1,
+                                   tol_rotation=np.deg2rad(tol_rotation_deg), stall_steps=100)
+            iterations += rep.iterations
+            settled = settled or rep.reached or rep.reason != "budget"
+            marble.step(g_plate(), period)
+            time_s += period
+            t_run += period
+            err = np.rad2deg(observation.rotation_angle(R_goal[None], pl.state.R_PO[None])[0])
+            times.append(time_s)
+            errs.append(err)
+            track.append(marble.pos.copy())
+            if settled:
+                settled_err.append(err)
+                run_samples += 1
+        if run_samples == 0 and errs:  # the marble left before the servo settled: score the last sample
+            settled_err.append(errs[-1])
+        bar.update(1)
+        if not success:
+            break
+    bar.close()
+    reached = success and marble.cell_of() == mz["goal"]
+    result = {
+        "task": "maze",
+        "scenario": scenario,
+        "seed": seed,
+        "plant": plant,
+        "model": model,
+        "position_error_mm": None,
+        "orientation_error_deg": common.stats(np.deg2rad(settled_err), np.rad2deg(1.0)),
+        "success": bool(reached),
+        "marble_reached_goal": bool(reached),
+        "marble_cell": list(marble.cell_of()),
+        "time_s": time_s,
+        "control_iterations": int(iterations),
+        "runs": len(runs),
+        "tilt_deg": tilt_deg,
+        "orientation_error_all_deg": common.stats(np.deg2rad(errs), np.rad2deg(1.0)),
+        "tilt_axis_palm": k_P.tolist(),
+        "paper_orientation_error_deg": {"mean": 1.20, "sd": 1.38},
+    }
+    if filt is not None:
+        result["filter_iterations"] = int(filt.iteration)
+    if out is not None:
+        os.makedirs(out, exist_ok=True)
+        result["plots"] = [_plot(mz, marble, np.array(track), times, errs, switch_times,
+                                 os.path.join(out, "maze.png"))]
+    return result
+
+
+def _plot(mz, marble, track, times, errs, switch_times, path: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    a1.plot(times, errs, "-", color="C0")
+    for t in switch_times:
+        a1.axvline(t, color="0.8", lw=0.8)
+    a1.set_xlabel("time [s]")
+    a1.set_ylabel("orientation error [deg]")
+    a1.set_title("plate orientation error (grey: new goal)")
+    c = marble.cell * 1e3
+    for r in range(mz["rows"]):
+        for col in range(mz["cols"]):
+            x0, y0 = col * c, r * c
+            if mz["right"][r, col]:
+                a2.plot([x0 + c, x0 + c], [y0, y0 + c], "k-", lw=2)
+            if mz["down"][r, col]:
+                a2.plot([x0, x0 + c], [y0 + c, y0 + c], "k-", lw=2)
+            if col == 0:
+                a2.plot([x0, x0], [y0, y0 + c], "k-", lw=2)
+            if r == 0:
+                a2.plot([x0, x0 + c], [y0, y0], "k-", lw=2)
+    a2.plot(track[:, 0] * 1e3, track[:, 1] * 1e3, ".-", color="C3", ms=2, label="marble")
+    for name, (r, col) in (("S", mz["start"]), ("G", mz["goal"])):
+        a2.text((col + 0.5) * c, (r + 0.5) * c, name, ha="center", va="center", fontsize=12, color="C2")
+    a2.invert_yaxis()
+    a2.set_aspect("equal")
+    a2.set_xlabel("steering axis s [mm]")
+    a2.set_ylabel("fall axis f [mm]")
+    a2.set_title("marble path")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
