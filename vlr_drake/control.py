@@ -374,6 +374,14 @@ def servo_to(
             reason = "stalled"  # the error lies outside the motions the model can make
             break
         l_now = _tendon_command(plant)
+        # tendons at a limit that the step pushes against are left out and the step is
+        # solved again with the others (active set), so the free tendons still help
+        lo, hi = hand.tendon_range[:, 0], hand.tendon_range[:, 1]
+        blocked = ((l_now <= lo + 1e-9) & (dl < 0)) | ((l_now >= hi - 1e-9) & (dl > 0))
+        if blocked.any() and not blocked.all():
+            dl = control_step(J * ~blocked[None, :], e, mode=mode, rows=rows, alpha=alpha, damping=damping,
+                              gain=gain, clip=clip, position_unit=position_unit, rotation_unit=rotation_unit)
+            dl[blocked] = 0.0
         dl_lim = limit_action(hand, l_now, dl)
         if np.max(np.abs(dl_lim)) < 1e-9:
             reason = "tendon_limit"

@@ -1,0 +1,329 @@
+"""Tests of the Jacobian controller (vlr_drake.control) and its LeafSystems."""
+
+import copy
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from vlr_drake import control, observation
+from vlr_drake.systems.controller import EstimateFromTruth, JacobianController, TaskTrajectorySource
+from vlr_drake.systems.self_identification import ModelPlantSystem
+from vlr_drake.tasks import common
+
+
+@pytest.fixture(scope="module")
+def grasp():
+    return common.make_model_plant(0, sigma_position=0.0, sigma_rotation_deg=0.0)
+
+
+def fresh(grasp, sigma_position=0.0, sigma_rotation_deg=0.0, seed=5):
+    pl = copy.deepcopy(grasp.plant)
+    pl.sigma_position, pl.sigma_rotation = sigma_position, np.deg2rad(sigma_rotation_deg)
+    pl.rng = np.random.default_rng(seed)
+    return pl
+
+
+class RecordingPlant:
+    """A model plant that records every tendon command it is given."""
+
+    def __init__(self, plant):
+        self.plant, self.hand, self.commands = plant, plant.hand, []
+
+    @property
+    def state(self):
+        return self.plant.state
+
+    def apply_action(self, dl):
+        ok = self.plant.apply_action(dl)
+        self.commands.append(self.plant.state.tendon_command.copy())
+        return ok
+
+    def measure(self):
+        return self.plant.measure()
+
+
+def reachable_goal(grasp, dl):
+    """The true pose after the action dl: reachable by construction."""
+    pl = fresh(grasp)
+    assert pl.apply_action(dl)
+    return pl.state.R_PO.copy(), pl.state.t_PO.copy()
+
+
+def weighted(e, rows, alpha=1.0):
+    w = control._row_weights(rows, alpha, control.POSITION_UNIT, control.ROTATION_UNIT)
+    return np.linalg.norm(w * e)
+
+
+def test_upsilon_zero_action_is_zero_motion(grasp):
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    np.testing.assert_allclose(control.upsilon(m, np.zeros(grasp.hand.N)), 0.0, atol=1e-12)
+
+
+def test_jacobian_matches_direct_perturbation_of_the_model(grasp):
+    """Eq. 10: each column equals the central difference of the true plant's pose."""
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    J = control.jacobian(m, eps=0.05e-3)
+    h = 0.05e-3
+    for i in range(grasp.hand.N):
+        poses = []
+        for s in (+1, -1):
+            pl = fresh(grasp)
+            dl = np.zeros(grasp.hand.N)
+            dl[i] = s * h
+            assert pl.apply_action(dl)
+            poses.append((pl.state.R_PO.copy(), pl.state.t_PO.copy()))
+        (Rp, tp), (Rm, tm) = poses
+        R0, t0 = grasp.plant.state.R_PO, grasp.plant.state.t_PO
+        col = np.concatenate([(tp - tm) / (2 * h),
+                              (observation.rotvec(Rp @ R0.T)[0] - observation.rotvec(Rm @ R0.T)[0]) / (2 * h)])
+        np.testing.assert_allclose(J[:, i], col, rtol=1e-4, atol=1e-5)
+    # the columns are not trivial
+    assert np.linalg.norm(J[:3]) > 0.1 and np.linalg.norm(J[3:]) > 1.0
+
+
+def test_jacobian_predicts_a_small_action(grasp):
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    J = control.jacobian(m)
+    dl = np.array([0.1e-3, -0.05e-3, 0.08e-3])
+    pred = J @ dl  # linear prediction; the motion is mildly nonlinear over 0.1 mm
+    np.testing.assert_allclose(control.upsilon(m, dl), pred, atol=0.05 * np.abs(pred).max())
+
+
+@pytest.mark.parametrize("rows", control.ROWS)
+@pytest.mark.parametrize("mode", control.MODES)
+def test_control_step_reduces_the_error_on_the_model_plant(grasp, rows, mode):
+    R_goal, t_goal = reachable_goal(grasp, np.array([0.6e-3, -0.4e-3, 0.5e-3]))
+    pl = fresh(grasp)
+    e0 = control.pose_error6(R_goal, t_goal, pl.state.R_PO, pl.state.t_PO)
+    m = control.ControlModel.from_plant_truth(pl)
+    dl = control.control_step(control.jacobian(m), e0, mode=mode, rows=rows)
+    assert np.max(np.abs(dl)) > 0
+    assert pl.apply_action(dl)
+    e1 = control.pose_error6(R_goal, t_goal, pl.state.R_PO, pl.state.t_PO)
+    assert weighted(e1, rows) < 0.7 * weighted(e0, rows)
+
+
+@pytest.mark.parametrize("rows", control.ROWS)
+def test_servo_reaches_a_reachable_goal(grasp, rows):
+    R_goal, t_goal = reachable_goal(grasp, np.array([-0.8e-3, 0.5e-3, 0.3e-3]))
+    pl = fresh(grasp)
+    rep = control.servo_to(R_goal, t_goal, pl, control.true_model_fn(pl), rows=rows, tol_position=0.01e-3,
+                           tol_rotation=np.deg2rad(0.02), max_steps=30)
+    assert rep.reached and rep.reason == "reached", rep.summary()
+    if rows != "orientation":
+        assert np.linalg.norm(pl.state.t_PO - t_goal) < 0.02e-3
+    if rows != "position":
+        assert observation.rotation_angle(R_goal[None], pl.state.R_PO[None])[0] < np.deg2rad(0.05)
+
+
+def test_true_model_handwriting_segment_reaches_each_waypoint_within_0p1_mm(grasp):
+    from vlr_drake.tasks.write import writing_plane
+
+    pl = fresh(grasp)
+    m = control.ControlModel.from_plant_truth(pl)
+    x, y, _ = writing_plane(control.jacobian(m))
+    t0 = pl.state.t_PO.copy()
+    # a short stroke: 1.5 mm diagonal in the writing plane, waypoints every 0.3 mm
+    for s in np.linspace(0.3e-3, 1.5e-3, 5):
+        goal = t0 + s * (-x + y) / np.sqrt(2)
+        rep = control.servo_to(np.eye(3), goal, pl, control.true_model_fn(pl), rows="position",
+                               tol_position=0.02e-3, max_steps=15)
+        assert np.linalg.norm(pl.state.t_PO - goal) < 0.1e-3, rep.summary()
+
+
+def test_alpha_trades_position_for_orientation(grasp):
+    """Eq. 12: a goal the tendon range cannot reach in full (orientation from one action,
+    position from the opposite one, range +-0.5 mm); larger alpha, smaller rotation error,
+    larger position error."""
+    dl_goal = np.array([1e-3, 0.5e-3, -1e-3])
+    R_goal, _ = reachable_goal(grasp, dl_goal)
+    _, t_goal = reachable_goal(grasp, -dl_goal)
+    hand = copy.deepcopy(grasp.hand)
+    l0 = grasp.plant.state.tendon_command
+    hand.tendon_range = np.column_stack([l0 - 0.5e-3, l0 + 0.5e-3])
+    out = {}
+    for alpha in (0.1, 10.0):
+        pl = fresh(grasp)
+        pl.hand = hand
+
+        def model_fn(dl, R, t, valid, pl=pl):
+            m = control.ControlModel.from_plant_truth(pl, R, t)
+            m.hand = hand
+            return m
+
+        control.servo_to(R_goal, t_goal, pl, model_fn, rows="full", alpha=alpha, max_steps=40)
+        ep, er = observation.pose_error(pl.state.R_PO[None], pl.state.t_PO[None], R_goal[None], t_goal[None])
+        out[alpha] = (ep[0], er[0])
+    assert out[10.0][1] < out[0.1][1] - np.deg2rad(1.0)
+    assert out[10.0][0] > out[0.1][0] + 0.05e-3
+
+
+def test_unreachable_goal_reports_closest_pose_and_respects_tendon_limits(grasp):
+    pl = RecordingPlant(fresh(grasp))
+    t0 = pl.state.t_PO.copy()
+    goal = t0 + np.array([0.0, 0.0, 0.03])  # 30 mm away: far outside the hand's workspace
+    rep = control.servo_to(np.eye(3), goal, pl, control.true_model_fn(pl.plant), rows="position", max_steps=40)
+    assert not rep.reached
+    assert rep.reason in ("budget", "stalled", "tendon_limit", "no_equilibrium")
+    assert rep.iterations <= 40
+    assert rep.closest_position_error < np.linalg.norm(goal - t0)
+    assert np.linalg.norm(rep.t_closest - goal) == pytest.approx(rep.closest_position_error)
+    lo, hi = grasp.hand.tendon_range[:, 0], grasp.hand.tendon_range[:, 1]
+    for l in pl.commands:
+        assert np.all(l >= lo - 1e-12) and np.all(l <= hi + 1e-12)
+    assert "closest" in rep.summary()
+
+
+def test_goal_beyond_tendon_limits_stops_at_the_limit(grasp):
+    """A goal along the strongest direction, too far for the tendon range: the run ends at
+    the range (clamped, never past it) with a report, and the budget bounds it."""
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    hand = copy.deepcopy(grasp.hand)
+    l0 = grasp.plant.state.tendon_command
+    hand.tendon_range = np.column_stack([l0 - 0.3e-3, l0 + 0.3e-3])  # a tight range around the grasp
+    pl = fresh(grasp)
+    pl.hand = hand
+    pl = RecordingPlant(pl)
+    J = control.jacobian(m)
+    u = np.linalg.svd(J[:3])[0][:, 0]
+
+    def model_fn(dl, R, t, valid):
+        mm = control.ControlModel.from_plant_truth(pl.plant, R, t)
+        mm.hand = hand
+        return mm
+
+    rep = control.servo_to(np.eye(3), pl.state.t_PO + 5e-3 * u, pl, model_fn, rows="position", max_steps=30)
+    assert not rep.reached
+    assert rep.at_limit
+    for l in pl.commands:
+        assert np.all(l >= hand.tendon_range[:, 0] - 1e-12) and np.all(l <= hand.tendon_range[:, 1] + 1e-12)
+
+
+def test_servo_never_loops_forever_with_zero_budget(grasp):
+    pl = fresh(grasp)
+    rep = control.servo_to(np.eye(3), pl.state.t_PO + 1e-3, pl, control.true_model_fn(pl), max_steps=0)
+    assert rep.iterations == 0 and rep.reason == "budget"
+
+
+def test_control_step_clip_and_validation():
+    J = np.vstack([np.eye(3), np.eye(3)]) * 2.0
+    dl = control.control_step(J, np.array([1.0, 0, 0, 0, 0, 0]), rows="position", clip=0.5e-3)
+    assert np.max(np.abs(dl)) == pytest.approx(0.5e-3)
+    assert dl[0] > 0 and abs(dl[1]) < 1e-12
+    with pytest.raises(ValueError, match="rows"):
+        control.control_step(J, np.zeros(6), rows="everything")
+    with pytest.raises(ValueError, match="mode"):
+        control.control_step(J, np.zeros(6), mode="pinv")
+    with pytest.raises(ValueError, match="'J'"):
+        control.control_step(np.zeros((3, 3)), np.zeros(6))
+    with pytest.raises(ValueError, match="error6"):
+        control.control_step(J, np.zeros(5))
+    with pytest.raises(ValueError, match="alpha"):
+        control.control_step(J, np.ones(6), alpha=0.0)
+
+
+def test_transpose_form_is_the_scaled_gradient():
+    rng = np.random.default_rng(3)
+    J = rng.standard_normal((6, 3))
+    e = rng.standard_normal(6) * 1e-3
+    dl = control.control_step(J, e, mode="transpose", rows="full", gain=1.0, clip=1.0)
+    w = control._row_weights("full", 1.0, control.POSITION_UNIT, control.ROTATION_UNIT)
+    g = (w[:, None] * J).T @ (w * e)
+    np.testing.assert_allclose(dl / np.linalg.norm(dl), g / np.linalg.norm(g), atol=1e-12)
+
+
+def test_control_model_from_estimate_validates_shapes(grasp):
+    with pytest.raises(ValueError, match="theta"):
+        control.ControlModel.from_estimate(grasp.hand, {"theta": np.zeros(3), "a": np.zeros(3)}, np.eye(3), np.zeros(3))
+    with pytest.raises(ValueError, match="'a'"):
+        control.ControlModel.from_estimate(grasp.hand, {"theta": grasp.theta0}, np.eye(3), np.zeros(3))
+
+
+# ------------------------------------------------------------------ LeafSystems
+
+def _X(R, t):
+    return RigidTransform(RotationMatrix(R), t)
+
+
+def test_controller_system_forced_update_moves_towards_goal(grasp):
+    pl = fresh(grasp)
+    R_goal, t_goal = reachable_goal(grasp, np.array([0.5e-3, 0.3e-3, -0.2e-3]))
+    l0 = pl.state.tendon_command.copy()
+    ctrl = JacobianController(grasp.hand, l0, 0.1, rows="full")
+    ctx = ctrl.CreateDefaultContext()
+    est = {"theta": pl.state.theta, "a": pl.state.a}
+    ctrl.X_PO_goal_input_port().FixValue(ctx, _X(R_goal, t_goal))
+    ctrl.X_PO_measured_input_port().FixValue(ctx, _X(pl.state.R_PO, pl.state.t_PO))
+    ctrl.estimate_input_port().FixValue(ctx, est)
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [0.0])
+    ctrl.ExecuteForcedEvents(ctx)
+    np.testing.assert_allclose(ctrl.tendon_command_output_port().Eval(ctx), l0)  # invalid: held
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    ctrl.ExecuteForcedEvents(ctx)
+    l1 = ctrl.tendon_command_output_port().Eval(ctx)
+    assert np.max(np.abs(l1 - l0)) > 1e-5
+    assert ctrl.at_goal_output_port().Eval(ctx)[0] == 0.0
+    e0 = control.pose_error6(R_goal, t_goal, pl.state.R_PO, pl.state.t_PO)
+    assert ctrl.pose_error_output_port().Eval(ctx)[0] == pytest.approx(np.linalg.norm(e0[:3]))
+    assert pl.apply_action(l1 - l0)
+    e1 = control.pose_error6(R_goal, t_goal, pl.state.R_PO, pl.state.t_PO)
+    assert weighted(e1, "full") < 0.7 * weighted(e0, "full")
+
+
+def test_trajectory_source_advances_on_at_goal():
+    goals = [(np.eye(3), np.array([0.0, 0.0, z])) for z in (0.1, 0.11, 0.12)]
+    src = TaskTrajectorySource(goals, 0.1, max_periods=3)
+    ctx = src.CreateDefaultContext()
+    src.at_goal_input_port().FixValue(ctx, [0.0])
+    assert src.X_PO_goal_output_port().Eval(ctx).translation()[2] == pytest.approx(0.1)
+    src.ExecuteForcedEvents(ctx)
+    assert src.waypoint_index_output_port().Eval(ctx)[0] == 0
+    src.at_goal_input_port().FixValue(ctx, [1.0])
+    src.ExecuteForcedEvents(ctx)
+    assert src.waypoint_index_output_port().Eval(ctx)[0] == 1
+    assert src.X_PO_goal_output_port().Eval(ctx).translation()[2] == pytest.approx(0.11)
+    src.at_goal_input_port().FixValue(ctx, [0.0])
+    for _ in range(3):  # times out on goal 1
+        src.ExecuteForcedEvents(ctx)
+    assert src.waypoint_index_output_port().Eval(ctx)[0] == 2
+    assert src.done_output_port().Eval(ctx)[0] == 0.0
+    src.at_goal_input_port().FixValue(ctx, [1.0])
+    src.ExecuteForcedEvents(ctx)
+    assert src.done_output_port().Eval(ctx)[0] == 1.0
+    assert src.waypoint_index_output_port().Eval(ctx)[0] == 2
+
+
+def test_closed_loop_diagram_on_the_model_plant(grasp):
+    """Trajectory source -> controller -> model plant -> (truth as measurement and estimate)."""
+    pl = fresh(grasp)
+    goals = [reachable_goal(grasp, dl) for dl in (np.array([0.4e-3, 0.2e-3, 0.0]), np.array([0.8e-3, 0.0, 0.3e-3]))]
+    T = 0.1
+    b = DiagramBuilder()
+    plant_sys = b.AddNamedSystem("hand", ModelPlantSystem(pl, T))
+    est = b.AddNamedSystem("estimate", EstimateFromTruth(grasp.hand))
+    ctrl = b.AddNamedSystem("controller", JacobianController(grasp.hand, pl.state.tendon_command, T, rows="full",
+                                                             tol_position=0.02e-3, tol_rotation=np.deg2rad(0.05)))
+    src = b.AddNamedSystem("trajectory", TaskTrajectorySource(goals, T, max_periods=40))
+    valid = b.AddNamedSystem("valid", ConstantVectorSource([1.0]))
+    b.Connect(plant_sys.GetOutputPort("theta_true"), est.theta_true_input_port())
+    b.Connect(plant_sys.GetOutputPort("contact_along_link_true"), est.contact_along_link_true_input_port())
+    b.Connect(est.estimate_output_port(), ctrl.estimate_input_port())
+    b.Connect(plant_sys.GetOutputPort("X_PO_true"), ctrl.X_PO_measured_input_port())
+    b.Connect(valid.get_output_port(), ctrl.X_PO_valid_input_port())
+    b.Connect(src.X_PO_goal_output_port(), ctrl.X_PO_goal_input_port())
+    b.Connect(ctrl.at_goal_output_port(), src.at_goal_input_port())
+    b.Connect(ctrl.tendon_command_output_port(), plant_sys.GetInputPort("tendon_command"))
+    diagram = b.Build()
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    sim.AdvanceTo(3.0)
+    assert src.done_output_port().Eval(src.GetMyContextFromRoot(ctx))[0] == 1.0
+    X = plant_sys.GetOutputPort("X_PO_true").Eval(plant_sys.GetMyContextFromRoot(ctx))
+    R_goal, t_goal = goals[-1]
+    assert np.linalg.norm(X.translation() - t_goal) < 0.05e-3
+    l = ctrl.tendon_command_output_port().Eval(ctrl.GetMyContextFromRoot(ctx))
+    assert np.all(l >= grasp.hand.tendon_range[:, 0]) and np.all(l <= grasp.hand.tendon_range[:, 1])

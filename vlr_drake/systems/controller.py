@@ -1,0 +1,237 @@
+"""LeafSystems of the control loop (DESIGN.md sections 7 and 8).
+
+- :class:`JacobianController`: the controller of :mod:`vlr_drake.control` (Eq. 10-12).
+  Inputs ``X_PO_goal`` (RigidTransform), ``X_PO_measured`` (RigidTransform), ``X_PO_valid``
+  (1) and ``estimate`` (abstract dict, e.g. the ``estimate`` port of
+  :class:`vlr_drake.systems.self_identification.SelfIdentificationSystem`); outputs
+  ``tendon_command`` (N, absolute pulls [m], always inside the tendon range), ``at_goal``
+  (1: 1.0 when the measured error is under tolerance on the controlled rows) and
+  ``pose_error`` (2: position [m], rotation [rad] of the last measurement).
+- :class:`TaskTrajectorySource`: a sequence of goal poses; ``at_goal`` in, ``X_PO_goal``,
+  ``waypoint_index`` and ``done`` out. It moves to the next goal once the controller is at
+  the current one, or after ``max_periods`` action periods.
+- :class:`EstimateFromTruth`: packs a plant's truth ports (``theta_true``,
+  ``contact_along_link_true``) into an ``estimate`` dict (control with the true model).
+
+Timing within one action period T: the controller commands at k T + ``offset_sec``
+(default 0, the slot of the exploration policy), so the self-identification system, which
+keeps updating during control at 0.9 T, takes each control action as evidence
+(``dl = l_k - l_{k-1}``) and rolling contacts stay tracked. The trajectory source updates
+at k T + 0.5 T, between the two.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from vlr_drake import control
+from vlr_drake.hand import HandModel
+
+__all__ = ["JacobianController", "TaskTrajectorySource", "EstimateFromTruth"]
+
+
+class JacobianController(LeafSystem):
+    """Jacobian control of the POM with camera feedback (Eq. 10-12) as a LeafSystem.
+
+    Parameters:
+        hand: the controller's hand model (tendon range, geometry).
+        l_initial (N,): the tendon command before control (the grasp's).
+        period_sec, offset_sec: action period T and when in it the command changes.
+        rows, mode, alpha, gain, damping, clip, eps: see :func:`vlr_drake.control.control_step`
+            and :func:`vlr_drake.control.jacobian`.
+        tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
+        tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
+
+    Without a valid measurement or with an empty estimate the command is held.
+    """
+
+    def __init__(self, hand: HandModel, l_initial, period_sec: float, *, offset_sec: float = 0.0,
+                 rows: str = "full", mode: str = "dls", alpha: float = 1.0, gain: float = 0.7,
+                 damping: float = 0.01, clip: float = 1.0e-3, eps: float = 0.2e-3,
+                 tol_position: float = 0.1e-3, tol_rotation: float = np.deg2rad(0.3), tendon: str = "elastic"):
+        super().__init__()
+        if not period_sec > 0:
+            raise ValueError(f"'period_sec' must be positive, got {period_sec}")
+        l_initial = np.asarray(l_initial, float).reshape(-1)
+        if l_initial.shape != (hand.N,):
+            raise ValueError(f"'l_initial' must have {hand.N} entries, got {l_initial.shape}")
+        control.control_step(np.zeros((6, hand.N)), np.zeros(6), mode=mode, rows=rows, alpha=alpha, gain=gain,
+                             damping=damping, clip=clip)  # validates the settings
+        self._hand = hand
+        self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip)
+        self._eps, self._tendon = eps, tendon
+        self._tol = (tol_position, tol_rotation)
+        self._rows = rows
+        self._goal = self.DeclareAbstractInputPort(name="X_PO_goal", model_value=AbstractValue.Make(RigidTransform()))
+        self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured",
+                                                   model_value=AbstractValue.Make(RigidTransform()))
+        self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
+        self._estimate = self.DeclareAbstractInputPort(name="estimate", model_value=AbstractValue.Make({}))
+        l0 = np.clip(l_initial, hand.tendon_range[:, 0], hand.tendon_range[:, 1])
+        self._command_state = self.DeclareDiscreteState(l0)
+        self._status_state = self.DeclareDiscreteState(np.array([0.0, np.inf, np.inf]))  # at_goal, |dt|, angle
+        self._command_out = self.DeclareStateOutputPort("tendon_command", self._command_state)
+        self._at_goal_out = self.DeclareVectorOutputPort(
+            name="at_goal", size=1, calc=self._calc_at_goal,
+            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)})
+        self._error_out = self.DeclareVectorOutputPort(
+            name="pose_error", size=2, calc=self._calc_error,
+            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)})
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset_sec, update=self._update)
+        self.DeclareForcedDiscreteUpdateEvent(update=self._update)
+
+    # ports, kept as handles
+    def X_PO_goal_input_port(self):
+        return self._goal
+
+    def X_PO_measured_input_port(self):
+        return self._X_PO
+
+    def X_PO_valid_input_port(self):
+        return self._valid
+
+    def estimate_input_port(self):
+        return self._estimate
+
+    def tendon_command_output_port(self):
+        return self._command_out
+
+    def at_goal_output_port(self):
+        return self._at_goal_out
+
+    def pose_error_output_port(self):
+        return self._error_out
+
+    def _update(self, context, discrete_state):
+        l_now = np.array(context.get_discrete_state(self._command_state).get_value())
+        valid = bool(self._valid.Eval(context)[0] > 0.5)
+        est = self._estimate.Eval(context)
+        if not valid or not est:
+            return  # hold the command
+        X = self._X_PO.Eval(context)
+        G = self._goal.Eval(context)
+        R, t = X.rotation().matrix(), X.translation()
+        e = control.pose_error6(G.rotation().matrix(), G.translation(), R, t)
+        ep, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+        at_goal = ((self._rows == "orientation" or ep <= self._tol[0])
+                   and (self._rows == "position" or er <= self._tol[1]))
+        discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(at_goal), ep, er])
+        if at_goal:
+            return
+        try:
+            model = control.ControlModel.from_estimate(self._hand, est, R, t, tendon=self._tendon)
+            J = control.jacobian(model, self._eps)
+        except (RuntimeError, ValueError):
+            return  # the estimate has no usable model here: hold
+        dl = control.control_step(J, e, **self._kw)
+        dl = control.limit_action(self._hand, l_now, dl)
+        discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now + dl)
+
+    def _calc_at_goal(self, context, output: BasicVector):
+        output.SetFromVector([context.get_discrete_state(self._status_state).GetAtIndex(0)])
+
+    def _calc_error(self, context, output: BasicVector):
+        output.SetFromVector(np.array(context.get_discrete_state(self._status_state).get_value())[1:])
+
+
+class TaskTrajectorySource(LeafSystem):
+    """Goal poses of a task, one after another (``X_PO_goal`` out).
+
+    Moves to the next goal at k T + ``offset_sec`` when ``at_goal`` (input) is 1, or after
+    ``max_periods`` periods on one goal; ``done`` becomes 1 after the last goal was reached
+    (or timed out); the last goal is held.
+    """
+
+    def __init__(self, goals: list, period_sec: float, *, offset_sec: float | None = None, max_periods: int = 20):
+        super().__init__()
+        if not goals:
+            raise ValueError("'goals' must hold at least one pose")
+        self._goals = [g if isinstance(g, RigidTransform) else RigidTransform(*_rt(g)) for g in goals]
+        if max_periods < 1:
+            raise ValueError(f"'max_periods' must be >= 1, got {max_periods}")
+        self._max = int(max_periods)
+        self._at_goal = self.DeclareVectorInputPort(name="at_goal", size=1)
+        self._state = self.DeclareDiscreteState(np.array([0.0, 0.0, 0.0]))  # index, periods on it, done
+        ticket = {self.discrete_state_ticket(self._state)}
+        self._goal_out = self.DeclareAbstractOutputPort(
+            name="X_PO_goal", alloc=lambda: AbstractValue.Make(RigidTransform()), calc=self._calc_goal,
+            prerequisites_of_calc=ticket)
+        self._index_out = self.DeclareVectorOutputPort(name="waypoint_index", size=1, calc=self._calc_index,
+                                                       prerequisites_of_calc=ticket)
+        self._done_out = self.DeclareVectorOutputPort(name="done", size=1, calc=self._calc_done,
+                                                      prerequisites_of_calc=ticket)
+        offset = 0.5 * period_sec if offset_sec is None else offset_sec
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
+        self.DeclareForcedDiscreteUpdateEvent(update=self._update)
+
+    def at_goal_input_port(self):
+        return self._at_goal
+
+    def X_PO_goal_output_port(self):
+        return self._goal_out
+
+    def waypoint_index_output_port(self):
+        return self._index_out
+
+    def done_output_port(self):
+        return self._done_out
+
+    def _update(self, context, discrete_state):
+        i, n, done = context.get_discrete_state(self._state).get_value()
+        i, n = int(i), int(n) + 1
+        if done < 0.5 and (self._at_goal.Eval(context)[0] > 0.5 or n >= self._max):
+            if i + 1 < len(self._goals):
+                i, n = i + 1, 0
+            else:
+                done = 1.0
+        discrete_state.get_mutable_vector(self._state).SetFromVector([i, n, done])
+
+    def _calc_goal(self, context, output):
+        i = int(context.get_discrete_state(self._state).GetAtIndex(0))
+        output.set_value(self._goals[i])
+
+    def _calc_index(self, context, output: BasicVector):
+        output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(0)])
+
+    def _calc_done(self, context, output: BasicVector):
+        output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(2)])
+
+
+def _rt(g):
+    from pydrake.math import RotationMatrix
+
+    R, t = g
+    return RotationMatrix(np.asarray(R, float)), np.asarray(t, float)
+
+
+class EstimateFromTruth(LeafSystem):
+    """``theta_true`` (N*K) and ``contact_along_link_true`` (N) in, an ``estimate`` dict out
+    (with the hand's stiffness and link lengths, or the given true ones)."""
+
+    def __init__(self, hand: HandModel, stiffness=None, link_lengths=None):
+        super().__init__()
+        self._hand = hand
+        self._k = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
+        self._L = (hand.link_lengths.copy() if link_lengths is None
+                   else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1))
+        self._theta = self.DeclareVectorInputPort(name="theta_true", size=hand.N * hand.K)
+        self._a = self.DeclareVectorInputPort(name="contact_along_link_true", size=hand.N)
+        self._out = self.DeclareAbstractOutputPort(name="estimate", alloc=lambda: AbstractValue.Make({}),
+                                                   calc=self._calc)
+
+    def theta_true_input_port(self):
+        return self._theta
+
+    def contact_along_link_true_input_port(self):
+        return self._a
+
+    def estimate_output_port(self):
+        return self._out
+
+    def _calc(self, context, output):
+        h = self._hand
+        output.set_value({"theta": np.array(self._theta.Eval(context)).reshape(h.N, h.K),
+                          "a": np.array(self._a.Eval(context)), "stiffness": self._k, "link_lengths": self._L})
