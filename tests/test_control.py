@@ -47,10 +47,24 @@ class RecordingPlant:
 
 
 def reachable_goal(grasp, dl):
-    """The true pose after the action dl: reachable by construction."""
-    pl = fresh(grasp)
-    assert pl.apply_action(dl)
-    return pl.state.R_PO.copy(), pl.state.t_PO.copy()
+    """The true pose after the action dl (halved until the plant can make it): reachable by
+    construction."""
+    for _ in range(6):
+        pl = fresh(grasp)
+        if pl.apply_action(dl):
+            return pl.state.R_PO.copy(), pl.state.t_PO.copy()
+        dl = 0.5 * np.asarray(dl)
+    raise AssertionError(f"the plant cannot make the action {dl}")
+
+
+def two_sided_action(grasp):
+    """An action the plant can make in both directions (from a few candidates)."""
+    for dl in ([1e-3, 0.5e-3, -1e-3], [-1e-3, 1e-3, 0.0], [1e-3, -1e-3, 1e-3], [0.5e-3, 0.25e-3, -0.5e-3],
+               [0.5e-3, -0.5e-3, 0.0], [0.0, 0.5e-3, -0.5e-3]):
+        dl = np.array(dl)
+        if fresh(grasp).apply_action(dl) and fresh(grasp).apply_action(-dl):
+            return dl
+    raise AssertionError("no two-sided action for this grasp")
 
 
 def weighted(e, rows, alpha=1.0):
@@ -137,14 +151,15 @@ def test_true_model_handwriting_segment_reaches_each_waypoint_within_0p1_mm(gras
 
 def test_alpha_trades_position_for_orientation(grasp):
     """Eq. 12: a goal the tendon range cannot reach in full (orientation from one action,
-    position from the opposite one, range +-0.5 mm); larger alpha, smaller rotation error,
+    position from the opposite one, range +-half the action); larger alpha, smaller rotation error,
     larger position error."""
-    dl_goal = np.array([1e-3, 0.5e-3, -1e-3])
+    dl_goal = two_sided_action(grasp)
     R_goal, _ = reachable_goal(grasp, dl_goal)
     _, t_goal = reachable_goal(grasp, -dl_goal)
     hand = copy.deepcopy(grasp.hand)
     l0 = grasp.plant.state.tendon_command
-    hand.tendon_range = np.column_stack([l0 - 0.5e-3, l0 + 0.5e-3])
+    half = 0.5 * np.abs(dl_goal).max()
+    hand.tendon_range = np.column_stack([l0 - half, l0 + half])
     out = {}
     for alpha in (0.1, 10.0):
         pl = fresh(grasp)
@@ -251,9 +266,9 @@ def _X(R, t):
 
 def test_controller_system_forced_update_moves_towards_goal(grasp):
     pl = fresh(grasp)
-    R_goal, t_goal = reachable_goal(grasp, np.array([0.5e-3, 0.3e-3, -0.2e-3]))
+    R_goal, t_goal = reachable_goal(grasp, np.array([-0.3e-3, 0.2e-3, -0.1e-3]))
     l0 = pl.state.tendon_command.copy()
-    ctrl = JacobianController(grasp.hand, l0, 0.1, rows="full")
+    ctrl = JacobianController(grasp.hand, l0, 0.1, rows="full", clip=0.3e-3)
     ctx = ctrl.CreateDefaultContext()
     est = {"theta": pl.state.theta, "a": pl.state.a}
     ctrl.X_PO_goal_input_port().FixValue(ctx, _X(R_goal, t_goal))

@@ -27,6 +27,7 @@ rotational rows, so alpha = 1 trades 1 mm against 1 degree and the paper's alpha
 from __future__ import annotations
 
 import copy
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -117,6 +118,25 @@ def _shaped(name: str, x, shape: tuple) -> np.ndarray:
     return x
 
 
+#: Gamma's grasp constraint: the attachment p_O (rigid-body form) or the contact distances
+#: D^2 (Eq. 8), whichever :func:`vlr_drake.motion.move` of this checkout takes.
+_MOVE_TAKES_ATTACHMENT = "p_O" in inspect.signature(motion.move).parameters
+
+
+def _move(model: ControlModel, theta: np.ndarray, dl, stretch: np.ndarray, l_now=None):
+    """Gamma for B copies of the model's grasp (theta (B, N, K), stretch (B, N))."""
+    h = model.hand
+    B = theta.shape[0]
+    a = np.broadcast_to(model.a, (B, h.N)).copy()
+    if _MOVE_TAKES_ATTACHMENT:
+        grasp = {"p_O": np.broadcast_to(model.p_O, (B, h.N, 3)).copy()}
+    else:
+        D2 = motion.contact_distances_sq(h, model.p_O[None])
+        grasp = {"D2": np.broadcast_to(D2, (B, D2.shape[1])).copy()}
+    return motion.move(h, theta, dl, a=a, stretch=stretch, link_lengths=model.link_lengths[None],
+                       stiffness=model.stiffness[None], tendon=model.tendon, l_now=l_now, **grasp)
+
+
 def upsilon(model: ControlModel, dl) -> np.ndarray:
     """Upsilon = Lambda o Gamma: POM motion dphi (6,) or (B, 6) for actions dl (N,) or (B, N).
 
@@ -130,12 +150,8 @@ def upsilon(model: ControlModel, dl) -> np.ndarray:
     if dl.shape[1] != h.N:
         raise ValueError(f"'dl' must have {h.N} entries per action, got shape {dl.shape}")
     B = dl.shape[0]
-    D2 = motion.contact_distances_sq(h, model.p_O[None])
-    res = motion.move(
-        h, np.broadcast_to(model.theta, (B, h.N, h.K)).copy(), dl, a=np.broadcast_to(model.a, (B, h.N)).copy(),
-        D2=np.broadcast_to(D2, (B, D2.shape[1])).copy(), stretch=np.broadcast_to(model.stretch, (B, h.N)).copy(),
-        link_lengths=model.link_lengths[None], stiffness=model.stiffness[None], tendon=model.tendon,
-    )
+    res = _move(model, np.broadcast_to(model.theta, (B, h.N, h.K)).copy(), dl,
+                np.broadcast_to(model.stretch, (B, h.N)).copy())
     p_O = np.broadcast_to(model.p_O, (B, h.N, 3))
     p0 = kinematics.contacts(h, model.theta[None], model.a[None], model.link_lengths[None])
     R0, t0, _ = observation.pom_pose(model.p_O[None], p0)
@@ -444,7 +460,6 @@ class PredictedPlant:
         self.model = copy.deepcopy(model)  # moved in place; the caller's model is kept
         self.hand = model.hand
         self.tendon_command = np.asarray(l_now, float).reshape(model.hand.N).copy()
-        self._D2 = motion.contact_distances_sq(model.hand, model.p_O[None])
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         m = self.model
@@ -455,9 +470,7 @@ class PredictedPlant:
     def apply_action(self, dl) -> bool:
         m = self.model
         dl = np.asarray(dl, float).reshape(m.hand.N)
-        res = motion.move(m.hand, m.theta[None], dl, a=m.a[None], D2=self._D2, stretch=m.stretch[None],
-                          link_lengths=m.link_lengths[None], stiffness=m.stiffness[None], tendon=m.tendon,
-                          l_now=self.tendon_command)
+        res = _move(m, m.theta[None], dl, m.stretch[None], l_now=self.tendon_command)
         if not res.ok[0]:
             return False
         m.theta, m.stretch = res.theta[0], res.stretch[0]

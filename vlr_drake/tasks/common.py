@@ -23,11 +23,29 @@ MODELS = ("true", "filter")
 GRASP_T_PO = np.array([0.0, 0.0, 0.11])
 
 
-def grasp_config(hand: HandModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """A realistic fingertip grasp (theta (N, K), a (N,)) drawn with ``rng``."""
-    gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
-                              contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
-    return gs.theta[0], gs.a[0]
+#: Largest POM motion per tendon motion a task grasp may have: near a fold of the grasp
+#: (snap-through) the Jacobian grows without bound and a tiny action flips the object.
+MAX_TRANSLATION_GAIN = 5.0  # [m/m]
+MAX_ROTATION_GAIN = np.deg2rad(10.0) / 1e-3  # [rad/m]: 10 degrees per millimetre
+
+
+def grasp_config(hand: HandModel, rng: np.random.Generator, max_draws: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """A realistic fingertip grasp (theta (N, K), a (N,)) drawn with ``rng``, away from
+    folds: its Jacobian (Eq. 10) stays under ``MAX_TRANSLATION_GAIN`` and
+    ``MAX_ROTATION_GAIN`` (column norms)."""
+    for _ in range(max_draws):
+        gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
+                                  contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+        theta, a = gs.theta[0], gs.a[0]
+        est = {"theta": theta, "a": a}
+        try:
+            J = control.jacobian(control.ControlModel.from_estimate(hand, est, np.eye(3), GRASP_T_PO))
+        except RuntimeError:
+            continue
+        if (np.linalg.norm(J[:3], axis=0).max() <= MAX_TRANSLATION_GAIN
+                and np.linalg.norm(J[3:], axis=0).max() <= MAX_ROTATION_GAIN):
+            return theta, a
+    raise RuntimeError(f"no grasp away from a fold in {max_draws} draws")
 
 
 @dataclass

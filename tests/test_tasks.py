@@ -1,0 +1,129 @@
+"""Tests of the three tasks on the model plant (vlr_drake.tasks)."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from vlr_drake.tasks import font, maze, stack, write
+
+SECTION_11 = ("task", "scenario", "seed", "plant", "position_error_mm", "orientation_error_deg", "success")
+
+
+def check_fields(result, task):
+    for key in SECTION_11:
+        assert key in result, key
+    assert result["task"] == task
+    json.dumps({k: v for k, v in result.items()})  # JSON-serialisable
+
+
+def check_stats(s):
+    assert set(s) == {"mean", "sd", "max"}
+    assert 0 <= s["mean"] <= s["max"] and s["sd"] >= 0
+
+
+# ------------------------------------------------------------------ font
+
+def test_font_covers_a_to_z_and_scales():
+    for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ":
+        strokes = font.letter_strokes(c, 12e-3, 0.5e-3)
+        pts = np.concatenate(strokes)
+        assert pts[:, 1].max() - pts[:, 1].min() == pytest.approx(12e-3, rel=0.15)
+        assert np.abs(pts).max() <= 12e-3
+        for s in strokes:
+            assert np.all(np.linalg.norm(np.diff(s, axis=0), axis=1) <= 0.5e-3 + 1e-12)
+    assert font.word_letters("sci ence") == list("SCIENCE")
+    with pytest.raises(ValueError, match="A-Z"):
+        font.word_letters("R2D2")
+    with pytest.raises(ValueError, match="stroke font"):
+        font.letter_strokes("?", 1e-3)
+
+
+# ------------------------------------------------------------------ tasks
+
+def test_write_on_the_model_plant(tmp_path):
+    r = write.run_write("LI", seed=0, out=str(tmp_path), progress=False)
+    check_fields(r, "write")
+    check_stats(r["position_error_mm"])
+    assert r["orientation_error_deg"] is None
+    assert r["word"] == "LI" and r["plant"] == "model"
+    assert 1.0 <= r["letter_height_mm"] <= 12.0
+    assert r["position_error_mm"]["mean"] < 0.6  # camera noise 0.2 mm; the paper: 0.42 mm
+    assert r["success"]
+    assert os.path.getsize(r["plots"][0]) > 1000
+
+
+def test_write_rejects_bad_input():
+    with pytest.raises(ValueError, match="A-Z"):
+        write.run_write("H1", progress=False)
+    with pytest.raises(ValueError, match="letter_height"):
+        write.run_write("H", letter_height=20e-3, progress=False)
+
+
+def test_maze_parse_and_path():
+    mz = maze.parse_maze(maze.MAZE)
+    assert (mz["rows"], mz["cols"]) == (4, 4) and mz["start"] == (0, 0) and mz["goal"] == (3, 3)
+    path = maze.maze_path(mz)
+    assert path[0] == mz["start"] and path[-1] == mz["goal"]
+    for a, b in zip(path[:-1], path[1:]):
+        assert abs(a[0] - b[0]) + abs(a[1] - b[1]) == 1
+    runs = maze.orientation_sequence(path, 0.05)
+    assert [r["kind"] for r in runs] == ["run", "drop", "run", "drop", "run", "drop"]
+    assert runs[0]["tilt"] == pytest.approx(0.05) and runs[2]["tilt"] == pytest.approx(-0.05)
+
+
+def test_marble_rolls_downhill_and_stops_at_walls():
+    mz = maze.parse_maze(maze.MAZE)
+    m = maze.MarbleMaze(mz)
+    g = np.array([2.0, 0.0, -9.6])  # downhill along +s
+    m.step(g, 2.0)
+    # along row 0 the wall right of cell (0, 2) stops it
+    assert m.cell_of() == (0, 2)
+    assert m.pos[0] == pytest.approx(3 * m.cell - m.radius, abs=1e-3)
+    m.step(np.array([0.0, 2.0, -9.6]), 2.0)  # downhill along +f: falls through the gap to row 1
+    assert m.cell_of() == (1, 2)
+    m.step(np.array([0.0, -2.0, -9.6]), 2.0)  # uphill along f: wall above (1, 0..1) but gap at (1, 2)
+    assert m.cell_of() == (0, 2)
+
+
+def test_maze_on_the_model_plant(tmp_path):
+    r = maze.run_maze(seed=0, out=str(tmp_path), progress=False)
+    check_fields(r, "maze")
+    assert r["position_error_mm"] is None
+    check_stats(r["orientation_error_deg"])
+    assert r["marble_reached_goal"] and r["success"]
+    assert r["orientation_error_deg"]["mean"] < 1.5  # the paper: 1.20 deg
+    assert os.path.getsize(r["plots"][0]) > 1000
+
+
+def test_stack_geometry():
+    for k in range(1, len(stack.CUPS)):
+        assert stack.cup_clearance(k - 1, k) > 0.005
+    R, t = np.eye(3), np.array([0.0, 0.0, 0.11])
+    assert stack.nested(0, 1, R, t, R, t)[0]
+    assert not stack.nested(0, 1, R, t, R, t + np.array([0.02, 0.0, 0.0]))[0]
+
+
+def test_stack_on_the_model_plant(tmp_path):
+    r = stack.run_stack(seed=0, out=str(tmp_path), progress=False)
+    check_fields(r, "stack")
+    check_stats(r["position_error_mm"])
+    check_stats(r["orientation_error_deg"])
+    assert r["alpha"] == pytest.approx(9.5)
+    assert len(r["cups"]) == 4
+    for c in r["cups"]:
+        # control made the cup's pose better than the unknown grasp left it
+        assert c["orientation_error_deg"] < c["initial_orientation_error_deg"]
+    assert r["success"]
+    assert os.path.getsize(r["plots"][0]) > 1000
+
+
+def test_write_with_the_filter_model():
+    """The identified model (a small filter, kept running during control) also writes."""
+    r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)
+    check_fields(r, "write")
+    # the filter kept updating during control: every control action was also evidence
+    assert r["model"] == "filter" and r["filter_iterations"] > 30 + r["waypoints"]
+    # an identified (imperfect) model with camera feedback still follows the letter
+    assert r["position_error_mm"]["mean"] < 0.4 * r["letter_height_mm"]
