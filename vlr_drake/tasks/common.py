@@ -14,7 +14,7 @@ from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel, model_o
 from vlr_drake.model_plant import ModelPlant
 
-__all__ = ["MODELS", "TaskPlant", "make_model_plant", "make_model_fn", "stats", "grasp_config"]
+__all__ = ["MODELS", "TaskPlant", "PhysicsTaskPlant", "make_model_plant", "make_model_fn", "stats", "grasp_config"]
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
 #: that identifies the grasp first and keeps updating during control (each action is evidence).
@@ -50,12 +50,38 @@ def grasp_config(hand: HandModel, rng: np.random.Generator, max_draws: int = 50)
 
 @dataclass
 class TaskPlant:
-    """A model plant with its hand and the grasp it started from."""
+    """A model plant with its hand and the grasp it started from (the tasks' plant).
+
+    ``plant`` is what :func:`vlr_drake.control.servo_to` drives; ``true_pose``,
+    ``truth_estimate`` and ``nominal`` give the truth for the errors, the true-model
+    controller and the filter's prior centre.
+    """
 
     hand: HandModel
     plant: ModelPlant
     theta0: np.ndarray
     a0: np.ndarray
+    kind: str = "model"
+
+    def true_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.plant.state.R_PO.copy(), self.plant.state.t_PO.copy()
+
+    def tendon_command(self) -> np.ndarray:
+        return self.plant.state.tendon_command.copy()
+
+    def truth_estimate(self) -> dict:
+        s = self.plant.state
+        return {"theta": s.theta.copy(), "a": s.a.copy(), "stiffness": self.plant.stiffness,
+                "link_lengths": self.plant.link_lengths}
+
+    def nominal(self, rng: np.random.Generator, prior: pf.PriorConfig) -> tuple[np.ndarray, np.ndarray]:
+        """The filter's nominal grasp: the truth displaced by up to 60% of the prior's
+        half-widths (as in the identification experiments)."""
+        h = self.hand
+        theta_c = self.theta0.copy()
+        theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
+        theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
+        return theta_c, self.a0 + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
 
 
 def make_model_plant(seed: int, *, hand: HandModel | None = None, R_PO=None, t_PO=None,
@@ -73,9 +99,60 @@ def make_model_plant(seed: int, *, hand: HandModel | None = None, R_PO=None, t_P
     return TaskPlant(hand, plant, np.asarray(theta, float), np.asarray(a, float))
 
 
+class PhysicsTaskPlant:
+    """The physics plant (MultibodyPlant, rendered palm camera, AprilTag observer; see
+    :class:`vlr_drake.physics_identify.PhysicsAdapter`) holding a preset object, behind the
+    same interface as :class:`TaskPlant`; it is its own ``plant`` for ``servo_to``. One
+    action ramps and settles the physics; a lost tag repeats the last pose as invalid."""
+
+    kind = "physics"
+
+    def __init__(self, object_name: str, seed: int, physics=None, camera=None):
+        from types import SimpleNamespace
+
+        from vlr_drake.physics_identify import PhysicsAdapter
+
+        self.adapter = PhysicsAdapter(SimpleNamespace(object=object_name), model_o(), np.random.default_rng(seed),
+                                      physics, camera)
+        self.hand = self.adapter.hand
+        self.plant = self
+        self.timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
+        theta_c, a_c, R, t = self.adapter.start(None)
+        self.theta0 = np.asarray(theta_c, float).reshape(self.hand.N, self.hand.K)
+        self.a0 = np.broadcast_to(np.asarray(a_c, float), (self.hand.N,)).copy()
+        self._last = (R, t)
+        X = self.adapter.obj.X_PB() @ self.adapter.obj.X_BO()
+        #: the POM pose the object was planned to have in the palm (before it settled)
+        self.X_PO_planned = (X.rotation().matrix(), X.translation())
+
+    @property
+    def tendon_command(self) -> np.ndarray:
+        return self.adapter.tendon_command()
+
+    def apply_action(self, dl) -> bool:
+        return self.adapter.act(dl, self.timing)
+
+    def measure(self):
+        R, t, valid = self.adapter.measure(self.timing)
+        if not valid:
+            return self._last[0], self._last[1], False
+        self._last = (R, t)
+        return R, t, True
+
+    def true_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        X = self.adapter.ph.output(self.adapter.root, "X_PO_true")
+        return X.rotation().matrix().copy(), X.translation().copy()
+
+    def truth_estimate(self) -> dict:
+        return self.adapter.truth()
+
+    def nominal(self, rng, prior) -> tuple[np.ndarray, np.ndarray]:
+        return self.theta0.copy(), self.a0.copy()
+
+
 def make_model_fn(
     kind: str,
-    tp: TaskPlant,
+    tp,
     *,
     seed: int = 0,
     particles: int = 3000,
@@ -84,32 +161,31 @@ def make_model_fn(
     window: float = 4.0e-3,
 ) -> tuple[Callable, object | None]:
     """The controller's ``model_fn`` for :func:`vlr_drake.control.servo_to`, and the filter
-    (or None).
+    (or None), for a :class:`TaskPlant` or :class:`PhysicsTaskPlant`.
 
-    ``"true"``: the plant's hidden truth, anchored at each measurement. ``"filter"``: a
-    :class:`vlr_drake.filter.SelfIdentificationFilter` initialised around a nominal grasp
-    (the truth displaced by up to 60% of the prior's half-widths, as in the identification
-    experiments), run for ``identify_iterations`` random exploratory actions (then the
-    tendons are returned to the grasp command), and kept running during control.
+    ``"true"``: the plant's truth (the physics plant's: its joint angles and contact
+    positions read as a VLR), anchored at each measurement. ``"filter"``: a
+    :class:`vlr_drake.filter.SelfIdentificationFilter` initialised around the nominal grasp,
+    run for ``identify_iterations`` random exploratory actions (then the tendons return to
+    the grasp command), and kept running during control (each action is evidence).
     """
     if kind not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
-    plant = tp.plant
+    plant, h = tp.plant, tp.hand
     if kind == "true":
-        return control.true_model_fn(plant), None
+        def true_fn(dl, R, t, valid):
+            return control.ControlModel.from_estimate(h, tp.truth_estimate(), R, t)
+
+        return true_fn, None
     from vlr_drake.identify import Exploration
 
-    h = tp.hand
     rng = np.random.default_rng(seed + 7)
     prior = pf.PriorConfig()
-    theta_c = tp.theta0.copy()
-    theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
-    theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
-    a_c = tp.a0 + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+    theta_c, a_c = tp.nominal(rng, prior)
     filt = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=particles), prior, np.random.default_rng(seed + 8))
     R, t, _ = plant.measure()
     filt.initialise(theta_c, a_c, R, t)
-    l_grasp = plant.state.tendon_command.copy()
+    l_grasp = tp.tendon_command()
     explore = Exploration(l_grasp, h.tendon_range, action_range, window, np.random.default_rng(seed + 9))
     for _ in range(identify_iterations):
         dl = explore.next_action()
@@ -120,12 +196,12 @@ def make_model_fn(
         filt.step(dl, R, t, valid)
     # back to the grasp command (in small steps, each one evidence too)
     for _ in range(8):
-        dl = np.clip(l_grasp - plant.state.tendon_command, -action_range, action_range)
+        dl = np.clip(l_grasp - tp.tendon_command(), -action_range, action_range)
         if np.max(np.abs(dl)) < 1e-9 or not plant.apply_action(dl):
             break
         R, t, valid = plant.measure()
         filt.step(dl, R, t, valid)
-    return control.filter_model_fn(filt, h, tendon=plant.tendon), filt
+    return control.filter_model_fn(filt, h), filt
 
 
 def stats(values_m_or_rad, scale: float) -> dict | None:

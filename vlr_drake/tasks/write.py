@@ -108,23 +108,28 @@ def run_write(
     out: str | None = None,
     progress: bool = True,
     scenario: str = "default",
+    physics_object: str = "flat_screwdriver",
 ) -> dict:
     """Write ``word`` with the POM; returns the task result dict (DESIGN.md section 11).
 
     ``model``: "true" (the plant's hidden truth as the controller's model) or "filter"
     (self-identification first, then the filter keeps updating during control).
     ``letter_height`` is the largest letter height [m]; letters shrink to the probed
-    workspace. Plots (``out``): ``write_path.png``, the written path over the letters.
+    workspace. ``plant="physics"``: the physics plant holding ``physics_object`` (the pen
+    stand-in), measured by the rendered camera and tag observer; errors against its true
+    object pose (slow: a few tenths of a second per action). Plots (``out``): ``write_path.png``, the written path over the letters.
     """
     letters = font.word_letters(word)
-    if plant != "model":
-        raise NotImplementedError("the handwriting task runs on the model plant (plant='model'); "
-                                  "the physics plant is wired by the integrator")
+    if plant not in ("model", "physics"):
+        raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
     if letter_height <= 0 or letter_height > 12e-3:
         raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
     from tqdm.auto import tqdm
 
-    tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+    if plant == "model":
+        tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+    else:
+        tp = common.PhysicsTaskPlant(physics_object, seed)
     pl = tp.plant
     model_fn, filt = common.make_model_fn(model, tp, seed=seed, particles=particles,
                                           identify_iterations=identify_iterations)
@@ -132,7 +137,7 @@ def run_write(
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
     x, y, n = writing_plane(control.jacobian(m0))
     t_home = t0.copy()
-    l_home = pl.state.tendon_command.copy()
+    l_home = tp.tendon_command()
     reach = probe_workspace(m0, l_home, t_home, (x, y), letter_height, directions=12, max_steps=20)
     center2, r_in = _largest_circle(reach)
     height = float(np.clip(2.0 * 0.75 * r_in, 1e-3, letter_height))
@@ -160,17 +165,17 @@ def run_write(
                     iterations += rep.iterations
                     if not rep.reached:
                         failures[rep.reason] = failures.get(rep.reason, 0) + 1
-                t_true = pl.state.t_PO
+                R_true, t_true = tp.true_pose()
                 wp_err.append(np.linalg.norm(t_true - goal))
                 wp_err_meas.append(rep.position_error)
-                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R0[None], pl.state.R_PO[None])[0]))
+                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R0[None], R_true[None])[0]))
                 d = t_true - t_home
                 path.append([d @ x, d @ y])
                 bar.update(1)
             paths.append(np.array(path))
         letters_out.append((c, [center2 + s for s in strokes], paths))
         # the arm moves the paper; the hand goes back to the grasp command
-        home = control.limit_action(tp.hand, pl.state.tendon_command, l_home - pl.state.tendon_command)
+        home = control.limit_action(tp.hand, tp.tendon_command(), l_home - tp.tendon_command())
         for _ in range(10):
             step = np.clip(home, -1e-3, 1e-3)
             if np.max(np.abs(step)) < 1e-9 or not pl.apply_action(step):
