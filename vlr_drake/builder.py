@@ -1,0 +1,305 @@
+"""The one diagram builder: a :class:`~vlr_drake.scenario.Scenario` in, the
+self-identification diagram out (DESIGN.md section 8), for each plant:
+
+- ``model``:    exploration -> hand (:class:`ModelPlantSystem`) -> pose_sensor
+  (:class:`NoisyPoseSensor`) -> self_identification
+- ``physics``:  exploration -> hand (the physics plant's Diagram, rendered palm camera)
+  -> tag_observer (:class:`TagObserver`) -> self_identification
+- ``hardware``: exploration -> hand (:class:`HardwareInterface`, real motors and camera)
+  -> tag_observer -> self_identification
+
+The policy's ``tendon_command`` also feeds the filter (its actions). Systems are added with
+``AddNamedSystem`` under those names; outputs are exported as ``<system>.<signal>`` (e.g.
+``self_identification.interval_half_width``, ``hand.theta_true``).
+
+The filter's nominal grasp (its prior's centre): on the model plant, the (hidden) true grasp
+displaced by up to ``model_plant.center_offset_fraction`` of the prior's half-widths; on the
+physics plant, the angles :meth:`PhysicsHand.place` puts the pads on the object with and the
+contacts at ``PAD_FRACTION`` of the distal length; on hardware, the scenario's ``grasp``
+section. The physics grasp needs :func:`initialize` before simulating: it places the object
+and fingers (``place``), whose tendon commands are the policy's initial (grasp) commands,
+and simulates to settle; the first action comes at t = T.
+
+Diagram pictures: ``python -m vlr_drake.builder --write-diagrams`` writes
+``diagrams/<name>.dot`` (``GetGraphvizString(max_depth=1)``) for every example scenario and,
+when Graphviz's ``dot`` is installed, ``diagrams/<name>.svg``. The ``.dot`` text is the source
+of truth (a test checks it is current); the picture is a convenience.
+"""
+
+import argparse
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Meshcat
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+
+from vlr_drake import filter as pf
+from vlr_drake.hand import HandModel
+from vlr_drake.identify import _truth_grasp
+from vlr_drake.model_plant import ModelPlant
+from vlr_drake.models import PAD_FRACTION
+from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
+from vlr_drake.scenario import DIAGRAMS_DIR, Scenario, example_scenarios, load_scenario
+from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, build_physics_hand
+from vlr_drake.systems.self_identification import ExplorationPolicy, ModelPlantSystem, SelfIdentificationSystem
+from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver
+
+__all__ = ["BuiltDiagram", "build_diagram", "initialize", "wire_identification", "write_diagrams", "main"]
+
+#: The object's POM in the palm for the model plant's grasp [m] (as in vlr_drake.identify).
+MODEL_PLANT_t_PO = (0.0, 0.0, 0.11)
+#: Seed offsets of the systems' random draws (policy, sensor, filter, model plant, grasp).
+SEED_POLICY, SEED_SENSOR, SEED_FILTER, SEED_PLANT = 1, 2, 3, 4
+
+# Outputs exported as "<system>.<signal>" when the system has them.
+_EXPORTS = {
+    "exploration": ["tendon_command"],
+    "hand": ["theta_true", "X_PO_true", "contacts_true", "contact_along_link_true", "tension",
+             "tendon_position_measured", "rgb_image", "camera_valid"],
+    "pose_sensor": ["X_PO_measured", "X_PO_valid"],
+    "tag_observer": ["X_PO_measured", "X_PO_valid", "reprojection_error"],
+    "self_identification": ["estimate", "theta_estimate", "interval_half_width", "converged", "particles"],
+}
+
+
+@dataclass
+class BuiltDiagram:
+    """The diagram of a scenario and handles to its parts."""
+
+    diagram: Diagram
+    scenario: Scenario | None
+    hand: HandModel  # the hand of the filter and the policy
+    policy: ExplorationPolicy  # "exploration"
+    plant: LeafSystem | Diagram  # "hand": ModelPlantSystem, the physics Diagram or HardwareInterface
+    sensor: LeafSystem  # "pose_sensor" (NoisyPoseSensor) or "tag_observer" (TagObserver)
+    filter: SelfIdentificationSystem  # "self_identification"
+    period_sec: float  # action period T [s]
+    theta_center: np.ndarray  # (N, K) the filter's nominal grasp angles [rad]
+    a_center: np.ndarray  # (N,) nominal contacts along the last links [m]
+    l_grasp: np.ndarray  # (N,) the policy's initial (grasp) tendon commands [m]
+    physics_hand: PhysicsHand | None = None  # the physics plant's handles (plant "physics")
+
+
+def wire_identification(
+    builder: DiagramBuilder, hand: HandModel, policy: ExplorationPolicy, plant, sensor: LeafSystem,
+    flt: SelfIdentificationSystem, sensor_name: str,
+) -> None:
+    """Add the four parts by name (``exploration``, ``hand`` unless already added,
+    ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter
+    (and policy -> filter), and export their outputs as ``<system>.<signal>``."""
+    builder.AddNamedSystem("exploration", policy)
+    if not builder.HasSubsystemNamed("hand"):
+        builder.AddNamedSystem("hand", plant)
+    builder.AddNamedSystem(sensor_name, sensor)
+    builder.AddNamedSystem("self_identification", flt)
+    builder.Connect(policy.GetOutputPort("tendon_command"), plant.GetInputPort("tendon_command"))
+    if sensor_name == "pose_sensor":
+        builder.Connect(plant.GetOutputPort("X_PO_true"), sensor.GetInputPort("X_PO_true"))
+    else:
+        builder.Connect(plant.GetOutputPort("rgb_image"), sensor.GetInputPort("rgb_image"))
+    builder.Connect(policy.GetOutputPort("tendon_command"), flt.tendon_command_input_port())
+    builder.Connect(sensor.GetOutputPort("X_PO_measured"), flt.X_PO_measured_input_port())
+    builder.Connect(sensor.GetOutputPort("X_PO_valid"), flt.X_PO_valid_input_port())
+    for name, system in [("exploration", policy), ("hand", plant), (sensor_name, sensor), ("self_identification", flt)]:
+        for port in _EXPORTS[name]:
+            if system.HasOutputPort(port):
+                builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
+
+
+def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: float):
+    mp = s.model_plant
+    rng = np.random.default_rng((s.seed, SEED_PLANT))
+    theta, a = _truth_grasp(h, rng)
+    plant = ModelPlant(
+        h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng((s.seed, SEED_PLANT + 1)),
+        stiffness=np.asarray(mp.stiffness, float) if mp.stiffness else None,
+        link_lengths=np.asarray(mp.link_lengths, float) if mp.link_lengths else None,
+        sigma_position=mp.sigma_position, sigma_rotation=np.deg2rad(mp.sigma_rotation_deg),
+        dropout=mp.dropout, tendon=s.filter.tendon, contact_drift=mp.contact_drift,
+    )
+    f = mp.center_offset_fraction
+    theta_c = plant.state.theta.copy()
+    theta_c[:, 0] += f * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
+    theta_c[:, 1:] += f * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
+    a_c = plant.state.a + f * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+    plant_sys = ModelPlantSystem(plant, T)
+    sensor = NoisyPoseSensor(mp.sigma_position, np.deg2rad(mp.sigma_rotation_deg), dropout_probability=mp.dropout,
+                             seed=s.seed + SEED_SENSOR, update_period_sec=T)
+    return plant_sys, sensor, theta_c, a_c, plant_sys.grasp_command()
+
+
+def _observer_config(s: Scenario) -> TagObserverConfig:
+    obj = s.object_spec_resolved()
+    import copy
+
+    cfg = copy.deepcopy(s.observer)
+    cfg.tag_id, cfg.tag_size = int(obj.tag_id), float(obj.tag_size)
+    return cfg.validate()
+
+
+def _placed_grasp(s: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """(theta placed (N*K), tendon commands (N)) of the physics grasp, from a camera-less
+    copy of the physics hand (placement is geometry only, so the full diagram gets the same)."""
+    _, ph, sim = build_physics_hand(s.hand_spec_resolved(), s.object_spec_resolved(), s.physics, None, None)
+    return ph.place(sim.get_mutable_context())
+
+
+def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hardware: (theta (N, K), a (N,), tendon commands (N,)) of the scenario's grasp section,
+    or of a stable model grasp sampled with the seed; commands from the model's equilibrium."""
+    if s.grasp.theta_deg:
+        theta = np.deg2rad(np.asarray(s.grasp.theta_deg, float))
+        a = (np.asarray(s.grasp.contact, float) if s.grasp.contact
+             else np.full(h.N, PAD_FRACTION) * h.distal_length)
+    else:
+        theta, a = _truth_grasp(h, np.random.default_rng((s.seed, SEED_PLANT)))
+        if s.grasp.contact:
+            a = np.asarray(s.grasp.contact, float)
+    mp = ModelPlant(h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon)
+    return mp.state.theta.copy(), mp.state.a.copy(), mp.state.tendon_command.copy()
+
+
+def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDiagram:
+    """Turn ``scenario`` into the self-identification diagram (module docstring).
+
+    ``meshcat`` is used for the physics plant when given (and ``scenario.meshcat`` is true,
+    or always when given explicitly). The physics diagram needs :func:`initialize` before
+    it is simulated."""
+    s = scenario.validate()
+    spec = s.hand_spec_resolved()
+    h = spec.model()
+    prior = s.prior.to_prior()
+    T = s.period_sec()
+    builder = DiagramBuilder()
+    ph = None
+    if s.plant == "model":
+        plant, sensor, theta_c, a_c, l0 = _model_plant_parts(s, h, prior, T)
+        sensor_name = "pose_sensor"
+    elif s.plant == "physics":
+        if s.meshcat and meshcat is None:
+            meshcat = Meshcat()
+        theta0, l0 = _placed_grasp(s)
+        obj = s.object_spec_resolved()
+        ph = add_physics_hand(builder, spec, obj, s.physics, s.camera, meshcat)
+        plant = ph.diagram
+        theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
+        a_c = np.full(h.N, PAD_FRACTION) * h.distal_length
+        sensor = TagObserver(_observer_config(s), vtk_render_intrinsics(s.camera), None, s.camera.X_PC(), obj.X_TO(),
+                             update_period_sec=T, image_size=(s.camera.width, s.camera.height))
+        sensor_name = "tag_observer"
+    else:
+        from vlr_drake.systems.hardware_interface import add_hardware_interface
+
+        theta_c, a_c, l0 = _nominal_grasp(s, h)
+        plant = add_hardware_interface(builder, spec, s.hardware, name="hand")
+        sensor = TagObserver(_observer_config(s), plant.camera_matrix(), plant.distortion_coefficients(),
+                             s.camera.X_PC(), s.object_spec_resolved().X_TO(), update_period_sec=T,
+                             image_size=plant.image_size())
+        sensor_name = "tag_observer"
+    policy = ExplorationPolicy(h, l0, T, span=s.exploration.span, window=s.exploration.window,
+                               seed=s.seed + SEED_POLICY)
+    flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
+    wire_identification(builder, h, policy, plant, sensor, flt, sensor_name)
+    diagram = builder.Build()
+    diagram.set_name(f"self_identification_{s.name}")
+    return BuiltDiagram(diagram, s, h, policy, plant, sensor, flt, T, np.asarray(theta_c, float).reshape(h.N, h.K),
+                        np.asarray(a_c, float).reshape(h.N), np.asarray(l0, float), ph)
+
+
+def build_model_plant_diagram(
+    hand: HandModel, plant: ModelPlant, config: pf.FilterConfig, prior: pf.PriorConfig, theta_center, a_center,
+    *, period_sec: float = 1.0, sigma_position: float = 0.2e-3, sigma_rotation: float = np.deg2rad(0.5),
+    dropout: float = 0.0, seed: int = 0,
+) -> BuiltDiagram:
+    """The model-plant loop around an already made :class:`ModelPlant` (the signature of
+    ``vlr_drake.diagram.build_model_identification_diagram``, wired by the same
+    :func:`wire_identification` as :func:`build_diagram`)."""
+    builder = DiagramBuilder()
+    plant_sys = ModelPlantSystem(plant, period_sec)
+    l0 = plant_sys.grasp_command()
+    policy = ExplorationPolicy(hand, l0, period_sec, seed=seed + SEED_POLICY)
+    sensor = NoisyPoseSensor(sigma_position, sigma_rotation, dropout_probability=dropout, seed=seed + SEED_SENSOR,
+                             update_period_sec=period_sec)
+    flt = SelfIdentificationSystem(hand, config, prior, theta_center, a_center, period_sec, seed=seed + SEED_FILTER)
+    wire_identification(builder, hand, policy, plant_sys, sensor, flt, "pose_sensor")
+    diagram = builder.Build()
+    diagram.set_name("self_identification_model_plant")
+    return BuiltDiagram(diagram, None, hand, policy, plant_sys, sensor, flt, period_sec,
+                        np.asarray(theta_center, float).reshape(hand.N, hand.K),
+                        np.asarray(a_center, float).reshape(hand.N), l0)
+
+
+def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | None = None) -> dict:
+    """Prepare ``simulator`` (of ``built.diagram``) for a run and return grasp facts.
+
+    Physics plant: :meth:`PhysicsHand.place` (object at its placement, pads on it, tendons at
+    the grasp's commands, which the policy already outputs: checked), ``Initialize``, then
+    simulate ``settle_sec`` (default: the smaller of ``physics.grasp_settle_max`` and 0.8 T,
+    before the filter's first update at 0.9 T) so the grasp settles under the object's
+    weight. Other plants: ``Initialize`` only. Returns ``{"theta_placed", "command",
+    "in_contact"}`` (the last two None/all-True off the physics plant)."""
+    root = simulator.get_mutable_context()
+    if built.physics_hand is None:
+        simulator.Initialize()
+        return {"theta_placed": None, "command": built.l_grasp.copy(), "in_contact": None}
+    ph = built.physics_hand
+    theta0, l = ph.place(root)
+    if not np.allclose(l, built.l_grasp, atol=1e-9):
+        raise RuntimeError(f"physics grasp: placed commands {l} differ from the policy's {built.l_grasp}")
+    simulator.Initialize()
+    if settle_sec is None:
+        settle_sec = min(built.scenario.physics.grasp_settle_max, 0.8 * built.period_sec)
+    simulator.AdvanceTo(root.get_time() + settle_sec)
+    ph.grasp_X_PO = ph.output(root, "X_PO_true")
+    return {"theta_placed": np.asarray(theta0), "command": l, "in_contact": ph.in_contact(root)}
+
+
+# -- diagram pictures ----------------------------------------------------------------------
+
+
+def graphviz_text(built: BuiltDiagram) -> str:
+    """Drake's GraphViz text of the diagram, one level deep (the committed ``.dot``)."""
+    return built.diagram.GetGraphvizString(max_depth=1)
+
+
+def write_diagrams(folder: str | Path | None = None, render: bool = True) -> list[Path]:
+    """Write ``<name>.dot`` for every example scenario in ``folder`` (default ``diagrams/``)
+    and, with ``render`` and Graphviz's ``dot`` on the PATH, ``<name>.svg``. Returns the
+    written paths."""
+    folder = DIAGRAMS_DIR if folder is None else Path(folder)
+    dot = shutil.which("dot") if render else None
+    written = []
+    for path in example_scenarios(folder):
+        s = load_scenario(path)
+        text = graphviz_text(build_diagram(s))
+        out = folder / f"{s.name}.dot"
+        out.write_text(text)
+        written.append(out)
+        if dot:
+            svg = out.with_suffix(".svg")
+            subprocess.run([dot, "-Tsvg", str(out), "-o", str(svg)], check=True)
+            written.append(svg)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder", description=__doc__.splitlines()[0])
+    parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<name>.dot (and .svg)")
+    parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
+    parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
+    args = parser.parse_args(argv)
+    if not args.write_diagrams:
+        parser.print_help()
+        return 0
+    for p in write_diagrams(args.folder, render=not args.no_render):
+        print(p)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,363 @@
+"""Scenarios: what one self-identification run is made of, as a YAML-loadable dataclass.
+
+A :class:`Scenario` names the plant ("model", "physics" or "hardware"), the hand (a preset
+name or a full :class:`~vlr_drake.hand.HandSpec`), the object (a preset name or a full
+:class:`~vlr_drake.objects.ObjectSpec`), the camera, the physics, the filter and its prior,
+the exploration policy, the model plant's pose noise and, for a real hand, the hardware
+section. Every field carries a comment (DESIGN.md section 8, STYLE.md: the hardware_sim
+pattern). :func:`load_scenario` reads a file with Drake's ``yaml_load_typed`` (the file
+first, then an override text), turns loader errors into ``ValueError`` naming the file and
+the field, and validates every section. :func:`vlr_drake.builder.build_diagram` turns the
+result into the diagram.
+
+The example scenarios live in ``diagrams/`` (:func:`example_scenarios` lists them); a new
+hand or object needs only a scenario file, e.g.::
+
+    hand_spec:
+      name: four_finger
+      fingers:
+        - {name: f1, base: [0.03, 0.0, 0.0], flexion_direction: [-1.0, 0.0, 0.0], ...}
+    object_spec: {name: block, shape: box, size: [0.05, 0.05, 0.05], mass: 0.1, tag_id: 9}
+
+Note on loading: several config dataclasses of the package are declared in modules with
+``from __future__ import annotations``, which leaves their field types as strings that
+``yaml_load_typed`` cannot read; :func:`_resolve_field_types` replaces them with the
+resolved types (once, in place; the dataclasses are otherwise unchanged).
+"""
+
+import copy
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_load_typed
+
+from vlr_drake import filter as pf
+from vlr_drake.hand import HandSpec, hand_by_name
+from vlr_drake.hardware.config import HardwareConfig
+from vlr_drake.objects import ObjectSpec, preset, preset_names
+from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.perception.tag_pose import TagObserverConfig
+from vlr_drake.systems.physics_plant import PhysicsConfig
+
+# No ``from __future__ import annotations`` here: yaml_load_typed reads the field types.
+
+__all__ = [
+    "PLANTS",
+    "HAND_PRESETS",
+    "DIAGRAMS_DIR",
+    "PriorSettings",
+    "ExplorationSettings",
+    "ModelPlantSettings",
+    "NominalGrasp",
+    "Scenario",
+    "load_scenario",
+    "example_scenarios",
+]
+
+#: The plants a scenario can drive.
+PLANTS = ("model", "physics", "hardware")
+#: Hand preset names accepted by ``Scenario.hand`` (see :func:`vlr_drake.hand.hand_by_name`).
+HAND_PRESETS = ("model_o", "NH1", "NH2", "NH3")
+#: The folder of the example scenarios and their rendered diagrams.
+DIAGRAMS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+
+
+def _resolve_field_types(cls: type) -> type:
+    """Replace string field annotations (postponed evaluation) of the dataclass ``cls`` and of
+    the dataclasses its fields hold with the resolved types, so ``yaml_load_typed`` can read
+    them. Idempotent; returns ``cls``."""
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        t = hints[f.name]
+        f.type = t
+        stack = [t]
+        while stack:
+            s = stack.pop()
+            if dataclasses.is_dataclass(s) and isinstance(s, type):
+                _resolve_field_types(s)
+            stack.extend(typing.get_args(s))
+    return cls
+
+
+for _cls in (HandSpec, ObjectSpec, CameraConfig, PhysicsConfig, pf.FilterConfig, TagObserverConfig, HardwareConfig):
+    _resolve_field_types(_cls)
+
+
+@dataclass
+class PriorSettings:
+    """The filter's prior (:class:`vlr_drake.filter.PriorConfig`) in YAML-friendly form
+    (lists instead of tuples); :meth:`to_prior` converts."""
+
+    # Half-width of the proximal (first) joint angles around the nominal grasp [rad].
+    proximal_half_width: float = 0.15
+    # Half-width of the other joint angles [rad].
+    distal_half_width: float = 0.25
+    # Half-width of the contact positions along the last links [m].
+    contact_half_width: float = 0.008
+    # Unknown joint stiffnesses as [finger, joint] pairs (empty: all known) ...
+    stiffness_unknown: list[list[int]] = field(default_factory=list)
+    # ... searched in [min, max] [N m/rad].
+    stiffness_range: list[float] = field(default_factory=lambda: [0.05, 0.40])
+    # Fingers whose proximal link lengths are unknown (empty: all known) ...
+    links_unknown: list[int] = field(default_factory=list)
+    # ... searched in [min, max] [m].
+    link_range: list[float] = field(default_factory=lambda: [0.030, 0.075])
+    # Contact positions must stay on the pad: [min, max] along the last link [m].
+    contact_limits: list[float] = field(default_factory=lambda: [0.005, 0.048])
+    # Smallest implied tendon tension of a prior draw [N].
+    min_tension: float = 0.0
+
+    def to_prior(self) -> pf.PriorConfig:
+        return pf.PriorConfig(
+            proximal_half_width=self.proximal_half_width,
+            distal_half_width=self.distal_half_width,
+            contact_half_width=self.contact_half_width,
+            stiffness_unknown=[(int(i), int(k)) for i, k in self.stiffness_unknown],
+            stiffness_range=(float(self.stiffness_range[0]), float(self.stiffness_range[1])),
+            links_unknown=[int(i) for i in self.links_unknown],
+            link_range=(float(self.link_range[0]), float(self.link_range[1])),
+            contact_limits=(float(self.contact_limits[0]), float(self.contact_limits[1])),
+            min_tension=self.min_tension,
+        )
+
+    def validate(self, N: int, K: int) -> "PriorSettings":
+        for name in ("proximal_half_width", "distal_half_width", "contact_half_width"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"prior: '{name}' must be positive, got {getattr(self, name)}")
+        for name in ("stiffness_range", "link_range", "contact_limits"):
+            v = getattr(self, name)
+            if len(v) != 2 or not v[0] < v[1]:
+                raise ValueError(f"prior: '{name}' must be [min, max] with min < max, got {v}")
+        for pair in self.stiffness_unknown:
+            if len(pair) != 2 or not (0 <= pair[0] < N and 0 <= pair[1] < K):
+                raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger < {N}, joint < {K}] pair")
+        for i in self.links_unknown:
+            if not 0 <= i < N:
+                raise ValueError(f"prior: 'links_unknown' entry {i} is not a finger index < {N}")
+        return self
+
+
+@dataclass
+class ExplorationSettings:
+    """The random exploration policy (:class:`vlr_drake.systems.self_identification.ExplorationPolicy`)."""
+
+    # Each action moves every tendon by a uniform draw in +-span [m] ...
+    span: float = 1.5e-3
+    # ... reflected inside +-window around the grasp's tendon commands [m].
+    window: float = 4.0e-3
+    # Action period T [s]; 0: the plant's own (model 1 s, physics ``physics.action_period``
+    # (ramp + settle cap), hardware 1 s).
+    period_sec: float = 0.0
+
+    def validate(self) -> "ExplorationSettings":
+        if not self.span > 0 or not self.window > 0:
+            raise ValueError(f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}")
+        if self.period_sec < 0:
+            raise ValueError(f"exploration: 'period_sec' must be >= 0, got {self.period_sec}")
+        return self
+
+
+@dataclass
+class ModelPlantSettings:
+    """The model plant (truth simulated by the VLR model) and its camera stand-in."""
+
+    # Pose noise of the camera stand-in (NoisyPoseSensor): position [m] ...
+    sigma_position: float = 0.2e-3
+    # ... and rotation [deg] standard deviations.
+    sigma_rotation_deg: float = 0.5
+    # Probability that a measurement is lost (the tag not seen).
+    dropout: float = 0.0
+    # True joint stiffness per finger [N m/rad] (N lists of K); empty: the hand's.
+    stiffness: list[list[float]] = field(default_factory=list)
+    # True proximal link lengths per finger [m] (N lists of K-1); empty: the hand's.
+    link_lengths: list[list[float]] = field(default_factory=list)
+    # The filter's nominal grasp is the true grasp displaced by up to this fraction of the
+    # prior's half-widths (uniform; on hardware it would be the grasp planner's guess).
+    center_offset_fraction: float = 0.6
+    # Contacts roll along the fingers by this standard deviation per action [m] (0: fixed).
+    contact_drift: float = 0.0
+
+    def validate(self, N: int, K: int) -> "ModelPlantSettings":
+        if self.sigma_position < 0 or self.sigma_rotation_deg < 0:
+            raise ValueError("model_plant: 'sigma_position' and 'sigma_rotation_deg' must be >= 0")
+        if not 0 <= self.dropout < 1:
+            raise ValueError(f"model_plant: 'dropout' must be in [0, 1), got {self.dropout}")
+        if self.stiffness and np.shape(self.stiffness) != (N, K):
+            raise ValueError(f"model_plant: 'stiffness' must be {N} lists of {K}, got {self.stiffness}")
+        if self.stiffness and not np.all(np.asarray(self.stiffness) > 0):
+            raise ValueError(f"model_plant: 'stiffness' must be positive, got {self.stiffness}")
+        if self.link_lengths and np.shape(self.link_lengths) != (N, K - 1):
+            raise ValueError(f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}")
+        if not 0 <= self.center_offset_fraction <= 1:
+            raise ValueError(f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}")
+        if self.contact_drift < 0:
+            raise ValueError(f"model_plant: 'contact_drift' must be >= 0, got {self.contact_drift}")
+        return self
+
+
+@dataclass
+class NominalGrasp:
+    """The filter's nominal grasp (its prior's centre) when the plant cannot supply one
+    (hardware; the model and physics plants derive it, see :mod:`vlr_drake.builder`)."""
+
+    # Joint angles per finger [deg] (N lists of K); empty: a stable grasp of the model
+    # sampled with the scenario's seed.
+    theta_deg: list[list[float]] = field(default_factory=list)
+    # Contact positions along the last links [m] (N); empty: PAD_FRACTION * distal length.
+    contact: list[float] = field(default_factory=list)
+
+    def validate(self, N: int, K: int) -> "NominalGrasp":
+        if self.theta_deg and np.shape(self.theta_deg) != (N, K):
+            raise ValueError(f"grasp: 'theta_deg' must be {N} lists of {K}, got {self.theta_deg}")
+        if self.contact and np.shape(self.contact) != (N,):
+            raise ValueError(f"grasp: 'contact' must have {N} entries, got {self.contact}")
+        return self
+
+
+@dataclass
+class Scenario:
+    """One self-identification run (DESIGN.md section 8): plant, hand, object and settings."""
+
+    # Name of the scenario (names the diagram and its rendered picture in diagrams/).
+    name: str = "default"
+    # Seed of every random draw of the run (the systems get seed + a fixed offset each).
+    seed: int = 0
+    # The plant: "model" (VLR model, exact truth, fast), "physics" (MultibodyPlant +
+    # rendered palm camera + AprilTag observer) or "hardware" (real motors and camera).
+    plant: str = "physics"
+    # Hand preset: "model_o", "NH1", "NH2", "NH3". Leave it out when giving hand_spec.
+    hand: str = "model_o"
+    # A hand written out in full (any N fingers and K joints); replaces the preset.
+    hand_spec: HandSpec | None = None
+    # Object preset (see vlr_drake.objects.preset_names()). Leave it out when giving object_spec.
+    object: str = "apple"
+    # An object written out in full (shape, size, mass, tag id and size, placement).
+    object_spec: ObjectSpec | None = None
+    # The palm camera (intrinsics, pose X_PC in the palm, render scale, pixel noise).
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    # The physics plant's settings (time step, contact, tendon ramp and settle, pretension).
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    # The AprilTag observer (its tag_id and tag_size are taken from the object).
+    observer: TagObserverConfig = field(default_factory=TagObserverConfig)
+    # The particle filter (particles, likelihood noise, resampling, convergence).
+    filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
+    # The filter's prior around the nominal grasp.
+    prior: PriorSettings = field(default_factory=PriorSettings)
+    # The random exploration policy.
+    exploration: ExplorationSettings = field(default_factory=ExplorationSettings)
+    # The model plant's truth and camera stand-in (plant "model" only).
+    model_plant: ModelPlantSettings = field(default_factory=ModelPlantSettings)
+    # The nominal grasp for the hardware plant.
+    grasp: NominalGrasp = field(default_factory=NominalGrasp)
+    # Motors and camera of a real hand (plant "hardware" only); relative file names are
+    # resolved against the scenario file's folder.
+    hardware: HardwareConfig | None = None
+    # Show the physics plant in Meshcat (the builder then needs a Meshcat instance).
+    meshcat: bool = False
+
+    # -- resolved parts ----------------------------------------------------------------------
+
+    def hand_spec_resolved(self) -> HandSpec:
+        """The hand: ``hand_spec`` when given, else the preset ``hand``."""
+        if self.hand_spec is not None:
+            return copy.deepcopy(self.hand_spec)
+        return hand_by_name(self.hand)
+
+    def object_spec_resolved(self) -> ObjectSpec:
+        """The object: ``object_spec`` when given, else the preset ``object``."""
+        if self.object_spec is not None:
+            return copy.deepcopy(self.object_spec)
+        return preset(self.object)
+
+    def period_sec(self) -> float:
+        """The action period T [s] (``exploration.period_sec`` or the plant's own)."""
+        if self.exploration.period_sec > 0:
+            return float(self.exploration.period_sec)
+        return float(self.physics.action_period) if self.plant == "physics" else 1.0
+
+    def validate(self) -> "Scenario":
+        """Check every section; raises ``ValueError`` naming the section and field."""
+        if self.plant not in PLANTS:
+            raise ValueError(f"'plant' must be one of {list(PLANTS)}, got '{self.plant}'")
+        if self.hand_spec is None and self.hand not in HAND_PRESETS:
+            raise ValueError(f"'hand' must be a preset {list(HAND_PRESETS)} or hand_spec given, got '{self.hand}'")
+        if self.object_spec is None and self.object not in preset_names():
+            raise ValueError(f"'object' must be a preset {preset_names()} or object_spec given, got '{self.object}'")
+        hand = self.hand_spec_resolved()
+        _with_section("hand_spec" if self.hand_spec is not None else "hand", hand.validate)
+        _with_section("object_spec" if self.object_spec is not None else "object",
+                      self.object_spec_resolved().validate)
+        _with_section("camera", self.camera.validate)
+        _with_section("physics", self.physics.validate)
+        _with_section("filter", self.filter.validate)
+        obs = copy.deepcopy(self.observer)
+        obs.tag_size = self.object_spec_resolved().tag_size
+        _with_section("observer", obs.validate)
+        N, K = hand.num_fingers, hand.num_joints_per_finger
+        self.prior.validate(N, K)
+        self.exploration.validate()
+        self.model_plant.validate(N, K)
+        self.grasp.validate(N, K)
+        if self.plant == "hardware":
+            if self.hardware is None:
+                raise ValueError("'hardware': plant 'hardware' needs a hardware section")
+            _with_section("hardware", lambda: self.hardware.validate(num_fingers=N))
+        return self
+
+
+def _with_section(section: str, check) -> None:
+    try:
+        check()
+    except ValueError as e:
+        msg = str(e)
+        raise ValueError(msg if msg.startswith(section) else f"{section}: {msg}") from e
+
+
+def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
+    """Load a scenario: ``yaml_load_typed(filename=path)`` on the defaults, then the YAML
+    ``overrides`` text on the result; resolve the hardware section's relative file names
+    against the file's folder; validate every section (:meth:`Scenario.validate`).
+
+    Raises ``ValueError`` naming the file and the field for an unknown field, a value of the
+    wrong type, both a preset and a full spec given, a missing file, or a failed check.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: scenario file not found")
+    # Load with empty preset names so that a preset written next to a full spec is caught.
+    defaults = Scenario(hand="", object="")
+    scenario = defaults
+    for source, kwargs in [(str(path), dict(filename=str(path))), ("override text", dict(data=overrides))]:
+        if source == "override text" and not overrides:
+            continue
+        try:
+            scenario = yaml_load_typed(schema=Scenario, defaults=scenario, **kwargs)
+        except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError ...
+            raise ValueError(f"{path} ({source}): {e}") from e
+    for preset_field, spec_field, default in [("hand", "hand_spec", "model_o"), ("object", "object_spec", "apple")]:
+        name, spec = getattr(scenario, preset_field), getattr(scenario, spec_field)
+        if name and spec is not None:
+            raise ValueError(f"{path}: give either '{preset_field}' or '{spec_field}', not both")
+        if not name and spec is None:
+            setattr(scenario, preset_field, default)
+    if scenario.hardware is not None:
+        cal = Path(scenario.hardware.calibration_file)
+        if not cal.is_absolute():
+            cal = path.resolve().parent / cal
+        if not cal.is_file():
+            raise ValueError(f"{path}: field 'hardware.calibration_file': file not found: {cal}")
+        scenario.hardware.calibration_file = str(cal)
+    try:
+        scenario.validate()
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from e
+    return scenario
+
+
+def example_scenarios(folder: str | Path | None = None) -> list[Path]:
+    """The scenario files in ``diagrams/`` (sorted)."""
+    folder = DIAGRAMS_DIR if folder is None else Path(folder)
+    return sorted(p for p in folder.glob("*.yaml") if not p.name.startswith("_") and "intrinsics" not in p.name)
