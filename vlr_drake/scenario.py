@@ -360,4 +360,4 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
 def example_scenarios(folder: str | Path | None = None) -> list[Path]:
     """The scenario files in ``diagrams/`` (sorted)."""
     folder = DIAGRAMS_DIR if folder is None else Path(folder)
-    return sorted(p for p in folder.glob("*.yaml") if not p.name.startswith("_") and "intrinsics" not in p.name)
+    return sorted(p for p in folder.glob("*.yaml") if not p.name.startswith("_"))
