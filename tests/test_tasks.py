@@ -25,6 +25,7 @@ def check_stats(s):
 
 # ------------------------------------------------------------------ font
 
+
 def test_font_covers_a_to_z_and_scales():
     for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ":
         strokes = font.letter_strokes(c, 12e-3, 0.5e-3)
@@ -41,6 +42,7 @@ def test_font_covers_a_to_z_and_scales():
 
 
 # ------------------------------------------------------------------ tasks
+
 
 def test_write_on_the_model_plant(tmp_path):
     r = write.run_write("LI", seed=0, out=str(tmp_path), progress=False)
@@ -66,7 +68,7 @@ def test_maze_parse_and_path():
     assert (mz["rows"], mz["cols"]) == (4, 4) and mz["start"] == (0, 0) and mz["goal"] == (3, 3)
     path = maze.maze_path(mz)
     assert path[0] == mz["start"] and path[-1] == mz["goal"]
-    for a, b in zip(path[:-1], path[1:]):
+    for a, b in zip(path[:-1], path[1:], strict=True):
         assert abs(a[0] - b[0]) + abs(a[1] - b[1]) == 1
     runs = maze.orientation_sequence(path, 0.05)
     assert [r["kind"] for r in runs] == ["run", "drop", "run", "drop", "run", "drop"]

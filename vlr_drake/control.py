@@ -79,7 +79,9 @@ class ControlModel:
     tendon: str = "elastic"
 
     @classmethod
-    def from_estimate(cls, hand: HandModel, estimate: dict, R_PO, t_PO, *, tendon: str = "elastic") -> ControlModel:
+    def from_estimate(
+        cls, hand: HandModel, estimate: dict, R_PO, t_PO, *, tendon: str = "elastic"
+    ) -> ControlModel:
         """Build from an estimate dict (keys ``theta`` (N,K), ``a`` (N,), optional
         ``stiffness`` (N,K) and ``link_lengths`` (N,K-1); e.g.
         :meth:`vlr_drake.filter.SelfIdentificationFilter.estimate`) and a measured pose."""
@@ -107,8 +109,13 @@ class ControlModel:
         true-model task runs), anchored at a measured pose (default: the true pose)."""
         s = plant.state
         est = {"theta": s.theta, "a": s.a, "stiffness": plant.stiffness, "link_lengths": plant.link_lengths}
-        return cls.from_estimate(plant.hand, est, s.R_PO if R_PO is None else R_PO, s.t_PO if t_PO is None else t_PO,
-                                 tendon=plant.tendon)
+        return cls.from_estimate(
+            plant.hand,
+            est,
+            s.R_PO if R_PO is None else R_PO,
+            s.t_PO if t_PO is None else t_PO,
+            tendon=plant.tendon,
+        )
 
 
 def _shaped(name: str, x, shape: tuple) -> np.ndarray:
@@ -133,8 +140,18 @@ def _move(model: ControlModel, theta: np.ndarray, dl, stretch: np.ndarray, l_now
     else:
         D2 = motion.contact_distances_sq(h, model.p_O[None])
         grasp = {"D2": np.broadcast_to(D2, (B, D2.shape[1])).copy()}
-    return motion.move(h, theta, dl, a=a, stretch=stretch, link_lengths=model.link_lengths[None],
-                       stiffness=model.stiffness[None], tendon=model.tendon, l_now=l_now, **grasp)
+    return motion.move(
+        h,
+        theta,
+        dl,
+        a=a,
+        stretch=stretch,
+        link_lengths=model.link_lengths[None],
+        stiffness=model.stiffness[None],
+        tendon=model.tendon,
+        l_now=l_now,
+        **grasp,
+    )
 
 
 def upsilon(model: ControlModel, dl) -> np.ndarray:
@@ -150,8 +167,12 @@ def upsilon(model: ControlModel, dl) -> np.ndarray:
     if dl.shape[1] != h.N:
         raise ValueError(f"'dl' must have {h.N} entries per action, got shape {dl.shape}")
     B = dl.shape[0]
-    res = _move(model, np.broadcast_to(model.theta, (B, h.N, h.K)).copy(), dl,
-                np.broadcast_to(model.stretch, (B, h.N)).copy())
+    res = _move(
+        model,
+        np.broadcast_to(model.theta, (B, h.N, h.K)).copy(),
+        dl,
+        np.broadcast_to(model.stretch, (B, h.N)).copy(),
+    )
     p_O = np.broadcast_to(model.p_O, (B, h.N, 3))
     p0 = kinematics.contacts(h, model.theta[None], model.a[None], model.link_lengths[None])
     R0, t0, _ = observation.pom_pose(model.p_O[None], p0)
@@ -177,7 +198,7 @@ def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.n
     for attempt in range(retries + 1):
         E = h * np.eye(N)[todo]
         d = upsilon(model, np.concatenate([E, -E]))
-        plus, minus = d[: todo.size], d[todo.size:]
+        plus, minus = d[: todo.size], d[todo.size :]
         good = np.all(np.isfinite(plus), axis=1) & np.all(np.isfinite(minus), axis=1)
         J[:, todo[good]] = ((plus[good] - minus[good]) / (2.0 * h)).T
         if attempt == retries:
@@ -275,7 +296,9 @@ def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
 def limit_action(hand: HandModel, l_now, dl) -> np.ndarray:
     """dl with every tendon kept inside ``hand.tendon_range`` (per tendon clamp)."""
     l_now = np.asarray(l_now, float).reshape(hand.N)
-    l_new = np.clip(l_now + np.asarray(dl, float).reshape(hand.N), hand.tendon_range[:, 0], hand.tendon_range[:, 1])
+    l_new = np.clip(
+        l_now + np.asarray(dl, float).reshape(hand.N), hand.tendon_range[:, 0], hand.tendon_range[:, 1]
+    )
     return l_new - l_now
 
 
@@ -296,9 +319,11 @@ class ServoReport:
     history: list = field(default_factory=list)  # per iteration: (position_error, rotation_error, dl)
 
     def summary(self) -> str:
-        return (f"{self.reason} after {self.iterations} steps: error {self.position_error * 1e3:.3f} mm, "
-                f"{np.rad2deg(self.rotation_error):.3f} deg (closest {self.closest_position_error * 1e3:.3f} mm, "
-                f"{np.rad2deg(self.closest_rotation_error):.3f} deg)")
+        return (
+            f"{self.reason} after {self.iterations} steps: error {self.position_error * 1e3:.3f} mm, "
+            f"{np.rad2deg(self.rotation_error):.3f} deg (closest {self.closest_position_error * 1e3:.3f} mm, "
+            f"{np.rad2deg(self.closest_rotation_error):.3f} deg)"
+        )
 
 
 def _tendon_command(plant) -> np.ndarray:
@@ -332,8 +357,9 @@ def servo_to(
 ) -> ServoReport:
     """Drive the POM to (R_goal, t_goal) with camera feedback (DESIGN.md section 7).
 
-    ``plant`` has ``measure() -> (R, t, valid)``, ``apply_action(dl) -> bool`` and a tendon
-    command (``plant.tendon_command`` or ``plant.state.tendon_command``), e.g.
+    ``plant`` has ``hand``, ``measure() -> (R, t, valid)``, ``apply_action(dl) -> bool`` and
+    a tendon command (``plant.tendon_command``, an array or a method, or
+    ``plant.state.tendon_command``), e.g.
     :class:`vlr_drake.model_plant.ModelPlant`. ``model_fn(dl, R, t, valid)`` returns the
     controller's model after the action ``dl`` (zeros before the first) and the measurement
     (R, t, valid); a filter-backed ``model_fn`` also takes the action as evidence.
@@ -384,8 +410,18 @@ def servo_to(
         except RuntimeError:
             reason = "no_equilibrium"
             break
-        dl = control_step(J, e, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
-                          position_unit=position_unit, rotation_unit=rotation_unit)
+        dl = control_step(
+            J,
+            e,
+            mode=mode,
+            rows=rows,
+            alpha=alpha,
+            damping=damping,
+            gain=gain,
+            clip=clip,
+            position_unit=position_unit,
+            rotation_unit=rotation_unit,
+        )
         if np.max(np.abs(dl)) < 1e-9:
             reason = "stalled"  # the error lies outside the motions the model can make
             break
@@ -395,8 +431,18 @@ def servo_to(
         lo, hi = hand.tendon_range[:, 0], hand.tendon_range[:, 1]
         blocked = ((l_now <= lo + 1e-9) & (dl < 0)) | ((l_now >= hi - 1e-9) & (dl > 0))
         if blocked.any() and not blocked.all():
-            dl = control_step(J * ~blocked[None, :], e, mode=mode, rows=rows, alpha=alpha, damping=damping,
-                              gain=gain, clip=clip, position_unit=position_unit, rotation_unit=rotation_unit)
+            dl = control_step(
+                J * ~blocked[None, :],
+                e,
+                mode=mode,
+                rows=rows,
+                alpha=alpha,
+                damping=damping,
+                gain=gain,
+                clip=clip,
+                position_unit=position_unit,
+                rotation_unit=rotation_unit,
+            )
             dl[blocked] = 0.0
         dl_lim = limit_action(hand, l_now, dl)
         if np.max(np.abs(dl_lim)) < 1e-9:
@@ -420,11 +466,21 @@ def servo_to(
         if on_step is not None:
             on_step(it, R_last, t_last)
     l_now = _tendon_command(plant)
-    at_limit = bool(np.any((l_now <= hand.tendon_range[:, 0] + 1e-9) | (l_now >= hand.tendon_range[:, 1] - 1e-9)))
+    at_limit = bool(
+        np.any((l_now <= hand.tendon_range[:, 0] + 1e-9) | (l_now >= hand.tendon_range[:, 1] - 1e-9))
+    )
     return ServoReport(
-        reached=reason == "reached", reason=reason, iterations=it, position_error=ep, rotation_error=er,
-        R_closest=best[1], t_closest=best[2], closest_position_error=best[3], closest_rotation_error=best[4],
-        at_limit=at_limit, history=history,
+        reached=reason == "reached",
+        reason=reason,
+        iterations=it,
+        position_error=ep,
+        rotation_error=er,
+        R_closest=best[1],
+        t_closest=best[2],
+        closest_position_error=best[3],
+        closest_rotation_error=best[4],
+        at_limit=at_limit,
+        history=history,
     )
 
 

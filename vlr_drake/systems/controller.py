@@ -48,39 +48,74 @@ class JacobianController(LeafSystem):
     Without a valid measurement or with an empty estimate the command is held.
     """
 
-    def __init__(self, hand: HandModel, l_initial, period_sec: float, *, offset_sec: float = 0.0,
-                 rows: str = "full", mode: str = "dls", alpha: float = 1.0, gain: float = 0.7,
-                 damping: float = 0.01, clip: float = 1.0e-3, eps: float = 0.2e-3,
-                 tol_position: float = 0.1e-3, tol_rotation: float = np.deg2rad(0.3), tendon: str = "elastic"):
+    def __init__(
+        self,
+        hand: HandModel,
+        l_initial,
+        period_sec: float,
+        *,
+        offset_sec: float = 0.0,
+        rows: str = "full",
+        mode: str = "dls",
+        alpha: float = 1.0,
+        gain: float = 0.7,
+        damping: float = 0.01,
+        clip: float = 1.0e-3,
+        eps: float = 0.2e-3,
+        tol_position: float = 0.1e-3,
+        tol_rotation: float = np.deg2rad(0.3),
+        tendon: str = "elastic",
+    ):
         super().__init__()
         if not period_sec > 0:
             raise ValueError(f"'period_sec' must be positive, got {period_sec}")
         l_initial = np.asarray(l_initial, float).reshape(-1)
         if l_initial.shape != (hand.N,):
             raise ValueError(f"'l_initial' must have {hand.N} entries, got {l_initial.shape}")
-        control.control_step(np.zeros((6, hand.N)), np.zeros(6), mode=mode, rows=rows, alpha=alpha, gain=gain,
-                             damping=damping, clip=clip)  # validates the settings
+        control.control_step(
+            np.zeros((6, hand.N)),
+            np.zeros(6),
+            mode=mode,
+            rows=rows,
+            alpha=alpha,
+            gain=gain,
+            damping=damping,
+            clip=clip,
+        )  # validates the settings
         self._hand = hand
         self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip)
         self._eps, self._tendon = eps, tendon
         self._tol = (tol_position, tol_rotation)
         self._rows = rows
-        self._goal = self.DeclareAbstractInputPort(name="X_PO_goal", model_value=AbstractValue.Make(RigidTransform()))
-        self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured",
-                                                   model_value=AbstractValue.Make(RigidTransform()))
+        self._goal = self.DeclareAbstractInputPort(
+            name="X_PO_goal", model_value=AbstractValue.Make(RigidTransform())
+        )
+        self._X_PO = self.DeclareAbstractInputPort(
+            name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform())
+        )
         self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
         self._estimate = self.DeclareAbstractInputPort(name="estimate", model_value=AbstractValue.Make({}))
         l0 = np.clip(l_initial, hand.tendon_range[:, 0], hand.tendon_range[:, 1])
         self._command_state = self.DeclareDiscreteState(l0)
-        self._status_state = self.DeclareDiscreteState(np.array([0.0, np.inf, np.inf]))  # at_goal, |dt|, angle
+        self._status_state = self.DeclareDiscreteState(
+            np.array([0.0, np.inf, np.inf])
+        )  # at_goal, |dt|, angle
         self._command_out = self.DeclareStateOutputPort("tendon_command", self._command_state)
         self._at_goal_out = self.DeclareVectorOutputPort(
-            name="at_goal", size=1, calc=self._calc_at_goal,
-            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)})
+            name="at_goal",
+            size=1,
+            calc=self._calc_at_goal,
+            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)},
+        )
         self._error_out = self.DeclareVectorOutputPort(
-            name="pose_error", size=2, calc=self._calc_error,
-            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)})
-        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset_sec, update=self._update)
+            name="pose_error",
+            size=2,
+            calc=self._calc_error,
+            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)},
+        )
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            period_sec=period_sec, offset_sec=offset_sec, update=self._update
+        )
         self.DeclareForcedDiscreteUpdateEvent(update=self._update)
 
     # ports, kept as handles
@@ -116,8 +151,9 @@ class JacobianController(LeafSystem):
         R, t = X.rotation().matrix(), X.translation()
         e = control.pose_error6(G.rotation().matrix(), G.translation(), R, t)
         ep, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
-        at_goal = ((self._rows == "orientation" or ep <= self._tol[0])
-                   and (self._rows == "position" or er <= self._tol[1]))
+        at_goal = (self._rows == "orientation" or ep <= self._tol[0]) and (
+            self._rows == "position" or er <= self._tol[1]
+        )
         discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(at_goal), ep, er])
         if at_goal:
             return
@@ -145,7 +181,9 @@ class TaskTrajectorySource(LeafSystem):
     (or timed out); the last goal is held.
     """
 
-    def __init__(self, goals: list, period_sec: float, *, offset_sec: float | None = None, max_periods: int = 20):
+    def __init__(
+        self, goals: list, period_sec: float, *, offset_sec: float | None = None, max_periods: int = 20
+    ):
         super().__init__()
         if not goals:
             raise ValueError("'goals' must hold at least one pose")
@@ -157,12 +195,17 @@ class TaskTrajectorySource(LeafSystem):
         self._state = self.DeclareDiscreteState(np.array([0.0, 0.0, 0.0]))  # index, periods on it, done
         ticket = {self.discrete_state_ticket(self._state)}
         self._goal_out = self.DeclareAbstractOutputPort(
-            name="X_PO_goal", alloc=lambda: AbstractValue.Make(RigidTransform()), calc=self._calc_goal,
-            prerequisites_of_calc=ticket)
-        self._index_out = self.DeclareVectorOutputPort(name="waypoint_index", size=1, calc=self._calc_index,
-                                                       prerequisites_of_calc=ticket)
-        self._done_out = self.DeclareVectorOutputPort(name="done", size=1, calc=self._calc_done,
-                                                      prerequisites_of_calc=ticket)
+            name="X_PO_goal",
+            alloc=lambda: AbstractValue.Make(RigidTransform()),
+            calc=self._calc_goal,
+            prerequisites_of_calc=ticket,
+        )
+        self._index_out = self.DeclareVectorOutputPort(
+            name="waypoint_index", size=1, calc=self._calc_index, prerequisites_of_calc=ticket
+        )
+        self._done_out = self.DeclareVectorOutputPort(
+            name="done", size=1, calc=self._calc_done, prerequisites_of_calc=ticket
+        )
         offset = 0.5 * period_sec if offset_sec is None else offset_sec
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
         self.DeclareForcedDiscreteUpdateEvent(update=self._update)
@@ -214,13 +257,21 @@ class EstimateFromTruth(LeafSystem):
     def __init__(self, hand: HandModel, stiffness=None, link_lengths=None):
         super().__init__()
         self._hand = hand
-        self._k = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
-        self._L = (hand.link_lengths.copy() if link_lengths is None
-                   else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1))
+        self._k = (
+            hand.stiffness.copy()
+            if stiffness is None
+            else np.asarray(stiffness, float).reshape(hand.N, hand.K)
+        )
+        self._L = (
+            hand.link_lengths.copy()
+            if link_lengths is None
+            else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1)
+        )
         self._theta = self.DeclareVectorInputPort(name="theta_true", size=hand.N * hand.K)
         self._a = self.DeclareVectorInputPort(name="contact_along_link_true", size=hand.N)
-        self._out = self.DeclareAbstractOutputPort(name="estimate", alloc=lambda: AbstractValue.Make({}),
-                                                   calc=self._calc)
+        self._out = self.DeclareAbstractOutputPort(
+            name="estimate", alloc=lambda: AbstractValue.Make({}), calc=self._calc
+        )
 
     def theta_true_input_port(self):
         return self._theta
@@ -233,5 +284,11 @@ class EstimateFromTruth(LeafSystem):
 
     def _calc(self, context, output):
         h = self._hand
-        output.set_value({"theta": np.array(self._theta.Eval(context)).reshape(h.N, h.K),
-                          "a": np.array(self._a.Eval(context)), "stiffness": self._k, "link_lengths": self._L})
+        output.set_value(
+            {
+                "theta": np.array(self._theta.Eval(context)).reshape(h.N, h.K),
+                "a": np.array(self._a.Eval(context)),
+                "stiffness": self._k,
+                "link_lengths": self._L,
+            }
+        )

@@ -14,7 +14,15 @@ from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel, model_o
 from vlr_drake.model_plant import ModelPlant
 
-__all__ = ["MODELS", "TaskPlant", "PhysicsTaskPlant", "make_model_plant", "make_model_fn", "stats", "grasp_config"]
+__all__ = [
+    "MODELS",
+    "TaskPlant",
+    "PhysicsTaskPlant",
+    "make_model_plant",
+    "make_model_fn",
+    "stats",
+    "grasp_config",
+]
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
 #: that identifies the grasp first and keeps updating during control (each action is evidence).
@@ -29,21 +37,33 @@ MAX_TRANSLATION_GAIN = 5.0  # [m/m]
 MAX_ROTATION_GAIN = np.deg2rad(10.0) / 1e-3  # [rad/m]: 10 degrees per millimetre
 
 
-def grasp_config(hand: HandModel, rng: np.random.Generator, max_draws: int = 50) -> tuple[np.ndarray, np.ndarray]:
+def grasp_config(
+    hand: HandModel, rng: np.random.Generator, max_draws: int = 50
+) -> tuple[np.ndarray, np.ndarray]:
     """A realistic fingertip grasp (theta (N, K), a (N,)) drawn with ``rng``, away from
     folds: its Jacobian (Eq. 10) stays under ``MAX_TRANSLATION_GAIN`` and
     ``MAX_ROTATION_GAIN`` (column norms)."""
     for _ in range(max_draws):
-        gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
-                                  contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+        gs = grasps.sample_grasps(
+            hand,
+            rng,
+            1,
+            proximal_range=(0.05, 0.35),
+            distal_range=(0.3, 0.9),
+            contact_range=(0.02, 0.032),
+            min_tension=2.0,
+            stable=True,
+        )
         theta, a = gs.theta[0], gs.a[0]
         est = {"theta": theta, "a": a}
         try:
             J = control.jacobian(control.ControlModel.from_estimate(hand, est, np.eye(3), GRASP_T_PO))
         except RuntimeError:
             continue
-        if (np.linalg.norm(J[:3], axis=0).max() <= MAX_TRANSLATION_GAIN
-                and np.linalg.norm(J[3:], axis=0).max() <= MAX_ROTATION_GAIN):
+        if (
+            np.linalg.norm(J[:3], axis=0).max() <= MAX_TRANSLATION_GAIN
+            and np.linalg.norm(J[3:], axis=0).max() <= MAX_ROTATION_GAIN
+        ):
             return theta, a
     raise RuntimeError(f"no grasp away from a fold in {max_draws} draws")
 
@@ -71,8 +91,12 @@ class TaskPlant:
 
     def truth_estimate(self) -> dict:
         s = self.plant.state
-        return {"theta": s.theta.copy(), "a": s.a.copy(), "stiffness": self.plant.stiffness,
-                "link_lengths": self.plant.link_lengths}
+        return {
+            "theta": s.theta.copy(),
+            "a": s.a.copy(),
+            "stiffness": self.plant.stiffness,
+            "link_lengths": self.plant.link_lengths,
+        }
 
     def nominal(self, rng: np.random.Generator, prior: pf.PriorConfig) -> tuple[np.ndarray, np.ndarray]:
         """The filter's nominal grasp: the truth displaced by up to 60% of the prior's
@@ -84,18 +108,33 @@ class TaskPlant:
         return theta_c, self.a0 + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
 
 
-def make_model_plant(seed: int, *, hand: HandModel | None = None, R_PO=None, t_PO=None,
-                     sigma_position: float = 0.2e-3, sigma_rotation_deg: float = 0.5,
-                     theta=None, a=None) -> TaskPlant:
+def make_model_plant(
+    seed: int,
+    *,
+    hand: HandModel | None = None,
+    R_PO=None,
+    t_PO=None,
+    sigma_position: float = 0.2e-3,
+    sigma_rotation_deg: float = 0.5,
+    theta=None,
+    a=None,
+) -> TaskPlant:
     """The model plant (DESIGN.md section 8) holding an object in a grasp drawn from ``seed``
     (or the given ``theta``, ``a``), with the camera stand-in's Gaussian pose noise."""
     hand = model_o().model() if hand is None else hand
     rng = np.random.default_rng(seed)
     if theta is None or a is None:
         theta, a = grasp_config(hand, rng)
-    plant = ModelPlant(hand, theta, a, np.eye(3) if R_PO is None else R_PO, GRASP_T_PO if t_PO is None else t_PO,
-                       np.random.default_rng(seed + 1000), sigma_position=sigma_position,
-                       sigma_rotation=np.deg2rad(sigma_rotation_deg))
+    plant = ModelPlant(
+        hand,
+        theta,
+        a,
+        np.eye(3) if R_PO is None else R_PO,
+        GRASP_T_PO if t_PO is None else t_PO,
+        np.random.default_rng(seed + 1000),
+        sigma_position=sigma_position,
+        sigma_rotation=np.deg2rad(sigma_rotation_deg),
+    )
     return TaskPlant(hand, plant, np.asarray(theta, float), np.asarray(a, float))
 
 
@@ -112,8 +151,9 @@ class PhysicsTaskPlant:
 
         from vlr_drake.physics_identify import PhysicsAdapter
 
-        self.adapter = PhysicsAdapter(SimpleNamespace(object=object_name), model_o(), np.random.default_rng(seed),
-                                      physics, camera)
+        self.adapter = PhysicsAdapter(
+            SimpleNamespace(object=object_name), model_o(), np.random.default_rng(seed), physics, camera
+        )
         self.hand = self.adapter.hand
         self.plant = self
         self.timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
@@ -125,7 +165,6 @@ class PhysicsTaskPlant:
         #: the POM pose the object was planned to have in the palm (before it settled)
         self.X_PO_planned = (X.rotation().matrix(), X.translation())
 
-    @property
     def tendon_command(self) -> np.ndarray:
         return self.adapter.tendon_command()
 
@@ -173,6 +212,7 @@ def make_model_fn(
         raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
     plant, h = tp.plant, tp.hand
     if kind == "true":
+
         def true_fn(dl, R, t, valid):
             return control.ControlModel.from_estimate(h, tp.truth_estimate(), R, t)
 
@@ -182,7 +222,9 @@ def make_model_fn(
     rng = np.random.default_rng(seed + 7)
     prior = pf.PriorConfig()
     theta_c, a_c = tp.nominal(rng, prior)
-    filt = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=particles), prior, np.random.default_rng(seed + 8))
+    filt = pf.SelfIdentificationFilter(
+        h, pf.FilterConfig(particles=particles), prior, np.random.default_rng(seed + 8)
+    )
     R, t, _ = plant.measure()
     filt.initialise(theta_c, a_c, R, t)
     l_grasp = tp.tendon_command()

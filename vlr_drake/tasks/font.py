@@ -20,8 +20,13 @@ def _arc(cx: float, cy: float, rx: float, ry: float, a0: float, a1: float, n: in
 #: Letter strokes in the unit-height box (width 0.7 unless narrower).
 LETTERS: dict[str, list[list[tuple[float, float]]]] = {
     "A": [[(0, 0), (0.35, 1), (0.7, 0)], [(0.15, 0.42), (0.55, 0.42)]],
-    "B": [[(0, 0), (0, 1), (0.45, 1)] + _arc(0.45, 0.76, 0.22, 0.24, 90, -90, 7) + [(0, 0.52), (0.48, 0.52)]
-          + _arc(0.48, 0.26, 0.22, 0.26, 90, -90, 7) + [(0, 0)]],
+    "B": [
+        [(0, 0), (0, 1), (0.45, 1)]
+        + _arc(0.45, 0.76, 0.22, 0.24, 90, -90, 7)
+        + [(0, 0.52), (0.48, 0.52)]
+        + _arc(0.48, 0.26, 0.22, 0.26, 90, -90, 7)
+        + [(0, 0)]
+    ],
     "C": [_arc(0.4, 0.5, 0.38, 0.5, 45, 315, 15)],
     "D": [[(0, 0), (0, 1), (0.3, 1)] + _arc(0.3, 0.5, 0.4, 0.5, 90, -90, 11) + [(0, 0)]],
     "E": [[(0.65, 1), (0, 1), (0, 0), (0.65, 0)], [(0, 0.5), (0.5, 0.5)]],
@@ -37,7 +42,10 @@ LETTERS: dict[str, list[list[tuple[float, float]]]] = {
     "O": [_arc(0.4, 0.5, 0.4, 0.5, 90, 450, 19)],
     "P": [[(0, 0), (0, 1), (0.4, 1)] + _arc(0.4, 0.75, 0.25, 0.25, 90, -90, 9) + [(0, 0.5)]],
     "Q": [_arc(0.4, 0.5, 0.4, 0.5, 90, 450, 19), [(0.45, 0.25), (0.8, -0.05)]],
-    "R": [[(0, 0), (0, 1), (0.4, 1)] + _arc(0.4, 0.75, 0.25, 0.25, 90, -90, 9) + [(0, 0.5)], [(0.3, 0.5), (0.7, 0)]],
+    "R": [
+        [(0, 0), (0, 1), (0.4, 1)] + _arc(0.4, 0.75, 0.25, 0.25, 90, -90, 9) + [(0, 0.5)],
+        [(0.3, 0.5), (0.7, 0)],
+    ],
     "S": [_arc(0.35, 0.75, 0.32, 0.25, 20, 270, 9) + _arc(0.35, 0.25, 0.32, 0.25, 90, -160, 9)[1:]],
     "T": [[(0, 1), (0.7, 1)], [(0.35, 1), (0.35, 0)]],
     "U": [[(0, 1), (0, 0.35)] + _arc(0.35, 0.35, 0.35, 0.35, 180, 360, 9)[1:] + [(0.7, 1)]],
@@ -53,7 +61,7 @@ def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
     """Points along a polyline (M, 2) at most ``spacing`` apart, keeping every vertex."""
     polyline = np.asarray(polyline, float)
     out = [polyline[0]]
-    for p, q in zip(polyline[:-1], polyline[1:]):
+    for p, q in zip(polyline[:-1], polyline[1:], strict=True):
         n = max(1, int(np.ceil(np.linalg.norm(q - p) / spacing)))
         out.extend(p + (q - p) * (k / n) for k in range(1, n + 1))
     return np.array(out)

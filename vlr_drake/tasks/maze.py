@@ -70,7 +70,7 @@ def parse_maze(text: str) -> dict:
     start = goal = None
     for r in range(rows):
         for c in range(cols):
-            cell = lines[2 * r + 1][3 * c + 1: 3 * c + 3]
+            cell = lines[2 * r + 1][3 * c + 1 : 3 * c + 3]
             if "S" in cell:
                 start = (r, c)
             if "G" in cell:
@@ -134,7 +134,9 @@ def orientation_sequence(path: list[tuple[int, int]], tilt: float) -> list[dict]
             last = phi
         else:
             phi = 0.5 * last
-        runs.append({"cells": path[k: j + 1], "end": path[j], "tilt": float(phi), "kind": "drop" if dr else "run"})
+        runs.append(
+            {"cells": path[k : j + 1], "end": path[j], "tilt": float(phi), "kind": "drop" if dr else "run"}
+        )
         k = j
     return runs
 
@@ -225,12 +227,15 @@ def run_maze(
     order = {cell: i for i, cell in enumerate(cells)}
     runs = orientation_sequence(cells, np.deg2rad(tilt_deg))
     if plant == "model":
-        tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+        tp = common.make_model_plant(
+            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
+        )
     else:
         tp = common.PhysicsTaskPlant("marble_maze", seed)
     pl = tp.plant
-    model_fn, filt = common.make_model_fn(model, tp, seed=seed, particles=particles,
-                                          identify_iterations=identify_iterations)
+    model_fn, filt = common.make_model_fn(
+        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations
+    )
     R0, t0, _ = pl.measure()
     R_PO0 = tp.true_pose()[0]  # the plate's level orientation (arm's frame of reference)
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
@@ -270,8 +275,16 @@ def run_maze(
             if t_run > segment_time:
                 success = False
                 break
-            rep = control.servo_to(R_goal, np.zeros(3), pl, model_fn, rows="orientation", max_steps=1,
-                                   tol_rotation=np.deg2rad(tol_rotation_deg), stall_steps=100)
+            rep = control.servo_to(
+                R_goal,
+                np.zeros(3),
+                pl,
+                model_fn,
+                rows="orientation",
+                max_steps=1,
+                tol_rotation=np.deg2rad(tol_rotation_deg),
+                stall_steps=100,
+            )
             iterations += rep.iterations
             settled = settled or rep.reached or rep.reason != "budget"
             marble.step(g_plate(), period)
@@ -314,8 +327,9 @@ def run_maze(
         result["filter_iterations"] = int(filt.iteration)
     if out is not None:
         os.makedirs(out, exist_ok=True)
-        result["plots"] = [_plot(mz, marble, np.array(track), times, errs, switch_times,
-                                 os.path.join(out, "maze.png"))]
+        result["plots"] = [
+            _plot(mz, marble, np.array(track), times, errs, switch_times, os.path.join(out, "maze.png"))
+        ]
     return result
 
 

@@ -113,8 +113,15 @@ def run_stack(
             tilt = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(*tilt_range_deg))
             offset = offset_range * (rng.uniform(-1, 1) * U[:, 0] + rng.uniform(-1, 1) * U[:, 1])
             R0 = observation.rotvec_to_matrix(tilt * k_rot)[0] @ R_goal
-            tp = common.make_model_plant(cup_seed, R_PO=R0, t_PO=t_goal + offset, sigma_position=sigma_position,
-                                         sigma_rotation_deg=sigma_rotation_deg, theta=tp0.theta0, a=tp0.a0)
+            tp = common.make_model_plant(
+                cup_seed,
+                R_PO=R0,
+                t_PO=t_goal + offset,
+                sigma_position=sigma_position,
+                sigma_rotation_deg=sigma_rotation_deg,
+                theta=tp0.theta0,
+                a=tp0.a0,
+            )
         else:
             # the physics grasp settles the cup wherever it goes: the unknown tilt is real
             tp = common.PhysicsTaskPlant(f"cup_{k}", cup_seed)
@@ -123,29 +130,42 @@ def run_stack(
             tilt = float(observation.rotation_angle(R_goal[None], R_s[None])[0])
             offset = t_s - t_goal
         pl = tp.plant
-        model_fn, filt = common.make_model_fn(model, tp, seed=cup_seed, particles=particles,
-                                              identify_iterations=identify_iterations)
+        model_fn, filt = common.make_model_fn(
+            model, tp, seed=cup_seed, particles=particles, identify_iterations=identify_iterations
+        )
         R_s, t_s = tp.true_pose()
         pos0, rot0 = observation.pose_error(R_s[None], t_s[None], R_goal[None], t_goal[None])
-        rep = control.servo_to(R_goal, t_goal, pl, model_fn, rows="full", alpha=alpha, tol_position=tol_position,
-                               tol_rotation=np.deg2rad(tol_rotation_deg), max_steps=max_steps, stall_steps=8)
+        rep = control.servo_to(
+            R_goal,
+            t_goal,
+            pl,
+            model_fn,
+            rows="full",
+            alpha=alpha,
+            tol_position=tol_position,
+            tol_rotation=np.deg2rad(tol_rotation_deg),
+            max_steps=max_steps,
+            stall_steps=8,
+        )
         R, t = tp.true_pose()
         pos1, rot1 = observation.pose_error(R[None], t[None], R_goal[None], t_goal[None])
         ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t)
-        cups.append({
-            "cup": k,
-            "tilt_deg": float(np.rad2deg(tilt)),
-            "offset_mm": float(np.linalg.norm(offset) * 1e3),
-            "initial_position_error_mm": float(pos0[0] * 1e3),
-            "initial_orientation_error_deg": float(np.rad2deg(rot0[0])),
-            "position_error_mm": float(pos1[0] * 1e3),
-            "orientation_error_deg": float(np.rad2deg(rot1[0])),
-            "lateral_mm": lateral * 1e3,
-            "clearance_mm": cup_clearance(k - 1, k) * 1e3,
-            "nested": ok,
-            "servo": rep.reason,
-            "iterations": rep.iterations,
-        })
+        cups.append(
+            {
+                "cup": k,
+                "tilt_deg": float(np.rad2deg(tilt)),
+                "offset_mm": float(np.linalg.norm(offset) * 1e3),
+                "initial_position_error_mm": float(pos0[0] * 1e3),
+                "initial_orientation_error_deg": float(np.rad2deg(rot0[0])),
+                "position_error_mm": float(pos1[0] * 1e3),
+                "orientation_error_deg": float(np.rad2deg(rot1[0])),
+                "lateral_mm": lateral * 1e3,
+                "clearance_mm": cup_clearance(k - 1, k) * 1e3,
+                "nested": ok,
+                "servo": rep.reason,
+                "iterations": rep.iterations,
+            }
+        )
         bar.update(1)
     bar.close()
     pos = np.array([c["position_error_mm"] for c in cups])

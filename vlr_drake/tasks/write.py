@@ -47,8 +47,9 @@ def writing_plane(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, y, n
 
 
-def probe_workspace(model: control.ControlModel, l_now, t0, axes, radius: float, *, directions: int = 8,
-                    max_steps: int = 12) -> np.ndarray:
+def probe_workspace(
+    model: control.ControlModel, l_now, t0, axes, radius: float, *, directions: int = 8, max_steps: int = 12
+) -> np.ndarray:
     """Points (directions, 2) in plane coordinates [m] that the model predicts it can reach
     when servoing from ``t0`` towards ``radius`` along each direction of the plane."""
     x, y = axes
@@ -57,8 +58,16 @@ def probe_workspace(model: control.ControlModel, l_now, t0, axes, radius: float,
         ang = 2 * np.pi * k / directions
         goal = t0 + radius * (np.cos(ang) * x + np.sin(ang) * y)
         sim = control.PredictedPlant(model, l_now)
-        rep = control.servo_to(np.eye(3), goal, sim, sim.model_fn, rows="position", max_steps=max_steps,
-                               tol_position=0.05 * radius, clip=1e-3)
+        rep = control.servo_to(
+            np.eye(3),
+            goal,
+            sim,
+            sim.model_fn,
+            rows="position",
+            max_steps=max_steps,
+            tol_position=0.05 * radius,
+            clip=1e-3,
+        )
         d = rep.t_closest - t0
         out.append([d @ x, d @ y])
     return np.array(out)
@@ -67,7 +76,7 @@ def probe_workspace(model: control.ControlModel, l_now, t0, axes, radius: float,
 def _inscribed(center: np.ndarray, poly: np.ndarray) -> float:
     """Distance from ``center`` to the closest edge of the closed polygon ``poly`` (M, 2)."""
     best = np.inf
-    for p, q in zip(poly, np.roll(poly, -1, axis=0)):
+    for p, q in zip(poly, np.roll(poly, -1, axis=0), strict=True):
         d = q - p
         s = np.clip((center - p) @ d / max(d @ d, 1e-18), 0.0, 1.0)
         best = min(best, np.linalg.norm(center - (p + s * d)))
@@ -127,12 +136,15 @@ def run_write(
     from tqdm.auto import tqdm
 
     if plant == "model":
-        tp = common.make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg)
+        tp = common.make_model_plant(
+            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
+        )
     else:
         tp = common.PhysicsTaskPlant(physics_object, seed)
     pl = tp.plant
-    model_fn, filt = common.make_model_fn(model, tp, seed=seed, particles=particles,
-                                          identify_iterations=identify_iterations)
+    model_fn, filt = common.make_model_fn(
+        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations
+    )
     R0, t0, _ = pl.measure()
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
     x, y, n = writing_plane(control.jacobian(m0))
@@ -155,8 +167,9 @@ def run_write(
         for s in strokes:
             pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
             # pen up: go to the stroke start (not scored)
-            rep = control.servo_to(np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps,
-                                                                         "stall_steps": 8})
+            rep = control.servo_to(
+                np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps, "stall_steps": 8}
+            )
             iterations += rep.iterations
             path = []
             for k, goal in enumerate(pts):
@@ -221,14 +234,28 @@ def _plot(letters_out, reach, path: str, word: str) -> str:
 
     n = len(letters_out)
     fig, axes = plt.subplots(1, n, figsize=(2.2 * n, 2.6), squeeze=False)
-    for ax, (c, targets, paths) in zip(axes[0], letters_out):
+    for ax, (c, targets, paths) in zip(axes[0], letters_out, strict=True):
         poly = np.vstack([reach, reach[:1]]) * 1e3
         ax.plot(poly[:, 0], poly[:, 1], ":", color="0.7", lw=0.8)
-        for i, (tgt, got) in enumerate(zip(targets, paths)):
-            ax.plot(tgt[:, 0] * 1e3, tgt[:, 1] * 1e3, "-", color="0.6", lw=3, alpha=0.5,
-                    label="target" if i == 0 else None)
-            ax.plot(got[:, 0] * 1e3, got[:, 1] * 1e3, ".-", color="C3", lw=1, ms=2,
-                    label="written (true POM)" if i == 0 else None)
+        for i, (tgt, got) in enumerate(zip(targets, paths, strict=True)):
+            ax.plot(
+                tgt[:, 0] * 1e3,
+                tgt[:, 1] * 1e3,
+                "-",
+                color="0.6",
+                lw=3,
+                alpha=0.5,
+                label="target" if i == 0 else None,
+            )
+            ax.plot(
+                got[:, 0] * 1e3,
+                got[:, 1] * 1e3,
+                ".-",
+                color="C3",
+                lw=1,
+                ms=2,
+                label="written (true POM)" if i == 0 else None,
+            )
         ax.set_aspect("equal")
         ax.set_title(c)
         ax.set_xlabel("plane x [mm]")
