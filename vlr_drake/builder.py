@@ -27,6 +27,7 @@ of truth (a test checks it is current); the picture is a convenience.
 """
 
 import argparse
+import re
 import shutil
 import subprocess
 import sys
@@ -49,7 +50,16 @@ from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, build
 from vlr_drake.systems.self_identification import ExplorationPolicy, ModelPlantSystem, SelfIdentificationSystem
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver
 
-__all__ = ["BuiltDiagram", "build_diagram", "initialize", "wire_identification", "write_diagrams", "main"]
+__all__ = [
+    "BuiltDiagram",
+    "build_diagram",
+    "build_model_plant_diagram",
+    "initialize",
+    "wire_identification",
+    "graphviz_text",
+    "write_diagrams",
+    "main",
+]
 
 #: The object's POM in the palm for the model plant's grasp [m] (as in vlr_drake.identify).
 MODEL_PLANT_t_PO = (0.0, 0.0, 0.11)
@@ -262,9 +272,34 @@ def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | No
 # -- diagram pictures ----------------------------------------------------------------------
 
 
+_GRAPHVIZ_ID = re.compile(r"(?<![A-Za-z0-9_])(clusters|cluster|s|_)(\d+)")
+
+
 def graphviz_text(built: BuiltDiagram) -> str:
-    """Drake's GraphViz text of the diagram, one level deep (the committed ``.dot``)."""
-    return built.diagram.GetGraphvizString(max_depth=1)
+    """Drake's GraphViz text of the diagram, one level deep (the committed ``.dot``).
+
+    Drake names the graph's nodes after the systems' process-wide ids (``s17``,
+    ``cluster17diagram``), which depend on what was built before; they are renumbered in
+    order of first appearance, and the connections (listed in hash order) sorted, so the
+    text depends only on the scenario."""
+    text = built.diagram.GetGraphvizString(max_depth=1)
+    ids: dict[str, str] = {}
+
+    def renumber(m: re.Match) -> str:
+        return m.group(1) + ids.setdefault(m.group(2), str(len(ids)))
+
+    lines = _GRAPHVIZ_ID.sub(renumber, text).splitlines()
+    # Drake lists the connections in hash order: sort each run of edge lines.
+    out: list[str] = []
+    run: list[str] = []
+    for line in lines + [""]:
+        if " -> " in line:
+            run.append(line)
+            continue
+        out.extend(sorted(run))
+        run = []
+        out.append(line)
+    return "\n".join(out[:-1]) + "\n"
 
 
 def write_diagrams(folder: str | Path | None = None, render: bool = True) -> list[Path]:
