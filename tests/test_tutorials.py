@@ -71,3 +71,18 @@ def test_02_identification_narrows_and_improves(tmp_path, monkeypatch):
     assert s["final_joint_error_deg"] < s["prior_joint_error_deg"]
     assert s["final_interval_deg"] < 0.5 * s["prior_interval_deg"]
     assert s["final_contact_error_mm"] < 5.0
+
+
+def test_03_handwriting_follows_the_letters(tmp_path, monkeypatch):
+    s = run_notebook("03_handwriting.ipynb", tmp_path, monkeypatch)
+    assert s["word"] == "LI" and s["waypoints"] >= 10
+    assert s["position_error_mm_mean"] < 1.0  # the paper: 0.42 +- 0.34 mm
+    assert s["success"]
+
+
+def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
+    s = run_notebook("04_novel_fingers_and_stiffness.ipynb", tmp_path, monkeypatch)
+    assert s["stiffness_interval_final"] < 0.6 * s["stiffness_interval_prior"]
+    assert abs(s["stiffness_estimate"] - s["stiffness_true"]) < 0.08
+    assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
+    assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
