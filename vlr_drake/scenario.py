@@ -328,15 +328,16 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     if not path.is_file():
         raise ValueError(f"{path}: scenario file not found")
     # Load with empty preset names so that a preset written next to a full spec is caught.
-    defaults = Scenario(hand="", object="")
-    scenario = defaults
-    for source, kwargs in [(str(path), dict(filename=str(path))), ("override text", dict(data=overrides))]:
+    scenario = Scenario(hand="", object="")
+    for source, kwargs in [("file", dict(filename=str(path))), ("override text", dict(data=overrides))]:
         if source == "override text" and not overrides:
             continue
         try:
             scenario = yaml_load_typed(schema=Scenario, defaults=scenario, **kwargs)
         except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError ...
-            raise ValueError(f"{path} ({source}): {e}") from e
+            text = path.read_text() if source == "file" else overrides
+            where = _locate_error(text, scenario)
+            raise ValueError(f"{path} ({source}){where}: {e}") from e
     for preset_field, spec_field, default in [("hand", "hand_spec", "model_o"), ("object", "object_spec", "apple")]:
         name, spec = getattr(scenario, preset_field), getattr(scenario, spec_field)
         if name and spec is not None:
@@ -355,6 +356,59 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
     return scenario
+
+
+def _dataclass_of(t) -> type | None:
+    """The dataclass a field type holds (itself, Optional[...] of it, or list[...] of it)."""
+    if dataclasses.is_dataclass(t) and isinstance(t, type):
+        return t
+    for a in typing.get_args(t):
+        d = _dataclass_of(a)
+        if d is not None:
+            return d
+    return None
+
+
+def _unknown_fields(data, schema: type, prefix: str) -> list[str]:
+    """Dotted names of the keys in ``data`` that ``schema`` (a dataclass) does not have."""
+    if not isinstance(data, dict):
+        return []
+    fields = {f.name: f.type for f in dataclasses.fields(schema)}
+    bad = []
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in fields:
+            bad.append(name)
+            continue
+        sub = _dataclass_of(fields[key])
+        if sub is None:
+            continue
+        items = value if isinstance(value, list) else [value]
+        for i, item in enumerate(items):
+            bad += _unknown_fields(item, sub, f"{name}[{i}]." if isinstance(value, list) else f"{name}.")
+    return bad
+
+
+def _locate_error(text: str, defaults: Scenario) -> str:
+    """Best effort: ", field 'a.b'" for the field behind a loader error in the YAML ``text``
+    (an unknown field, or the top-level section that alone fails to load); "" if not found."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return ""
+    if not isinstance(data, dict):
+        return ""
+    bad = _unknown_fields(data, Scenario, "")
+    if bad:
+        return f", unknown field '{bad[0]}'"
+    for key, value in data.items():
+        try:
+            yaml_load_typed(schema=Scenario, data=yaml.safe_dump({key: value}), defaults=copy.deepcopy(defaults))
+        except Exception:
+            return f", field '{key}'"
+    return ""
 
 
 def example_scenarios(folder: str | Path | None = None) -> list[Path]:

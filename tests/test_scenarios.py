@@ -1,0 +1,149 @@
+"""Scenario files: every example loads and validates; bad files fail naming the field and file."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+
+from vlr_drake import filter as pf
+from vlr_drake.hand import HandSpec, model_o
+from vlr_drake.scenario import DIAGRAMS_DIR, PriorSettings, Scenario, example_scenarios, load_scenario
+
+EXAMPLES = example_scenarios()
+EXPECTED = {"default", "model_plant", "stiffness", "novel_NH1", "novel_NH2", "novel_NH3",
+            "custom_hand_and_object", "hardware"}
+
+
+def test_the_examples_are_all_there():
+    assert {p.stem for p in EXAMPLES} == EXPECTED
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_example_scenario_loads(path: Path):
+    s = load_scenario(path)
+    assert s.name == path.stem  # names the diagram picture diagrams/<name>.dot
+    hand = s.hand_spec_resolved()
+    assert hand.num_fingers >= 3
+    assert s.object_spec_resolved().validate() is not None
+    assert s.period_sec() > 0
+    # Every field has a comment in the file or in the dataclass: the file says where.
+    assert "vlr_drake.scenario.Scenario" in path.read_text()
+
+
+def test_default_is_model_o_holding_the_apple_on_the_physics_plant():
+    s = load_scenario(DIAGRAMS_DIR / "default.yaml")
+    assert (s.plant, s.hand, s.object, s.hand_spec, s.object_spec) == ("physics", "model_o", "apple", None, None)
+    assert s.hand_spec_resolved() == model_o()
+    assert s.period_sec() == pytest.approx(s.physics.action_period)
+
+
+def test_overrides_apply_after_the_file():
+    path = DIAGRAMS_DIR / "stiffness.yaml"
+    s = load_scenario(path, "filter: {particles: 123}\nseed: 7\n")
+    assert s.filter.particles == 123 and s.seed == 7
+    # the file's other settings stay
+    assert s.prior.stiffness_unknown == [[0, 1]] and s.model_plant.stiffness[0] == [0.08, 0.26]
+    assert s.filter.sigma_position == pf.FilterConfig().sigma_position
+
+
+def test_custom_hand_and_object_come_from_the_file():
+    s = load_scenario(DIAGRAMS_DIR / "custom_hand_and_object.yaml")
+    hand = s.hand_spec_resolved()
+    assert (hand.num_fingers, hand.num_joints_per_finger) == (4, 3)
+    assert hand.finger_names() == ["f0", "f1", "f2", "f3"]
+    assert hand.fingers[2].base == [-0.055, 0.0, 0.0] and hand.fingers[2].stiffness == [0.08, 0.12, 0.16]
+    obj = s.object_spec_resolved()
+    assert (obj.shape, obj.size, obj.mass, obj.tag_id) == ("box", [0.05, 0.05, 0.05], 0.1, 9)
+    model = hand.model()
+    assert model.link_lengths.shape == (4, 2)
+
+
+def test_hardware_section_resolves_its_files_against_the_scenario_folder():
+    s = load_scenario(DIAGRAMS_DIR / "hardware.yaml")
+    cal = Path(s.hardware.calibration_file)
+    assert cal.is_absolute() and cal.is_file() and cal.parent.parent == DIAGRAMS_DIR
+    assert np.shape(s.grasp.theta_deg) == (3, 2)
+
+
+def test_prior_settings_convert_to_the_filters_tuples():
+    p = PriorSettings(stiffness_unknown=[[0, 1]], stiffness_range=[0.1, 0.3], links_unknown=[2]).to_prior()
+    assert isinstance(p, pf.PriorConfig)
+    assert p.stiffness_unknown == [(0, 1)] and p.stiffness_range == (0.1, 0.3) and p.links_unknown == [2]
+    assert p.link_range == pf.PriorConfig().link_range and p.contact_limits == pf.PriorConfig().contact_limits
+
+
+def test_package_dataclasses_load_with_yaml_load_typed():
+    # scenario.py resolves the string annotations of the package's config dataclasses
+    spec = yaml_load_typed(schema=HandSpec, data="name: h\nfingers: [{name: a, base: [0.01, 0.0, 0.0]}]\n")
+    assert spec.fingers[0].base == [0.01, 0.0, 0.0] and spec.fingers[0].name == "a"
+
+
+# -- bad files ---------------------------------------------------------------------------------
+
+
+def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [
+        ("plant: model\nbogus_field: 3\n", "bogus_field"),  # unknown field
+        ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
+        ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
+        ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586
+        ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: -1}\n", "tag_id"),
+        ("plant: model\nobject_spec: {name: o, shape: blob}\n", "shape"),
+        ("plant: simulated\n", "plant"),
+        ("hand: model_x\n", "hand"),
+        ("object: pear\n", "object"),
+        ("hand: NH1\nhand_spec: {name: h}\n", "hand_spec"),  # both a preset and a full spec
+        ("filter: {particles: many}\n", "field 'filter'"),  # wrong type: names the section
+        ("filter: {particles: 0}\n", "particles"),
+        ("camera: {width: -640}\n", "width"),
+        ("physics: {time_step: 0.0}\n", "time_step"),
+        ("prior: {stiffness_unknown: [[5, 1]]}\n", "stiffness_unknown"),
+        ("plant: hardware\n", "hardware"),  # plant hardware without its section
+        ("plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",
+         "calibration_file"),  # missing file
+    ],
+)
+def test_bad_file_names_the_field_and_the_file(tmp_path: Path, text: str, field: str):
+    path = _write(tmp_path, text)
+    with pytest.raises(ValueError) as info:
+        load_scenario(path)
+    msg = str(info.value)
+    assert str(path) in msg, msg
+    assert field in msg, msg
+
+
+def test_bad_custom_hand_names_the_field_and_the_file(tmp_path: Path):
+    text = (DIAGRAMS_DIR / "custom_hand_and_object.yaml").read_text()
+    path = _write(tmp_path, text.replace("distal_length: 0.04 ", "distal_length: -0.04 "))
+    with pytest.raises(ValueError, match="distal_length") as info:
+        load_scenario(path)
+    assert str(path) in str(info.value)
+    path = _write(tmp_path, text.replace("link_radius: 0.009", "link_radius: 0.009\n      link_colour: red"), "b2.yaml")
+    with pytest.raises(ValueError, match=r"hand_spec\.fingers\[0\]\.link_colour") as info:
+        load_scenario(path)
+    assert str(path) in str(info.value)
+
+
+def test_bad_override_text_names_the_file(tmp_path: Path):
+    path = DIAGRAMS_DIR / "model_plant.yaml"
+    with pytest.raises(ValueError, match="override text.*particls|particls.*override") as info:
+        load_scenario(path, "filter: {particls: 5}\n")
+    assert str(path) in str(info.value)
+
+
+def test_missing_scenario_file(tmp_path: Path):
+    with pytest.raises(ValueError, match="not found"):
+        load_scenario(tmp_path / "nope.yaml")
+
+
+def test_scenario_defaults_validate():
+    s = Scenario().validate()
+    assert s.hand_spec_resolved() == model_o()
