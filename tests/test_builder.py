@@ -1,0 +1,180 @@
+"""The diagram builder: every example scenario builds (and, off hardware, runs a couple of
+action periods); names and ports; the physics grasp start; the committed pictures are current."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from vlr_drake import filter as pf
+from vlr_drake.builder import (
+    build_diagram,
+    build_model_plant_diagram,
+    graphviz_text,
+    initialize,
+    write_diagrams,
+)
+from vlr_drake.hardware.camera import read_intrinsics
+from vlr_drake.identify import _truth_grasp
+from vlr_drake.model_plant import ModelPlant
+from vlr_drake.models import PAD_FRACTION
+from vlr_drake.scenario import DIAGRAMS_DIR, example_scenarios, load_scenario
+
+EXAMPLES = example_scenarios()
+# Small filters under test: the runs check the wiring, not the identification.
+FAST = "filter: {particles: 400}\n"
+
+
+def _sensor_name(plant: str) -> str:
+    return "pose_sensor" if plant == "model" else "tag_observer"
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_example_scenario_builds_and_runs(path: Path):
+    s = load_scenario(path, FAST)
+    b = build_diagram(s)
+    d = b.diagram
+    N, K = b.hand.N, b.hand.K
+    spec = s.hand_spec_resolved()
+    assert (N, K) == (spec.num_fingers, spec.num_joints_per_finger)
+    sensor = _sensor_name(s.plant)
+    # named systems and exported ports "<system>.<signal>"
+    for name in ["exploration", "hand", sensor, "self_identification"]:
+        assert d.HasSubsystemNamed(name), name
+    for port in ["exploration.tendon_command", f"{sensor}.X_PO_measured", f"{sensor}.X_PO_valid",
+                 "self_identification.theta_estimate", "self_identification.interval_half_width",
+                 "self_identification.converged", "self_identification.estimate", "hand.tendon_position_measured"]:
+        assert d.HasOutputPort(port), port
+    assert d.get_name() == f"self_identification_{s.name}"
+    assert b.theta_center.shape == (N, K) and b.a_center.shape == (N,) and b.l_grasp.shape == (N,)
+    if s.plant == "hardware":
+        # building touches no hardware (motors and camera open at Initialize); the observer
+        # uses the camera's calibration file
+        assert d.HasOutputPort("hand.rgb_image") and d.HasOutputPort("hand.camera_valid")
+        cal = read_intrinsics(s.hardware.calibration_file)
+        np.testing.assert_allclose(b.plant.camera_matrix(), cal.K)
+        np.testing.assert_allclose(b.sensor._K, cal.K)
+        np.testing.assert_allclose(b.theta_center, np.deg2rad(s.grasp.theta_deg), atol=0.05)
+        b.plant.close()
+        return
+    sim = Simulator(d)
+    ctx = sim.get_mutable_context()
+    start = initialize(b, sim)
+    T = b.period_sec
+    if s.plant == "physics":
+        assert np.all(start["in_contact"]), start
+        assert d.HasOutputPort("hand.rgb_image")
+        # the prior's centre: the placed angles, contacts at PAD_FRACTION of the distal link
+        np.testing.assert_allclose(b.theta_center.ravel(), start["theta_placed"])
+        np.testing.assert_allclose(b.a_center, PAD_FRACTION * b.hand.distal_length)
+        # the policy starts at the placed grasp's commands
+        np.testing.assert_allclose(d.GetOutputPort("exploration.tendon_command").Eval(ctx), start["command"])
+    sim.AdvanceTo(1.5 * T)  # the first action came at T
+    command = d.GetOutputPort("exploration.tendon_command").Eval(ctx)
+    assert not np.allclose(command, b.l_grasp)  # the policy explored ...
+    # ... and the hand follows it (the physics tendons ramp to it in ramp_time < 0.5 T)
+    np.testing.assert_allclose(d.GetOutputPort("hand.tendon_position_measured").Eval(ctx), command, atol=1e-9)
+    sim.AdvanceTo(2.95 * T)  # the filter starts at 0.9 T and steps at 1.9 T, 2.9 T
+    flt = b.filter.filter(b.filter.GetMyContextFromRoot(ctx))
+    assert flt is not None and flt.iteration == 2
+    assert d.GetOutputPort(f"{sensor}.X_PO_valid").Eval(ctx)[0] == 1.0
+    assert np.all(np.isfinite(d.GetOutputPort("self_identification.theta_estimate").Eval(ctx)))
+    assert d.GetOutputPort("hand.theta_true").size() == N * K
+    if s.plant == "physics":
+        assert not b.physics_hand.object_fell(ctx)
+
+
+def test_model_plant_run_under_the_simulator_reduces_the_interval_width():
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "filter: {particles: 3000}\nseed: 2\n")
+    b = build_diagram(s)
+    sim = Simulator(b.diagram)
+    initialize(b, sim)
+    ctx = sim.get_mutable_context()
+    width = b.diagram.GetOutputPort("self_identification.interval_half_width")
+    assert np.all(np.isinf(width.Eval(ctx)))  # no filter before the first measurement
+    sim.AdvanceTo(1.5)
+    w0 = width.Eval(ctx).mean()
+    sim.AdvanceTo(15.5)
+    w1 = width.Eval(ctx).mean()
+    flt = b.filter.filter(b.filter.GetMyContextFromRoot(ctx))
+    assert flt.iteration == 14
+    assert w1 < 0.8 * w0, (w0, w1)
+
+
+def test_seed_changes_the_model_grasp_and_the_run():
+    a = build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST))
+    b = build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST))
+    c = build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST + "seed: 5\n"))
+    np.testing.assert_array_equal(a.theta_center, b.theta_center)
+    assert not np.allclose(a.theta_center, c.theta_center)
+
+
+def test_stiffness_scenario_true_hand_differs_from_the_filters():
+    b = build_diagram(load_scenario(DIAGRAMS_DIR / "stiffness.yaml", FAST))
+    ctx = b.diagram.CreateDefaultContext()
+    true_plant = b.plant.GetMyContextFromRoot(ctx)
+    truth = b.plant._p(true_plant)
+    assert truth.stiffness[0, 1] == pytest.approx(0.26)
+    assert b.hand.stiffness[0, 1] == pytest.approx(0.16)
+
+
+def test_model_plant_builder_matches_the_scenario_wiring():
+    """build_model_plant_diagram (the old vlr_drake.diagram signature) wires the same ports."""
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    built = build_diagram(s)
+    h = built.hand
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    old = build_model_plant_diagram(h, plant, pf.FilterConfig(particles=400), pf.PriorConfig(), th, a)
+    names = lambda d: [d.get_output_port(i).get_name() for i in range(d.num_output_ports())]  # noqa: E731
+    assert names(old.diagram) == names(built.diagram)
+
+
+def test_custom_hand_and_object_build_from_yaml(tmp_path: Path):
+    """A new hand and object need only a scenario file: change the box and the finger count."""
+    text = (DIAGRAMS_DIR / "custom_hand_and_object.yaml").read_text()
+    # drop the fourth finger: a 3-finger, 3-joint hand; a different tag and a heavier box
+    start = text.index("    - <<: *finger\n      name: f3")
+    end = text.index("\nobject_spec:") + 1
+    text = text[:start] + text[end:]
+    text = text.replace("tag_id: 9 ", "tag_id: 21 ").replace("mass: 0.1 ", "mass: 0.15 ")
+    text = text.replace("name: custom_hand_and_object", "name: three_finger")
+    path = tmp_path / "three_finger.yaml"
+    path.write_text(text)
+    s = load_scenario(path, FAST)
+    b = build_diagram(s)
+    assert (b.hand.N, b.hand.K) == (3, 3)
+    assert b.diagram.GetOutputPort("hand.theta_true").size() == 9
+    assert b.physics_hand.obj.tag_id == 21 and b.physics_hand.obj.mass == 0.15
+    # the observer looks for the object's tag
+    assert b.sensor._config.tag_id == 21
+
+
+def test_committed_diagram_pictures_are_current():
+    """The committed diagrams/<name>.dot equal the regenerated text (run
+    ``python -m vlr_drake.builder --write-diagrams`` after changing a scenario or a system)."""
+    for path in EXAMPLES:
+        s = load_scenario(path)
+        dot = DIAGRAMS_DIR / f"{s.name}.dot"
+        assert dot.is_file(), f"{dot} is missing: run python -m vlr_drake.builder --write-diagrams"
+        b = build_diagram(s)
+        assert graphviz_text(b) == dot.read_text(), f"{dot} is stale: run python -m vlr_drake.builder --write-diagrams"
+        if s.plant == "hardware":
+            b.plant.close()
+
+
+def test_graphviz_text_does_not_depend_on_what_was_built_before():
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    first = graphviz_text(build_diagram(s))
+    build_diagram(load_scenario(DIAGRAMS_DIR / "stiffness.yaml", FAST))
+    again = graphviz_text(build_diagram(s))
+    assert first == again
+    assert "name=exploration" in first and "name=pose_sensor" in first and "name=self_identification" in first
+
+
+def test_write_diagrams_writes_one_dot_per_scenario(tmp_path: Path):
+    (tmp_path / "a.yaml").write_text((DIAGRAMS_DIR / "model_plant.yaml").read_text().replace("name: model_plant", "name: a"))
+    written = write_diagrams(tmp_path, render=False)
+    assert written == [tmp_path / "a.dot"]
+    assert (tmp_path / "a.dot").read_text().startswith("digraph _0 {")
