@@ -86,3 +86,22 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     assert abs(s["stiffness_estimate"] - s["stiffness_true"]) < 0.08
     assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
     assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
+
+
+def test_05_custom_hand_is_identified_and_object_parses(tmp_path, monkeypatch):
+    s = run_notebook("05_your_own_hand_and_object.ipynb", tmp_path, monkeypatch)
+    assert s["hand_joints"] == s["num_angles"] == 12  # generic_hand(4, 3): one joint per VLR angle
+    assert s["final_interval_deg"] < 0.5 * s["prior_interval_deg"]
+    assert s["final_joint_error_deg"] < s["prior_joint_error_deg"]
+    assert s["box_mass"] == pytest.approx(0.1)
+    assert s["tag_offset_m"] < -0.025  # on the -z face of the 50 mm box, outside it
+
+
+def test_06_hardware_mapping_calibration_and_emulated_bus(tmp_path, monkeypatch):
+    s = run_notebook("06_running_on_hardware.ipynb", tmp_path, monkeypatch)
+    assert s["round_trip_error_m"] <= 0.5 * s["one_tick_m"] + 1e-12
+    assert s["fx_relative_error"] < 0.01
+    assert s["calibration_rms_px"] < 0.5
+    assert s["goal_ticks"] == s["expected_ticks"]  # the command reached the motors as ticks
+    assert s["measured_tendon_m"] == pytest.approx([0.010, 0.020, 0.030], abs=s["one_tick_m"])
+    assert s["camera_valid"]
