@@ -46,6 +46,7 @@ __all__ = [
     "control_step",
     "pose_error6",
     "limit_action",
+    "tendon_limits",
     "servo_to",
     "true_model_fn",
     "filter_model_fn",
@@ -293,13 +294,25 @@ def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
     return np.concatenate([np.asarray(t_goal, float) - np.asarray(t, float), dw])
 
 
-def limit_action(hand: HandModel, l_now, dl) -> np.ndarray:
-    """dl with every tendon kept inside ``hand.tendon_range`` (per tendon clamp)."""
+def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
+    """dl with every tendon kept inside ``limits`` (N, 2) (default ``hand.tendon_range``;
+    always within it), per tendon clamp."""
+    lim = tendon_limits(hand, limits)
     l_now = np.asarray(l_now, float).reshape(hand.N)
-    l_new = np.clip(
-        l_now + np.asarray(dl, float).reshape(hand.N), hand.tendon_range[:, 0], hand.tendon_range[:, 1]
-    )
+    l_new = np.clip(l_now + np.asarray(dl, float).reshape(hand.N), lim[:, 0], lim[:, 1])
     return l_new - l_now
+
+
+def tendon_limits(hand: HandModel, limits=None) -> np.ndarray:
+    """(N, 2) command limits: ``limits`` intersected with ``hand.tendon_range``."""
+    if limits is None:
+        return hand.tendon_range.copy()
+    limits = np.asarray(limits, float)
+    if limits.shape != (hand.N, 2):
+        raise ValueError(f"'limits' must have shape ({hand.N}, 2), got {limits.shape}")
+    lo = np.maximum(limits[:, 0], hand.tendon_range[:, 0])
+    hi = np.minimum(limits[:, 1], hand.tendon_range[:, 1])
+    return np.column_stack([lo, np.maximum(lo, hi)])
 
 
 @dataclass
@@ -351,6 +364,7 @@ def servo_to(
     max_steps: int = 30,
     stall_steps: int = 6,
     backoff: int = 3,
+    limits=None,
     position_unit: float = POSITION_UNIT,
     rotation_unit: float = ROTATION_UNIT,
     on_step: Callable[[int, np.ndarray, np.ndarray], None] | None = None,
@@ -366,6 +380,9 @@ def servo_to(
     Tolerances apply to the controlled rows only. Stops when under tolerance, after
     ``max_steps`` actions, or when the weighted error has not improved for
     ``stall_steps`` steps (e.g. an unreachable goal or tendons at their limits).
+    ``limits`` (N, 2) narrows the tendon commands further than the hand's range (e.g. a
+    window around the grasp, so the grip never loosens enough to drop the object); the
+    commands never leave it nor the hand's range.
     A step for which the plant finds no equilibrium (e.g. the grip would loosen) is
     halved up to ``backoff`` times before the run ends with ``"no_equilibrium"``.
     ``on_step(i, R, t)`` is called after every measurement (progress, marble simulation).
@@ -428,7 +445,8 @@ def servo_to(
         l_now = _tendon_command(plant)
         # tendons at a limit that the step pushes against are left out and the step is
         # solved again with the others (active set), so the free tendons still help
-        lo, hi = hand.tendon_range[:, 0], hand.tendon_range[:, 1]
+        lim = tendon_limits(hand, limits)
+        lo, hi = lim[:, 0], lim[:, 1]
         blocked = ((l_now <= lo + 1e-9) & (dl < 0)) | ((l_now >= hi - 1e-9) & (dl > 0))
         if blocked.any() and not blocked.all():
             dl = control_step(
@@ -444,7 +462,7 @@ def servo_to(
                 rotation_unit=rotation_unit,
             )
             dl[blocked] = 0.0
-        dl_lim = limit_action(hand, l_now, dl)
+        dl_lim = limit_action(hand, l_now, dl, limits)
         if np.max(np.abs(dl_lim)) < 1e-9:
             reason = "tendon_limit"
             break
@@ -467,7 +485,10 @@ def servo_to(
             on_step(it, R_last, t_last)
     l_now = _tendon_command(plant)
     at_limit = bool(
-        np.any((l_now <= hand.tendon_range[:, 0] + 1e-9) | (l_now >= hand.tendon_range[:, 1] - 1e-9))
+        np.any(
+            (l_now <= tendon_limits(hand, limits)[:, 0] + 1e-9)
+            | (l_now >= tendon_limits(hand, limits)[:, 1] - 1e-9)
+        )
     )
     return ServoReport(
         reached=reason == "reached",

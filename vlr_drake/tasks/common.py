@@ -16,6 +16,8 @@ from vlr_drake.model_plant import ModelPlant
 
 __all__ = [
     "MODELS",
+    "grip_window",
+    "object_fell",
     "TaskPlant",
     "PhysicsTaskPlant",
     "make_model_plant",
@@ -157,6 +159,7 @@ class PhysicsTaskPlant:
         self.hand = self.adapter.hand
         self.plant = self
         self.timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
+        self.fell: str | None = None
         theta_c, a_c, R, t = self.adapter.start(None)
         self.theta0 = np.asarray(theta_c, float).reshape(self.hand.N, self.hand.K)
         self.a0 = np.broadcast_to(np.asarray(a_c, float), (self.hand.N,)).copy()
@@ -169,7 +172,13 @@ class PhysicsTaskPlant:
         return self.adapter.tendon_command()
 
     def apply_action(self, dl) -> bool:
-        return self.adapter.act(dl, self.timing)
+        if self.fell:
+            return False
+        try:
+            return self.adapter.act(dl, self.timing)
+        except RuntimeError as err:  # the object fell out of the hand
+            self.fell = str(err)
+            return False
 
     def measure(self):
         R, t, valid = self.adapter.measure(self.timing)
@@ -244,6 +253,20 @@ def make_model_fn(
         R, t, valid = plant.measure()
         filt.step(dl, R, t, valid)
     return control.filter_model_fn(filt, h), filt
+
+
+def grip_window(hand: HandModel, l_grasp, window: float) -> np.ndarray:
+    """(N, 2) tendon command limits: +-``window`` [m] around the grasp's commands, within
+    the tendon range (see :func:`vlr_drake.control.tendon_limits`)."""
+    l_grasp = np.asarray(l_grasp, float).reshape(hand.N)
+    if window <= 0:
+        raise ValueError(f"'window' must be positive, got {window}")
+    return control.tendon_limits(hand, np.column_stack([l_grasp - window, l_grasp + window]))
+
+
+def object_fell(tp) -> bool:
+    """True when the plant reports that the object fell out of the hand (physics plant)."""
+    return bool(getattr(tp, "fell", None))
 
 
 def stats(values_m_or_rad, scale: float) -> dict | None:

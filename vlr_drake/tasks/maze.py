@@ -209,6 +209,7 @@ def run_maze(
     out: str | None = None,
     progress: bool = True,
     scenario: str = "default",
+    window: float = 4.0e-3,
 ) -> dict:
     """Steer the marble through the maze; returns the task result dict (DESIGN.md 11).
 
@@ -239,6 +240,7 @@ def run_maze(
     R0, t0, _ = pl.measure()
     R_PO0 = tp.true_pose()[0]  # the plate's level orientation (arm's frame of reference)
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
+    limits = common.grip_window(tp.hand, tp.tendon_command(), window)
     J = control.jacobian(m0)
     U, S, _ = np.linalg.svd(J[3:])
     k_P = U[:, 0]
@@ -272,7 +274,7 @@ def run_maze(
         settled = False
         run_samples = 0
         while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
-            if t_run > segment_time:
+            if t_run > segment_time or common.object_fell(tp):
                 success = False
                 break
             rep = control.servo_to(
@@ -284,6 +286,7 @@ def run_maze(
                 max_steps=1,
                 tol_rotation=np.deg2rad(tol_rotation_deg),
                 stall_steps=100,
+                limits=limits,
             )
             iterations += rep.iterations
             settled = settled or rep.reached or rep.reason != "budget"
@@ -314,6 +317,7 @@ def run_maze(
         "orientation_error_deg": common.stats(np.deg2rad(settled_err), np.rad2deg(1.0)),
         "success": bool(reached),
         "marble_reached_goal": bool(reached),
+        "object_fell": common.object_fell(tp),
         "marble_cell": list(marble.cell_of()),
         "time_s": time_s,
         "control_iterations": int(iterations),

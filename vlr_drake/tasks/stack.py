@@ -87,6 +87,7 @@ def run_stack(
     out: str | None = None,
     progress: bool = True,
     scenario: str = "default",
+    window: float = 4.0e-3,
 ) -> dict:
     """Stack the four cups; returns the task result dict (DESIGN.md section 11).
 
@@ -146,10 +147,12 @@ def run_stack(
             tol_rotation=np.deg2rad(tol_rotation_deg),
             max_steps=max_steps,
             stall_steps=8,
+            limits=common.grip_window(tp.hand, tp.tendon_command(), window),
         )
         R, t = tp.true_pose()
         pos1, rot1 = observation.pose_error(R[None], t[None], R_goal[None], t_goal[None])
         ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t)
+        ok = ok and not common.object_fell(tp)
         cups.append(
             {
                 "cup": k,
@@ -164,6 +167,7 @@ def run_stack(
                 "nested": ok,
                 "servo": rep.reason,
                 "iterations": rep.iterations,
+                "object_fell": common.object_fell(tp),
             }
         )
         bar.update(1)

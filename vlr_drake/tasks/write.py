@@ -48,7 +48,15 @@ def writing_plane(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def probe_workspace(
-    model: control.ControlModel, l_now, t0, axes, radius: float, *, directions: int = 8, max_steps: int = 12
+    model: control.ControlModel,
+    l_now,
+    t0,
+    axes,
+    radius: float,
+    *,
+    directions: int = 8,
+    max_steps: int = 12,
+    limits=None,
 ) -> np.ndarray:
     """Points (directions, 2) in plane coordinates [m] that the model predicts it can reach
     when servoing from ``t0`` towards ``radius`` along each direction of the plane."""
@@ -67,6 +75,7 @@ def probe_workspace(
             max_steps=max_steps,
             tol_position=0.05 * radius,
             clip=1e-3,
+            limits=limits,
         )
         d = rep.t_closest - t0
         out.append([d @ x, d @ y])
@@ -118,6 +127,7 @@ def run_write(
     progress: bool = True,
     scenario: str = "default",
     physics_object: str = "flat_screwdriver",
+    window: float = 4.0e-3,
 ) -> dict:
     """Write ``word`` with the POM; returns the task result dict (DESIGN.md section 11).
 
@@ -126,7 +136,10 @@ def run_write(
     ``letter_height`` is the largest letter height [m]; letters shrink to the probed
     workspace. ``plant="physics"``: the physics plant holding ``physics_object`` (the pen
     stand-in), measured by the rendered camera and tag observer; errors against its true
-    object pose (slow: a few tenths of a second per action). Plots (``out``): ``write_path.png``, the written path over the letters.
+    object pose (slow: a few tenths of a second per action). Tendon commands stay within
+    +-``window`` [m] of the grasp's (and the tendon range), so the grip never loosens
+    enough to drop the object; if it falls anyway (physics), writing stops and the result
+    says so. Plots (``out``): ``write_path.png``, the written path over the letters.
     """
     letters = font.word_letters(word)
     if plant not in ("model", "physics"):
@@ -150,13 +163,18 @@ def run_write(
     x, y, n = writing_plane(control.jacobian(m0))
     t_home = t0.copy()
     l_home = tp.tendon_command()
-    reach = probe_workspace(m0, l_home, t_home, (x, y), letter_height, directions=12, max_steps=20)
+    limits = common.grip_window(tp.hand, l_home, window)
+    reach = probe_workspace(
+        m0, l_home, t_home, (x, y), letter_height, directions=12, max_steps=20, limits=limits
+    )
     center2, r_in = _largest_circle(reach)
     height = float(np.clip(2.0 * 0.75 * r_in, 1e-3, letter_height))
 
     wp_err, wp_err_meas, rot_drift = [], [], []
     letters_out = []
-    servo_kw = dict(rows="position", tol_position=tol_position, max_steps=max_steps, stall_steps=4)
+    servo_kw = dict(
+        rows="position", tol_position=tol_position, max_steps=max_steps, stall_steps=4, limits=limits
+    )
     total_wp = sum(len(s) for c in letters for s in font.letter_strokes(c, height, spacing))
     bar = tqdm(total=total_wp, disable=not progress, desc=f"write {word}", unit="wp", leave=False)
     iterations = 0
@@ -186,7 +204,11 @@ def run_write(
                 path.append([d @ x, d @ y])
                 bar.update(1)
             paths.append(np.array(path))
+            if common.object_fell(tp):
+                break
         letters_out.append((c, [center2 + s for s in strokes], paths))
+        if common.object_fell(tp):
+            break
         # the arm moves the paper; the hand goes back to the grasp command
         home = control.limit_action(tp.hand, tp.tendon_command(), l_home - tp.tendon_command())
         for _ in range(10):
@@ -195,6 +217,8 @@ def run_write(
                 break
             home = home - step
             model_fn(step, *pl.measure())
+        if common.object_fell(tp):
+            break
     bar.close()
     wp_err = np.array(wp_err)
     pos = common.stats(wp_err, 1e3)
@@ -208,7 +232,8 @@ def run_write(
         "position_error_mm": pos,
         "orientation_error_deg": None,
         # written: 95% of the waypoints within 1 mm of the target
-        "success": bool(wp_err.size and np.percentile(wp_err, 95) <= 1e-3),
+        "success": bool(wp_err.size and np.percentile(wp_err, 95) <= 1e-3 and not common.object_fell(tp)),
+        "object_fell": common.object_fell(tp),
         "letter_height_mm": height * 1e3,
         "waypoints": int(wp_err.size),
         "control_iterations": int(iterations),
