@@ -11,8 +11,16 @@ from vlr_drake.hand import HandSpec, model_o
 from vlr_drake.scenario import DIAGRAMS_DIR, PriorSettings, Scenario, example_scenarios, load_scenario
 
 EXAMPLES = example_scenarios()
-EXPECTED = {"default", "model_plant", "stiffness", "novel_NH1", "novel_NH2", "novel_NH3",
-            "custom_hand_and_object", "hardware"}
+EXPECTED = {
+    "default",
+    "model_plant",
+    "stiffness",
+    "novel_NH1",
+    "novel_NH2",
+    "novel_NH3",
+    "custom_hand_and_object",
+    "hardware",
+}
 
 
 def test_the_examples_are_all_there():
@@ -33,7 +41,13 @@ def test_example_scenario_loads(path: Path):
 
 def test_default_is_model_o_holding_the_apple_on_the_physics_plant():
     s = load_scenario(DIAGRAMS_DIR / "default.yaml")
-    assert (s.plant, s.hand, s.object, s.hand_spec, s.object_spec) == ("physics", "model_o", "apple", None, None)
+    assert (s.plant, s.hand, s.object, s.hand_spec, s.object_spec) == (
+        "physics",
+        "model_o",
+        "apple",
+        None,
+        None,
+    )
     assert s.hand_spec_resolved() == model_o()
     assert s.period_sec() == pytest.approx(s.physics.action_period)
 
@@ -43,7 +57,7 @@ def test_overrides_apply_after_the_file():
     s = load_scenario(path, "filter: {particles: 123}\nseed: 7\n")
     assert s.filter.particles == 123 and s.seed == 7
     # the file's other settings stay
-    assert s.prior.stiffness_unknown == [[0, 1]] and s.model_plant.stiffness[0] == [0.08, 0.26]
+    assert s.prior.stiffness_unknown == [[0, 1]] and s.model_plant.stiffness[0] == [0.08, 0.22]
     assert s.filter.sigma_position == pf.FilterConfig().sigma_position
 
 
@@ -98,6 +112,7 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: -1}\n", "tag_id"),
         ("plant: model\nobject_spec: {name: o, shape: blob}\n", "shape"),
         ("plant: simulated\n", "plant"),
+        ("filter_action: guessed\n", "filter_action"),
         ("hand: model_x\n", "hand"),
         ("object: pear\n", "object"),
         ("hand: NH1\nhand_spec: {name: h}\n", "hand_spec"),  # both a preset and a full spec
@@ -107,8 +122,10 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("physics: {time_step: 0.0}\n", "time_step"),
         ("prior: {stiffness_unknown: [[5, 1]]}\n", "stiffness_unknown"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
-        ("plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",
-         "calibration_file"),  # missing file
+        (
+            "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",
+            "calibration_file",
+        ),  # missing file
     ],
 )
 def test_bad_file_names_the_field_and_the_file(tmp_path: Path, text: str, field: str):
@@ -126,7 +143,9 @@ def test_bad_custom_hand_names_the_field_and_the_file(tmp_path: Path):
     with pytest.raises(ValueError, match="distal_length") as info:
         load_scenario(path)
     assert str(path) in str(info.value)
-    path = _write(tmp_path, text.replace("link_radius: 0.009", "link_radius: 0.009\n      link_colour: red"), "b2.yaml")
+    path = _write(
+        tmp_path, text.replace("link_radius: 0.009", "link_radius: 0.009\n      link_colour: red"), "b2.yaml"
+    )
     with pytest.raises(ValueError, match=r"hand_spec\.fingers\[0\]\.link_colour") as info:
         load_scenario(path)
     assert str(path) in str(info.value)

@@ -45,9 +45,13 @@ from vlr_drake.identify import _truth_grasp
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
-from vlr_drake.scenario import DIAGRAMS_DIR, Scenario, example_scenarios, load_scenario
+from vlr_drake.scenario import DIAGRAMS_DIR, FILTER_ACTIONS, Scenario, example_scenarios, load_scenario
 from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, build_physics_hand
-from vlr_drake.systems.self_identification import ExplorationPolicy, ModelPlantSystem, SelfIdentificationSystem
+from vlr_drake.systems.self_identification import (
+    ExplorationPolicy,
+    ModelPlantSystem,
+    SelfIdentificationSystem,
+)
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver
 
 __all__ = [
@@ -69,8 +73,16 @@ SEED_POLICY, SEED_SENSOR, SEED_FILTER, SEED_PLANT = 1, 2, 3, 4
 # Outputs exported as "<system>.<signal>" when the system has them.
 _EXPORTS = {
     "exploration": ["tendon_command"],
-    "hand": ["theta_true", "X_PO_true", "contacts_true", "contact_along_link_true", "tension",
-             "tendon_position_measured", "rgb_image", "camera_valid"],
+    "hand": [
+        "theta_true",
+        "X_PO_true",
+        "contacts_true",
+        "contact_along_link_true",
+        "tension",
+        "tendon_position_measured",
+        "rgb_image",
+        "camera_valid",
+    ],
     "pose_sensor": ["X_PO_measured", "X_PO_valid"],
     "tag_observer": ["X_PO_measured", "X_PO_valid", "reprojection_error"],
     "self_identification": ["estimate", "theta_estimate", "interval_half_width", "converged", "particles"],
@@ -96,12 +108,22 @@ class BuiltDiagram:
 
 
 def wire_identification(
-    builder: DiagramBuilder, hand: HandModel, policy: ExplorationPolicy, plant, sensor: LeafSystem,
-    flt: SelfIdentificationSystem, sensor_name: str,
+    builder: DiagramBuilder,
+    hand: HandModel,
+    policy: ExplorationPolicy,
+    plant,
+    sensor: LeafSystem,
+    flt: SelfIdentificationSystem,
+    sensor_name: str,
+    filter_action: str = "measured",
 ) -> None:
     """Add the four parts by name (``exploration``, ``hand`` unless already added,
-    ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter
-    (and policy -> filter), and export their outputs as ``<system>.<signal>``."""
+    ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter,
+    and the filter's action input to the hand's ``tendon_position_measured``
+    (``filter_action="measured"``) or to the policy's ``tendon_command`` ("commanded"), and
+    export their outputs as ``<system>.<signal>``."""
+    if filter_action not in FILTER_ACTIONS:
+        raise ValueError(f"'filter_action' must be one of {list(FILTER_ACTIONS)}, got '{filter_action}'")
     builder.AddNamedSystem("exploration", policy)
     if not builder.HasSubsystemNamed("hand"):
         builder.AddNamedSystem("hand", plant)
@@ -112,10 +134,20 @@ def wire_identification(
         builder.Connect(plant.GetOutputPort("X_PO_true"), sensor.GetInputPort("X_PO_true"))
     else:
         builder.Connect(plant.GetOutputPort("rgb_image"), sensor.GetInputPort("rgb_image"))
-    builder.Connect(policy.GetOutputPort("tendon_command"), flt.tendon_command_input_port())
+    action = (
+        plant.GetOutputPort("tendon_position_measured")
+        if filter_action == "measured"
+        else policy.GetOutputPort("tendon_command")
+    )
+    builder.Connect(action, flt.tendon_command_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_measured"), flt.X_PO_measured_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_valid"), flt.X_PO_valid_input_port())
-    for name, system in [("exploration", policy), ("hand", plant), (sensor_name, sensor), ("self_identification", flt)]:
+    for name, system in [
+        ("exploration", policy),
+        ("hand", plant),
+        (sensor_name, sensor),
+        ("self_identification", flt),
+    ]:
         for port in _EXPORTS[name]:
             if system.HasOutputPort(port):
                 builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
@@ -124,13 +156,33 @@ def wire_identification(
 def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: float):
     mp = s.model_plant
     rng = np.random.default_rng((s.seed, SEED_PLANT))
-    theta, a = _truth_grasp(h, rng)
+    # The true grasp is a stable grasp of the *true* hand (its stiffness and link lengths).
+    true_spec = s.hand_spec_resolved()
+    for i, finger in enumerate(true_spec.fingers):
+        if mp.stiffness:
+            finger.stiffness = [float(k) for k in mp.stiffness[i]]
+        if mp.link_lengths:
+            finger.link_lengths = [float(L) for L in mp.link_lengths[i]]
+    try:
+        theta, a = _truth_grasp(true_spec.model(), rng)
+    except RuntimeError as e:
+        raise ValueError(
+            f"scenario '{s.name}': no stable grasp of the true hand (model_plant section): {e}"
+        ) from e
     plant = ModelPlant(
-        h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng((s.seed, SEED_PLANT + 1)),
+        h,
+        theta,
+        a,
+        np.eye(3),
+        np.array(MODEL_PLANT_t_PO),
+        np.random.default_rng((s.seed, SEED_PLANT + 1)),
         stiffness=np.asarray(mp.stiffness, float) if mp.stiffness else None,
         link_lengths=np.asarray(mp.link_lengths, float) if mp.link_lengths else None,
-        sigma_position=mp.sigma_position, sigma_rotation=np.deg2rad(mp.sigma_rotation_deg),
-        dropout=mp.dropout, tendon=s.filter.tendon, contact_drift=mp.contact_drift,
+        sigma_position=mp.sigma_position,
+        sigma_rotation=np.deg2rad(mp.sigma_rotation_deg),
+        dropout=mp.dropout,
+        tendon=s.filter.tendon,
+        contact_drift=mp.contact_drift,
     )
     f = mp.center_offset_fraction
     theta_c = plant.state.theta.copy()
@@ -138,8 +190,13 @@ def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: floa
     theta_c[:, 1:] += f * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
     a_c = plant.state.a + f * prior.contact_half_width * rng.uniform(-1, 1, h.N)
     plant_sys = ModelPlantSystem(plant, T)
-    sensor = NoisyPoseSensor(mp.sigma_position, np.deg2rad(mp.sigma_rotation_deg), dropout_probability=mp.dropout,
-                             seed=s.seed + SEED_SENSOR, update_period_sec=T)
+    sensor = NoisyPoseSensor(
+        mp.sigma_position,
+        np.deg2rad(mp.sigma_rotation_deg),
+        dropout_probability=mp.dropout,
+        seed=s.seed + SEED_SENSOR,
+        update_period_sec=T,
+    )
     return plant_sys, sensor, theta_c, a_c, plant_sys.grasp_command()
 
 
@@ -164,13 +221,18 @@ def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, n
     or of a stable model grasp sampled with the seed; commands from the model's equilibrium."""
     if s.grasp.theta_deg:
         theta = np.deg2rad(np.asarray(s.grasp.theta_deg, float))
-        a = (np.asarray(s.grasp.contact, float) if s.grasp.contact
-             else np.full(h.N, PAD_FRACTION) * h.distal_length)
+        a = (
+            np.asarray(s.grasp.contact, float)
+            if s.grasp.contact
+            else np.full(h.N, PAD_FRACTION) * h.distal_length
+        )
     else:
         theta, a = _truth_grasp(h, np.random.default_rng((s.seed, SEED_PLANT)))
         if s.grasp.contact:
             a = np.asarray(s.grasp.contact, float)
-    mp = ModelPlant(h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon)
+    mp = ModelPlant(
+        h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon
+    )
     return mp.state.theta.copy(), mp.state.a.copy(), mp.state.tendon_command.copy()
 
 
@@ -199,49 +261,103 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         plant = ph.diagram
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
         a_c = np.full(h.N, PAD_FRACTION) * h.distal_length
-        sensor = TagObserver(_observer_config(s), vtk_render_intrinsics(s.camera), None, s.camera.X_PC(), obj.X_TO(),
-                             update_period_sec=T, image_size=(s.camera.width, s.camera.height))
+        sensor = TagObserver(
+            _observer_config(s),
+            vtk_render_intrinsics(s.camera),
+            None,
+            s.camera.X_PC(),
+            obj.X_TO(),
+            update_period_sec=T,
+            image_size=(s.camera.width, s.camera.height),
+        )
         sensor_name = "tag_observer"
     else:
         from vlr_drake.systems.hardware_interface import add_hardware_interface
 
         theta_c, a_c, l0 = _nominal_grasp(s, h)
         plant = add_hardware_interface(builder, spec, s.hardware, name="hand")
-        sensor = TagObserver(_observer_config(s), plant.camera_matrix(), plant.distortion_coefficients(),
-                             s.camera.X_PC(), s.object_spec_resolved().X_TO(), update_period_sec=T,
-                             image_size=plant.image_size())
+        sensor = TagObserver(
+            _observer_config(s),
+            plant.camera_matrix(),
+            plant.distortion_coefficients(),
+            s.camera.X_PC(),
+            s.object_spec_resolved().X_TO(),
+            update_period_sec=T,
+            image_size=plant.image_size(),
+        )
         sensor_name = "tag_observer"
-    policy = ExplorationPolicy(h, l0, T, span=s.exploration.span, window=s.exploration.window,
-                               seed=s.seed + SEED_POLICY)
+    policy = ExplorationPolicy(
+        h, l0, T, span=s.exploration.span, window=s.exploration.window, seed=s.seed + SEED_POLICY
+    )
     flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
-    wire_identification(builder, h, policy, plant, sensor, flt, sensor_name)
+    wire_identification(builder, h, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")
-    return BuiltDiagram(diagram, s, h, policy, plant, sensor, flt, T, np.asarray(theta_c, float).reshape(h.N, h.K),
-                        np.asarray(a_c, float).reshape(h.N), np.asarray(l0, float), ph)
+    return BuiltDiagram(
+        diagram,
+        s,
+        h,
+        policy,
+        plant,
+        sensor,
+        flt,
+        T,
+        np.asarray(theta_c, float).reshape(h.N, h.K),
+        np.asarray(a_c, float).reshape(h.N),
+        np.asarray(l0, float),
+        ph,
+    )
 
 
 def build_model_plant_diagram(
-    hand: HandModel, plant: ModelPlant, config: pf.FilterConfig, prior: pf.PriorConfig, theta_center, a_center,
-    *, period_sec: float = 1.0, sigma_position: float = 0.2e-3, sigma_rotation: float = np.deg2rad(0.5),
-    dropout: float = 0.0, seed: int = 0,
+    hand: HandModel,
+    plant: ModelPlant,
+    config: pf.FilterConfig,
+    prior: pf.PriorConfig,
+    theta_center,
+    a_center,
+    *,
+    period_sec: float = 1.0,
+    sigma_position: float = 0.2e-3,
+    sigma_rotation: float = np.deg2rad(0.5),
+    dropout: float = 0.0,
+    seed: int = 0,
+    filter_action: str = "commanded",
 ) -> BuiltDiagram:
-    """The model-plant loop around an already made :class:`ModelPlant` (the signature of
-    ``vlr_drake.diagram.build_model_identification_diagram``, wired by the same
-    :func:`wire_identification` as :func:`build_diagram`)."""
+    """The model-plant loop around an already made :class:`ModelPlant` (the signature and,
+    with the default ``filter_action="commanded"``, the wiring of
+    ``vlr_drake.diagram.build_model_identification_diagram``), wired by the same
+    :func:`wire_identification` as :func:`build_diagram`."""
     builder = DiagramBuilder()
     plant_sys = ModelPlantSystem(plant, period_sec)
     l0 = plant_sys.grasp_command()
     policy = ExplorationPolicy(hand, l0, period_sec, seed=seed + SEED_POLICY)
-    sensor = NoisyPoseSensor(sigma_position, sigma_rotation, dropout_probability=dropout, seed=seed + SEED_SENSOR,
-                             update_period_sec=period_sec)
-    flt = SelfIdentificationSystem(hand, config, prior, theta_center, a_center, period_sec, seed=seed + SEED_FILTER)
-    wire_identification(builder, hand, policy, plant_sys, sensor, flt, "pose_sensor")
+    sensor = NoisyPoseSensor(
+        sigma_position,
+        sigma_rotation,
+        dropout_probability=dropout,
+        seed=seed + SEED_SENSOR,
+        update_period_sec=period_sec,
+    )
+    flt = SelfIdentificationSystem(
+        hand, config, prior, theta_center, a_center, period_sec, seed=seed + SEED_FILTER
+    )
+    wire_identification(builder, hand, policy, plant_sys, sensor, flt, "pose_sensor", filter_action)
     diagram = builder.Build()
     diagram.set_name("self_identification_model_plant")
-    return BuiltDiagram(diagram, None, hand, policy, plant_sys, sensor, flt, period_sec,
-                        np.asarray(theta_center, float).reshape(hand.N, hand.K),
-                        np.asarray(a_center, float).reshape(hand.N), l0)
+    return BuiltDiagram(
+        diagram,
+        None,
+        hand,
+        policy,
+        plant_sys,
+        sensor,
+        flt,
+        period_sec,
+        np.asarray(theta_center, float).reshape(hand.N, hand.K),
+        np.asarray(a_center, float).reshape(hand.N),
+        l0,
+    )
 
 
 def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | None = None) -> dict:

@@ -46,6 +46,7 @@ from vlr_drake.systems.physics_plant import PhysicsConfig
 
 __all__ = [
     "PLANTS",
+    "FILTER_ACTIONS",
     "HAND_PRESETS",
     "DIAGRAMS_DIR",
     "PriorSettings",
@@ -59,6 +60,8 @@ __all__ = [
 
 #: The plants a scenario can drive.
 PLANTS = ("model", "physics", "hardware")
+#: What the filter takes as its action (see ``Scenario.filter_action``).
+FILTER_ACTIONS = ("measured", "commanded")
 #: Hand preset names accepted by ``Scenario.hand`` (see :func:`vlr_drake.hand.hand_by_name`).
 HAND_PRESETS = ("model_o", "NH1", "NH2", "NH3")
 #: The folder of the example scenarios and their rendered diagrams.
@@ -82,7 +85,15 @@ def _resolve_field_types(cls: type) -> type:
     return cls
 
 
-for _cls in (HandSpec, ObjectSpec, CameraConfig, PhysicsConfig, pf.FilterConfig, TagObserverConfig, HardwareConfig):
+for _cls in (
+    HandSpec,
+    ObjectSpec,
+    CameraConfig,
+    PhysicsConfig,
+    pf.FilterConfig,
+    TagObserverConfig,
+    HardwareConfig,
+):
     _resolve_field_types(_cls)
 
 
@@ -133,7 +144,9 @@ class PriorSettings:
                 raise ValueError(f"prior: '{name}' must be [min, max] with min < max, got {v}")
         for pair in self.stiffness_unknown:
             if len(pair) != 2 or not (0 <= pair[0] < N and 0 <= pair[1] < K):
-                raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger < {N}, joint < {K}] pair")
+                raise ValueError(
+                    f"prior: 'stiffness_unknown' entry {pair} is not a [finger < {N}, joint < {K}] pair"
+                )
         for i in self.links_unknown:
             if not 0 <= i < N:
                 raise ValueError(f"prior: 'links_unknown' entry {i} is not a finger index < {N}")
@@ -154,7 +167,9 @@ class ExplorationSettings:
 
     def validate(self) -> "ExplorationSettings":
         if not self.span > 0 or not self.window > 0:
-            raise ValueError(f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}")
+            raise ValueError(
+                f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}"
+            )
         if self.period_sec < 0:
             raise ValueError(f"exploration: 'period_sec' must be >= 0, got {self.period_sec}")
         return self
@@ -190,9 +205,13 @@ class ModelPlantSettings:
         if self.stiffness and not np.all(np.asarray(self.stiffness) > 0):
             raise ValueError(f"model_plant: 'stiffness' must be positive, got {self.stiffness}")
         if self.link_lengths and np.shape(self.link_lengths) != (N, K - 1):
-            raise ValueError(f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}")
+            raise ValueError(
+                f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}"
+            )
         if not 0 <= self.center_offset_fraction <= 1:
-            raise ValueError(f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}")
+            raise ValueError(
+                f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}"
+            )
         if self.contact_drift < 0:
             raise ValueError(f"model_plant: 'contact_drift' must be >= 0, got {self.contact_drift}")
         return self
@@ -246,6 +265,11 @@ class Scenario:
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
     # The filter's prior around the nominal grasp.
     prior: PriorSettings = field(default_factory=PriorSettings)
+    # The filter's action (the tendon pulls it moves its hypotheses by): "measured" (the
+    # hand's tendon_position_measured: what the plant applied; the model plant keeps its
+    # pose when it finds no equilibrium for a command, a motor may lag) or "commanded" (the
+    # exploration policy's tendon_command).
+    filter_action: str = "measured"
     # The random exploration policy.
     exploration: ExplorationSettings = field(default_factory=ExplorationSettings)
     # The model plant's truth and camera stand-in (plant "model" only).
@@ -282,14 +306,23 @@ class Scenario:
         """Check every section; raises ``ValueError`` naming the section and field."""
         if self.plant not in PLANTS:
             raise ValueError(f"'plant' must be one of {list(PLANTS)}, got '{self.plant}'")
+        if self.filter_action not in FILTER_ACTIONS:
+            raise ValueError(
+                f"'filter_action' must be one of {list(FILTER_ACTIONS)}, got '{self.filter_action}'"
+            )
         if self.hand_spec is None and self.hand not in HAND_PRESETS:
-            raise ValueError(f"'hand' must be a preset {list(HAND_PRESETS)} or hand_spec given, got '{self.hand}'")
+            raise ValueError(
+                f"'hand' must be a preset {list(HAND_PRESETS)} or hand_spec given, got '{self.hand}'"
+            )
         if self.object_spec is None and self.object not in preset_names():
-            raise ValueError(f"'object' must be a preset {preset_names()} or object_spec given, got '{self.object}'")
+            raise ValueError(
+                f"'object' must be a preset {preset_names()} or object_spec given, got '{self.object}'"
+            )
         hand = self.hand_spec_resolved()
         _with_section("hand_spec" if self.hand_spec is not None else "hand", hand.validate)
-        _with_section("object_spec" if self.object_spec is not None else "object",
-                      self.object_spec_resolved().validate)
+        _with_section(
+            "object_spec" if self.object_spec is not None else "object", self.object_spec_resolved().validate
+        )
         _with_section("camera", self.camera.validate)
         _with_section("physics", self.physics.validate)
         _with_section("filter", self.filter.validate)
@@ -338,7 +371,10 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
             text = path.read_text() if source == "file" else overrides
             where = _locate_error(text, scenario)
             raise ValueError(f"{path} ({source}){where}: {e}") from e
-    for preset_field, spec_field, default in [("hand", "hand_spec", "model_o"), ("object", "object_spec", "apple")]:
+    for preset_field, spec_field, default in [
+        ("hand", "hand_spec", "model_o"),
+        ("object", "object_spec", "apple"),
+    ]:
         name, spec = getattr(scenario, preset_field), getattr(scenario, spec_field)
         if name and spec is not None:
             raise ValueError(f"{path}: give either '{preset_field}' or '{spec_field}', not both")
@@ -405,7 +441,9 @@ def _locate_error(text: str, defaults: Scenario) -> str:
         return f", unknown field '{bad[0]}'"
     for key, value in data.items():
         try:
-            yaml_load_typed(schema=Scenario, data=yaml.safe_dump({key: value}), defaults=copy.deepcopy(defaults))
+            yaml_load_typed(
+                schema=Scenario, data=yaml.safe_dump({key: value}), defaults=copy.deepcopy(defaults)
+            )
         except Exception:
             return f", field '{key}'"
     return ""
