@@ -207,3 +207,15 @@ def test_write_diagrams_writes_one_dot_per_scenario(tmp_path: Path):
     written = write_diagrams(tmp_path, render=False)
     assert written == [tmp_path / "a.dot"]
     assert (tmp_path / "a.dot").read_text().startswith("digraph _0 {")
+
+
+def test_run_returns_the_estimate_and_the_truth(capsys):
+    from vlr_drake.builder import main, run
+
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    r = run(s, iterations=3)
+    assert r["iterations"] == 3 and r["sim_time"] == pytest.approx(3.95)
+    assert r["theta_estimate"].shape == r["theta_true"].shape == (3, 2)
+    assert np.all(np.isfinite(r["interval_half_width"]))
+    assert main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--iterations", "1", "--set", FAST]) == 0
+    assert "model_plant: 1 iterations" in capsys.readouterr().out
