@@ -106,3 +106,10 @@ def test_06_hardware_mapping_calibration_and_emulated_bus(tmp_path, monkeypatch)
     assert s["goal_ticks"] == s["expected_ticks"]  # the command reached the motors as ticks
     assert s["measured_tendon_m"] == pytest.approx([0.010, 0.020, 0.030], abs=s["one_tick_m"])
     assert s["camera_valid"]
+    # the frame from the interface, through the tag observer: tag 0.12 m ahead, on the axis
+    # but for the video's 2 mm steps in x
+    assert s["tag_valid"]
+    x, y, z = s["tag_position_m"]
+    assert z == pytest.approx(0.12, abs=1e-3)
+    assert abs(y) < 0.5e-3
+    assert min(abs(x - 0.002 * k) for k in range(5)) < 0.5e-3
