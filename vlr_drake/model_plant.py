@@ -44,6 +44,7 @@ class ModelPlant:
         self.sigma_position, self.sigma_rotation, self.dropout = sigma_position, sigma_rotation, dropout
         self.tendon = tendon
         self.contact_drift = contact_drift
+        self.failures = 0  # actions for which the model found no nearby equilibrium
         theta = np.asarray(theta, float).reshape(hand.N, hand.K)
         a = np.asarray(a, float).reshape(hand.N)
         eq = motion.equilibrium(hand, theta[None], a=a[None], link_lengths=self.link_lengths[None],
@@ -70,6 +71,7 @@ class ModelPlant:
                           link_lengths=self.link_lengths[None], stiffness=self.stiffness[None], tendon=self.tendon,
                           l_now=s.tendon_command)
         if not res.ok[0]:
+            self.failures += 1
             return False
         s.theta, s.stretch = res.theta[0], res.stretch[0]
         s.tendon_command = s.tendon_command + dl

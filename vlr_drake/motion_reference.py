@@ -134,23 +134,29 @@ def solve_move(
     prog.AddBoundingBoxConstraint(theta0.ravel() - local_range, theta0.ravel() + local_range, x)
     prog.SetInitialGuess(x, theta0.ravel())
 
-    options = SolverOptions()
-    if solver == "ipopt":
-        s = IpoptSolver()
-        options.SetOption(s.solver_id(), "tol", tolerance)
-        options.SetOption(s.solver_id(), "constr_viol_tol", tolerance)
-        options.SetOption(s.solver_id(), "print_level", 0)
-    else:
-        s = SnoptSolver()
-        # SNOPT's tolerances are relative and it stops with "cannot be improved" when asked
-        # for more than double precision gives; 1e-10 on the scaled problem is ~1e-9 rad.
-        options.SetOption(s.solver_id(), "Major optimality tolerance", max(tolerance, 1e-10))
-        options.SetOption(s.solver_id(), "Major feasibility tolerance", max(tolerance, 1e-10))
+    s = IpoptSolver() if solver == "ipopt" else SnoptSolver()
     if not s.available() or not s.enabled():
         raise MotionSolveError(f"solver '{solver}' is not available in this drake build")
-    t0 = time.perf_counter()
-    result = s.Solve(prog, theta0.ravel(), options)
-    elapsed = time.perf_counter() - t0
+    guess = theta0.ravel()
+    t_start = time.perf_counter()
+    for attempt in range(2):
+        options = SolverOptions()
+        if solver == "ipopt":
+            options.SetOption(s.solver_id(), "tol", tolerance)
+            options.SetOption(s.solver_id(), "constr_viol_tol", tolerance)
+            options.SetOption(s.solver_id(), "print_level", 0)
+        else:
+            # SNOPT's tolerances are relative, and it stops with "current point cannot be
+            # improved" when asked for more than round-off allows: first 1e-10 (angles to
+            # ~1e-8 rad), then, if that stalls, 1e-9 from where it stopped.
+            opt = max(tolerance, 1e-10 if attempt == 0 else 1e-9)
+            options.SetOption(s.solver_id(), "Major optimality tolerance", opt)
+            options.SetOption(s.solver_id(), "Major feasibility tolerance", max(tolerance, 1e-10))
+        result = s.Solve(prog, guess, options)
+        if result.is_success() or solver == "ipopt":
+            break
+        guess = result.GetSolution(x)
+    elapsed = time.perf_counter() - t_start
     if not result.is_success():
         raise MotionSolveError(
             f"{solver} failed on the motion problem (Eq. 9, {tendon} tendon): {result.get_solution_result()}"
