@@ -72,6 +72,10 @@ def test_02_identification_narrows_and_improves(tmp_path, monkeypatch):
     assert s["final_joint_error_deg"] < s["prior_joint_error_deg"]
     assert s["final_interval_deg"] < 0.5 * s["prior_interval_deg"]
     assert s["final_contact_error_mm"] < 5.0
+    # the same loop as a Drake diagram built from diagrams/model_plant.yaml
+    assert s["diagram_iterations"] == 20
+    assert s["diagram_half_width_deg"] < 0.6 * s["prior_half_width_deg"]
+    assert s["diagram_joint_error_deg"] < 4.0
 
 
 def test_03_handwriting_follows_the_letters(tmp_path, monkeypatch):
