@@ -4,6 +4,9 @@
                           summary table and convergence plots
     vlr-drake selfcheck   build the default hand, move it with both solvers, compare
     vlr-drake identify    one of the paper's identification experiments (JSON + plots)
+    vlr-drake write       handwriting with the POM (position control, Eq. 10-12)
+    vlr-drake maze        a marble maze by orientation control
+    vlr-drake stack       cup stacking in SE(3) with the rotational weight alpha
     vlr-drake bench       benchmarks that print their figures (motion, filter)
 
 Every run takes ``--seed`` and writes JSON with ``--json PATH``.
@@ -145,6 +148,33 @@ def _plots(result: dict, out: Path) -> None:
         print(f"wrote {p}")
 
 
+# ------------------------------------------------------------------------------ tasks
+def task(args) -> dict:
+    common = dict(seed=args.seed, plant=args.plant, model=args.model, out=args.out, progress=not args.no_progress,
+                  scenario=args.scenario)
+    if args.command == "write":
+        from vlr_drake.tasks.write import run_write
+
+        result = run_write(args.word, particles=args.particles, **common)
+    elif args.command == "maze":
+        from vlr_drake.tasks.maze import run_maze
+
+        result = run_maze(**common)
+    else:
+        from vlr_drake.tasks.stack import run_stack
+
+        result = run_stack(alpha=args.alpha, **common)
+    pos, rot = result.get("position_error_mm"), result.get("orientation_error_deg")
+    line = f"{result['task']} on the {result['plant']} plant: success {result['success']}"
+    if pos:
+        line += f"; position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f})"
+    if rot:
+        line += f"; orientation error {rot['mean']:.2f} +- {rot['sd']:.2f} deg (max {rot['max']:.2f})"
+    print(line)
+    write_json(result, args.json or str(Path(args.out) / f"{args.command}_seed{args.seed}.json"))
+    return result
+
+
 # ------------------------------------------------------------------------------ bench
 def bench(args) -> dict:
     from vlr_drake import bench as b
@@ -167,6 +197,15 @@ def demo(args) -> None:
     print("\n== self-identification: Model O holding an object, known hand ==")
     args.experiment, args.hand = "known_hand", "model_o"
     identify(args)
+    print("\n== in-hand manipulation: the identified model writes with the POM ==")
+    from vlr_drake.tasks.write import run_write
+
+    result = run_write("VLR", seed=args.seed, plant="model", model="filter", out=args.out,
+                       progress=not args.no_progress, scenario=args.scenario)
+    pos = result["position_error_mm"]
+    print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
+          f"plot in {args.out}/write_path.png")
+    write_json(result, str(Path(args.out) / "demo_write.json"))
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; outputs in {args.out}/")
 
 
@@ -203,6 +242,20 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--hand", default="model_o", help="model_o, or NH1/NH2/NH3 for novel_fingers")
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    for name, help_text in [("write", "write a word with the POM (position control)"),
+                            ("maze", "play a marble maze (orientation control)"),
+                            ("stack", "stack cups (SE(3) control with the rotational weight alpha)")]:
+        p = sub.add_parser(name, help=help_text)
+        _common(p, particles=3000, iterations=40)
+        p.add_argument("--plant", choices=["model", "physics"], default="model")
+        p.add_argument("--model", choices=["true", "filter"], default="filter",
+                       help="the controller's model: the plant's hidden truth, or self-identified first")
+        p.add_argument("--no-progress", action="store_true")
+        if name == "write":
+            p.add_argument("word", nargs="?", default="SCIENCE", help="letters A-Z (default SCIENCE)")
+        if name == "stack":
+            p.add_argument("--alpha", type=float, default=9.5, help="rotational weight of Eq. 12 (paper: 9.5)")
+
     p = sub.add_parser("bench", help="benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
     p.add_argument("--particles", type=int, default=60_000)
@@ -220,6 +273,8 @@ def main(argv: list[str] | None = None) -> int:
             demo(args)
         elif args.command == "bench":
             bench(args)
+        elif args.command in ("write", "maze", "stack"):
+            task(args)
     except (ValueError, FileNotFoundError) as e:
         print(f"vlr-drake {args.command}: error: {e}", file=sys.stderr)
         return 2
