@@ -102,6 +102,8 @@ def test_05_custom_hand_is_identified_and_object_parses(tmp_path, monkeypatch):
     assert s["final_joint_error_deg"] < s["prior_joint_error_deg"]
     assert s["box_mass"] == pytest.approx(0.1)
     assert s["tag_offset_m"] < -0.025  # on the -z face of the 50 mm box, outside it
+    # diagrams/custom_hand_and_object.yaml describes the same hand and box
+    assert s["yaml_same_hand"] and s["yaml_same_box"]
 
 
 def test_06_hardware_mapping_calibration_and_emulated_bus(tmp_path, monkeypatch):
