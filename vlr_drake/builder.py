@@ -8,7 +8,9 @@ self-identification diagram out (DESIGN.md section 8), for each plant:
 - ``hardware``: exploration -> hand (:class:`HardwareInterface`, real motors and camera)
   -> tag_observer -> self_identification
 
-The policy's ``tendon_command`` also feeds the filter (its actions). Systems are added with
+The filter's action input is the hand's ``tendon_position_measured`` (what the plant
+applied: the model plant keeps its pose when it finds no equilibrium for a command), or the
+policy's ``tendon_command`` with ``filter_action: commanded``. Systems are added with
 ``AddNamedSystem`` under those names; outputs are exported as ``<system>.<signal>`` (e.g.
 ``self_identification.interval_half_width``, ``hand.theta_true``).
 
@@ -112,7 +114,6 @@ class BuiltDiagram:
 
 def wire_identification(
     builder: DiagramBuilder,
-    hand: HandModel,
     policy: ExplorationPolicy,
     plant,
     sensor: LeafSystem,
@@ -242,9 +243,10 @@ def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, n
 def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDiagram:
     """Turn ``scenario`` into the self-identification diagram (module docstring).
 
-    ``meshcat`` is used for the physics plant when given (and ``scenario.meshcat`` is true,
-    or always when given explicitly). The physics diagram needs :func:`initialize` before
-    it is simulated."""
+    A given ``meshcat`` shows the physics plant; without one, ``scenario.meshcat: true``
+    creates one. The physics diagram needs :func:`initialize` before it is simulated.
+    Raises ``ValueError`` for an invalid scenario or a model-plant truth with no stable grasp.
+    """
     s = scenario.validate()
     spec = s.hand_spec_resolved()
     h = spec.model()
@@ -293,7 +295,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         h, l0, T, span=s.exploration.span, window=s.exploration.window, seed=s.seed + SEED_POLICY
     )
     flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
-    wire_identification(builder, h, policy, plant, sensor, flt, sensor_name, s.filter_action)
+    wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")
     return BuiltDiagram(
@@ -345,7 +347,7 @@ def build_model_plant_diagram(
     flt = SelfIdentificationSystem(
         hand, config, prior, theta_center, a_center, period_sec, seed=seed + SEED_FILTER
     )
-    wire_identification(builder, hand, policy, plant_sys, sensor, flt, "pose_sensor", filter_action)
+    wire_identification(builder, policy, plant_sys, sensor, flt, "pose_sensor", filter_action)
     diagram = builder.Build()
     diagram.set_name("self_identification_model_plant")
     return BuiltDiagram(
