@@ -35,7 +35,8 @@ EXPERIMENTS = ("known_hand", "stiffness", "novel_fingers")
 #: Objects of the known-hand experiment (the paper's Fig. 4).
 KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
 #: Range of the unknown thumb distal stiffness drawn for the truth and searched by the prior.
-STIFFNESS_RANGE = (0.08, 0.32)
+#: (Above ~0.25 N m/rad the truth-grasp sampler finds no stable fingertip grasp.)
+STIFFNESS_RANGE = (0.10, 0.24)
 
 
 @dataclass
@@ -185,7 +186,7 @@ def run_identification(opts: IdentifyOptions) -> dict:
     timing["total"] = time.perf_counter() - t_start
     est = f.estimates[-1]
     truth = truths[-1]
-    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, k_true, f, lost)
+    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, k_true, f, lost, plant)
     result["_estimates"] = f.estimates
     result["_history"] = f.history
     result["_truths"] = truths
@@ -193,7 +194,7 @@ def run_identification(opts: IdentifyOptions) -> dict:
     return result
 
 
-def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k_true, f, lost) -> dict:
+def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k_true, f, lost, plant) -> dict:
     th_err = np.rad2deg(np.abs(est["theta"] - truth["theta"]))
     c_err = 1e3 * np.linalg.norm(est["contacts"] - truth["contacts"], axis=1)
     inside_theta = (truth["theta"] >= est["theta_lo"]) & (truth["theta"] <= est["theta_hi"])
@@ -220,6 +221,7 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
         "truth_inside_95_contact": float(inside_a.mean()),
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),
+        "actions_refused": int(getattr(plant, "refused", 0)),
     }
     if prior.stiffness_unknown:
         fi, j = prior.stiffness_unknown[0]
@@ -266,6 +268,11 @@ class _ModelAdapter:
         ok = self.plant.apply_action(dl)
         timing["physics"] += time.perf_counter() - t0
         return ok
+
+    @property
+    def refused(self) -> int:
+        """Actions for which the model plant found no nearby equilibrium (skipped)."""
+        return self.plant.failures
 
     def measure(self, timing):
         return self.plant.measure()

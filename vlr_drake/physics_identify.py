@@ -48,6 +48,7 @@ class PhysicsAdapter:
         self.X_PC, self.X_TO = self.camera.X_PC(), self.obj.X_TO()
         self.not_settled = 0
         self.lost = 0
+        self.refused = 0  # the physics plant never refuses an action
 
     def start(self, prior):
         t0 = time.perf_counter()
