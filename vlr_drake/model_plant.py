@@ -69,7 +69,7 @@ class ModelPlant:
         D2 = motion.contact_distances_sq(h, self.p_O[None])
         res = motion.move(h, s.theta[None], dl, a=s.a[None], D2=D2, stretch=s.stretch[None],
                           link_lengths=self.link_lengths[None], stiffness=self.stiffness[None], tendon=self.tendon,
-                          l_now=s.tendon_command)
+                          l_now=s.tendon_command, max_substeps=64)
         if not res.ok[0]:
             self.failures += 1
             return False
