@@ -64,3 +64,15 @@ def test_bad_input_is_reported(tmp_path, capsys):
     assert "NH1, NH2 or NH3" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["identify", "nonsense"])
+
+
+def test_identify_with_meshcat_saves_a_recording(tmp_path):
+    out = tmp_path / "out"
+    r = _run(tmp_path, "identify", "known_hand", "--particles", "600", "--iterations", "3", "--no-progress",
+             "--meshcat", "--out", str(out))
+    from test_visualization import _commands  # decodes the Meshcat commands in the HTML
+
+    html = (out / "identify_known_hand_seed0.html").read_text()
+    assert r["iterations"] >= 1
+    animation = [c for c in _commands(html) if b"set_animation" in c]
+    assert len(animation) == 1 and b"/hypotheses/frame_0001" in animation[0]  # a frame per iteration

@@ -120,12 +120,40 @@ def print_summary(result: dict) -> None:
 def identify(args) -> dict:
     from vlr_drake.identify import run_identification
 
-    result = run_identification(_identify_options(args))
-    print_summary(result)
     out = Path(args.out)
+    on_iteration, finish = _meshcat_hypotheses(out / f"identify_{args.experiment}_seed{args.seed}.html") \
+        if args.meshcat else (None, None)
+    result = run_identification(_identify_options(args), on_iteration=on_iteration)
+    print_summary(result)
+    if finish is not None:
+        finish()
     _plots(result, out)
     write_json(result, args.json or str(out / f"identify_{args.experiment}_seed{args.seed}.json"))
     return result
+
+
+def _meshcat_hypotheses(html_path: Path):
+    """Meshcat drawing of the hypotheses (the paper's Fig. 4 colours), one recorded frame per
+    iteration, saved as a static HTML recording at the end. Returns (callback, finish)."""
+    from pydrake.geometry import Meshcat
+
+    from vlr_drake.visualization import HypothesisDrawer, save_recording
+
+    meshcat = Meshcat()
+    print(f"Meshcat: {meshcat.web_url()}")
+    meshcat.StartRecording()
+    state = {}
+
+    def on_iteration(iteration, flt):
+        if "drawer" not in state:
+            state["drawer"] = HypothesisDrawer(meshcat, flt.hand)
+        state["drawer"].draw_particles(flt.particles, flt.estimates[-1], np.random.default_rng(iteration),
+                                       time_in_recording=float(iteration))
+
+    def finish():
+        print(f"wrote {save_recording(meshcat, html_path, publish_recording=True)}")
+
+    return on_iteration, finish
 
 
 def _plots(result: dict, out: Path) -> None:
@@ -241,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--object", default="apple", help="object held (physics plant)")
         p.add_argument("--hand", default="model_o", help="model_o, or NH1/NH2/NH3 for novel_fingers")
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
+        p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=False,
+                       help="draw the hypotheses in Meshcat (URL printed) and save an HTML recording")
 
     for name, help_text in [("write", "write a word with the POM (position control)"),
                             ("maze", "play a marble maze (orientation control)"),

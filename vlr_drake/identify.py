@@ -142,9 +142,12 @@ def _truth_grasp(hand, rng, link_lengths=None):
     return gs.theta[0], gs.a[0]
 
 
-def run_identification(opts: IdentifyOptions) -> dict:
+def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     """Run one identification trial; returns the DESIGN.md section 11 result dict plus the
-    filter's estimate history (``_estimates``, ``_history``, ``_truths``: not JSON)."""
+    filter's estimate history (``_estimates``, ``_history``, ``_truths``: not JSON).
+
+    ``on_iteration(iteration, filter)`` is called after the initialisation (iteration 0) and
+    after every filter iteration, e.g. to draw the hypotheses in Meshcat."""
     opts.validate()
     opts.filter.particles = opts.particles
     rng = np.random.default_rng(opts.seed)
@@ -165,6 +168,8 @@ def run_identification(opts: IdentifyOptions) -> dict:
     tf = time.perf_counter()
     f.initialise(theta_c, a_c, R0, t0, k_center, L_center)
     timing["filter"] += time.perf_counter() - tf
+    if on_iteration is not None:
+        on_iteration(0, f)
     explore = Exploration(plant.tendon_command(), filt_hand.tendon_range, opts.action_range, opts.window,
                           np.random.default_rng(opts.seed + 2))
     truths = [plant.truth()]
@@ -186,6 +191,8 @@ def run_identification(opts: IdentifyOptions) -> dict:
         rep = f.step(dl, R, t, valid)
         timing["filter"] += time.perf_counter() - tf
         truths.append(plant.truth())
+        if on_iteration is not None:
+            on_iteration(it, f)
         bar.update(1)
         bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
         if rep.converged and converged_at is None:
