@@ -3,6 +3,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from vlr_drake.cli import main
@@ -76,3 +77,14 @@ def test_identify_with_meshcat_saves_a_recording(tmp_path):
     assert r["iterations"] >= 1
     animation = [c for c in _commands(html) if b"set_animation" in c]
     assert len(animation) == 1 and b"/hypotheses/frame_0001" in animation[0]  # a frame per iteration
+
+
+def test_reproduce_quick_writes_the_table(tmp_path):
+    out = tmp_path / "rep"
+    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out)]) == 0
+    table = (out / "reproduce.md").read_text()
+    data = json.loads((out / "reproduce.json").read_text())
+    assert "| proximal joint error, known hand [deg] | 1.78 +- 0.92 |" in table
+    assert len(data["rows"]) == 10 and data["quick"]
+    for row in data["rows"]:
+        assert np.isfinite(row["ours_mean"]) and row["better"] == (row["ours_mean"] < row["paper_mean"])

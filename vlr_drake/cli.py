@@ -7,6 +7,7 @@
     vlr-drake write       handwriting with the POM (position control, Eq. 10-12)
     vlr-drake maze        a marble maze by orientation control
     vlr-drake stack       cup stacking in SE(3) with the rotational weight alpha
+    vlr-drake reproduce   the paper's experiments and tasks, its numbers beside ours
     vlr-drake bench       benchmarks that print their figures (motion, filter)
 
 Every run takes ``--seed`` and writes JSON with ``--json PATH``.
@@ -286,6 +287,16 @@ def main(argv: list[str] | None = None) -> int:
         if name == "stack":
             p.add_argument("--alpha", type=float, default=9.5, help="rotational weight of Eq. 12 (paper: 9.5)")
 
+    p = sub.add_parser("reproduce", help="the paper's table: experiments and tasks, paper vs ours")
+    p.add_argument("--trials", type=int, default=5)
+    p.add_argument("--plant", choices=["model", "physics"], default="model")
+    p.add_argument("--particles", type=int, default=20_000)
+    p.add_argument("--iterations", type=int, default=100)
+    p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
+    p.add_argument("--out", default="out/reproduce")
+    p.add_argument("--json", default=None)
+    p.add_argument("--no-progress", action="store_true")
+
     p = sub.add_parser("bench", help="benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
     p.add_argument("--particles", type=int, default=60_000)
@@ -305,6 +316,14 @@ def main(argv: list[str] | None = None) -> int:
             bench(args)
         elif args.command in ("write", "maze", "stack"):
             task(args)
+        elif args.command == "reproduce":
+            from vlr_drake.reproduce import format_table, reproduce
+
+            r = reproduce(trials=args.trials, plant=args.plant, particles=args.particles, iterations=args.iterations,
+                          quick=args.quick, out=args.out, progress=not args.no_progress)
+            print(format_table(r))
+            print(f"wrote {args.out}/reproduce.md and reproduce.json")
+            write_json(r, args.json)
     except (ValueError, FileNotFoundError) as e:
         print(f"vlr-drake {args.command}: error: {e}", file=sys.stderr)
         return 2
