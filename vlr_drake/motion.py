@@ -467,21 +467,20 @@ def _move_kernel(
 
 
 @njit(cache=True)
-def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam):  # pragma: no cover
-    """Least-squares (T, lambda) of one particle; returns the residual norm (inf: singular)."""
+def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, work):  # pragma: no cover
+    """Least-squares (T, lambda) of one particle; returns the residual norm (inf: singular).
+
+    ``work`` holds scratch arrays (see :func:`_make_equilibrium_work`), reused across
+    particles; the products are written as loops (numba's ``@`` on small arrays goes
+    through BLAS calls that cost more than the arithmetic)."""
     N, K = theta.shape
     m = pairs.shape[0]
     n = N * K
-    Pc = np.empty((N, 3))
-    Jc = np.empty((N, 3, K))
-    Hc = np.empty((N, 3, K, K))
-    g = np.empty(m)
-    G = np.empty((m, n))
-    D2 = np.zeros(m)
+    nb = N + m
+    Pc, Jc, Hc, g, G, D2, B, f0, M, rhs = work
     _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
     _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-    B = np.zeros((n, N + m))
-    f0 = np.empty(n)
+    B[:, :] = 0.0
     for i in range(N):
         for k in range(K):
             q = i * K + k
@@ -489,13 +488,20 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam):
             B[q, i] = -rarm[i, k]
             for c in range(m):
                 B[q, N + c] = G[c, q]
-    M = B.T @ B
     mscale = 0.0
-    for c in range(N + m):
-        mscale = max(mscale, M[c, c])
-    for c in range(N + m):
+    for c1 in range(nb):
+        v = 0.0
+        for q in range(n):
+            v += B[q, c1] * f0[q]
+        rhs[c1] = -v
+        for c2 in range(nb):
+            v = 0.0
+            for q in range(n):
+                v += B[q, c1] * B[q, c2]
+            M[c1, c2] = v
+        mscale = max(mscale, M[c1, c1])
+    for c in range(nb):
         M[c, c] += 1e-12 * mscale  # minimum-norm multipliers where they are indeterminate
-    rhs = -(B.T @ f0)
     if not _solve(M, rhs):
         T[:] = 0.0
         lam[:] = 0.0
@@ -504,19 +510,38 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam):
         T[i] = rhs[i]
     for c in range(m):
         lam[c] = rhs[N + c]
-    r = B @ rhs + f0
-    return np.sqrt(np.sum(r * r))
+    r2 = 0.0
+    for q in range(n):
+        v = f0[q]
+        for c in range(nb):
+            v += B[q, c] * rhs[c]
+        r2 += v * v
+    return np.sqrt(r2)
+
+
+@njit(cache=True)
+def _make_equilibrium_work(N, K, m):  # pragma: no cover - numba
+    n = N * K
+    return (np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K)), np.empty(m), np.empty((m, n)),
+            np.zeros(m), np.zeros((n, N + m)), np.empty(n), np.empty((N + m, N + m)), np.empty(N + m))
 
 
 @njit(cache=True, parallel=True)
 def _equilibrium_kernel(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, resid):  # pragma: no cover
     """Least-squares (T, lambda) with k (theta - theta0) - R^T T + G^T lambda = 0."""
-    P = theta.shape[0]
-    for pp in prange(P):
-        p = np.int64(pp)
-        pl = p if L.shape[0] > 1 else 0
-        pk = p if kst.shape[0] > 1 else 0
-        resid[p] = _equilibrium_one(theta[p], a[p], L[pl], kst[pk], pad, base, u, rarm, rest, pairs, T[p], lam[p])
+    P, N, K = theta.shape
+    m = pairs.shape[0]
+    chunk = 256
+    nchunks = (P + chunk - 1) // chunk
+    for cc in prange(nchunks):
+        work = _make_equilibrium_work(N, K, m)
+        start = np.int64(cc) * chunk
+        stop = min(start + chunk, P)
+        for p in range(start, stop):
+            pl = p if L.shape[0] > 1 else 0
+            pk = p if kst.shape[0] > 1 else 0
+            resid[p] = _equilibrium_one(theta[p], a[p], L[pl], kst[pk], pad, base, u, rarm, rest, pairs, T[p],
+                                        lam[p], work)
 
 
 # --------------------------------------------------------------------------------------
