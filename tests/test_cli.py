@@ -88,3 +88,16 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert len(data["rows"]) == 10 and data["quick"]
     for row in data["rows"]:
         assert np.isfinite(row["ours_mean"]) and row["better"] == (row["ours_mean"] < row["paper_mean"])
+
+
+def test_diagrams_command_writes_dot_files(tmp_path):
+    import shutil
+
+    from vlr_drake.scenario import DIAGRAMS_DIR
+
+    for name in ["model_plant.yaml", "default.yaml"]:
+        shutil.copy(DIAGRAMS_DIR / name, tmp_path / name)
+    assert main(["diagrams", "--folder", str(tmp_path), "--no-render"]) == 0
+    dots = sorted(p.name for p in tmp_path.glob("*.dot"))
+    assert "default.dot" in dots and "model_plant.dot" in dots
+    assert "self_identification" in (tmp_path / "model_plant.dot").read_text()

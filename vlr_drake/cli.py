@@ -8,6 +8,7 @@
     vlr-drake maze        a marble maze by orientation control
     vlr-drake stack       cup stacking in SE(3) with the rotational weight alpha
     vlr-drake reproduce   the paper's experiments and tasks, its numbers beside ours
+    vlr-drake diagrams    write the example scenarios' system diagrams (.dot, and .svg with Graphviz)
     vlr-drake bench       benchmarks that print their figures (motion, filter)
 
 Every run takes ``--seed`` and writes JSON with ``--json PATH``.
@@ -297,6 +298,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None)
     p.add_argument("--no-progress", action="store_true")
 
+    p = sub.add_parser("diagrams", help="write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
+    p.add_argument("--folder", default=None,
+                   help="folder of scenario files; the diagrams are written beside them (default: diagrams/)")
+    p.add_argument("--no-render", action="store_true", help="only the .dot text")
+
     p = sub.add_parser("bench", help="benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
     p.add_argument("--particles", type=int, default=60_000)
@@ -316,6 +322,11 @@ def main(argv: list[str] | None = None) -> int:
             bench(args)
         elif args.command in ("write", "maze", "stack"):
             task(args)
+        elif args.command == "diagrams":
+            from vlr_drake.builder import write_diagrams
+
+            for path in write_diagrams(args.folder, render=not args.no_render):
+                print(f"wrote {path}")
         elif args.command == "reproduce":
             from vlr_drake.reproduce import format_table, reproduce
 
