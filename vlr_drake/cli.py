@@ -230,8 +230,8 @@ def demo(args) -> None:
     print("\n== in-hand manipulation: the identified model writes with the POM ==")
     from vlr_drake.tasks.write import run_write
 
-    result = run_write("VLR", seed=args.seed, plant="model", model="filter", out=args.out,
-                       progress=not args.no_progress, scenario=args.scenario)
+    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=10_000,
+                       identify_iterations=100, out=args.out, progress=not args.no_progress, scenario=args.scenario)
     pos = result["position_error_mm"]
     print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
           f"plot in {args.out}/write_path.png")

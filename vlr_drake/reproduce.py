@@ -70,13 +70,16 @@ def reproduce(trials: int = 5, plant: str = "model", particles: int = 20_000, it
             ("stiffness", lambda s: _identify("stiffness", "model_o", s, plant, particles, iterations))]
     for nh in ("NH1", "NH2", "NH3"):
         jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations)))
+    # Tasks run with the identified model (self-identification first, then the filter keeps
+    # updating during control), at up to 10,000 particles and 100 identification iterations.
     task_model = "true" if quick else "filter"
+    ident = {"particles": min(particles, 10_000), "identify_iterations": iterations}
     jobs += [("write", lambda s: run_write("I" if quick else "SCIENCE", seed=s, plant=plant, model=task_model,
-                                           progress=False, out=str(out / f"write_{s}"))),
+                                           progress=False, out=str(out / f"write_{s}"), **ident)),
              ("maze", lambda s: run_maze(seed=s, plant=plant, model=task_model, progress=False,
-                                         out=str(out / f"maze_{s}"))),
+                                         out=str(out / f"maze_{s}"), **ident)),
              ("stack", lambda s: run_stack(seed=s, plant=plant, model=task_model, progress=False,
-                                           out=str(out / f"stack_{s}")))]
+                                           out=str(out / f"stack_{s}"), **ident))]
     bar = tqdm(total=len(jobs) * trials, disable=not progress, desc="reproduce", unit="run")
     for name, job in jobs:
         runs[name] = []
