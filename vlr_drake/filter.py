@@ -102,16 +102,7 @@ def temper(log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> floa
 
     Returns 1 when the full likelihood keeps the ESS above the target.
     """
-    if effective_sample_size(log_lik) >= ess_target:
-        return 1.0
-    lo, hi = 0.0, 1.0
-    for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        if effective_sample_size(mid * log_lik) >= ess_target:
-            lo = mid
-        else:
-            hi = mid
-    return max(lo, 1e-6)
+    return _temper_increment(np.zeros_like(np.asarray(log_lik, float)), log_lik, ess_target, iterations)
 
 
 def _temper_increment(log_w0: np.ndarray, log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> float:
@@ -405,11 +396,9 @@ class SelfIdentificationFilter:
         if not feasible.any() or best > cfg.divergence_sigmas:
             self._reinitialise(R_meas, t_meas)
             return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best)
-        prior_w = np.where(np.isfinite(ps.log_w), ps.log_w, -np.inf)
-        beta = temper(prior_w + log_lik - prior_w.max(), cfg.ess_fraction * ps.size) if np.isfinite(prior_w).any() else 1.0
-        if beta < 1.0:  # temper the increment only, relative to the weights carried so far
-            beta = _temper_increment(prior_w, log_lik, cfg.ess_fraction * ps.size)
-        log_w = prior_w + beta * log_lik
+        # temper this iteration's likelihood only, relative to the weights carried so far
+        beta = _temper_increment(ps.log_w, log_lik, cfg.ess_fraction * ps.size)
+        log_w = ps.log_w + beta * log_lik
         ess = effective_sample_size(log_w)
         # Re-anchoring (DESIGN.md section 3): blend each particle's predicted POM pose
         # towards the measured one, then re-express its contacts in that frame.
