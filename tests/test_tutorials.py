@@ -17,10 +17,9 @@ import shutil
 import sys
 from pathlib import Path
 
+import nbclient  # a dev dependency: if it is missing the tests must fail, not skip
+import nbformat
 import pytest
-
-nbformat = pytest.importorskip("nbformat")
-nbclient = pytest.importorskip("nbclient")
 
 TUTORIALS = Path(__file__).resolve().parents[1] / "tutorials"
 CELL_TIMEOUT_S = 240

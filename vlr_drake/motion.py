@@ -185,6 +185,30 @@ def _constraint_jacobian(Pc, Jc, pairs, D2, g, G):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
+    """Least squares min |A x + f0| (A: equations x unknowns) by the normal equations, with a
+    1e-12-relative ridge that picks the minimum-norm x where A loses rank (multipliers that
+    are statically indeterminate). The solution is left in ``rhs``; False if singular.
+    Written as loops: numba's ``@`` on these small arrays costs more than the arithmetic."""
+    n_eq, nb = A.shape
+    scale = 0.0
+    for c1 in range(nb):
+        v = 0.0
+        for q in range(n_eq):
+            v += A[q, c1] * f0[q]
+        rhs[c1] = -v
+        for c2 in range(nb):
+            v = 0.0
+            for q in range(n_eq):
+                v += A[q, c1] * A[q, c2]
+            M[c1, c2] = v
+        scale = max(scale, M[c1, c1])
+    for c in range(nb):
+        M[c, c] += 1e-12 * scale
+    return _solve(M, rhs)
+
+
+@njit(cache=True)
 def _newton_one(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
     ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
@@ -210,7 +234,7 @@ def _newton_one(
     _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
     _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
     nb = m + nc
-    B = Bfull[:nb]
+    B = Bfull[:, :nb]
     B[:, :] = 0.0
     BBt = BBtfull[:nb, :nb]
     rhs = rhsfull[:nb]
@@ -221,27 +245,12 @@ def _newton_one(
                 f0[i * K + k] -= rarm[i, k] * kappa[i] * (s0[i] + dl[i])
     for c in range(m):
         for q in range(n):
-            B[c, q] = G[c, q]
+            B[q, c] = G[c, q]
     if ideal:
         for i in range(N):
             for k in range(K):
-                B[m + i, i * K + k] = rarm[i, k]
-    for r1 in range(nb):
-        v = 0.0
-        for q in range(n):
-            v += B[r1, q] * f0[q]
-        rhs[r1] = -v
-        for r2 in range(nb):
-            v = 0.0
-            for q in range(n):
-                v += B[r1, q] * B[r2, q]
-            BBt[r1, r2] = v
-    bscale = 0.0
-    for r1 in range(nb):
-        bscale = max(bscale, BBt[r1, r1])
-    for r1 in range(nb):
-        BBt[r1, r1] += 1e-12 * bscale  # minimum-norm multipliers where they are indeterminate
-    if _solve(BBt, rhs):
+                B[i * K + k, m + i] = rarm[i, k]
+    if _ridge_solve(B, f0, BBt, rhs):
         for c in range(m):
             lam[c] = rhs[c]
         for i in range(nc):
@@ -397,7 +406,7 @@ def _make_work(N, K, m):  # pragma: no cover - numba
     dim = n + m + N
     return (
         np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K)), np.empty(m), np.empty((m, n)),
-        np.empty((dim, dim)), np.empty(dim), np.zeros(N), np.empty(N), np.empty((m + N, n)), np.empty(n),
+        np.empty((dim, dim)), np.empty(dim), np.zeros(N), np.empty(N), np.empty((n, m + N)), np.empty(n),
         np.empty((m + N, m + N)), np.empty(m + N),
     )
 
@@ -488,21 +497,7 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, 
             B[q, i] = -rarm[i, k]
             for c in range(m):
                 B[q, N + c] = G[c, q]
-    mscale = 0.0
-    for c1 in range(nb):
-        v = 0.0
-        for q in range(n):
-            v += B[q, c1] * f0[q]
-        rhs[c1] = -v
-        for c2 in range(nb):
-            v = 0.0
-            for q in range(n):
-                v += B[q, c1] * B[q, c2]
-            M[c1, c2] = v
-        mscale = max(mscale, M[c1, c1])
-    for c in range(nb):
-        M[c, c] += 1e-12 * mscale  # minimum-norm multipliers where they are indeterminate
-    if not _solve(M, rhs):
+    if not _ridge_solve(B, f0, M, rhs):
         T[:] = 0.0
         lam[:] = 0.0
         return np.inf
