@@ -27,6 +27,7 @@ rotational rows, so alpha = 1 trades 1 mm against 1 degree and the paper's alpha
 from __future__ import annotations
 
 import copy
+import functools
 import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -402,6 +403,8 @@ def servo_to(
     history: list = []
     reason = "budget"
     it = 0
+    step = functools.partial(control_step, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
+                             position_unit=position_unit, rotation_unit=rotation_unit)
 
     def errors(R_, t_):
         e = pose_error6(R_goal, t_goal, R_, t_)
@@ -427,18 +430,7 @@ def servo_to(
         except RuntimeError:
             reason = "no_equilibrium"
             break
-        dl = control_step(
-            J,
-            e,
-            mode=mode,
-            rows=rows,
-            alpha=alpha,
-            damping=damping,
-            gain=gain,
-            clip=clip,
-            position_unit=position_unit,
-            rotation_unit=rotation_unit,
-        )
+        dl = step(J, e)
         if np.max(np.abs(dl)) < 1e-9:
             reason = "stalled"  # the error lies outside the motions the model can make
             break
@@ -449,18 +441,7 @@ def servo_to(
         lo, hi = lim[:, 0], lim[:, 1]
         blocked = ((l_now <= lo + 1e-9) & (dl < 0)) | ((l_now >= hi - 1e-9) & (dl > 0))
         if blocked.any() and not blocked.all():
-            dl = control_step(
-                J * ~blocked[None, :],
-                e,
-                mode=mode,
-                rows=rows,
-                alpha=alpha,
-                damping=damping,
-                gain=gain,
-                clip=clip,
-                position_unit=position_unit,
-                rotation_unit=rotation_unit,
-            )
+            dl = step(J * ~blocked[None, :], e)
             dl[blocked] = 0.0
         dl_lim = limit_action(hand, l_now, dl, limits)
         if np.max(np.abs(dl_lim)) < 1e-9:
