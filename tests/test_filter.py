@@ -57,6 +57,36 @@ def test_weighted_interval_matches_sorted_definition():
     assert lo_w[0] > 0
 
 
+def test_motion_error_widens_sigma_by_the_predicted_motion():
+    """The likelihood against its definition: Gaussian in (dp, ang) with sigma^2 = s^2 +
+    (c * predicted motion)^2 and its log-normaliser; c = 0 is the plain likelihood."""
+    from vlr_drake.hand import model_o
+
+    hand = model_o().model()
+    R_prev = np.repeat(np.eye(3)[None], 2, axis=0)
+    t_prev = np.zeros((2, 3))
+    t_pred = np.array([[0.0, 0.0, 0.0], [0.010, 0.0, 0.0]])  # the second predicts a 10 mm move
+    R_pred = R_prev.copy()
+    dp = np.array([0.004, 0.004])
+    ang = np.zeros(2)
+    plain = pf.SelfIdentificationFilter(hand, pf.FilterConfig(), pf.PriorConfig(), np.random.default_rng(0))
+    ll0, m0 = plain._log_likelihood(dp, ang, R_pred, t_pred, None, None)
+    sp, sr = plain.config.sigma_position, plain.config.sigma_rotation
+    np.testing.assert_allclose(m0, (dp / sp) ** 2)
+    np.testing.assert_allclose(ll0, -0.5 * m0 - 1.5 * np.log(sp**2) - 1.5 * np.log(sr**2))
+    c = 0.5
+    f = pf.SelfIdentificationFilter(hand, pf.FilterConfig(motion_error=c), pf.PriorConfig(), np.random.default_rng(0))
+    ll, m = f._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
+    s2 = sp**2 + (c * np.linalg.norm(t_pred - t_prev, axis=1)) ** 2
+    np.testing.assert_allclose(m, dp**2 / s2)
+    np.testing.assert_allclose(ll, -0.5 * dp**2 / s2 - 1.5 * np.log(s2) - 1.5 * np.log(sr**2))
+    assert ll[1] > ll[0]  # a 4 mm miss is plausible after a predicted 10 mm move ...
+    ll_small, _ = f._log_likelihood(np.full(2, 1e-5), ang, R_pred, t_pred, R_prev, t_prev)
+    assert ll_small[1] < ll_small[0]  # ... but the wider spread costs when both are close
+    with pytest.raises(ValueError, match="motion_error"):
+        pf.FilterConfig(motion_error=-1.0).validate()
+
+
 def _filter_and_plant(seed, particles=4000, **cfg):
     from vlr_drake.hand import model_o
 
@@ -130,21 +160,23 @@ def test_bad_configuration_is_named():
 
 @pytest.mark.slow
 def test_known_hand_converges_accurately_and_honestly():
-    """Model plant, exact truth, 3 seeds x 100 iterations at 20,000 particles: joint errors
-    of a degree or two, contacts within a few millimetres, and the truth inside the 95%
-    intervals for most joints. (Measured over 5 seeds: proximal 0.94 +- 0.35 deg, truth
-    inside 80% of the joint intervals; the issue's goal of 90% is not reached yet, and this
-    test holds what is.)"""
-    inside, errors, proximal, contact = [], [], [], []
-    for seed in range(3):
-        r = run_identification(IdentifyOptions(experiment="known_hand", particles=20000, max_iterations=100,
+    """Model plant, exact truth, 12 seeds x at most 180 iterations at 20,000 particles (the
+    issue's calibration check): proximal joint errors under a degree and contact errors
+    under 3 mm in a typical run (the median seed; the mean under 2 degrees), and the truth
+    inside the reported 95% intervals at least 90% of the time, pooled over every joint angle
+    and contact position of every seed. A filter that is sure and wrong fails this even when
+    its typical error is small. Measured here (3 mm exploration): median 0.5 deg, mean
+    0.58 deg, contacts 1.2 mm, 7/12 converged, pooled coverage 0.95."""
+    inside, proximal, contact, converged = [], [], [], []
+    for seed in range(12):
+        r = run_identification(IdentifyOptions(experiment="known_hand", particles=20000, max_iterations=180,
                                                seed=seed, progress=False))
-        inside.append(r["truth_inside_95_theta"])
-        errors.append(r["joint_error_deg_mean"])
+        inside += [r["truth_inside_95_theta"]] * 6 + [r["truth_inside_95_contact"]] * 3
         proximal.append(np.mean(r["proximal_joint_error_deg"]))
         contact.append(np.mean(r["contact_error_mm"]))
-        assert r["interval_half_width_deg_mean"] < 4.0  # it learnt: the prior is ~11 deg
-    assert np.mean(proximal) < 1.5, proximal
-    assert np.mean(errors) < 2.2, errors
-    assert np.mean(contact) < 4.5, contact
-    assert np.mean(inside) >= 0.7, inside
+        converged.append(r["converged"])
+        assert r["interval_half_width_deg_mean"] < 6.0  # it learnt: the prior is ~11 deg
+    assert np.median(proximal) < 1.0 and np.mean(proximal) < 2.0, proximal
+    assert np.median(contact) < 3.0, contact
+    assert np.mean(converged) >= 0.4, converged
+    assert np.mean(inside) >= 0.9, np.round(inside, 2)

@@ -27,7 +27,9 @@ def test_novel_hands_replace_the_right_fingers():
     base = model_o().model()
     np.testing.assert_allclose(nh3.base, base.base)  # mounted where the old fingers were
     assert nh3.link_lengths[:, 0].tolist() == pytest.approx([0.040, 0.050, 0.050])
-    assert nh3.pad[2] == pytest.approx(novel_finger("NF3").pad_offset)
+    nf3 = novel_finger("NF3")
+    assert nh3.pad[2] == pytest.approx(nf3.pad_offset - nf3.pad_radius)  # the pad's centre of curvature
+    assert nh3.pad_surface[2] == pytest.approx(nf3.pad_offset)
     nh1 = hand_by_name("NH1").model()
     assert nh1.link_lengths[:, 0].tolist() == pytest.approx([0.040, 0.062, 0.062])
 

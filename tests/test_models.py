@@ -13,7 +13,6 @@ from pydrake.multibody.tree import ForceElementIndex, RevoluteSpring
 from vlr_drake.hand import NOVEL_FINGER_NAMES, generic_hand, hand_by_name, novel_finger
 from vlr_drake.models import (
     PAD_FRACTION,
-    PAD_SPHERE_RADIUS,
     PAD_SPHERE_SPACING,
     configure_parser,
     finger_sdf,
@@ -138,17 +137,19 @@ def test_pad_geometry():
     (inst2,) = parser.AddModelsFromString(hand_sdf(spec), "sdf")
     plant2.Finalize()
     insp = sg.model_inspector()
-    for f in spec.fingers:
+    for i, f in enumerate(spec.fingers):
         body = plant2.GetBodyByName(link_name(f.name, spec.num_joints_per_finger), inst2)
         ids = {insp.GetName(g).split("::")[-1]: g for g in plant2.GetCollisionGeometriesForBody(body)}
         centers = []
         for side in (0, 1):
             g = ids[pad_geometry_name(f.name, side)]
-            assert insp.GetShape(g).radius() == pytest.approx(PAD_SPHERE_RADIUS)
+            assert insp.GetShape(g).radius() == pytest.approx(f.pad_radius)
             centers.append(insp.GetPoseInFrame(g).translation())
         centers = np.array(centers)
         assert abs(centers[0, 1] - centers[1, 1]) == pytest.approx(PAD_SPHERE_SPACING)
-        np.testing.assert_allclose(centers[:, 0] + PAD_SPHERE_RADIUS, f.pad_offset)
+        np.testing.assert_allclose(centers[:, 0] + f.pad_radius, f.pad_offset)
+        # the VLR contact offset is the spheres' centre (the pad's centre of curvature)
+        np.testing.assert_allclose(centers[:, 0], spec.model().pad[i])
         np.testing.assert_allclose(centers[:, 2], PAD_FRACTION * f.distal_length)
         assert insp.GetProximityProperties(g).GetProperty(
             "material", "coulomb_friction"

@@ -89,7 +89,8 @@ def test_results_satisfy_constraints_and_are_minima(model_o_hand, tendon):
             th = _manifold_perturbation(hand, res.theta[p], gs.theta[p], gs.a[p], gs.D2[p], dl[p], tendon, rng)
             if th is None or np.abs(th - res.theta[p]).max() > 0.01:
                 continue  # not a nearby point of the manifold (another isolated root)
-            assert _energy(hand, th, gs.theta[p], gs.stretch[p], dl[p], tendon) >= e0 - 1e-12
+            # (rounding: a re-projection onto the same isolated point differs by ~1e-10 relative)
+            assert _energy(hand, th, gs.theta[p], gs.stretch[p], dl[p], tendon) >= e0 - 1e-12 - 1e-9 * e0
             checked += 1
     # The Model O's ideal-tendon problem is square (isolated solutions): nothing to perturb.
     assert checked >= (200 if tendon == "elastic" else 0)

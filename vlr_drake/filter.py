@@ -181,8 +181,20 @@ class FilterConfig:
     sigma_position: float = 0.3e-3
     # Rotation noise of the POM measurement plus model error, sigma_r [rad].
     sigma_rotation: float = np.deg2rad(1.5)
+    # Motion-model error, relative: each particle's predicted POM motion of this iteration
+    # (translation |dt|, rotation |dr|) adds c |dt| and c |dr| in quadrature to sigma_p and
+    # sigma_r. 0 trusts Gamma exactly (the model plant); a real hand or the physics plant,
+    # whose motion the pinned-contact VLR predicts in direction but not in magnitude, needs
+    # c of about 0.5-1 for honest intervals.
+    motion_error: float = 0.0
     # Tendon model of Gamma: "elastic" (default; stiffness identifiable) or "ideal".
     tendon: str = "elastic"
+    # A particle whose move fails with the whole action is retried with the action ramped in
+    # 4, 16, ... substeps up to this many (quasi-static continuation; motion.move). Without
+    # it, particles near a fold die more often than the truth does, which biases the cloud
+    # away from the truth: on the model plant the truth fell inside the 95% joint intervals
+    # 85% of the time with 0 and 89% with 16 (12 seeds each).
+    max_substeps: int = 16
     # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
     roughening: float = 0.2
     # Temper the likelihood when ESS would fall below this fraction of M.
@@ -204,8 +216,12 @@ class FilterConfig:
             raise ValueError(f"filter: 'particles' must be >= 10, got {self.particles}")
         if self.sigma_position <= 0 or self.sigma_rotation <= 0:
             raise ValueError("filter: 'sigma_position' and 'sigma_rotation' must be positive")
+        if not self.motion_error >= 0:
+            raise ValueError(f"filter: 'motion_error' must be >= 0, got {self.motion_error}")
         if self.tendon not in motion.TENDON_MODELS:
             raise ValueError(f"filter: 'tendon' must be one of {motion.TENDON_MODELS}, got '{self.tendon}'")
+        if self.max_substeps < 0:
+            raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
         if not 0 < self.roughening < 1:
             raise ValueError("filter: 'roughening' must be in (0, 1)")
         if not 0 < self.ess_fraction <= 1:
@@ -378,8 +394,12 @@ class SelfIdentificationFilter:
         dl = np.asarray(dl, float).reshape(h.N)
         self.iteration += 1
         D2 = motion.contact_distances_sq(h, ps.p_O)
+        if cfg.motion_error > 0:  # each particle's POM pose before the move
+            R_prev, t_prev, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
+        else:
+            R_prev = t_prev = None
         res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
-                          stiffness=ps.stiffness, tendon=cfg.tendon)
+                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
         R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)
@@ -390,8 +410,8 @@ class SelfIdentificationFilter:
         R_meas = np.asarray(R_meas, float).reshape(3, 3)
         t_meas = np.asarray(t_meas, float).reshape(3)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
-        maha2 = (dp / cfg.sigma_position) ** 2 + (ang / cfg.sigma_rotation) ** 2
-        log_lik = np.where(feasible, -0.5 * maha2, -np.inf)
+        log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
+        log_lik = np.where(feasible, log_lik, -np.inf)
         best = float(np.sqrt(np.min(maha2[feasible]))) if feasible.any() else np.inf
         if not feasible.any() or best > cfg.divergence_sigmas:
             self._reinitialise(R_meas, t_meas)
@@ -416,6 +436,24 @@ class SelfIdentificationFilter:
         new.p_O = np.einsum("pji,pnj->pni", R_anchor, p_now - t_anchor[:, None, :])
         self.particles = new
         return self._report(True, ess, beta, res, feasible, False, best)
+
+    def _log_likelihood(self, dp, ang, R_pred, t_pred, R_prev, t_prev):
+        """Gaussian log-likelihood of the measured POM pose (up to a constant) and the squared
+        Mahalanobis distance, (P,) each. Position error ``dp`` [m] and rotation error ``ang``
+        [rad] against sigma_p and sigma_r, widened in quadrature by the relative motion-model
+        error c times each particle's predicted motion (``motion_error``); the log-normaliser
+        (-3 log sigma per 3-D error) keeps particles that predict large motions from being
+        favoured for their wider spread."""
+        cfg = self.config
+        sp2 = np.full(dp.shape, cfg.sigma_position**2)
+        sr2 = np.full(ang.shape, cfg.sigma_rotation**2)
+        if cfg.motion_error > 0:
+            move_t = np.linalg.norm(t_pred - t_prev, axis=1)
+            move_r = observation.rotation_angle(R_pred, R_prev)
+            sp2 = sp2 + (cfg.motion_error * move_t) ** 2
+            sr2 = sr2 + (cfg.motion_error * move_r) ** 2
+        maha2 = dp**2 / sp2 + ang**2 / sr2
+        return -0.5 * maha2 - 1.5 * (np.log(sp2) + np.log(sr2)), maha2
 
     def _unknowns(self, ps: ParticleSet) -> np.ndarray:
         """The identified quantities as one (M, D) matrix: theta, a, then extras."""

@@ -9,8 +9,10 @@ its joints and its contact are
     q_1 = b_i,   q_{k+1} = q_k + L_k e(phi_k)            (k = 1 .. K-1)
     p_i = q_K + d_i e(phi_K + gamma_i),   d_i = |(a_i, n_i)|,   gamma_i = atan2(n_i, a_i)
 
-where ``a_i`` is the (unknown) contact position along the last link and ``n_i`` the known pad
-thickness. The segment ``q_K -> p_i`` is the distal *virtual* link of the VLR (Eq. 2).
+where ``a_i`` is the (unknown) contact position along the last link and ``n_i`` the known
+offset of the pad's centre of curvature from the link axis (pad thickness minus pad radius:
+a rolling pad acts like a joint at its centre; see ``FingerSpec.pad_radius``). The segment
+``q_K -> p_i`` is the distal *virtual* link of the VLR (Eq. 2).
 
 Everything in this module is SI (metres, radians, newtons). The SDFormat models in
 ``models/``, the physics plant, the model plant and the filter all read their numbers from a
@@ -56,8 +58,14 @@ class FingerSpec:
     link_lengths: list[float] = field(default_factory=lambda: [0.062])
     # Length of the last (distal) physical link from its joint to the tip [m].
     distal_length: float = 0.048
-    # Pad thickness n_i: distance of the contact surface from the last link's axis [m].
+    # Pad thickness: distance of the contact surface from the last link's axis [m].
     pad_offset: float = 0.008
+    # Radius of curvature of the pad [m] (the physics pad's spheres). The VLR's contact is
+    # the pad's centre of curvature, n_i = pad_offset - pad_radius from the axis: a pad that
+    # rolls on the object acts, to second order, like a joint at that centre (DESIGN.md
+    # section 3 correction: with the contact on the pad surface, Eq. 9 predicted the physics
+    # plant's motion 2x too large; at the centre, within 5%).
+    pad_radius: float = 0.008
     # Tendon moment arms (pulley radii) r_k of the K joints [m].
     moment_arms: list[float] = field(default_factory=lambda: [0.009, 0.0045])
     # Joint spring stiffness k_k [N m/rad].
@@ -154,6 +162,10 @@ class HandSpec:
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {getattr(f, fname)}")
             if f.pad_offset < 0:
                 raise ValueError(f"{where}: field 'pad_offset' must be >= 0, got {f.pad_offset}")
+            if not 0 < f.pad_radius <= f.pad_offset + f.link_radius:
+                raise ValueError(
+                    f"{where}: field 'pad_radius' must be in (0, pad_offset + link_radius], got {f.pad_radius}"
+                )
             if f.friction < 0 or f.tendon_damping < 0 or np.any(np.asarray(f.joint_damping) < 0):
                 raise ValueError(f"{where}: friction and damping must be >= 0")
             u = np.asarray(f.flexion_direction, float)
@@ -211,7 +223,9 @@ class HandModel:
         self.z = np.array([0.0, 0.0, 1.0])
         self.link_lengths = np.array([x.link_lengths for x in f], float).reshape(self.N, self.K - 1)
         self.distal_length = np.array([x.distal_length for x in f], float)
-        self.pad = np.array([x.pad_offset for x in f], float)
+        # n_i of the VLR: the pad's centre of curvature (see FingerSpec.pad_radius).
+        self.pad = np.array([x.pad_offset - x.pad_radius for x in f], float)
+        self.pad_surface = np.array([x.pad_offset for x in f], float)
         self.moment_arms = np.array([x.moment_arms for x in f], float)
         self.stiffness = np.array([x.stiffness for x in f], float)
         self.rest_angles = np.array([x.rest_angles for x in f], float)

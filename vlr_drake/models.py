@@ -16,7 +16,7 @@ Frames of the generated hand model (all derived from the spec):
   spring_stiffness / spring_reference / damping (Drake makes RevoluteSprings of them).
 - ``{finger}_pad``: a frame on the pad surface of the last link, at ``pad_offset`` from the
   link axis (towards the flexion side) and at :data:`PAD_FRACTION` of the distal length.
-- Fingertip pad: two spheres of :data:`PAD_SPHERE_RADIUS`, :data:`PAD_SPHERE_SPACING`
+- Fingertip pad: two spheres of the finger's ``pad_radius``, :data:`PAD_SPHERE_SPACING`
   apart across the finger (along the joint axis), whose surfaces touch the pad plane. Two
   spheres resist a twist of the object about the contact (DESIGN.md section 8).
 
@@ -37,7 +37,6 @@ from vlr_drake.hand import NOVEL_FINGER_NAMES, NOVEL_HANDS, FingerSpec, HandSpec
 __all__ = [
     "PACKAGE_NAME",
     "PAD_FRACTION",
-    "PAD_SPHERE_RADIUS",
     "PAD_SPHERE_SPACING",
     "package_map_path",
     "configure_parser",
@@ -55,8 +54,6 @@ __all__ = [
 
 #: Name of the package in models/package.xml.
 PACKAGE_NAME = "vlr_drake"
-#: Radius of each of the two pad spheres [m] (DESIGN.md section 8: 8 mm).
-PAD_SPHERE_RADIUS = 0.008
 #: Distance between the two pad spheres' centres, across the finger [m] (12 mm).
 PAD_SPHERE_SPACING = 0.012
 #: Position of the pad along the last link, as a fraction of the distal length. Mid-pad
@@ -200,17 +197,17 @@ def _finger_links(
             # The last link touches objects with its pad only (two spheres across the finger,
             # their surfaces at pad_offset from the axis), so contacts sit mid-pad.
             pad = pad_position(f)
-            cx = f.pad_offset - PAD_SPHERE_RADIUS
+            cx = f.pad_offset - f.pad_radius  # the spheres' centres: the VLR's contact offset
             for side, y in enumerate((-0.5 * PAD_SPHERE_SPACING, 0.5 * PAD_SPHERE_SPACING)):
                 out += [
                     f'{indent}  <collision name="{pad_geometry_name(f.name, side)}">',
                     f"{indent}    <pose>{_fmt(cx, y, pad[2])} 0 0 0</pose>",
-                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.17g}</radius></sphere></geometry>",
+                    f"{indent}    <geometry><sphere><radius>{f.pad_radius:.17g}</radius></sphere></geometry>",
                     _friction(f, indent + "    "),
                     f"{indent}  </collision>",
                     f'{indent}  <visual name="{f.name}_pad_visual{side}">',
                     f"{indent}    <pose>{_fmt(cx, y, pad[2])} 0 0 0</pose>",
-                    f"{indent}    <geometry><sphere><radius>{PAD_SPHERE_RADIUS:.17g}</radius></sphere></geometry>",
+                    f"{indent}    <geometry><sphere><radius>{f.pad_radius:.17g}</radius></sphere></geometry>",
                     f"{indent}    <material><diffuse>{_COLORS['pad']}</diffuse></material>",
                     f"{indent}  </visual>",
                 ]
@@ -239,9 +236,11 @@ def _finger_links(
     return out
 
 
-def _friction(f: FingerSpec, indent: str, hint: float = PAD_SPHERE_RADIUS / 2) -> str:
+def _friction(f: FingerSpec, indent: str, hint: float | None = None) -> str:
     """Friction, plus compliant-hydroelastic properties that only the hydroelastic contact
-    model uses (the default point contact ignores them)."""
+    model uses (the default point contact ignores them). ``hint``: the mesh resolution
+    (default: half the pad radius)."""
+    hint = 0.5 * f.pad_radius if hint is None else hint
     return (
         f"{indent}<drake:proximity_properties><drake:mu_dynamic>{f.friction:.17g}</drake:mu_dynamic>"
         f"<drake:mu_static>{f.friction:.17g}</drake:mu_static>"

@@ -37,9 +37,11 @@ thumb against the fingers that the spec's 5 N s/m left.
 
 What the truth means: ``contacts_true`` are physical contact points. A side finger touching
 a round object does so with its inner pad sphere, about 10 mm out of the finger's flexion
-plane; projected onto that plane they agree with the VLR's forward kinematics of
-``theta_true`` and ``contact_along_link_true`` to about 2 mm (a sphere's contact sits off the
-pad plane). With the spec's springs and tendon stiffness the grasp is compliant along the
+plane. ``contact_along_link_true`` is the VLR's contact a_i: the pads are spheres fixed on
+the last links, and a rolling pad's VLR contact is its centre of curvature (``HandSpec``'s
+``pad_radius``), so a_i is the spheres' coordinate along the link; the VLR's forward
+kinematics of ``theta_true`` and a_i gives the spheres' centres, one pad radius from the
+physical contacts (projected onto the flexion plane). With the spec's springs and tendon stiffness the grasp is compliant along the
 thumb-finger axis: a random +-1.5 mm action moves the POM 3-6 mm and 1-3 degrees.
 
 Usage (a quasi-static loop; inside a larger diagram connect ``tendon_command`` instead and
@@ -86,7 +88,14 @@ from pydrake.systems.framework import (
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
-from vlr_drake.models import configure_parser, hand_sdf, joint_name, link_name, pad_geometry_name
+from vlr_drake.models import (
+    configure_parser,
+    hand_sdf,
+    joint_name,
+    link_name,
+    pad_geometry_name,
+    pad_position,
+)
 from vlr_drake.objects import ObjectSpec, object_sdf, tag_mesh_uri
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.systems.tendons import TendonForces
@@ -270,9 +279,16 @@ class HandTruth(LeafSystem):
 
     Inputs: ``state`` (plant [q; v]), ``body_poses`` (plant body poses), ``contact_results``.
     Outputs: ``theta_true`` (N*K), ``X_PO_true`` (RigidTransform), ``contacts_true`` (3N, in P),
-    ``contact_along_link_true`` (N). A finger's contact is the mean of the contact points
-    between its last link and the object; when a finger momentarily has none, the last one
-    sampled (every ``sample_period``) is held, expressed on the last link so it moves with it.
+    ``contact_along_link_true`` (N). A finger's physical contact (``contacts_true``) is the
+    mean of the contact points between its last link and the object; when a finger
+    momentarily has none, the last one sampled (every ``sample_period``) is held, expressed
+    on the last link so it moves with it.
+
+    ``contact_along_link_true`` is the VLR's a_i: with ``pad_along`` (N) given (the pads'
+    centres of curvature along the last links), the contact of a rounded pad is its centre
+    of curvature, whichever point of it touches (``HandSpec.pad_radius``: a rolling pad acts
+    as a joint at its centre), so a_i is that centre's coordinate; without it, the physical
+    contact's coordinate along the link.
     """
 
     def __init__(
@@ -287,8 +303,10 @@ class HandTruth(LeafSystem):
         sample_period: float = 0.005,
         last_link_geometries: list | None = None,
         object_geometries: list | None = None,
+        pad_along=None,
     ):
         super().__init__()
+        self._pad_along = None if pad_along is None else np.asarray(pad_along, float).reshape(hand.N)
         # Geometry ids (for hydroelastic contact surfaces): last links' -> finger, object's.
         self._geom_finger = {
             int(g.get_value()): i for i, gs in enumerate(last_link_geometries or []) for g in gs
@@ -405,6 +423,9 @@ class HandTruth(LeafSystem):
         output.SetFromVector(np.concatenate([X_PW @ p for p in p_W]))
 
     def _calc_along(self, context: Context, output: BasicVector) -> None:
+        if self._pad_along is not None:
+            output.SetFromVector(self._pad_along)
+            return
         poses = self.body_poses_input.Eval(context)
         p_W = self._contacts_W(context)
         a = np.empty(self._N)
@@ -929,6 +950,8 @@ def add_physics_hand(
             sample_period=physics.contact_sample_period,
             last_link_geometries=[list(plant.GetCollisionGeometriesForBody(b)) for b in last_links],
             object_geometries=obj_geoms,
+            # the pad spheres' centres (models.py): the VLR's contacts
+            pad_along=[pad_position(f)[2] for f in hand.fingers],
         ),
     )
     inner.Connect(plant.get_state_output_port(), truth.state_input)
