@@ -81,9 +81,11 @@ def test_identify_with_meshcat_saves_a_recording(tmp_path):
 
 def test_reproduce_quick_writes_the_table(tmp_path):
     out = tmp_path / "rep"
-    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out)]) == 0
+    assert main(["reproduce", "--quick", "--no-progress", "--scenario", "model_plant", "--out", str(out)]) == 0
     table = (out / "reproduce.md").read_text()
     data = json.loads((out / "reproduce.json").read_text())
+    assert data["scenario"] == "model_plant" and data["plant"] == "model" and data["seed"] == 0
+    assert all(r["scenario"] == "model_plant" for r in data["runs"]["write"] + data["runs"]["known_hand"])
     assert "| proximal joint error, known hand [deg] | 1.78 +- 0.92 |" in table
     assert len(data["rows"]) == 10 and data["quick"]
     for row in data["rows"]:
@@ -101,3 +103,109 @@ def test_diagrams_command_writes_dot_files(tmp_path):
     dots = sorted(p.name for p in tmp_path.glob("*.dot"))
     assert "default.dot" in dots and "model_plant.dot" in dots
     assert "self_identification" in (tmp_path / "model_plant.dot").read_text()
+
+
+# ------------------------------------------------------------------------------ scenarios
+def _scenario_file(tmp_path, text):
+    path = tmp_path / "my_scenario.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_identify_loads_a_scenario_by_name(tmp_path):
+    r = _run(tmp_path, "identify", "--scenario", "stiffness", "--particles", "600", "--iterations", "3",
+             "--no-progress", "--out", str(tmp_path / "out"))
+    assert IDENTIFY_FIELDS <= set(r)
+    from vlr_drake.scenario import DIAGRAMS_DIR
+
+    # the experiment follows from the scenario's prior; the truth from its model_plant section
+    assert r["experiment"] == "stiffness" and r["scenario"] == "stiffness" and r["plant"] == "model"
+    assert r["scenario_path"] == str(DIAGRAMS_DIR / "stiffness.yaml")
+    assert r["stiffness_true_Nm_per_rad"] == 0.22 and r["particles"] == 600
+
+
+def test_identify_loads_a_scenario_file_and_flags_override_it(tmp_path):
+    path = _scenario_file(tmp_path, "name: my_nh2\nseed: 3\nplant: model\nhand: NH2\nfilter: {particles: 700}\n")
+    r = _run(tmp_path, "identify", "novel_fingers", "--scenario", str(path), "--iterations", "3", "--no-progress",
+             "--out", str(tmp_path / "out"))
+    assert (r["scenario"], r["scenario_path"], r["seed"], r["particles"], r["hand"]) == ("my_nh2", str(path), 3, 700, "NH2")
+    assert set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}  # the experiment's unknowns
+    r = _run(tmp_path, "identify", "--scenario", str(path), "--seed", "1", "--particles", "500", "--hand", "model_o",
+             "--iterations", "2", "--no-progress", "--out", str(tmp_path / "out"))
+    assert (r["experiment"], r["seed"], r["particles"], r["hand"]) == ("known_hand", 1, 500, "model_o")
+
+
+def test_identify_a_custom_hand_from_its_scenario(tmp_path, capsys):
+    r = _run(tmp_path, "identify", "--scenario", "custom_hand_and_object", "--plant", "model", "--particles", "500",
+             "--iterations", "2", "--no-progress", "--out", str(tmp_path / "out"))
+    assert (r["hand"], r["object"], len(r["proximal_joint_error_deg"])) == ("four_finger_hand", "tagged_block", 4)
+    # the identify loop's physics plant takes preset objects only: said so, not a traceback
+    assert main(["identify", "--scenario", "custom_hand_and_object", "--out", str(tmp_path)]) == 2
+    assert "object_spec 'tagged_block'" in capsys.readouterr().err
+
+
+def test_identify_physics_scenario(tmp_path):
+    r = _run(tmp_path, "identify", "--scenario", "default", "--particles", "300", "--iterations", "2",
+             "--no-progress", "--out", str(tmp_path / "out"))
+    assert (r["plant"], r["scenario"], r["object"], r["particles"]) == ("physics", "default", "apple", 300)
+    assert r["timing_s"]["render"] > 0 and r["timing_s"]["detect"] > 0
+
+
+@pytest.mark.parametrize("command", ["write", "maze", "stack"])
+def test_tasks_take_a_scenario(tmp_path, command):
+    path = _scenario_file(tmp_path, "name: quiet\nseed: 2\nplant: model\nmodel_plant: {sigma_position: 0.0}\n")
+    word = ["I"] if command == "write" else []
+    for scenario, name, where in [("model_plant", "model_plant", "diagrams/model_plant.yaml"),
+                                  (str(path), "quiet", str(path))]:
+        out = tmp_path / name
+        r = _run(tmp_path, command, *word, "--model", "true", "--scenario", scenario, "--no-progress", "--out", str(out))
+        assert TASK_FIELDS <= set(r) and r["task"] == command
+        assert r["scenario"] == name and r["scenario_path"].endswith(where) and r["plant"] == "model"
+        assert r["seed"] == (2 if name == "quiet" else 0)
+        assert list(out.glob("*.png"))
+
+
+def test_write_with_meshcat_saves_a_recording(tmp_path):
+    out = tmp_path / "out"
+    r = _run(tmp_path, "write", "I", "--model", "true", "--scenario", "model_plant", "--meshcat", "--no-progress",
+             "--out", str(out))
+    from test_visualization import _commands
+
+    assert r["recording"] == str(out / "write.html")
+    animation = [c for c in _commands((out / "write.html").read_text()) if b"set_animation" in c]
+    assert len(animation) == 1
+    assert b"/task/object" in animation[0] and b"/task/targets/frame_0000" in animation[0]  # pose and target path
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["identify", "--scenario", "no_such_scenario"], "scenario 'no_such_scenario' not found"),
+    (["write", "--scenario", "/no/such/file.yaml"], "model_plant"),  # the examples accepted are listed
+    (["identify", "--object", "teapot"], "unknown object 'teapot': use one of apple"),
+    (["identify", "--hand", "NH7"], "unknown hand 'NH7'"),
+    (["maze", "--scenario", "novel_NH1"], "Model O hand"),
+    (["identify", "known_hand", "--scenario", "stiffness"], "identifies stiffness"),
+    (["identify", "--scenario", "hardware"], "plant 'hardware'"),
+])
+def test_bad_scenario_or_object_exits_2_with_one_line(tmp_path, capsys, argv, message):
+    assert main([*argv, "--no-progress", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_bad_value_in_a_scenario_file_exits_2(tmp_path, capsys):
+    path = _scenario_file(tmp_path, "plant: model\nobject: teapot\n")
+    assert main(["identify", "--scenario", str(path), "--no-progress", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "'object' must be a preset" in err and err.count("\n") == 1
+
+
+def test_options_from_scenario_precedence():
+    from vlr_drake.scenario import find_scenario, load_scenario, options_from_scenario
+
+    s = load_scenario(find_scenario("custom_hand_and_object"))
+    o = options_from_scenario(s, plant="model")
+    assert o.hand_spec.name == "four_finger_hand" and o.object_spec.name == "tagged_block"
+    assert o.prior.proximal_half_width == 0.08 and o.particles == 5000 and o.physics.pretension == 12.0
+    o = options_from_scenario(s, plant="model", hand="model_o", object="apple", particles=10)
+    assert o.hand_spec is None and o.object_spec is None and o.particles == 10  # flags replace the specs
+    assert options_from_scenario(None, seed=4).seed == 4 and options_from_scenario(None).plant == "model"

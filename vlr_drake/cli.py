@@ -11,7 +11,13 @@
     vlr-drake diagrams    write the example scenarios' system diagrams (.dot, and .svg with Graphviz)
     vlr-drake bench       benchmarks that print their figures (motion, filter)
 
-Every run takes ``--seed`` and writes JSON with ``--json PATH``.
+Every run (identify, write, maze, stack, reproduce, demo) takes ``--scenario`` (a scenario
+YAML file, or the name of an example in diagrams/: default, model_plant, stiffness,
+novel_NH1, custom_hand_and_object, ...), ``--seed``, ``--particles``, ``--out`` and
+``--meshcat/--no-meshcat``, and writes its result as JSON (``--json PATH``, or a file in
+``--out``). Flags given on the command line override the scenario; without a scenario the
+built-in defaults apply. Bad input (a missing scenario, an unknown object or hand, a bad
+value in a scenario file) exits with status 2 and one line on stderr.
 """
 
 from __future__ import annotations
@@ -80,16 +86,54 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
             "max_difference_snopt_rad": worst["snopt"]}
 
 
-# ------------------------------------------------------------------------------ identify
-def _identify_options(args):
-    from vlr_drake import filter as pf
-    from vlr_drake.identify import IdentifyOptions
+# ------------------------------------------------------------------------------ scenario
+def _load_scenario(args) -> None:
+    """Resolve ``--scenario`` (a file or an example's name) into ``args.loaded`` (the
+    Scenario or None) and ``args.scenario_path``; the seed: ``--seed``, else the scenario's,
+    else 0."""
+    from vlr_drake.scenario import find_scenario, load_scenario
 
-    return IdentifyOptions(
-        experiment=args.experiment, plant=args.plant, object=args.object, hand=args.hand, seed=args.seed,
-        particles=args.particles, max_iterations=args.iterations, filter=pf.FilterConfig(),
-        progress=not args.no_progress, scenario=args.scenario,
+    args.loaded, args.scenario_path = None, None
+    if getattr(args, "scenario", None):
+        args.scenario_path = find_scenario(args.scenario)
+        args.loaded = load_scenario(args.scenario_path)
+    if getattr(args, "seed", 0) is None:
+        args.seed = args.loaded.seed if args.loaded is not None else 0
+
+
+def _identify_options(args):
+    from vlr_drake.scenario import options_from_scenario
+
+    opts = options_from_scenario(
+        args.loaded, args.scenario_path, experiment=args.experiment, plant=args.plant, object=args.object,
+        hand=args.hand, seed=args.seed, particles=args.particles, max_iterations=args.iterations,
+        progress=not args.no_progress,
     )
+    if args.loaded is None:
+        opts.scenario = None  # described by the flags alone
+    return opts
+
+
+def _task_settings(args) -> dict:
+    from vlr_drake.scenario import task_settings
+
+    kw = task_settings(args.loaded, args.scenario_path, seed=args.seed, plant=args.plant, particles=args.particles)
+    return kw if args.loaded is not None else {**kw, "scenario": None}
+
+
+def _meshcat(args):
+    """A Meshcat instance (its URL printed) when ``--meshcat`` is given, else None."""
+    if not getattr(args, "meshcat", False):
+        return None
+    if getattr(args, "meshcat_instance", None) is None:
+        from pydrake.geometry import Meshcat
+
+        args.meshcat_instance = Meshcat()
+        print(f"Meshcat: {args.meshcat_instance.web_url()}")
+    return args.meshcat_instance
+
+
+# ------------------------------------------------------------------------------ identify
 
 
 def print_summary(result: dict) -> None:
@@ -122,27 +166,27 @@ def print_summary(result: dict) -> None:
 def identify(args) -> dict:
     from vlr_drake.identify import run_identification
 
+    opts = _identify_options(args)
     out = Path(args.out)
-    on_iteration, finish = _meshcat_hypotheses(out / f"identify_{args.experiment}_seed{args.seed}.html") \
-        if args.meshcat else (None, None)
-    result = run_identification(_identify_options(args), on_iteration=on_iteration)
+    stem = f"identify_{opts.experiment}_seed{opts.seed}"
+    meshcat = _meshcat(args)
+    on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
+    result = run_identification(opts, on_iteration=on_iteration)
     print_summary(result)
     if finish is not None:
-        finish()
+        result["recording"] = str(finish())
     _plots(result, out)
-    write_json(result, args.json or str(out / f"identify_{args.experiment}_seed{args.seed}.json"))
+    write_json(result, args.json or str(out / f"{stem}.json"))
     return result
 
 
-def _meshcat_hypotheses(html_path: Path):
+def _meshcat_hypotheses(meshcat, html_path: Path):
     """Meshcat drawing of the hypotheses (the paper's Fig. 4 colours), one recorded frame per
     iteration, saved as a static HTML recording at the end. Returns (callback, finish)."""
-    from pydrake.geometry import Meshcat
-
     from vlr_drake.visualization import HypothesisDrawer, save_recording
 
-    meshcat = Meshcat()
-    print(f"Meshcat: {meshcat.web_url()}")
+    meshcat.Delete("/hypotheses")
+    meshcat.DeleteRecording()
     meshcat.StartRecording()
     state = {}
 
@@ -153,7 +197,9 @@ def _meshcat_hypotheses(html_path: Path):
                                        time_in_recording=float(iteration))
 
     def finish():
-        print(f"wrote {save_recording(meshcat, html_path, publish_recording=True)}")
+        path = save_recording(meshcat, html_path, publish_recording=True)
+        print(f"wrote {path}")
+        return path
 
     return on_iteration, finish
 
@@ -180,12 +226,12 @@ def _plots(result: dict, out: Path) -> None:
 
 # ------------------------------------------------------------------------------ tasks
 def task(args) -> dict:
-    common = dict(seed=args.seed, plant=args.plant, model=args.model, out=args.out, progress=not args.no_progress,
-                  scenario=args.scenario)
+    common = dict(model=args.model, out=args.out, progress=not args.no_progress, identify_iterations=args.iterations,
+                  meshcat=_meshcat(args), **_task_settings(args))
     if args.command == "write":
         from vlr_drake.tasks.write import run_write
 
-        result = run_write(args.word, particles=args.particles, **common)
+        result = run_write(args.word, **common)
     elif args.command == "maze":
         from vlr_drake.tasks.maze import run_maze
 
@@ -201,7 +247,9 @@ def task(args) -> dict:
     if rot:
         line += f"; orientation error {rot['mean']:.2f} +- {rot['sd']:.2f} deg (max {rot['max']:.2f})"
     print(line)
-    write_json(result, args.json or str(Path(args.out) / f"{args.command}_seed{args.seed}.json"))
+    if result.get("recording"):
+        print(f"wrote {result['recording']}")
+    write_json(result, args.json or str(Path(args.out) / f"{args.command}_seed{result['seed']}.json"))
     return result
 
 
@@ -231,7 +279,8 @@ def demo(args) -> None:
     from vlr_drake.tasks.write import run_write
 
     result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=10_000,
-                       identify_iterations=100, out=args.out, progress=not args.no_progress, scenario=args.scenario)
+                       identify_iterations=100, out=args.out, progress=not args.no_progress,
+                       scenario=args.loaded.name if args.loaded else None, meshcat=_meshcat(args))
     pos = result["position_error_mm"]
     print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
           f"plot in {args.out}/write_path.png")
@@ -239,13 +288,76 @@ def demo(args) -> None:
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; outputs in {args.out}/")
 
 
+_SCENARIO_HELP = ("scenario: a YAML file, or the name of an example in diagrams/ (default, model_plant, stiffness, "
+                  "novel_NH1, novel_NH2, novel_NH3, custom_hand_and_object, ...); flags given here override it")
+
+_DESCRIPTIONS = {
+    "selfcheck": """Build the default hand (Model O), draw one stable fingertip grasp, move it through a few
+random tendon actions with the batched Newton solver of the motion function (Eq. 9) and with
+MathematicalProgram (IPOPT and SNOPT), and print how far apart the joint angles are.""",
+    "identify": """Run one self-identification experiment of the paper (Algorithm 1): grasp, then random
+exploratory tendon actions, each followed by a camera measurement of the POM and a particle
+filter iteration, until the 95% intervals of the joint angles are narrow (converged) or the
+iteration budget is spent. Prints a table of estimated vs true joint angles, contacts (and
+stiffness or link lengths), writes convergence plots and the JSON result (DESIGN.md section
+11) to --out. The experiment follows from the scenario's prior when not given:
+known_hand (joint angles and contacts unknown), stiffness (also the thumb's distal spring),
+novel_fingers (also the proximal link lengths of the replaced fingers of NH1/NH2/NH3).
+Plants: model (the VLR model with hidden truth, fast) or physics (Drake MultibodyPlant,
+rendered palm camera, AprilTag observer). --meshcat draws the hypotheses per iteration (the
+paper's Fig. 4 colours) and saves an HTML recording.""",
+    "demo": """The main job: the self-check, then a self-identification run of the Model O holding an
+object (summary table, convergence plots, JSON), then a short handwriting task with the
+identified model (plot and JSON). Outputs go to --out; --meshcat prints the Meshcat URL and
+saves HTML recordings of the hypotheses and of the writing.""",
+    "write": """Handwriting (the paper's Fig. 9): the Model O moves the POM of the grasped object along the
+strokes of the letters, by the Jacobian controller (Eq. 10-12, position rows) with camera
+feedback. --model filter self-identifies the grasp first (--particles, --iterations) and
+keeps updating the filter during control; --model true uses the plant's hidden truth.
+Writes write_path.png and the JSON result (position error, success) to --out; --meshcat
+shows the target strokes beside the object and saves write.html.""",
+    "maze": """Marble maze (the paper's Fig. 10): the hand tilts a maze plate (orientation control only)
+through a precomputed sequence of plate orientations so that a simulated marble rolls from
+start to goal. Writes maze.png and the JSON result (orientation error, success) to --out;
+--meshcat shows the goal orientation beside the plate and saves maze.html.""",
+    "stack": """Cup stacking (the paper's Fig. 11): each of four cups is grasped at an unknown tilt and
+offset and aligned over the cup below in SE(3) by the Jacobian controller with the
+rotational weight alpha (Eq. 12), then released; success when every cup nests. Writes
+stack.png and the JSON result (position and orientation error) to --out; --meshcat shows
+each cup's goal pose beside it and saves stack.html.""",
+    "reproduce": """The paper's table: the identification experiments (known hand, stiffness, NH1-NH3) and the
+tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...),
+mean +- SD of the paper's measure beside the paper's, and whether ours is better. Prints the
+markdown table and writes reproduce.md and reproduce.json to --out. A --scenario supplies
+the plant and its settings; each row sets its own experiment, hand and object. --quick: one
+small trial of each (a smoke run, not a result).""",
+    "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text
+beside it, and render .svg pictures when Graphviz's dot is installed.""",
+    "bench": """Benchmarks that print their figures: motion (one batched move of all particles vs one
+MathematicalProgram solve) or filter (one full filter iteration).""",
+}
+
+
 def _common(p: argparse.ArgumentParser, particles: int, iterations: int) -> None:
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    p.add_argument("--particles", type=int, default=particles, help=f"number of particles (default {particles})")
-    p.add_argument("--iterations", type=int, default=iterations, help=f"iteration budget (default {iterations})")
-    p.add_argument("--json", default=None, help="write the result as JSON to this path")
-    p.add_argument("--out", default="out", help="output folder for plots and results (default ./out)")
-    p.add_argument("--scenario", default="default", help="scenario name recorded in the result")
+    p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
+    p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: the scenario's, else 0)")
+    p.add_argument("--particles", type=int, default=None,
+                   help=f"number of particles (default: the scenario's filter.particles, else {particles})")
+    p.add_argument("--iterations", type=int, default=iterations,
+                   help=f"iteration budget of the identification (default {iterations})")
+    p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
+    p.add_argument("--out", default="out", help="output folder for plots, recordings and results (default ./out)")
+    p.add_argument("--plant", choices=["model", "physics"], default=None,
+                   help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant with the "
+                        "rendered camera (default: the scenario's, else model)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=False,
+                   help="show the run in Meshcat (URL printed) and save an HTML recording in --out")
+
+
+def _parser(name: str, sub, help_text: str) -> argparse.ArgumentParser:
+    return sub.add_parser(name, help=help_text, description=_DESCRIPTIONS[name],
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -253,65 +365,57 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("selfcheck", help="move the default hand with both solvers and compare")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", default=None)
+    p = _parser("selfcheck", sub, "move the default hand with both solvers and compare")
+    p.add_argument("--seed", type=int, default=0, help="seed of the grasp and the actions (default 0)")
+    p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     for name, help_text in [("identify", "run a self-identification experiment"),
-                            ("demo", "the main job: self-check and a self-identification run")]:
-        p = sub.add_parser(name, help=help_text)
+                            ("demo", "the main job: self-check, self-identification, handwriting")]:
+        p = _parser(name, sub, help_text)
         _common(p, particles=20_000, iterations=120)
         if name == "identify":
-            p.add_argument("experiment", choices=["known_hand", "stiffness", "novel_fingers"],
+            p.add_argument("experiment", nargs="?", default=None, choices=["known_hand", "stiffness", "novel_fingers"],
                            help="known_hand: angles and contacts; stiffness: also the thumb's distal spring; "
-                                "novel_fingers: also the proximal lengths of replaced fingers")
-        p.add_argument("--plant", choices=["model", "physics"], default="model",
-                       help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant "
-                            "with the rendered camera")
-        p.add_argument("--object", default="apple", help="object held (physics plant)")
-        p.add_argument("--hand", default="model_o", help="model_o, or NH1/NH2/NH3 for novel_fingers")
-        p.add_argument("--no-progress", action="store_true", help="no progress bar")
-        p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=False,
-                       help="draw the hypotheses in Meshcat (URL printed) and save an HTML recording")
+                                "novel_fingers: also the proximal lengths of replaced fingers (default: what the "
+                                "scenario's prior leaves unknown, else known_hand)")
+        p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else apple)")
+        p.add_argument("--hand", default=None,
+                       help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
+                            "else model_o)")
 
     for name, help_text in [("write", "write a word with the POM (position control)"),
                             ("maze", "play a marble maze (orientation control)"),
                             ("stack", "stack cups (SE(3) control with the rotational weight alpha)")]:
-        p = sub.add_parser(name, help=help_text)
+        p = _parser(name, sub, help_text)
         _common(p, particles=3000, iterations=40)
-        p.add_argument("--plant", choices=["model", "physics"], default="model")
         p.add_argument("--model", choices=["true", "filter"], default="filter",
                        help="the controller's model: the plant's hidden truth, or self-identified first")
-        p.add_argument("--no-progress", action="store_true")
         if name == "write":
             p.add_argument("word", nargs="?", default="SCIENCE", help="letters A-Z (default SCIENCE)")
         if name == "stack":
             p.add_argument("--alpha", type=float, default=9.5, help="rotational weight of Eq. 12 (paper: 9.5)")
 
-    p = sub.add_parser("reproduce", help="the paper's table: experiments and tasks, paper vs ours")
-    p.add_argument("--trials", type=int, default=5)
-    p.add_argument("--plant", choices=["model", "physics"], default="model")
-    p.add_argument("--particles", type=int, default=20_000)
-    p.add_argument("--iterations", type=int, default=100)
+    p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
+    _common(p, particles=20_000, iterations=100)
+    p.set_defaults(out="out/reproduce")
+    p.add_argument("--trials", type=int, default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
-    p.add_argument("--out", default="out/reproduce")
-    p.add_argument("--json", default=None)
-    p.add_argument("--no-progress", action="store_true")
 
-    p = sub.add_parser("diagrams", help="write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
+    p = _parser("diagrams", sub, "write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
     p.add_argument("--folder", default=None,
                    help="folder of scenario files; the diagrams are written beside them (default: diagrams/)")
     p.add_argument("--no-render", action="store_true", help="only the .dot text")
 
-    p = sub.add_parser("bench", help="benchmarks that print their figures")
+    p = _parser("bench", sub, "benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
-    p.add_argument("--particles", type=int, default=60_000)
-    p.add_argument("--iterations", type=int, default=5)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", default=None)
+    p.add_argument("--particles", type=int, default=60_000, help="number of particles (default 60,000)")
+    p.add_argument("--iterations", type=int, default=5, help="filter iterations timed (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     args = parser.parse_args(argv)
     try:
+        _load_scenario(args)
         if args.command == "selfcheck":
             write_json(selfcheck(args.seed), args.json)
         elif args.command == "identify":
@@ -330,13 +434,16 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "reproduce":
             from vlr_drake.reproduce import format_table, reproduce
 
-            r = reproduce(trials=args.trials, plant=args.plant, particles=args.particles, iterations=args.iterations,
-                          quick=args.quick, out=args.out, progress=not args.no_progress)
+            r = reproduce(trials=args.trials, plant=args.plant,
+                          particles=args.particles or (args.loaded.filter.particles if args.loaded else 20_000),
+                          iterations=args.iterations, quick=args.quick, out=args.out,
+                          progress=not args.no_progress, seed=args.seed, scenario=args.loaded,
+                          scenario_path=args.scenario_path, meshcat=_meshcat(args))
             print(format_table(r))
             print(f"wrote {args.out}/reproduce.md and reproduce.json")
             write_json(r, args.json)
     except (ValueError, FileNotFoundError) as e:
-        print(f"vlr-drake {args.command}: error: {e}", file=sys.stderr)
+        print(f"vlr-drake {args.command}: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     return 0
 

@@ -19,15 +19,24 @@ Plants: ``model`` (the VLR model with hidden truth and Gaussian pose noise; fast
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import grasps
-from vlr_drake.hand import NOVEL_HANDS, hand_by_name, model_o
+from vlr_drake.hand import NOVEL_HANDS, hand_by_name
 from vlr_drake.model_plant import ModelPlant
+from vlr_drake.objects import preset_names
+
+if TYPE_CHECKING:
+    from vlr_drake.hand import HandSpec
+    from vlr_drake.objects import ObjectSpec
+    from vlr_drake.perception.camera import CameraConfig
+    from vlr_drake.systems.physics_plant import PhysicsConfig
 
 __all__ = ["EXPERIMENTS", "IdentifyOptions", "run_identification", "Exploration"]
 
@@ -37,6 +46,8 @@ KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
 #: Range of the unknown thumb distal stiffness drawn for the truth and searched by the prior.
 #: (Above ~0.25 N m/rad the truth-grasp sampler finds no stable fingertip grasp.)
 STIFFNESS_RANGE = (0.10, 0.24)
+#: Default exploration per plant: (action range, window) [m] (see IdentifyOptions).
+EXPLORATION = {"model": (3.0e-3, 6.0e-3), "physics": (1.5e-3, 4.0e-3)}
 
 
 @dataclass
@@ -47,35 +58,75 @@ class IdentifyOptions:
     experiment: str = "known_hand"
     # "model" (fast, exact truth) or "physics" (MultibodyPlant + rendered camera).
     plant: str = "model"
-    # Object (physics plant); also names the trial on the model plant.
+    # Object preset (physics plant); also names the trial on the model plant.
     object: str = "apple"
-    # Hand for novel fingers: "NH1" | "NH2" | "NH3" (model_o otherwise).
+    # Hand preset: "model_o", or "NH1" | "NH2" | "NH3" (novel fingers).
     hand: str = "model_o"
+    # A hand written out in full (a scenario's hand_spec); replaces the preset ``hand``.
+    hand_spec: HandSpec | None = None
+    # An object written out in full (a scenario's object_spec); replaces ``object``.
+    object_spec: ObjectSpec | None = None
     seed: int = 0
     particles: int = 20_000
     # Iteration budget; the run stops earlier once converged (plus ``extra_iterations``).
     max_iterations: int = 120
     extra_iterations: int = 0
     # Exploration: uniform actions of +-action_range per tendon [m], reflected inside a
-    # window of +-window around the grasp's tendon commands.
-    action_range: float = 1.5e-3
-    window: float = 4.0e-3
+    # window of +-window around the grasp's tendon commands. None: the plant's default
+    # (EXPLORATION): the physics grasp is compliant (a 1.5 mm action moves the POM up to
+    # ~9 mm), the model plant's stiffer grasps need 3 mm actions to be informative.
+    action_range: float | None = None
+    window: float | None = None
     # Pose noise of the model plant's camera stand-in.
     sigma_position: float = 0.2e-3
     sigma_rotation_deg: float = 0.5
+    # Model plant: probability that a measurement is lost, contact roll per action [m],
+    # and the filter's nominal grasp offset (fraction of the prior's half-widths).
+    dropout: float = 0.0
+    contact_drift: float = 0.0
+    center_offset_fraction: float = 0.6
+    # The true hand's joint stiffness (N lists of K) [N m/rad] and proximal link lengths
+    # (N lists of K-1) [m]; None: the hand's own (or, for stiffness, a drawn thumb spring).
+    true_stiffness: list | None = None
+    true_link_lengths: list | None = None
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
+    # The filter's prior; None: the experiment's. The experiment adds its unknowns (thumb
+    # distal spring, replaced fingers' links) when this prior names none.
+    prior: pf.PriorConfig | None = None
+    # Physics plant settings and palm camera; None: their defaults.
+    physics: PhysicsConfig | None = None
+    camera: CameraConfig | None = None
     progress: bool = True
-    scenario: str = "default"
+    # The scenario's name and the file it was loaded from (recorded in the result).
+    scenario: str | None = "default"
+    scenario_path: str | None = None
 
     def validate(self) -> IdentifyOptions:
         if self.experiment not in EXPERIMENTS:
             raise ValueError(f"experiment must be one of {EXPERIMENTS}, got '{self.experiment}'")
         if self.plant not in ("model", "physics"):
             raise ValueError(f"plant must be 'model' or 'physics', got '{self.plant}'")
-        if self.experiment == "novel_fingers" and self.hand not in NOVEL_HANDS:
-            raise ValueError(f"novel_fingers needs hand NH1, NH2 or NH3, got '{self.hand}'")
+        custom_links = self.hand_spec is not None and self.prior is not None and self.prior.links_unknown
+        if self.experiment == "novel_fingers" and self.hand not in NOVEL_HANDS and not custom_links:
+            raise ValueError(f"novel_fingers needs hand NH1, NH2 or NH3 (or a hand_spec with prior "
+                             f"links_unknown), got '{self.hand}'")
+        if self.hand_spec is None and self.hand != "model_o" and self.hand not in NOVEL_HANDS:
+            raise ValueError(f"unknown hand '{self.hand}': use model_o, {', '.join(NOVEL_HANDS)}, "
+                             f"or a scenario with a hand_spec")
+        if self.object_spec is None and self.object not in preset_names():
+            raise ValueError(f"unknown object '{self.object}': use one of {', '.join(preset_names())}, "
+                             f"or a scenario with an object_spec")
+        if self.plant == "physics" and self.object_spec is not None:
+            raise ValueError(f"object_spec '{self.object_spec.name}': the identify loop's physics plant holds "
+                             f"preset objects only; run this scenario as a diagram "
+                             f"(python -m vlr_drake.builder --run SCENARIO) or on the model plant (--plant model)")
         if self.max_iterations < 1:
             raise ValueError("max_iterations must be >= 1")
+        span, window = EXPLORATION[self.plant]
+        self.action_range = span if self.action_range is None else self.action_range
+        self.window = window if self.window is None else self.window
+        if not 0 < self.action_range <= self.window:
+            raise ValueError(f"action_range must be in (0, window], got {self.action_range} and window {self.window}")
         return self
 
 
@@ -101,28 +152,47 @@ class Exploration:
         self.l = self.l + np.asarray(dl)
 
 
+def _hand_name(opts: IdentifyOptions) -> str:
+    return opts.hand_spec.name if opts.hand_spec is not None else opts.hand
+
+
 def _hands(opts: IdentifyOptions, rng):
-    """(true hand spec, filter's hand spec, prior config, true stiffness or None)."""
-    prior = pf.PriorConfig()
-    if opts.experiment == "known_hand":
-        spec = model_o()
-        return spec, spec, prior, None
+    """(true hand spec, filter's hand spec, prior config, true stiffness or None).
+
+    The filter's hand is the nominal one (``hand_spec`` or the preset); the true hand is
+    that with the stiffness and link lengths of ``true_stiffness`` / ``true_link_lengths``
+    and, for the stiffness experiment without them, a thumb distal spring drawn from
+    ``STIFFNESS_RANGE``."""
+    prior = pf.PriorConfig() if opts.prior is None else copy.deepcopy(opts.prior)
+    nominal = copy.deepcopy(opts.hand_spec) if opts.hand_spec is not None else hand_by_name(opts.hand)
+    true_spec = copy.deepcopy(nominal)
+    k_true = None
     if opts.experiment == "stiffness":
-        true_spec = model_o()
-        k_true = float(rng.uniform(*STIFFNESS_RANGE))
-        true_spec.fingers[0].stiffness = [true_spec.fingers[0].stiffness[0], k_true]
-        prior.stiffness_unknown = [(0, 1)]
-        prior.stiffness_range = (0.05, 0.40)
-        return true_spec, model_o(), prior, k_true
-    true_spec = hand_by_name(opts.hand)
-    # The filter knows which fingers were replaced, not how long their proximal links are:
-    # its hand carries nominal Model O lengths there and the prior searches a range.
-    filt_spec = hand_by_name(opts.hand)
-    replaced = list(NOVEL_HANDS[opts.hand])  # names of the Model O fingers that were swapped
-    names = filt_spec.finger_names()  # replaced fingers are named "<old>_<NFx>"
-    prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
-    prior.link_range = (0.030, 0.075)
-    return true_spec, filt_spec, prior, None
+        if not prior.stiffness_unknown:
+            prior.stiffness_unknown = [(0, 1)]
+            prior.stiffness_range = (0.05, 0.40)
+        if opts.true_stiffness is None:
+            fi, j = prior.stiffness_unknown[0]
+            k = list(true_spec.fingers[fi].stiffness)
+            k[j] = float(rng.uniform(*STIFFNESS_RANGE))
+            true_spec.fingers[fi].stiffness = k
+    if opts.true_stiffness is not None:
+        for finger, k in zip(true_spec.fingers, opts.true_stiffness, strict=True):
+            finger.stiffness = [float(x) for x in k]
+    if opts.true_link_lengths is not None:
+        for finger, lengths in zip(true_spec.fingers, opts.true_link_lengths, strict=True):
+            finger.link_lengths = [float(x) for x in lengths]
+    if prior.stiffness_unknown:
+        fi, j = prior.stiffness_unknown[0]
+        k_true = float(true_spec.fingers[fi].stiffness[j])
+    if opts.experiment == "novel_fingers" and not prior.links_unknown:
+        # The filter knows which fingers were replaced, not how long their proximal links
+        # are: the prior searches a range there.
+        replaced = list(NOVEL_HANDS[opts.hand])  # names of the Model O fingers that were swapped
+        names = nominal.finger_names()  # replaced fingers are named "<old>_<NFx>"
+        prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
+        prior.link_range = (0.030, 0.075)
+    return true_spec, nominal, prior, k_true
 
 
 def _truth_grasp(hand, rng, link_lengths=None):
@@ -160,7 +230,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     else:
         from vlr_drake.physics_identify import PhysicsAdapter
 
-        plant = PhysicsAdapter(opts, true_spec, rng)
+        plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera)
     theta_c, a_c, R0, t0 = plant.start(prior)
     f = pf.SelfIdentificationFilter(filt_hand, opts.filter, prior, np.random.default_rng(opts.seed + 1))
     k_center = None
@@ -219,8 +289,9 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
     res = {
         "experiment": opts.experiment,
         "scenario": opts.scenario,
-        "object": opts.object,
-        "hand": opts.hand if opts.experiment == "novel_fingers" else "model_o",
+        "scenario_path": opts.scenario_path,
+        "object": opts.object_spec.name if opts.object_spec is not None else opts.object,
+        "hand": _hand_name(opts),
         "seed": opts.seed,
         "particles": opts.filter.particles,
         "plant": opts.plant,
@@ -265,15 +336,17 @@ class _ModelAdapter:
         theta, a = _truth_grasp(h, rng)
         R0 = np.eye(3)
         t0 = np.array([0.0, 0.0, 0.11])
-        self.plant = ModelPlant(h, theta, a, R0, t0, np.random.default_rng(self.opts.seed + 3),
-                                sigma_position=self.opts.sigma_position,
-                                sigma_rotation=np.deg2rad(self.opts.sigma_rotation_deg))
-        # The filter's nominal grasp: the truth displaced by up to 60% of the prior's
-        # half-widths (on hardware this is the grasp planner's guess).
+        o = self.opts
+        self.plant = ModelPlant(h, theta, a, R0, t0, np.random.default_rng(o.seed + 3),
+                                sigma_position=o.sigma_position, sigma_rotation=np.deg2rad(o.sigma_rotation_deg),
+                                dropout=o.dropout, contact_drift=o.contact_drift)
+        # The filter's nominal grasp: the truth displaced by up to center_offset_fraction
+        # (60%) of the prior's half-widths (on hardware this is the grasp planner's guess).
+        f = o.center_offset_fraction
         theta_c = theta.copy()
-        theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
-        theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
-        a_c = a + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+        theta_c[:, 0] += f * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
+        theta_c[:, 1:] += f * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
+        a_c = a + f * prior.contact_half_width * rng.uniform(-1, 1, h.N)
         R, t, _ = self.plant.measure()
         return theta_c, a_c, R, t
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake import filter as pf
-from vlr_drake.identify import IdentifyOptions, run_identification
+from vlr_drake.identify import run_identification
+from vlr_drake.scenario import options_from_scenario, task_settings
 
 __all__ = ["PAPER_ROWS", "reproduce", "format_table"]
 
@@ -44,16 +44,23 @@ PAPER_ROWS = [
 ]
 
 
-def _identify(experiment, hand, seed, plant, particles, iterations):
-    opts = IdentifyOptions(experiment=experiment, hand=hand, seed=seed, plant=plant, particles=particles,
-                           max_iterations=iterations, progress=False, filter=pf.FilterConfig())
+def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None):
+    opts = options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, seed=seed, plant=plant,
+                                 particles=particles, max_iterations=iterations, progress=False)
     r = run_identification(opts)
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-def reproduce(trials: int = 5, plant: str = "model", particles: int = 20_000, iterations: int = 100,
-              quick: bool = False, out: str | Path = "out/reproduce", progress: bool = True) -> dict:
-    """Run the table; returns {"rows": [...], "runs": {...}} and writes markdown + JSON."""
+def reproduce(trials: int = 5, plant: str | None = "model", particles: int = 20_000, iterations: int = 100,
+              quick: bool = False, out: str | Path = "out/reproduce", progress: bool = True, seed: int = 0,
+              scenario=None, scenario_path=None, meshcat=None) -> dict:
+    """Run the table; returns {"rows": [...], "runs": {...}} and writes markdown + JSON.
+
+    Trials use seeds ``seed`` .. ``seed + trials - 1``. ``scenario`` (a
+    :class:`vlr_drake.scenario.Scenario`, loaded from ``scenario_path``) supplies the plant
+    (``plant=None``) and its settings (noise, physics, camera, exploration); each row still
+    sets its own experiment, hand and object. ``meshcat``: the tasks show their targets and
+    save a recording beside their plots (:class:`vlr_drake.visualization.TaskView`)."""
     from tqdm.auto import tqdm
 
     from vlr_drake.tasks.maze import run_maze
@@ -64,22 +71,25 @@ def reproduce(trials: int = 5, plant: str = "model", particles: int = 20_000, it
         trials, particles, iterations = 1, 1000, 8
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    seeds = range(trials)
+    plant = plant or (scenario.plant if scenario is not None else "model")
+    seeds = range(seed, seed + trials)
+    sc = (scenario, scenario_path)
     runs: dict[str, list] = {}
-    jobs = [("known_hand", lambda s: _identify("known_hand", "model_o", s, plant, particles, iterations)),
-            ("stiffness", lambda s: _identify("stiffness", "model_o", s, plant, particles, iterations))]
+    jobs = [("known_hand", lambda s: _identify("known_hand", "model_o", s, plant, particles, iterations, *sc)),
+            ("stiffness", lambda s: _identify("stiffness", "model_o", s, plant, particles, iterations, *sc))]
     for nh in ("NH1", "NH2", "NH3"):
-        jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations)))
+        jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations, *sc)))
     # Tasks run with the identified model (self-identification first, then the filter keeps
     # updating during control), at up to 10,000 particles and 100 identification iterations.
     task_model = "true" if quick else "filter"
-    ident = {"particles": min(particles, 10_000), "identify_iterations": iterations}
-    jobs += [("write", lambda s: run_write("I" if quick else "SCIENCE", seed=s, plant=plant, model=task_model,
-                                           progress=False, out=str(out / f"write_{s}"), **ident)),
-             ("maze", lambda s: run_maze(seed=s, plant=plant, model=task_model, progress=False,
-                                         out=str(out / f"maze_{s}"), **ident)),
-             ("stack", lambda s: run_stack(seed=s, plant=plant, model=task_model, progress=False,
-                                           out=str(out / f"stack_{s}"), **ident))]
+    def task(name, s):
+        return dict(model=task_model, progress=False, out=str(out / f"{name}_{s}"), meshcat=meshcat,
+                    identify_iterations=iterations,
+                    **task_settings(scenario, scenario_path, seed=s, plant=plant, particles=min(particles, 10_000)))
+
+    jobs += [("write", lambda s: run_write("I" if quick else "SCIENCE", **task("write", s))),
+             ("maze", lambda s: run_maze(**task("maze", s))),
+             ("stack", lambda s: run_stack(**task("stack", s)))]
     bar = tqdm(total=len(jobs) * trials, disable=not progress, desc="reproduce", unit="run")
     for name, job in jobs:
         runs[name] = []
@@ -109,6 +119,8 @@ def reproduce(trials: int = 5, plant: str = "model", particles: int = 20_000, it
                      "ours_mean": float(v.mean()), "ours_sd": float(v.std()), "trials": len(v),
                      "better": bool(v.mean() < p.mean)})
     result = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
+              "seed": seed, "scenario": None if scenario is None else scenario.name,
+              "scenario_path": None if scenario_path is None else str(scenario_path),
               "rows": rows}
     (out / "reproduce.md").write_text(format_table(result))
     (out / "reproduce.json").write_text(json.dumps({**result, "runs": runs}, indent=2, default=float))

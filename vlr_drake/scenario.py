@@ -56,6 +56,9 @@ __all__ = [
     "Scenario",
     "load_scenario",
     "example_scenarios",
+    "find_scenario",
+    "options_from_scenario",
+    "task_settings",
 ]
 
 #: The plants a scenario can drive.
@@ -453,3 +456,121 @@ def example_scenarios(folder: str | Path | None = None) -> list[Path]:
     """The scenario files in ``diagrams/`` (sorted)."""
     folder = DIAGRAMS_DIR if folder is None else Path(folder)
     return sorted(p for p in folder.glob("*.yaml") if not p.name.startswith("_"))
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """The scenario file ``name_or_path`` names: a YAML file, or an example's name in
+    ``diagrams/`` (``default``, ``model_plant``, ...). Raises ``ValueError`` naming what was
+    asked for and what is accepted."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    example = DIAGRAMS_DIR / f"{name_or_path}.yaml"
+    if example.is_file():
+        return example
+    names = ", ".join(p.stem for p in example_scenarios())
+    raise ValueError(f"scenario '{name_or_path}' not found: give a YAML file or an example name ({names})")
+
+
+def _experiment_of(prior: PriorSettings) -> str:
+    """The identification experiment a prior describes (what it leaves unknown)."""
+    if prior.stiffness_unknown:
+        return "stiffness"
+    if prior.links_unknown:
+        return "novel_fingers"
+    return "known_hand"
+
+
+def _common_settings(scenario: Scenario, path, plant: str | None) -> dict:
+    """The settings identification runs and tasks share: seed, plant (``plant`` when given),
+    particles, exploration span and window, the model plant's pose noise, the physics plant
+    and camera, the scenario's name and file. A hardware scenario needs a plant override."""
+    s = scenario
+    plant = plant or s.plant
+    if plant == "hardware":
+        raise ValueError(
+            f"scenario '{s.name}': plant 'hardware' runs as a diagram (python -m vlr_drake.builder --run "
+            f"{path or 'SCENARIO'}); identification runs and tasks take --plant model or physics"
+        )
+    out = {
+        "scenario": s.name,
+        "scenario_path": None if path is None else str(path),
+        "seed": s.seed,
+        "plant": plant,
+        "particles": s.filter.particles,
+        "action_range": s.exploration.span,
+        "window": s.exploration.window,
+        "physics": copy.deepcopy(s.physics),
+        "camera": copy.deepcopy(s.camera),
+    }
+    if plant == "model":
+        out["sigma_position"] = s.model_plant.sigma_position
+        out["sigma_rotation_deg"] = s.model_plant.sigma_rotation_deg
+    return out
+
+
+def options_from_scenario(scenario: Scenario | None, path: str | Path | None = None, **overrides):
+    """The :class:`vlr_drake.identify.IdentifyOptions` of an identification run: the
+    scenario's plant, hand (preset or ``hand_spec``), object (preset or ``object_spec``),
+    seed, filter (and its particle count), prior, exploration span and window, the model
+    plant's noise, dropout, contact drift, nominal-grasp offset and true stiffness and link
+    lengths (plant "model"), the physics settings and camera, then the ``overrides``
+    (IdentifyOptions fields; None means "not given"). ``scenario=None``: the IdentifyOptions
+    defaults and the overrides.
+
+    The experiment follows from the prior's unknowns (stiffness, link lengths, or neither);
+    an ``experiment`` override may add its unknowns to a prior that has none, and must
+    otherwise agree with it. A ``hand``/``object`` override replaces a full spec. Raises
+    ``ValueError`` naming the conflict."""
+    from vlr_drake.identify import IdentifyOptions
+
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if scenario is None:
+        return IdentifyOptions(**given)
+    s = scenario
+    inferred = _experiment_of(s.prior)
+    if inferred != "known_hand" and given.get("experiment", inferred) != inferred:
+        raise ValueError(
+            f"scenario '{s.name}' identifies {inferred} (its prior's unknowns), "
+            f"not the experiment '{given['experiment']}'"
+        )
+    opts = _common_settings(s, path, given.get("plant"))
+    opts.update(
+        experiment=inferred,
+        hand=s.hand,
+        hand_spec=copy.deepcopy(s.hand_spec),
+        object=s.object,
+        object_spec=copy.deepcopy(s.object_spec),
+        filter=copy.deepcopy(s.filter),
+        prior=s.prior.to_prior(),
+    )
+    if opts["plant"] == "model":
+        mp = s.model_plant
+        opts.update(
+            dropout=mp.dropout,
+            contact_drift=mp.contact_drift,
+            center_offset_fraction=mp.center_offset_fraction,
+            true_stiffness=copy.deepcopy(mp.stiffness) or None,
+            true_link_lengths=copy.deepcopy(mp.link_lengths) or None,
+        )
+    for preset_field, spec_field in (("hand", "hand_spec"), ("object", "object_spec")):
+        if preset_field in given:
+            opts[spec_field] = None
+    return IdentifyOptions(**{**opts, **given})
+
+
+def task_settings(scenario: Scenario | None, path: str | Path | None = None, **overrides) -> dict:
+    """Keyword arguments of the tasks (:func:`vlr_drake.tasks.write.run_write`, ``run_maze``,
+    ``run_stack``) from a scenario: seed, plant, the filter's particle count, exploration span
+    and window (the grip window of the control too), the model plant's pose noise, the
+    physics settings and camera, the scenario's name and file; then the ``overrides`` that
+    are not None. The tasks hold their own objects (pen stand-in, maze plate, cups) with the
+    Model O: a scenario with another hand raises ``ValueError``."""
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if scenario is None:
+        return given
+    s = scenario
+    if s.hand_spec is not None or s.hand != "model_o":
+        hand = s.hand_spec.name if s.hand_spec is not None else s.hand
+        raise ValueError(f"scenario '{s.name}': the tasks run with the Model O hand (model_o), not '{hand}'")
+    return {**_common_settings(s, path, given.get("plant")), **given}

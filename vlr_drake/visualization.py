@@ -25,6 +25,10 @@ the animation command naming every frame is in the file, not how a browser plays
 cost about 0.15 MB of HTML each at 50 hypotheses. Without a recording running, the static
 HTML shows the last frame; :func:`vlr_drake.plots.plot_hypotheses` makes a PNG still of an
 iteration from the same points (:func:`hypothesis_points`).
+
+Tasks. :class:`TaskView` shows a task's target (the path to write, the plate or cup pose to
+reach) beside the object's true POM pose, one recorded step per plant action, with the same
+per-target folders for targets that change, and saves the recording as static HTML.
 """
 
 from __future__ import annotations
@@ -33,14 +37,14 @@ from itertools import combinations
 from pathlib import Path
 
 import numpy as np
-from pydrake.geometry import Meshcat, Rgba, Sphere
-from pydrake.math import RigidTransform
+from pydrake.geometry import Cylinder, Meshcat, Rgba, Sphere
+from pydrake.math import RigidTransform, RotationMatrix
 
 from vlr_drake import kinematics, observation
 from vlr_drake.filter import ParticleSet
 from vlr_drake.hand import HandModel
 
-__all__ = ["HypothesisDrawer", "cylinder_mesh", "hypothesis_points", "save_recording"]
+__all__ = ["HypothesisDrawer", "TaskView", "cylinder_mesh", "hypothesis_points", "recorded_folder", "save_recording"]
 
 #: Colours of Fig. 4: virtual links E^J magenta, joints blue, contacts yellow, E^C red.
 MAGENTA = (1.0, 0.0, 1.0)
@@ -290,18 +294,113 @@ class HypothesisDrawer:
 
     def _new_frame(self, time: float) -> str:
         """A new folder for one recorded iteration: hidden until ``time``, shown until the next."""
-        time = float(time)
-        if self.frames and time <= self.frames[-1][1]:
-            raise ValueError(f"time_in_recording must increase: {time} after {self.frames[-1][1]}")
-        folder = f"{self.prefix}/frame_{len(self.frames):04d}"
-        mc = self.meshcat
-        if time > 0.0:
-            mc.SetProperty(folder, "visible", False, 0.0)
-        mc.SetProperty(folder, "visible", True, time)
-        if self.frames:
-            mc.SetProperty(self.frames[-1][0], "visible", False, time)
-        self.frames.append((folder, time))
-        return folder
+        return recorded_folder(self.meshcat, self.prefix, self.frames, time)
+
+
+def recorded_folder(meshcat: Meshcat, prefix: str, frames: list[tuple[str, float]], time: float) -> str:
+    """A new folder ``prefix/frame_NNNN`` for what is drawn at ``time`` in the recording:
+    hidden until ``time``, shown until the next folder's time (see the module docstring).
+    ``frames`` holds the (folder, time) pairs so far and gets the new one appended."""
+    time = float(time)
+    if frames and time <= frames[-1][1]:
+        raise ValueError(f"time_in_recording must increase: {time} after {frames[-1][1]}")
+    folder = f"{prefix}/frame_{len(frames):04d}"
+    if time > 0.0:
+        meshcat.SetProperty(folder, "visible", False, 0.0)
+    meshcat.SetProperty(folder, "visible", True, time)
+    if frames:
+        meshcat.SetProperty(frames[-1][0], "visible", False, time)
+    frames.append((folder, time))
+    return folder
+
+
+class TaskView:
+    """Meshcat view of a task (writing, maze, stacking), recorded for replay: the target (a
+    path, green, or a pose, a thin triad) beside the object's true POM pose (a thick triad
+    and a red sphere), one recorded step per plant action, and the path the POM took (grey,
+    drawn by :meth:`save`). Everything is in the palm frame P (a grey disc at the origin).
+
+    ``follow(plant, true_pose)`` wraps a plant so that each ``apply_action`` records the
+    true pose afterwards; pass the wrapper to :func:`vlr_drake.control.servo_to`.
+
+    Args:
+        meshcat: the Meshcat instance (its recording is restarted).
+        prefix: root path of the drawing.
+        step_time: recording time of one action [s].
+        axis_length: length of the triads [m].
+    """
+
+    def __init__(self, meshcat: Meshcat, prefix: str = "/task", step_time: float = 0.1, axis_length: float = 0.02):
+        if step_time <= 0:
+            raise ValueError(f"step_time must be positive, got {step_time}")
+        self.meshcat, self.prefix = meshcat, prefix.rstrip("/")
+        self.step_time, self.axis_length = float(step_time), float(axis_length)
+        self.time = 0.0
+        self.frames: list[tuple[str, float]] = []  # target folders: (folder, time)
+        self.trail: list[np.ndarray] = []  # true POM positions, one per recorded step
+        meshcat.Delete(self.prefix)
+        meshcat.DeleteRecording()
+        meshcat.StartRecording()
+        meshcat.SetObject(f"{self.prefix}/palm", Cylinder(0.06, 0.004), Rgba(0.6, 0.6, 0.6, 0.5))
+        meshcat.SetObject(f"{self.prefix}/object/pom", Sphere(0.003), RED)
+        self._triad(f"{self.prefix}/object", 4.0)
+
+    def _triad(self, path: str, width: float) -> None:
+        """x, y, z axes (red, green, blue) at ``path``."""
+        for axis, rgba in zip(np.eye(3), (Rgba(1, 0, 0, 1), Rgba(0, 0.7, 0, 1), Rgba(0, 0, 1, 1)), strict=True):
+            ends = np.column_stack([np.zeros(3), self.axis_length * axis])
+            self.meshcat.SetLine(f"{path}/axis_{'xyz'[int(np.argmax(axis))]}", ends, width, rgba)
+
+    def _next_target(self) -> str:
+        self.time += self.step_time
+        return recorded_folder(self.meshcat, f"{self.prefix}/targets", self.frames, self.time)
+
+    def target_path(self, points) -> None:
+        """Show the target path ``points`` (M, 3) [m] from now until the next target."""
+        points = np.asarray(points, float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"'points' must have shape (M, 3), got {points.shape}")
+        self.meshcat.SetLine(f"{self._next_target()}/path", np.ascontiguousarray(points.T), 3.0, Rgba(0, 0.8, 0, 1))
+
+    def target_pose(self, R, t) -> None:
+        """Show the target pose (R (3, 3), t (3,)) from now until the next target."""
+        folder = self._next_target()
+        self.meshcat.SetTransform(folder, RigidTransform(RotationMatrix(np.asarray(R, float)), np.asarray(t, float)))
+        self._triad(f"{folder}/pose", 1.5)
+
+    def object_pose(self, R, t) -> None:
+        """Record the object's true POM pose as the next step."""
+        self.time += self.step_time
+        t = np.asarray(t, float)
+        X = RigidTransform(RotationMatrix(np.asarray(R, float)), t)
+        self.meshcat.SetTransform(f"{self.prefix}/object", X, self.time)
+        self.trail.append(t.copy())
+
+    def follow(self, plant, true_pose):
+        """``plant`` with an ``apply_action`` that records ``true_pose()`` after each action."""
+        return _Followed(plant, self, true_pose)
+
+    def save(self, path: str | Path) -> Path:
+        """Draw the POM's path, publish the recording and write the static HTML to ``path``."""
+        if len(self.trail) > 1:
+            self.meshcat.SetLine(f"{self.prefix}/trail", np.ascontiguousarray(np.array(self.trail).T), 1.0,
+                                 Rgba(0.4, 0.4, 0.4, 1))
+        return save_recording(self.meshcat, path, publish_recording=True)
+
+
+class _Followed:
+    """A plant whose actions are recorded by a :class:`TaskView` (all else passes through)."""
+
+    def __init__(self, plant, view: TaskView, true_pose):
+        self._plant, self._view, self._true_pose = plant, view, true_pose
+
+    def __getattr__(self, name):
+        return getattr(self._plant, name)
+
+    def apply_action(self, dl) -> bool:
+        ok = self._plant.apply_action(dl)
+        self._view.object_pose(*self._true_pose())
+        return ok
 
 
 def save_recording(meshcat: Meshcat, path: str | Path, publish_recording: bool = False) -> Path:

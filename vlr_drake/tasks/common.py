@@ -24,6 +24,9 @@ __all__ = [
     "make_model_fn",
     "stats",
     "grasp_config",
+    "task_view",
+    "followed",
+    "save_view",
 ]
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
@@ -275,3 +278,29 @@ def stats(values_m_or_rad, scale: float) -> dict | None:
     if v.size == 0:
         return None
     return {"mean": float(v.mean()), "sd": float(v.std()), "max": float(v.max())}
+
+
+def task_view(meshcat):
+    """A :class:`vlr_drake.visualization.TaskView` on ``meshcat`` (None: no view)."""
+    if meshcat is None:
+        return None
+    from vlr_drake.visualization import TaskView
+
+    return TaskView(meshcat)
+
+
+def followed(view, tp):
+    """The plant of ``tp`` to drive: recorded by ``view`` (its true pose now, then after each
+    action) when a view is given."""
+    if view is None:
+        return tp.plant
+    view.object_pose(*tp.true_pose())
+    return view.follow(tp.plant, tp.true_pose)
+
+
+def save_view(view, out: str | None, name: str, result: dict) -> None:
+    """Save the view's recording as ``out/<name>.html`` and name it in ``result["recording"]``."""
+    if view is not None and out is not None:
+        import os
+
+        result["recording"] = str(view.save(os.path.join(out, f"{name}.html")))

@@ -209,7 +209,12 @@ def run_maze(
     out: str | None = None,
     progress: bool = True,
     scenario: str = "default",
+    scenario_path: str | None = None,
     window: float = 4.0e-3,
+    action_range: float = 1.5e-3,
+    physics=None,
+    camera=None,
+    meshcat=None,
 ) -> dict:
     """Steer the marble through the maze; returns the task result dict (DESIGN.md 11).
 
@@ -218,6 +223,13 @@ def run_maze(
     sampled every period once the servo has settled on that goal (reached its tolerance
     or stopped; the last sample of a goal that the marble left earlier); a run whose marble has not left it after ``segment_time`` [s] fails.
     Plots (``out``): ``maze.png`` (orientation error over time; marble path in the maze).
+
+    Scenario settings: ``action_range`` and ``window`` [m] bound the identification's random
+    actions (``window`` also the control's grip window), ``physics`` and ``camera`` configure
+    the physics plant (None: defaults), ``scenario`` and ``scenario_path`` are recorded.
+    ``meshcat``: a Meshcat instance that shows the goal plate orientation beside the plate's
+    true pose per action (:class:`vlr_drake.visualization.TaskView`); the recording is saved as
+    ``maze.html`` in ``out``.
     """
     if plant not in ("model", "physics"):
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
@@ -232,11 +244,13 @@ def run_maze(
             seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
         )
     else:
-        tp = common.PhysicsTaskPlant("marble_maze", seed)
-    pl = tp.plant
+        tp = common.PhysicsTaskPlant("marble_maze", seed, physics, camera)
     model_fn, filt = common.make_model_fn(
-        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations
+        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
+        action_range=action_range, window=window,
     )
+    view = common.task_view(meshcat)
+    pl = common.followed(view, tp)
     R0, t0, _ = pl.measure()
     R_PO0 = tp.true_pose()[0]  # the plate's level orientation (arm's frame of reference)
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
@@ -269,6 +283,8 @@ def run_maze(
     iterations = 0
     for run in runs:
         R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
+        if view is not None:
+            view.target_pose(R_goal, tp.true_pose()[1])
         switch_times.append(time_s)
         t_run = 0.0
         settled = False
@@ -310,6 +326,7 @@ def run_maze(
     result = {
         "task": "maze",
         "scenario": scenario,
+        "scenario_path": scenario_path,
         "seed": seed,
         "plant": plant,
         "model": model,
@@ -334,6 +351,7 @@ def run_maze(
         result["plots"] = [
             _plot(mz, marble, np.array(track), times, errs, switch_times, os.path.join(out, "maze.png"))
         ]
+    common.save_view(view, out, "maze", result)
     return result
 
 

@@ -126,8 +126,13 @@ def run_write(
     out: str | None = None,
     progress: bool = True,
     scenario: str = "default",
+    scenario_path: str | None = None,
     physics_object: str = "flat_screwdriver",
     window: float = 4.0e-3,
+    action_range: float = 1.5e-3,
+    physics=None,
+    camera=None,
+    meshcat=None,
 ) -> dict:
     """Write ``word`` with the POM; returns the task result dict (DESIGN.md section 11).
 
@@ -140,6 +145,13 @@ def run_write(
     +-``window`` [m] of the grasp's (and the tendon range), so the grip never loosens
     enough to drop the object; if it falls anyway (physics), writing stops and the result
     says so. Plots (``out``): ``write_path.png``, the written path over the letters.
+
+    Scenario settings: ``action_range`` and ``window`` [m] bound the identification's random
+    actions (``window`` also the control's grip window), ``physics`` and ``camera`` configure
+    the physics plant (None: defaults), ``scenario`` and ``scenario_path`` are recorded.
+    ``meshcat``: a Meshcat instance that shows the letters' target strokes beside the object's
+    true pose per action (:class:`vlr_drake.visualization.TaskView`); the recording is saved as
+    ``write.html`` in ``out``.
     """
     letters = font.word_letters(word)
     if plant not in ("model", "physics"):
@@ -153,11 +165,13 @@ def run_write(
             seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
         )
     else:
-        tp = common.PhysicsTaskPlant(physics_object, seed)
-    pl = tp.plant
+        tp = common.PhysicsTaskPlant(physics_object, seed, physics, camera)
     model_fn, filt = common.make_model_fn(
-        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations
+        model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
+        action_range=action_range, window=window,
     )
+    view = common.task_view(meshcat)
+    pl = common.followed(view, tp)
     R0, t0, _ = pl.measure()
     m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
     x, y, n = writing_plane(control.jacobian(m0))
@@ -184,6 +198,8 @@ def run_write(
         paths = []
         for s in strokes:
             pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
+            if view is not None:
+                view.target_path(pts)
             # pen up: go to the stroke start (not scored)
             rep = control.servo_to(
                 np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps, "stall_steps": 8}
@@ -225,6 +241,7 @@ def run_write(
     result = {
         "task": "write",
         "scenario": scenario,
+        "scenario_path": scenario_path,
         "seed": seed,
         "plant": plant,
         "model": model,
@@ -248,6 +265,7 @@ def run_write(
     if out is not None:
         os.makedirs(out, exist_ok=True)
         result["plots"] = [_plot(letters_out, reach, os.path.join(out, "write_path.png"), word)]
+    common.save_view(view, out, "write", result)
     return result
 
 
