@@ -315,8 +315,12 @@ def _newton_one(
             # order in the motion), else fail.
             ok = res_f < LOOSE_TORQUE and res_d < LOOSE_DISTANCE and res_t < LOOSE_TENDON
             break
-        if it >= 12 and res_f > 1e-3:
-            break  # not converging at all after 12 steps
+        if it >= 7 and res_f > 1e-3:
+            # Not converging at all after 7 steps: an action with no nearby equilibrium (the
+            # grasp's fold). Measured (bench motion, 60,000 grasps, +-1.5 mm): 19% of particles
+            # end here; stopping at 7 rather than 12 steps took the move from 0.42 to 0.36 s
+            # and lost 0.05% of the successes (slow ones, which max_substeps retries).
+            break
         # KKT matrix
         A[:, :] = 0.0
         for i in range(N):
