@@ -209,3 +209,16 @@ def test_options_from_scenario_precedence():
     o = options_from_scenario(s, plant="model", hand="model_o", object="apple", particles=10)
     assert o.hand_spec is None and o.object_spec is None and o.particles == 10  # flags replace the specs
     assert options_from_scenario(None, seed=4).seed == 4 and options_from_scenario(None).plant == "model"
+
+
+def test_demo_runs_every_step_and_writes_its_outputs(tmp_path, capsys):
+    """The README's main job, shortened: self-check, identification, handwriting."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--particles", "600", "--iterations", "3", "--no-progress", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "self-check" in printed and "wrote 'VLR'" in printed and "demo finished" in printed
+    ident = json.loads((out / "identify_known_hand_seed0.json").read_text())
+    write = json.loads((out / "demo_write.json").read_text())
+    assert ident["particles"] == 600 and ident["iterations"] <= 3 and ident["plant"] == "model"
+    assert write["task"] == "write" and write["position_error_mm"]["mean"] >= 0
+    assert (out / "write_path.png").is_file() and list(out.glob("known_hand_seed0_*.png"))

@@ -278,8 +278,10 @@ def demo(args) -> None:
     print("\n== in-hand manipulation: the identified model writes with the POM ==")
     from vlr_drake.tasks.write import run_write
 
-    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=10_000,
-                       identify_iterations=100, out=args.out, progress=not args.no_progress,
+    # the writing identifies its own grasp: 10,000 particles and 100 iterations (fewer when
+    # the demo was asked for fewer)
+    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=min(10_000, args.particles or 10_000),
+                       identify_iterations=min(100, args.iterations), out=args.out, progress=not args.no_progress,
                        scenario=args.loaded.name if args.loaded else None, meshcat=_meshcat(args))
     pos = result["position_error_mm"]
     print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
