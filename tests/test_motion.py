@@ -143,6 +143,29 @@ def test_elastic_approaches_ideal_as_tendon_stiffens(model_o_hand):
     assert gaps[-1] < 0.05 * gaps[0]
 
 
+def test_ideal_motion_does_not_depend_on_the_springs(model_o_hand):
+    """Why stiffness is identifiable with the elastic tendon only: for the Model O
+    (N K = N + m) the ideal tendon's lengths and the contact distances fix the configuration,
+    so doubling every spring leaves Gamma's result unchanged (to solver precision), while
+    the elastic tendon's stretch lets the springs move the joints."""
+    rng = np.random.default_rng(8)
+    gs = grasps.sample_grasps(model_o_hand, rng, 60, stable=True)
+    dl = rng.uniform(-0.1e-3, 0.1e-3, (60, 3))
+    k = model_o_hand.stiffness[None]
+    moved = {}
+    for tendon in ["ideal", "elastic"]:
+        a = motion.move(model_o_hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, tendon=tendon, stiffness=k)
+        b = motion.move(model_o_hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, tendon=tendon,
+                        stiffness=2 * k)
+        both = a.ok & b.ok
+        assert both.mean() > 0.6
+        moved[tendon] = np.abs(a.theta - b.theta).max(axis=(1, 2))[both]
+    # solver precision: ~1e-12 rad, up to the ~1e-5 rad accepted at the iteration cap near
+    # the ill-conditioned grasps (test_ideal_model_is_ill_conditioned)
+    assert np.median(moved["ideal"]) < 1e-9 and np.max(moved["ideal"]) < 1e-5, moved["ideal"]
+    assert np.median(moved["elastic"]) > 1e-4, np.median(moved["elastic"])
+
+
 def test_ideal_model_is_ill_conditioned(model_o_hand):
     """Documented finding: with two parallel fingers the ideal-tendon motion (Eq. 7 as an
     equality) is far more sensitive to the action than the elastic one."""

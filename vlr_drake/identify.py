@@ -317,6 +317,8 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
         res["stiffness_estimate_Nm_per_rad"] = float(est["stiffness"][fi, j])
         res["stiffness_error_Nm_per_rad"] = float(abs(est["stiffness"][fi, j] - k_true))
         res["stiffness_inside_95"] = bool(est["stiffness_lo"][fi, j] <= k_true <= est["stiffness_hi"][fi, j])
+        res["stiffness_interval_Nm_per_rad"] = [float(est["stiffness_lo"][fi, j]), float(est["stiffness_hi"][fi, j])]
+        res["stiffness_prior_Nm_per_rad"] = [float(x) for x in prior.stiffness_range]
     if prior.links_unknown:
         errs = {}
         for fi in prior.links_unknown:
@@ -326,7 +328,8 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
 
 
 class _ModelAdapter:
-    """The model plant behind the interface the identification loop uses."""
+    """The model plant behind the interface the identification loop uses. Its truth moves
+    with the filter's tendon model (``filter.tendon``), so the filter's model is exact."""
 
     def __init__(self, opts: IdentifyOptions, hand, rng):
         self.opts, self.hand, self.rng = opts, hand, rng
@@ -339,7 +342,7 @@ class _ModelAdapter:
         o = self.opts
         self.plant = ModelPlant(h, theta, a, R0, t0, np.random.default_rng(o.seed + 3),
                                 sigma_position=o.sigma_position, sigma_rotation=np.deg2rad(o.sigma_rotation_deg),
-                                dropout=o.dropout, contact_drift=o.contact_drift)
+                                dropout=o.dropout, contact_drift=o.contact_drift, tendon=o.filter.tendon)
         # The filter's nominal grasp: the truth displaced by up to center_offset_fraction
         # (60%) of the prior's half-widths (on hardware this is the grasp planner's guess).
         f = o.center_offset_fraction
