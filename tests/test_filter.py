@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from vlr_drake import filter as pf
+from vlr_drake.hand import model_o
 from vlr_drake.identify import IdentifyOptions, _truth_grasp, run_identification
 from vlr_drake.model_plant import ModelPlant
 
@@ -99,6 +100,23 @@ def _filter_and_plant(seed, particles=4000, **cfg):
     R, t, _ = plant.measure()
     f.initialise(th + 0.03, a + 0.002, R, t)
     return h, plant, f
+
+
+def test_model_plant_refuses_unphysical_actions():
+    """The model plant stays put (and counts a failure) when an action has no physical
+    equilibrium: with the ideal (inextensible) tendon a 3 mm pull of one tendon would need
+    a joint past its limit or a pushing tendon; a 0.05 mm pull moves it."""
+    h = model_o().model()
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1), tendon="ideal")
+    before = plant.state.theta.copy(), plant.state.tendon_command.copy()
+    assert not plant.apply_action(np.array([3e-3, 0.0, 0.0]))
+    assert plant.failures == 1
+    np.testing.assert_array_equal(plant.state.theta, before[0])
+    np.testing.assert_array_equal(plant.state.tendon_command, before[1])
+    assert plant.apply_action(np.array([0.05e-3, 0.0, 0.0]))
+    assert np.all((plant.state.theta >= h.joint_lower) & (plant.state.theta <= h.joint_upper))
+    assert np.max(np.abs(plant.state.theta - before[0])) > 1e-5
 
 
 def test_roughening_keeps_mean_and_covariance():

@@ -63,14 +63,19 @@ class ModelPlant:
 
     def apply_action(self, dl) -> bool:
         """Move the true system by ``dl``; returns False (and stays put) if the model has
-        no nearby equilibrium for it (the tendon command is not changed then)."""
+        no nearby physical equilibrium for it: the solve fails, a joint would pass its limit,
+        or a tendon would have to push (the tendon command is not changed then). A real hand
+        cannot get there either; the ideal tendon's ill-conditioned solve otherwise jumps to
+        far-away roots for mm actions (joints at -130 deg)."""
         h, s = self.hand, self.state
         dl = np.asarray(dl, float).reshape(h.N)
         D2 = motion.contact_distances_sq(h, self.p_O[None])
         res = motion.move(h, s.theta[None], dl, a=s.a[None], D2=D2, stretch=s.stretch[None],
                           link_lengths=self.link_lengths[None], stiffness=self.stiffness[None], tendon=self.tendon,
                           l_now=s.tendon_command, max_substeps=64)
-        if not res.ok[0]:
+        th = res.theta[0]
+        physical = np.all((th >= h.joint_lower) & (th <= h.joint_upper)) and res.tension_feasible()[0]
+        if not res.ok[0] or not physical:
             self.failures += 1
             return False
         s.theta, s.stretch = res.theta[0], res.stretch[0]
