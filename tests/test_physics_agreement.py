@@ -22,6 +22,10 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
     assert first["one_step_error_mm"] < 0.4 * first["true_motion_mm"]
     assert first["carried_error_mm"] == pytest.approx(first["one_step_error_mm"])  # the same start
     assert r["model_failures"] == 0 and not r["carried_model_failed"]
+    # the joint angles are compared too: one step from the truth stays within a few degrees
+    split = np.array(first["one_step_joint_error_deg"])
+    assert split.shape == (3, 2) and np.max(np.abs(split)) < 5.0
+    np.testing.assert_allclose(first["carried_joint_error_deg"], split)
     assert np.isfinite(r["one_step_error_mm_median"]) and r["wall_s"] > 0
 
 

@@ -10,6 +10,8 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   (translation error [mm], rotation error [deg], and the ratio of predicted to true motion);
 - carried: one model state started at the grasp's truth and moved through every action (how
   far the model drifts from the plant over a run, which is what a particle lives through);
+- the joint angles of both against the plant's (model minus truth, N x K, degrees): how the
+  model splits a tendon's pull between a finger's joints;
 - bodies other than the last links touching the object (contacts the VLR does not have).
 
     python -m vlr_drake.physics.agreement --object apple --actions 40
@@ -132,16 +134,19 @@ def run_agreement(
                "true_rotation_deg": float(np.rad2deg(observation.rotation_angle(R1[None], R[None])[0])),
                "other_contacts": _other_contacts(adapter),
                "one_step_error_mm": None, "one_step_error_deg": None, "predicted_motion_mm": None,
-               "carried_error_mm": None, "carried_error_deg": None}
+               "carried_error_mm": None, "carried_error_deg": None,
+               "one_step_joint_error_deg": None, "carried_joint_error_deg": None}
         if one_ok:
             Rp, tp = one.pose()
             dp, ang = observation.pose_error(Rp[None], tp[None], R1[None], t1[None])
             row.update(one_step_error_mm=float(dp[0] * 1e3), one_step_error_deg=float(np.rad2deg(ang[0])),
-                       predicted_motion_mm=float(np.linalg.norm(tp - t) * 1e3))
+                       predicted_motion_mm=float(np.linalg.norm(tp - t) * 1e3),
+                       one_step_joint_error_deg=np.rad2deg(one.theta[0] - truth["theta"]).tolist())
         if carried_ok:
             Rc, tc = carried.pose()
             dp, ang = observation.pose_error(Rc[None], tc[None], R1[None], t1[None])
-            row.update(carried_error_mm=float(dp[0] * 1e3), carried_error_deg=float(np.rad2deg(ang[0])))
+            row.update(carried_error_mm=float(dp[0] * 1e3), carried_error_deg=float(np.rad2deg(ang[0])),
+                       carried_joint_error_deg=np.rad2deg(carried.theta[0] - truth["theta"]).tolist())
         rows.append(row)
         R, t = R1, t1
     ok = [r for r in rows if r["one_step_error_mm"] is not None]
@@ -196,6 +201,11 @@ def main(argv: list[str] | None = None) -> dict:
         carried = "      -" if row["carried_error_mm"] is None else f"{row['carried_error_mm']:7.2f}"
         print(f"{k:2d} {row['true_motion_mm']:9.2f}  {one}          {ratio}         {carried}   "
               f"{', '.join(row['other_contacts']) or '-'}")
+    last = r["actions"][-1]["carried_joint_error_deg"]
+    if last is not None:
+        print("carried model's joint angles minus the plant's after the last action [deg]:")
+        for name, row in zip(spec.finger_names(), last, strict=True):
+            print(f"  {name:14s} " + " ".join(f"{x:7.2f}" for x in row))
     print(f"median one-step error {r['one_step_error_mm_median']} mm / {r['one_step_error_deg_median']} deg, "
           f"predicted/true motion {r['motion_ratio_median']}, carried model off by up to {r['carried_error_mm_max']} mm, "
           f"{r['actions_with_other_contacts']} actions with other bodies touching the object")
