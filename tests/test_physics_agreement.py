@@ -26,7 +26,7 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
     split = np.array(first["one_step_joint_error_deg"])
     assert split.shape == (3, 2) and np.max(np.abs(split)) < 5.0
     np.testing.assert_allclose(first["carried_joint_error_deg"], split)
-    assert np.isfinite(r["one_step_error_mm_median"]) and r["wall_s"] > 0
+    assert np.isfinite(r["one_step_error_mm_median"])
 
 
 def test_bad_direction_is_named():

@@ -445,8 +445,7 @@ class SelfIdentificationFilter:
         (-3 log sigma per 3-D error) keeps particles that predict large motions from being
         favoured for their wider spread."""
         cfg = self.config
-        sp2 = np.full(dp.shape, cfg.sigma_position**2)
-        sr2 = np.full(ang.shape, cfg.sigma_rotation**2)
+        sp2, sr2 = cfg.sigma_position**2, cfg.sigma_rotation**2  # per particle with motion_error
         if cfg.motion_error > 0:
             move_t = np.linalg.norm(t_pred - t_prev, axis=1)
             move_r = observation.rotation_angle(R_pred, R_prev)

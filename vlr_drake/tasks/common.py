@@ -24,10 +24,15 @@ __all__ = [
     "make_model_fn",
     "stats",
     "grasp_config",
+    "TASK_EXPLORATION",
     "task_view",
     "followed",
     "save_view",
 ]
+
+#: The tasks' identification exploration on both plants: (action range, window) [m]; the
+#: window is also the control's grip window (``grip_window``).
+TASK_EXPLORATION = (1.5e-3, 4.0e-3)
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
 #: that identifies the grasp first and keeps updating during control (each action is evidence).
@@ -208,8 +213,8 @@ def make_model_fn(
     seed: int = 0,
     particles: int = 3000,
     identify_iterations: int = 40,
-    action_range: float = 1.5e-3,
-    window: float = 4.0e-3,
+    action_range: float = TASK_EXPLORATION[0],
+    window: float = TASK_EXPLORATION[1],
 ) -> tuple[Callable, object | None]:
     """The controller's ``model_fn`` for :func:`vlr_drake.control.servo_to`, and the filter
     (or None), for a :class:`TaskPlant` or :class:`PhysicsTaskPlant`.
