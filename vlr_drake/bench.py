@@ -91,12 +91,12 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 5) ->
                                     np.random.default_rng(seed + 2))
     R, t, _ = plant.measure()
     t0 = time.perf_counter()
-    f.initialise(theta, a, R, t)
+    f.initialise(theta, a, R, t, tendon_command=plant.state.tendon_command)
     init_s = time.perf_counter() - t0
     explore = Exploration(plant.state.tendon_command, h.tendon_range, 1.5e-3, 4e-3, np.random.default_rng(seed + 3))
     # warm-up (compilation) on a tiny filter
     small = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=100), pf.PriorConfig(), np.random.default_rng(0))
-    small.initialise(theta, a, R, t)
+    small.initialise(theta, a, R, t, tendon_command=plant.state.tendon_command)
     small.step(np.zeros(h.N), R, t)
     times, resampled = [], []
     for _ in range(iterations):

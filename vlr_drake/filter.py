@@ -3,13 +3,15 @@
 A particle is one hypothesis xi = (theta, a, Omega) of the hand-object system: joint angles
 (N, K), contact positions along the last links (N,), and, when the experiment asks, the
 physical parameters being identified (joint stiffness, link lengths of novel fingers).
-Each particle also carries derived state: the tendon stretch that holds it in equilibrium
-(:func:`vlr_drake.motion.equilibrium`) and its *attachment* p_i^O, the contacts expressed
+Each particle also carries derived state: its tendon stretch (by default l - R theta from the
+motors' absolute tendon command l; or, as in the paper, the stretch that holds it in
+equilibrium, :func:`vlr_drake.motion.equilibrium`: ``FilterConfig.tendon_reference``) and
+its *attachment* p_i^O, the contacts expressed
 in the POM frame, which fixes the E^C links (Eq. 1) and so the grasp distances (Eq. 8).
 
 One iteration (one action dl and one camera measurement of the POM):
 
-1. move every particle with Gamma (Eq. 4/9, batched Newton),
+1. move every particle with Gamma (Eq. 4/9, batched Newton) from its tendon state,
 2. predict its POM pose with Lambda (Eq. 5),
 3. weigh: log w = -0.5 (|dp|^2 / sigma_p^2 + angle(dR)^2 / sigma_r^2), minus infinity for
    particles whose solve failed, whose joints left their limits, or whose implied tendon
@@ -39,9 +41,11 @@ import numpy as np
 
 from vlr_drake import kinematics, motion, observation
 from vlr_drake.hand import HandModel
+from vlr_drake.kinematics import as_particles
 
 __all__ = [
     "FilterConfig",
+    "TENDON_REFERENCES",
     "PriorConfig",
     "ParticleSet",
     "StepReport",
@@ -171,6 +175,10 @@ class PriorConfig:
     min_tension: float = 0.0
 
 
+#: Sources of an elastic tendon's stretch (FilterConfig.tendon_reference).
+TENDON_REFERENCES = ("commanded", "implied")
+
+
 @dataclass
 class FilterConfig:
     """Likelihood, resampling and convergence settings (DESIGN.md section 6)."""
@@ -189,6 +197,16 @@ class FilterConfig:
     motion_error: float = 0.0
     # Tendon model of Gamma: "elastic" (default; stiffness identifiable) or "ideal".
     tendon: str = "elastic"
+    # Where an elastic tendon's stretch comes from. "commanded" (default): before each move a
+    # hypothesis' stretch is s = l - R theta, with l the absolute tendon command (the motors'
+    # positions: known on every plant, and on hardware after the tendon-zero calibration), so
+    # the motor state is evidence too. "implied": the paper's Eq. 7 ("independent of the
+    # absolute tendon length"): the stretch that holds the hypothesis' grasp in equilibrium,
+    # carried through moves. Under "implied" a finger's proximal/distal split is a ridge the POM
+    # barely sees; on the physics plant the cloud slid along it (apple, 0.5 mm actions, seeds
+    # 0-2: proximal error 3.0 -> 3.9, 4.8, 2.9 deg in 40 iterations; "commanded": -> 0.23,
+    # 0.23, 0.36 deg, every truth inside its 95% interval). No effect with the ideal tendon.
+    tendon_reference: str = "commanded"
     # A particle whose move fails with the whole action is retried with the action ramped in
     # 4, 16, ... substeps up to this many (quasi-static continuation; motion.move). Without
     # it, particles near a fold die more often than the truth does, which biases the cloud
@@ -220,6 +238,9 @@ class FilterConfig:
             raise ValueError(f"filter: 'motion_error' must be >= 0, got {self.motion_error}")
         if self.tendon not in motion.TENDON_MODELS:
             raise ValueError(f"filter: 'tendon' must be one of {motion.TENDON_MODELS}, got '{self.tendon}'")
+        if self.tendon_reference not in TENDON_REFERENCES:
+            raise ValueError(
+                f"filter: 'tendon_reference' must be one of {TENDON_REFERENCES}, got '{self.tendon_reference}'")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
         if not 0 < self.roughening < 1:
@@ -294,6 +315,7 @@ class SelfIdentificationFilter:
         self.estimates: list[dict] = []
         self.reinitialisations = 0
         self.resamples = 0
+        self.tendon_command: np.ndarray | None = None  # absolute tendon pull l (N,) [m]
         N, K = hand.N, hand.K
         for fi, j in prior.stiffness_unknown:
             if not (0 <= fi < N and 0 <= j < K):
@@ -304,10 +326,20 @@ class SelfIdentificationFilter:
 
     # ---------------------------------------------------------------- initialisation
     def initialise(self, theta_center, a_center, R_PO, t_PO, stiffness_center=None, link_center=None,
-                   scale: float = 1.0) -> ParticleSet:
+                   scale: float = 1.0, tendon_command=None) -> ParticleSet:
         """Draw M hypotheses from the prior box around a nominal grasp and attach them to
-        the measured POM pose (R_PO, t_PO). ``scale`` shrinks the box (re-initialisation)."""
+        the measured POM pose (R_PO, t_PO). ``scale`` shrinks the box (re-initialisation).
+
+        ``tendon_command`` (N,) [m] is the absolute tendon pull l at this grasp; the filter
+        advances it by each action (or takes it from ``step``). It is required with the
+        elastic tendon and ``tendon_reference="commanded"``."""
         h, pr, M = self.hand, self.prior, self.config.particles
+        if tendon_command is not None:
+            self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,)).astype(float).copy()
+        elif self._uses_command() and self.tendon_command is None:
+            raise ValueError(
+                "filter: tendon_reference 'commanded' needs the absolute tendon command: pass "
+                "tendon_command=(N,) [m] to initialise() (or set tendon_reference='implied')")
         theta_center = np.asarray(theta_center, float).reshape(h.N, h.K)
         a_center = np.asarray(a_center, float).reshape(h.N)
         kept = []
@@ -342,6 +374,8 @@ class SelfIdentificationFilter:
             return np.concatenate(parts)[:M]
 
         theta, a, stiff, links, stretch = (cat(i) for i in range(5))
+        if self._uses_command():
+            stretch = self.tendon_command[None] - np.einsum("nk,pnk->pn", h.moment_arms, theta)
         p = kinematics.contacts(h, theta, a, links)
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
         self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M))
@@ -377,22 +411,34 @@ class SelfIdentificationFilter:
                 L[:, fi, 0] = np.clip(center[fi, 0] + half * self.rng.uniform(-1, 1, n), lo, hi)
         return L
 
+    def _uses_command(self) -> bool:
+        return self.config.tendon == "elastic" and self.config.tendon_reference == "commanded"
+
     def _within_limits(self, theta):
         h = self.hand
         return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
 
     # ---------------------------------------------------------------- one iteration
-    def step(self, dl, R_meas=None, t_meas=None, valid: bool = True) -> StepReport:
+    def step(self, dl, R_meas=None, t_meas=None, valid: bool = True, tendon_command=None) -> StepReport:
         """One iteration of Algorithm 1 for action ``dl`` (N,) and the measured POM pose.
 
         With ``valid`` False (lost tag) the particles are moved but not weighed,
         resampled or re-anchored: nothing is learnt and nothing is corrupted.
+        ``tendon_command`` (N,) [m]: the absolute tendon pull after the action, where the
+        motors report it (hardware); by default the previous command plus ``dl``.
         """
         if self.particles is None:
             raise RuntimeError("filter: call initialise() before step()")
         cfg, h, ps = self.config, self.hand, self.particles
         dl = np.asarray(dl, float).reshape(h.N)
+        l_after = (None if tendon_command is None
+                   else as_particles("tendon_command", tendon_command, (h.N,)).astype(float).copy())
+        if l_after is None and self.tendon_command is not None:
+            l_after = self.tendon_command + dl
         self.iteration += 1
+        if self._uses_command():  # each hypothesis' tendon state from the motors (tendon_reference)
+            ps.stretch = (l_after - dl)[None] - np.einsum("nk,pnk->pn", h.moment_arms, ps.theta)
+        self.tendon_command = l_after
         D2 = motion.contact_distances_sq(h, ps.p_O)
         if cfg.motion_error > 0:  # each particle's POM pose before the move
             R_prev, t_prev, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
@@ -501,6 +547,8 @@ class SelfIdentificationFilter:
         eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
         ps.theta = eq.theta
         ps.stretch = eq.stretch
+        if self._uses_command():
+            ps.stretch = self.tendon_command[None] - np.einsum("nk,pnk->pn", self.hand.moment_arms, ps.theta)
 
     def _reinitialise(self, R_meas, t_meas) -> None:
         est = self.estimates[-1] if self.estimates else None

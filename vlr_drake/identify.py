@@ -47,7 +47,7 @@ KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
 #: (Above ~0.25 N m/rad the truth-grasp sampler finds no stable fingertip grasp.)
 STIFFNESS_RANGE = (0.10, 0.24)
 #: Default exploration per plant: (action range, window) [m] (see IdentifyOptions).
-EXPLORATION = {"model": (3.0e-3, 6.0e-3), "physics": (1.5e-3, 4.0e-3)}
+EXPLORATION = {"model": (3.0e-3, 6.0e-3), "physics": (0.5e-3, 1.2e-3)}
 
 
 @dataclass
@@ -73,8 +73,10 @@ class IdentifyOptions:
     extra_iterations: int = 0
     # Exploration: uniform actions of +-action_range per tendon [m], reflected inside a
     # window of +-window around the grasp's tendon commands. None: the plant's default
-    # (EXPLORATION): the physics grasp is compliant (a 1.5 mm action moves the POM up to
-    # ~9 mm), the model plant's stiffer grasps need 3 mm actions to be informative.
+    # (EXPLORATION): the physics grasp is compliant (a 1 mm thumb-vs-fingers pull moves the
+    # apple ~11 mm; past ~1.5 mm of exploration it reaches the proximal links, which the VLR
+    # does not have: 22 of 40 1.5 mm actions did), so 0.5 mm actions in a 1.2 mm window there;
+    # the model plant's stiffer grasps need 3 mm actions to be informative.
     action_range: float | None = None
     window: float | None = None
     # Pose noise of the model plant's camera stand-in.
@@ -236,7 +238,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     k_center = None
     L_center = None
     tf = time.perf_counter()
-    f.initialise(theta_c, a_c, R0, t0, k_center, L_center)
+    f.initialise(theta_c, a_c, R0, t0, k_center, L_center, tendon_command=plant.tendon_command())
     timing["filter"] += time.perf_counter() - tf
     if on_iteration is not None:
         on_iteration(0, f)
@@ -258,7 +260,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         R, t, valid = plant.measure(timing)
         lost += not valid
         tf = time.perf_counter()
-        rep = f.step(dl, R, t, valid)
+        rep = f.step(dl, R, t, valid, tendon_command=plant.tendon_command())
         timing["filter"] += time.perf_counter() - tf
         truths.append(plant.truth())
         if on_iteration is not None:

@@ -88,6 +88,9 @@ class ModelPlant:
             self.p_O = observation.attach(self.contacts()[None], s.R_PO[None], s.t_PO[None])[0]
             eq = motion.equilibrium(h, s.theta[None], a=s.a[None], link_lengths=self.link_lengths[None],
                                     stiffness=self.stiffness[None])
+            # the joints stay and the tendon state that holds them changes: reported as the
+            # command, so that l = R theta + stretch stays true (a filter reads it)
+            s.tendon_command = s.tendon_command + eq.stretch[0] - s.stretch
             s.stretch = eq.stretch[0]
         return True
 

@@ -110,11 +110,12 @@ class SelfIdentificationSystem(LeafSystem):
             if not valid:
                 return  # wait for the first valid measurement
             flt = pf.SelfIdentificationFilter(self._hand, self._config, self._prior, np.random.default_rng(self._seed))
-            flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation())
+            flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(),
+                           tendon_command=l_now)
             box.filter, box.l_prev = flt, l_now
             return
         dl = l_now - box.l_prev
-        box.filter.step(dl, X.rotation().matrix(), X.translation(), valid)
+        box.filter.step(dl, X.rotation().matrix(), X.translation(), valid, tendon_command=l_now)
         box.l_prev = l_now
 
     def _current(self, context):

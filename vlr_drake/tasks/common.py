@@ -243,8 +243,8 @@ def make_model_fn(
         h, pf.FilterConfig(particles=particles), prior, np.random.default_rng(seed + 8)
     )
     R, t, _ = plant.measure()
-    filt.initialise(theta_c, a_c, R, t)
     l_grasp = tp.tendon_command()
+    filt.initialise(theta_c, a_c, R, t, tendon_command=l_grasp)
     explore = Exploration(l_grasp, h.tendon_range, action_range, window, np.random.default_rng(seed + 9))
     for _ in range(identify_iterations):
         dl = explore.next_action()
@@ -252,14 +252,14 @@ def make_model_fn(
             continue
         explore.commit(dl)
         R, t, valid = plant.measure()
-        filt.step(dl, R, t, valid)
+        filt.step(dl, R, t, valid, tendon_command=tp.tendon_command())
     # back to the grasp command (in small steps, each one evidence too)
     for _ in range(8):
         dl = np.clip(l_grasp - tp.tendon_command(), -action_range, action_range)
         if np.max(np.abs(dl)) < 1e-9 or not plant.apply_action(dl):
             break
         R, t, valid = plant.measure()
-        filt.step(dl, R, t, valid)
+        filt.step(dl, R, t, valid, tendon_command=tp.tendon_command())
     return control.filter_model_fn(filt, h), filt
 
 
