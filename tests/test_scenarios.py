@@ -52,6 +52,22 @@ def test_default_is_model_o_holding_the_apple_on_the_physics_plant():
     assert s.period_sec() == pytest.approx(s.physics.action_period)
 
 
+def test_exploration_defaults_follow_the_plant():
+    """Without span/window a scenario explores with the plant's default (as the CLI without a
+    scenario does), the tasks keep theirs; a scenario that sets them is obeyed everywhere."""
+    from vlr_drake.identify import EXPLORATION
+    from vlr_drake.scenario import options_from_scenario, task_settings
+
+    s = load_scenario(DIAGRAMS_DIR / "default.yaml")
+    assert s.exploration.span is None and s.exploration.window is None
+    for plant in ("model", "physics"):
+        opts = options_from_scenario(s, plant=plant)
+        assert (opts.action_range, opts.window) == EXPLORATION[plant]
+        assert not {"action_range", "window"} & set(task_settings(s, plant=plant))
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml")
+    assert (options_from_scenario(s).action_range, task_settings(s)["window"]) == (1.5e-3, 4.0e-3)
+
+
 def test_overrides_apply_after_the_file():
     path = DIAGRAMS_DIR / "stiffness.yaml"
     s = load_scenario(path, "filter: {particles: 123}\nseed: 7\n")

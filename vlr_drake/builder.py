@@ -291,9 +291,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
             image_size=plant.image_size(),
         )
         sensor_name = "tag_observer"
-    policy = ExplorationPolicy(
-        h, l0, T, span=s.exploration.span, window=s.exploration.window, seed=s.seed + SEED_POLICY
-    )
+    span, window = s.exploration.span_and_window(s.plant)
+    policy = ExplorationPolicy(h, l0, T, span=span, window=window, seed=s.seed + SEED_POLICY)
     flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()

@@ -161,15 +161,25 @@ class ExplorationSettings:
     """The random exploration policy (:class:`vlr_drake.systems.self_identification.ExplorationPolicy`)."""
 
     # Each action moves every tendon by a uniform draw in +-span [m] ...
-    span: float = 1.5e-3
-    # ... reflected inside +-window around the grasp's tendon commands [m].
-    window: float = 4.0e-3
+    span: typing.Optional[float] = None
+    # ... reflected inside +-window around the grasp's tendon commands [m]. None (either):
+    # the plant's default, ``vlr_drake.identify.EXPLORATION`` (model 3 / 6 mm, physics and
+    # hardware 0.5 / 1.2 mm: a compliant grasp).
+    window: typing.Optional[float] = None
     # Action period T [s]; 0: the plant's own (model 1 s, physics ``physics.action_period``
     # (ramp + settle cap), hardware 1 s).
     period_sec: float = 0.0
 
+    def span_and_window(self, plant: str) -> tuple[float, float]:
+        """(span, window) [m] for ``plant``: the scenario's, else the plant's default."""
+        from vlr_drake.identify import EXPLORATION
+
+        span, window = EXPLORATION["model" if plant == "model" else "physics"]
+        return (span if self.span is None else float(self.span),
+                window if self.window is None else float(self.window))
+
     def validate(self) -> "ExplorationSettings":
-        if not self.span > 0 or not self.window > 0:
+        if (self.span is not None and not self.span > 0) or (self.window is not None and not self.window > 0):
             raise ValueError(
                 f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}"
             )
@@ -498,8 +508,8 @@ def _common_settings(scenario: Scenario, path, plant: str | None) -> dict:
         "seed": s.seed,
         "plant": plant,
         "particles": s.filter.particles,
-        "action_range": s.exploration.span,
-        "window": s.exploration.window,
+        "action_range": s.exploration.span_and_window(plant)[0],
+        "window": s.exploration.span_and_window(plant)[1],
         "physics": copy.deepcopy(s.physics),
         "camera": copy.deepcopy(s.camera),
     }
@@ -562,7 +572,8 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
 def task_settings(scenario: Scenario | None, path: str | Path | None = None, **overrides) -> dict:
     """Keyword arguments of the tasks (:func:`vlr_drake.tasks.write.run_write`, ``run_maze``,
     ``run_stack``) from a scenario: seed, plant, the filter's particle count, exploration span
-    and window (the grip window of the control too), the model plant's pose noise, the
+    and window where the scenario sets them (the grip window of the control too; else the
+    tasks' defaults), the model plant's pose noise, the
     physics settings and camera, the scenario's name and file; then the ``overrides`` that
     are not None. The tasks hold their own objects (pen stand-in, maze plate, cups) with the
     Model O: a scenario with another hand raises ``ValueError``."""
@@ -573,4 +584,11 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
     if s.hand_spec is not None or s.hand != "model_o":
         hand = s.hand_spec.name if s.hand_spec is not None else s.hand
         raise ValueError(f"scenario '{s.name}': the tasks run with the Model O hand (model_o), not '{hand}'")
-    return {**_common_settings(s, path, given.get("plant")), **given}
+    settings = _common_settings(s, path, given.get("plant"))
+    # a scenario without exploration span or window leaves the tasks' own defaults
+    # (tasks.common.TASK_EXPLORATION, whose window is also the control's grip window)
+    if s.exploration.span is None:
+        del settings["action_range"]
+    if s.exploration.window is None:
+        del settings["window"]
+    return {**settings, **given}

@@ -34,6 +34,7 @@ import numpy as np
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
 from vlr_drake.hand import HandSpec, model_o
+from vlr_drake.identify import EXPLORATION
 
 __all__ = ["run_agreement", "main"]
 
@@ -88,8 +89,8 @@ def run_agreement(
     hand: HandSpec | None = None,
     actions: int = 40,
     seed: int = 0,
-    span: float = 1.5e-3,
-    window: float = 4.0e-3,
+    span: float = EXPLORATION["physics"][0],
+    window: float = EXPLORATION["physics"][1],
     direction=None,
     step: float = 0.5e-3,
 ) -> dict:
@@ -175,8 +176,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--object", default="apple", help="object preset (default apple)")
     ap.add_argument("--actions", type=int, default=40, help="number of actions (default 40)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random actions (default 0)")
-    ap.add_argument("--span", type=float, default=1.5e-3, help="random actions: +-span per tendon [m]")
-    ap.add_argument("--window", type=float, default=4.0e-3, help="random actions: window around the grasp [m]")
+    ap.add_argument("--span", type=float, default=EXPLORATION["physics"][0],
+                    help="random actions: +-span per tendon [m] (default: the identification's, %(default)s)")
+    ap.add_argument("--window", type=float, default=EXPLORATION["physics"][1],
+                    help="random actions: window around the grasp [m] (default: the identification's, %(default)s)")
     ap.add_argument("--direction", type=float, nargs="+", default=None,
                     help="sweep instead: tendon pulls of one direction (N numbers, normalised)")
     ap.add_argument("--step", type=float, default=0.5e-3, help="sweep step along --direction [m]")
