@@ -161,11 +161,11 @@ class ExplorationSettings:
     """The random exploration policy (:class:`vlr_drake.systems.self_identification.ExplorationPolicy`)."""
 
     # Each action moves every tendon by a uniform draw in +-span [m] ...
-    span: typing.Optional[float] = None
+    span: float | None = None
     # ... reflected inside +-window around the grasp's tendon commands [m]. None (either):
     # the plant's default, ``vlr_drake.identify.EXPLORATION`` (model 3 / 6 mm, physics and
     # hardware 0.5 / 1.2 mm: a compliant grasp).
-    window: typing.Optional[float] = None
+    window: float | None = None
     # Action period T [s]; 0: the plant's own (model 1 s, physics ``physics.action_period``
     # (ramp + settle cap), hardware 1 s).
     period_sec: float = 0.0
