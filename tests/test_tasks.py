@@ -129,3 +129,17 @@ def test_write_with_the_filter_model():
     assert r["model"] == "filter" and r["filter_iterations"] > 30 + r["waypoints"]
     # an identified (imperfect) model with camera feedback still follows the letter
     assert r["position_error_mm"]["mean"] < 0.4 * r["letter_height_mm"]
+
+
+@pytest.mark.slow
+def test_short_segment_on_the_physics_plant_with_the_identified_model():
+    """Physics plant, rendered camera, the identified model (3000 particles, 30 random
+    actions, the filter kept running during control): a short segment ("I", 7 waypoints)
+    stays within 1 mm of every waypoint. Measured: 0.10 mm mean, 0.13 mm max ('SC' with
+    seed 0: 0.12 mm mean, 0.21 mm max; letters about 1 mm, the workspace the probe finds)."""
+    r = write.run_write("I", seed=1, plant="physics", model="filter", particles=3000, identify_iterations=30,
+                        progress=False)
+    check_fields(r, "write")
+    assert r["plant"] == "physics" and not r["object_fell"] and r["waypoints"] == 7
+    assert r["position_error_mm"]["max"] < 1.0, r["position_error_mm"]
+    assert r["filter_iterations"] > 30

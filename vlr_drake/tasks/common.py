@@ -30,9 +30,12 @@ __all__ = [
     "save_view",
 ]
 
-#: The tasks' identification exploration on both plants: (action range, window) [m]; the
-#: window is also the control's grip window (``grip_window``).
+#: The tasks' identification exploration: (action range, window) [m]; the window is also
+#: the control's grip window (``grip_window``).
 TASK_EXPLORATION = (1.5e-3, 4.0e-3)
+#: On the physics plant the identification explores as ``vlr-drake identify`` does there
+#: (``identify.EXPLORATION["physics"]``: 0.5 mm actions within 1.2 mm; larger ones push the
+#: object onto the proximal links), inside the grip window.
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
 #: that identifies the grasp first and keeps updating during control (each action is evidence).
@@ -213,7 +216,7 @@ def make_model_fn(
     seed: int = 0,
     particles: int = 3000,
     identify_iterations: int = 40,
-    action_range: float = TASK_EXPLORATION[0],
+    action_range: float | None = None,
     window: float = TASK_EXPLORATION[1],
 ) -> tuple[Callable, object | None]:
     """The controller's ``model_fn`` for :func:`vlr_drake.control.servo_to`, and the filter
@@ -224,6 +227,8 @@ def make_model_fn(
     :class:`vlr_drake.filter.SelfIdentificationFilter` initialised around the nominal grasp,
     run for ``identify_iterations`` random exploratory actions (then the tendons return to
     the grasp command), and kept running during control (each action is evidence).
+    Exploration: actions of +-``action_range`` (None: 1.5 mm on the model plant, 0.5 mm on
+    the physics plant) inside ``window`` (on the physics plant at most 1.2 mm).
     """
     if kind not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
@@ -245,7 +250,13 @@ def make_model_fn(
     R, t, _ = plant.measure()
     l_grasp = tp.tendon_command()
     filt.initialise(theta_c, a_c, R, t, tendon_command=l_grasp)
-    explore = Exploration(l_grasp, h.tendon_range, action_range, window, np.random.default_rng(seed + 9))
+    from vlr_drake.identify import EXPLORATION
+
+    physics = isinstance(tp, PhysicsTaskPlant)
+    if action_range is None:
+        action_range = EXPLORATION["physics"][0] if physics else TASK_EXPLORATION[0]
+    explore_window = min(window, EXPLORATION["physics"][1]) if physics else window
+    explore = Exploration(l_grasp, h.tendon_range, action_range, explore_window, np.random.default_rng(seed + 9))
     for _ in range(identify_iterations):
         dl = explore.next_action()
         if not plant.apply_action(dl):

@@ -211,7 +211,7 @@ def run_maze(
     scenario: str = "default",
     scenario_path: str | None = None,
     window: float = common.TASK_EXPLORATION[1],
-    action_range: float = common.TASK_EXPLORATION[0],
+    action_range: float | None = None,
     physics=None,
     camera=None,
     meshcat=None,
@@ -225,7 +225,8 @@ def run_maze(
     Plots (``out``): ``maze.png`` (orientation error over time; marble path in the maze).
 
     Scenario settings: ``action_range`` and ``window`` [m] bound the identification's random
-    actions (``window`` also the control's grip window), ``physics`` and ``camera`` configure
+    actions (None: the plant's default, see :func:`vlr_drake.tasks.common.make_model_fn`;
+    ``window`` also the control's grip window), ``physics`` and ``camera`` configure
     the physics plant (None: defaults), ``scenario`` and ``scenario_path`` are recorded.
     ``meshcat``: a Meshcat instance that shows the goal plate orientation beside the plate's
     true pose per action (:class:`vlr_drake.visualization.TaskView`); the recording is saved as
