@@ -133,13 +133,14 @@ def test_write_with_the_filter_model():
 
 @pytest.mark.slow
 def test_short_segment_on_the_physics_plant_with_the_identified_model():
-    """Physics plant, rendered camera, the identified model (3000 particles, 30 random
+    """Physics plant, rendered camera, the identified model (3000 particles, 60 random
     actions, the filter kept running during control): a short segment ("I", 7 waypoints)
-    stays within 1 mm of every waypoint. Measured: 0.10 mm mean, 0.13 mm max ('SC' with
-    seed 0: 0.12 mm mean, 0.21 mm max; letters about 1 mm, the workspace the probe finds)."""
-    r = write.run_write("I", seed=1, plant="physics", model="filter", particles=3000, identify_iterations=30,
+    stays within 1 mm of every waypoint. Measured: 0.12 mm mean, 0.18 mm max (seeds 0 and 2
+    with 30 actions: 0.18 and 0.14 mm max; seed 1 with 30: 1.13 mm, the model still found no
+    equilibrium for 3 control steps). Letters are about 1 mm: the workspace the probe finds."""
+    r = write.run_write("I", seed=1, plant="physics", model="filter", particles=3000, identify_iterations=60,
                         progress=False)
     check_fields(r, "write")
     assert r["plant"] == "physics" and not r["object_fell"] and r["waypoints"] == 7
     assert r["position_error_mm"]["max"] < 1.0, r["position_error_mm"]
-    assert r["filter_iterations"] > 30
+    assert r["filter_iterations"] > 60
