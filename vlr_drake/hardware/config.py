@@ -49,6 +49,10 @@ class HardwareConfig:
     # Spool (pulley) radius on each motor horn: tendon pull = radius * motor angle [m].
     spool_radius: float = 0.005
     # Motor position [ticks] at which each tendon is taut with the finger straight (l = 0).
+    # The filter reads the absolute pull (FilterConfig.tendon_reference "commanded"): a wrong
+    # zero is a wrong tendon stretch for every hypothesis (on the physics plant the model's
+    # own offset of ~1.3 mm of thumb pull was tolerated). Where it is not known to about a
+    # millimetre of pull, run the filter with tendon_reference "implied" (the paper's).
     zero_offset_ticks: list[int] = field(default_factory=lambda: [0, 0, 0])
     # Winding direction of each motor: +1 if increasing ticks pull the tendon, else -1.
     direction: list[int] = field(default_factory=lambda: [1, 1, 1])
