@@ -76,7 +76,7 @@ def format_motion(r: dict) -> str:
     )
 
 
-def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 5) -> dict:
+def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10) -> dict:
     """Time full filter iterations (move, predict, weigh, resample, roughen) on the model
     plant, and a short known-hand identification split into its parts."""
     from vlr_drake import filter as pf

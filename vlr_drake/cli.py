@@ -411,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser("bench", sub, "benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
     p.add_argument("--particles", type=int, default=60_000, help="number of particles (default 60,000)")
-    p.add_argument("--iterations", type=int, default=5, help="filter iterations timed (default 5)")
+    p.add_argument("--iterations", type=int, default=10, help="filter iterations timed (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 

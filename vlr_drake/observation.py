@@ -136,7 +136,7 @@ def attach(p_P, R_PO, t_PO) -> np.ndarray:
             f"the first three contacts are nearly collinear (triangle area {area.min():.3g} m^2 "
             f"< {MIN_TRIANGLE_AREA:g}): they do not define an object pose"
         )
-    return np.einsum("pji,pnj->pni", R_PO, p_P - t_PO[:, None, :])
+    return (p_P - t_PO[:, None, :]) @ R_PO  # R^T (p - t), particle by particle
 
 
 def rotation_angle(R_a, R_b) -> np.ndarray:
