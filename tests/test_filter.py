@@ -238,21 +238,23 @@ def test_known_hand_converges_accurately_and_honestly():
 @pytest.mark.slow
 def test_stiffness_is_identified_with_the_elastic_tendon():
     """The thumb's distal spring unknown (prior 0.05-0.40 N m/rad), elastic tendon (the
-    spring shapes Eq. 9's motion through the tendon's stretch), 3 seeds x 5000 particles x
-    60 iterations: the interval narrows to a few percent of the prior around the truth.
-    Measured: errors 0.001-0.007 N m/rad, interval widths 3-5% of the prior, 3 of 3 inside
-    (with the paper's implied tendon state: 0.006-0.011, 5-9%, the third 0.001 outside). The ideal tendon cannot do this: its motion does not depend
-    on the springs at all (test_motion.py::test_ideal_motion_does_not_depend_on_the_springs)."""
+    spring shapes Eq. 9's motion through the tendon's stretch), 6 seeds x 5000 particles x
+    60 iterations: the interval narrows to a few percent of the prior around the truth, and
+    holds it in at least 5 of 6 runs (at 95% coverage that fails 3% of the time). Measured
+    (seeds 0-7): errors 0.0007-0.0072 N m/rad, mean 0.0023 (the paper: 0.0026 +- 0.0012),
+    interval widths 2-9% of the prior, 7 of 8 inside (seed 1 0.003 outside). With the
+    paper's implied tendon state: 0.006-0.011 N m/rad. The ideal tendon cannot do this: its
+    motion does not depend on the springs at all
+    (test_motion.py::test_ideal_motion_does_not_depend_on_the_springs)."""
     errors, widths, inside = [], [], []
-    for seed in range(3):
+    for seed in range(6):
         r = run_identification(IdentifyOptions(experiment="stiffness", particles=5000, max_iterations=60, seed=seed,
                                                progress=False))
         lo, hi = r["stiffness_interval_Nm_per_rad"]
         p_lo, p_hi = r["stiffness_prior_Nm_per_rad"]
         errors.append(r["stiffness_error_Nm_per_rad"])
         widths.append((hi - lo) / (p_hi - p_lo))
-        inside.append(r["stiffness_inside_95"] or min(abs(lo - r["stiffness_true_Nm_per_rad"]),
-                                                      abs(hi - r["stiffness_true_Nm_per_rad"])) < 0.002)
-    assert np.mean(errors) < 0.01 and max(errors) < 0.02, errors
+        inside.append(r["stiffness_inside_95"])
+    assert np.mean(errors) < 0.006 and max(errors) < 0.015, errors
     assert max(widths) < 0.15, widths
-    assert all(inside), inside
+    assert sum(inside) >= 5, inside
