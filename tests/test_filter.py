@@ -241,8 +241,8 @@ def test_stiffness_is_identified_with_the_elastic_tendon():
     spring shapes Eq. 9's motion through the tendon's stretch), 6 seeds x 5000 particles x
     60 iterations: the interval narrows to a few percent of the prior around the truth, and
     holds it in at least 5 of 6 runs (at 95% coverage that fails 3% of the time). Measured
-    (seeds 0-7): errors 0.0007-0.0072 N m/rad, mean 0.0023 (the paper: 0.0026 +- 0.0012),
-    interval widths 2-9% of the prior, 7 of 8 inside (seed 1 0.003 outside). With the
+    (seeds 0-7): errors 0.0008-0.0054 N m/rad, mean 0.0023 (the paper: 0.0026 +- 0.0012),
+    interval widths 2-9% of the prior, 7 of 8 inside (seed 1 0.002 outside). With the
     paper's implied tendon state: 0.006-0.011 N m/rad. The ideal tendon cannot do this: its
     motion does not depend on the springs at all
     (test_motion.py::test_ideal_motion_does_not_depend_on_the_springs)."""
