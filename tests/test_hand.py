@@ -20,6 +20,9 @@ def test_generic_hand_constraints():
     h = generic_hand(5, 3).model()
     assert h.num_constraints == 3 * 5 - 6
     assert h.R.shape == (5, 15)
+    # R theta per finger, batched over particles, agrees with the matrix form of Eq. 7
+    theta = np.random.default_rng(0).uniform(-0.2, 1.5, (4, 5, 3))
+    np.testing.assert_allclose(h.tendon_travel(theta), theta.reshape(4, 15) @ h.R.T, atol=1e-15)
 
 
 def test_novel_hands_replace_the_right_fingers():

@@ -344,7 +344,7 @@ class SelfIdentificationFilter:
         elastic tendon and ``tendon_reference="commanded"``."""
         h, pr, M = self.hand, self.prior, self.config.particles
         if tendon_command is not None:
-            self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,)).astype(float).copy()
+            self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,))
         elif self._uses_command() and self.tendon_command is None:
             raise ValueError(
                 "filter: tendon_reference 'commanded' needs the absolute tendon command: pass "
@@ -384,7 +384,7 @@ class SelfIdentificationFilter:
 
         theta, a, stiff, links, stretch = (cat(i) for i in range(5))
         if self._uses_command():
-            stretch = self.tendon_command[None] - np.einsum("nk,pnk->pn", h.moment_arms, theta)
+            stretch = self._commanded_stretch(theta)
         p = kinematics.contacts(h, theta, a, links)
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
         self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M))
@@ -423,6 +423,10 @@ class SelfIdentificationFilter:
     def _uses_command(self) -> bool:
         return self.config.tendon == "elastic" and self.config.tendon_reference == "commanded"
 
+    def _commanded_stretch(self, theta) -> np.ndarray:
+        """(M, N) stretch l - R theta of hypotheses ``theta`` under the current tendon command."""
+        return self.tendon_command[None] - self.hand.tendon_travel(theta)
+
     def _within_limits(self, theta):
         h = self.hand
         return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
@@ -440,14 +444,13 @@ class SelfIdentificationFilter:
             raise RuntimeError("filter: call initialise() before step()")
         cfg, h, ps = self.config, self.hand, self.particles
         dl = np.asarray(dl, float).reshape(h.N)
-        l_after = (None if tendon_command is None
-                   else as_particles("tendon_command", tendon_command, (h.N,)).astype(float).copy())
-        if l_after is None and self.tendon_command is not None:
-            l_after = self.tendon_command + dl
         self.iteration += 1
+        if tendon_command is not None:  # the motors' reading after the action
+            self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,)) - dl
         if self._uses_command():  # each hypothesis' tendon state from the motors (tendon_reference)
-            ps.stretch = (l_after - dl)[None] - np.einsum("nk,pnk->pn", h.moment_arms, ps.theta)
-        self.tendon_command = l_after
+            ps.stretch = self._commanded_stretch(ps.theta)
+        if self.tendon_command is not None:
+            self.tendon_command = self.tendon_command + dl
         D2 = motion.contact_distances_sq(h, ps.p_O)
         if cfg.motion_error > 0:  # each particle's POM pose before the move
             R_prev, t_prev, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
@@ -557,7 +560,7 @@ class SelfIdentificationFilter:
         ps.theta = eq.theta
         ps.stretch = eq.stretch
         if self._uses_command():
-            ps.stretch = self.tendon_command[None] - np.einsum("nk,pnk->pn", self.hand.moment_arms, ps.theta)
+            ps.stretch = self._commanded_stretch(ps.theta)
 
     def _reinitialise(self, R_meas, t_meas) -> None:
         est = self.estimates[-1] if self.estimates else None

@@ -242,6 +242,11 @@ class HandModel:
     def num_angles(self) -> int:
         return self.N * self.K
 
+    def tendon_travel(self, theta) -> np.ndarray:
+        """R theta per finger: the tendon length the joints take up, (..., N) for angles
+        (..., N, K) [m] (Eq. 7 without the differences)."""
+        return (np.asarray(theta, float) * self.moment_arms).sum(axis=-1)
+
     @cached_property
     def R(self) -> np.ndarray:
         """Tendon moment-arm matrix R (N x N*K): dl_i = R_i . dtheta (Eq. 7)."""

@@ -52,7 +52,7 @@ class ModelPlant:
         if not eq.ok[0] or np.any(eq.tension[0] < 0):
             raise ValueError(f"model plant: the initial grasp is not physical (tensions {eq.tension[0]} N)")
         theta = eq.theta[0]
-        l0 = (hand.moment_arms * theta).sum(axis=1) + eq.stretch[0]
+        l0 = hand.tendon_travel(theta) + eq.stretch[0]
         self.state = ModelPlantState(theta, a, eq.stretch[0], l0, np.asarray(R_PO, float), np.asarray(t_PO, float))
         p = self.contacts()
         self.p_O = observation.attach(p[None], self.state.R_PO[None], self.state.t_PO[None])[0]

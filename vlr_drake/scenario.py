@@ -502,14 +502,15 @@ def _common_settings(scenario: Scenario, path, plant: str | None) -> dict:
             f"scenario '{s.name}': plant 'hardware' runs as a diagram (python -m vlr_drake.builder --run "
             f"{path or 'SCENARIO'}); identification runs and tasks take --plant model or physics"
         )
+    span, window = s.exploration.span_and_window(plant)
     out = {
         "scenario": s.name,
         "scenario_path": None if path is None else str(path),
         "seed": s.seed,
         "plant": plant,
         "particles": s.filter.particles,
-        "action_range": s.exploration.span_and_window(plant)[0],
-        "window": s.exploration.span_and_window(plant)[1],
+        "action_range": span,
+        "window": window,
         "physics": copy.deepcopy(s.physics),
         "camera": copy.deepcopy(s.camera),
     }

@@ -32,16 +32,15 @@ __all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
 
 
 class _FilterBox:
-    """Abstract-state payload: the filter object and the previous command."""
+    """Abstract-state payload: the filter object (which tracks the tendon command too)."""
 
-    def __init__(self, flt: pf.SelfIdentificationFilter | None = None, l_prev=None):
+    def __init__(self, flt: pf.SelfIdentificationFilter | None = None):
         self.filter = flt
-        self.l_prev = l_prev
 
     def __deepcopy__(self, memo):  # Drake clones abstract state; share nothing mutable
         import copy
 
-        return _FilterBox(copy.deepcopy(self.filter, memo), None if self.l_prev is None else self.l_prev.copy())
+        return _FilterBox(copy.deepcopy(self.filter, memo))
 
 
 class SelfIdentificationSystem(LeafSystem):
@@ -112,11 +111,10 @@ class SelfIdentificationSystem(LeafSystem):
             flt = pf.SelfIdentificationFilter(self._hand, self._config, self._prior, np.random.default_rng(self._seed))
             flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(),
                            tendon_command=l_now)
-            box.filter, box.l_prev = flt, l_now
+            box.filter = flt
             return
-        dl = l_now - box.l_prev
+        dl = l_now - box.filter.tendon_command
         box.filter.step(dl, X.rotation().matrix(), X.translation(), valid, tendon_command=l_now)
-        box.l_prev = l_now
 
     def _current(self, context):
         return context.get_abstract_state(self._box).get_value().filter

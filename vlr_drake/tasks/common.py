@@ -33,9 +33,6 @@ __all__ = [
 #: The tasks' identification exploration: (action range, window) [m]; the window is also
 #: the control's grip window (``grip_window``).
 TASK_EXPLORATION = (1.5e-3, 4.0e-3)
-#: On the physics plant the identification explores as ``vlr-drake identify`` does there
-#: (``identify.EXPLORATION["physics"]``: 0.5 mm actions within 1.2 mm; larger ones push the
-#: object onto the proximal links), inside the grip window.
 
 #: Where the controller's model comes from: the plant's hidden truth, or a particle filter
 #: that identifies the grasp first and keeps updating during control (each action is evidence).
