@@ -247,9 +247,28 @@ def test_bad_input_is_refused_with_names(model_o_hand):
         motion.move(h, bad, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch)
     with pytest.raises(ValueError, match="tendon model"):
         motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch, tendon="rope")
+    with pytest.raises(ValueError, match="Newton tolerance"):
+        motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch, tolerance="sloppy")
     with pytest.raises(motion.TendonLimitError, match="finger_left"):
         motion.move(h, gs.theta, [0.0, 0.002, 0.0], a=gs.a, D2=gs.D2, stretch=gs.stretch,
                     l_now=[0.02, h.tendon_range[1, 1] - 0.001, 0.02])
+
+
+@pytest.mark.parametrize("tendon", ["elastic", "ideal"])
+def test_filter_tolerance_is_close_to_the_tight_one_and_cheaper(model_o_hand, tendon):
+    gs, dl, tight = _moves(model_o_hand, tendon, seed=3, count=2000)
+    loose = motion.move(model_o_hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, tendon=tendon,
+                        tolerance="filter")
+    both = tight.ok & loose.ok
+    assert both.sum() > 0.95 * tight.ok.sum() and loose.ok.sum() >= 0.99 * tight.ok.sum()
+    gap = np.abs(loose.theta[both] - tight.theta[both]).max(axis=(1, 2))
+    # the agreement the reference solvers are held to; typical gaps are far smaller
+    assert gap.max() < 1e-6 and np.percentile(gap, 95) < 1e-7
+    assert loose.iterations[both].mean() < tight.iterations[both].mean() - 0.2
+    torque, constraint, tendon_eq = motion.TOLERANCES["filter"]
+    exact = loose.iterations[both] < motion.MAX_ITER  # not accepted at the loose fallback
+    assert np.all(loose.residuals[both][exact, 0] < torque)
+    assert np.all(loose.residuals[both][exact, 1] < constraint)
 
 
 def test_failed_particles_are_flagged_not_nan(model_o_hand):

@@ -222,6 +222,10 @@ class FilterConfig:
     # 16) and cheaper: a particle with no equilibrium costs up to 7 + 4 x 7 Newton steps
     # instead of 147 (60,000 particles: 0.43 s per iteration instead of 0.48).
     max_substeps: int = 4
+    # Newton tolerances of the moves (a key of motion.TOLERANCES): "filter" solves each
+    # hypothesis to ~1e-8 rad, far finer than the camera resolves, with a Newton step fewer
+    # than "tight" on about half the particles.
+    newton_tolerance: str = "filter"
     # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
     roughening: float = 0.2
     # Temper the likelihood when ESS would fall below this fraction of M.
@@ -252,6 +256,9 @@ class FilterConfig:
                 f"filter: 'tendon_reference' must be one of {TENDON_REFERENCES}, got '{self.tendon_reference}'")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
+        if self.newton_tolerance not in motion.TOLERANCES:
+            raise ValueError(f"filter: 'newton_tolerance' must be one of {tuple(motion.TOLERANCES)}, "
+                             f"got '{self.newton_tolerance}'")
         if not 0 < self.roughening < 1:
             raise ValueError("filter: 'roughening' must be in (0, 1)")
         if not 0 < self.ess_fraction <= 1:
@@ -457,7 +464,8 @@ class SelfIdentificationFilter:
         else:
             R_prev = t_prev = None
         res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
-                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps)
+                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps,
+                          tolerance=cfg.newton_tolerance)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
         R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)

@@ -42,51 +42,41 @@ def finger_contact_derivatives(theta, L, a, n, base, u, P_out, J_out, H_out):  #
     H_out (3, K, K). z is the palm normal (0, 0, 1).
     """
     K = theta.shape[0]
-    d = np.sqrt(a * a + n * n)
-    gamma = np.arctan2(n, a)
-    # Accumulate from the tip backwards: suffix sums of ell_k e(psi_k) and ell_k e'(psi_k).
     phi = 0.0
-    sx = 0.0
-    sz = 0.0
-    # planar suffix sums, filled from the tip
-    cx = np.empty(K)
-    cz = np.empty(K)
-    ex = np.empty(K)
-    ez = np.empty(K)
     for k in range(K):
         phi += theta[k]
+    # Walk from the tip back to the base with scalar suffix sums (ex, ez) of the links'
+    # in-plane vectors ell_k e(psi_k): no scratch arrays, so no allocation per Newton step.
+    # Since e'(psi) is e(psi) turned by -90 degrees, the suffix sums of ell_k e'(psi_k) are
+    # (ez, -ex). The virtual last link d e(phi + gamma) is a e(phi) + n e'(phi) (d cos gamma
+    # = a, d sin gamma = n): no square root or arctangent.
+    ex = 0.0
+    ez = 0.0
+    for k in range(K - 1, -1, -1):
+        s = np.sin(phi)
+        c = np.cos(phi)
         if k < K - 1:
-            ell = L[k]
-            psi = phi
+            ex += L[k] * s
+            ez += L[k] * c
         else:
-            ell = d
-            psi = phi + gamma
-        s = np.sin(psi)
-        c = np.cos(psi)
-        sx += ell * s
-        sz += ell * c
-        ex[k] = ell * s  # ell e(psi): x part
-        ez[k] = ell * c  # z part
-        cx[k] = ell * c  # ell e'(psi): x part
-        cz[k] = -ell * s
-    # suffix sums
-    for k in range(K - 2, -1, -1):
-        cx[k] += cx[k + 1]
-        cz[k] += cz[k + 1]
-        ex[k] += ex[k + 1]
-        ez[k] += ez[k + 1]
-    for r in range(3):
-        P_out[r] = base[r] + sx * u[r]
-    P_out[2] += sz
-    for j in range(K):
+            ex += a * s + n * c
+            ez += a * c - n * s
+        phi -= theta[k]
         for r in range(3):
-            J_out[r, j] = cx[j] * u[r]
-        J_out[2, j] += cz[j]
-        for l in range(K):
-            m = j if j > l else l
+            J_out[r, k] = ez * u[r]
+        J_out[2, k] -= ex
+        # second derivatives with max(j, l) == k
+        for l in range(k + 1):
             for r in range(3):
-                H_out[r, j, l] = -ex[m] * u[r]
-            H_out[2, j, l] += -ez[m]
+                v = -ex * u[r]
+                H_out[r, k, l] = v
+                H_out[r, l, k] = v
+            H_out[2, k, l] -= ez
+            if l != k:
+                H_out[2, l, k] -= ez
+    for r in range(3):
+        P_out[r] = base[r] + ex * u[r]
+    P_out[2] += ez
 
 
 @njit(cache=True, parallel=True)

@@ -40,6 +40,7 @@ from vlr_drake.kinematics import as_particles, contacts, finger_contact_derivati
 
 __all__ = [
     "TENDON_MODELS",
+    "TOLERANCES",
     "MoveResult",
     "Equilibrium",
     "TendonLimitError",
@@ -51,13 +52,14 @@ __all__ = [
 
 TENDON_MODELS = ("elastic", "ideal")
 
-#: Convergence tolerances of the Newton solver (SI units: N m, m^2, m). Tight on purpose:
-#: with 1e-9, 1e-12, 1e-11 a filter move was 9% faster, but the controller's finite-difference
-#: Jacobians then failed to find equilibria (physics handwriting 'SC': 15 "no_equilibrium"
-#: control steps and 0.38 mm mean error, against none and 0.10 mm with these).
-TOL_TORQUE = 1e-12
-TOL_CONSTRAINT = 1e-15
-TOL_TENDON = 1e-13
+#: Convergence tolerances of the Newton solver (SI units: N m, m^2, m), per caller.
+#: "tight" (default) solves to round-off: the controller's finite-difference Jacobians need
+#: it (with the "filter" ones, physics handwriting 'SC' had 15 "no_equilibrium" control
+#: steps and 0.38 mm mean error, against none and 0.10 mm). "filter" is what a hypothesis
+#: needs (angles to ~1e-8 rad, far below what the camera resolves) and saves a Newton step
+#: on about half the particles.
+TOLERANCES = {"tight": (1e-12, 1e-15, 1e-13), "filter": (1e-9, 1e-12, 1e-11)}
+TOL_TORQUE, TOL_CONSTRAINT, TOL_TENDON = TOLERANCES["tight"]
 #: Tolerances accepted when the iteration budget runs out (angles within ~1e-5 rad).
 #: The contact distances are accepted as a distance error |g| / D [m] (5 nm): near the
 #: Model O's mirror-image grasps the regularised Newton iteration stalls at ~2 nm for the
@@ -217,9 +219,12 @@ def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
 @njit(cache=True)
 def _newton_one(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
+    ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
 ):  # pragma: no cover - numba
     """Newton on the KKT system of one particle; returns (ok, iterations).
+
+    ``tol`` (3,): convergence tolerances on the torque, constraint and tendon residuals
+    (:data:`TOLERANCES`).
 
     ``resid`` (3,) receives the final max residuals (torque, constraint, tendon);
     ``work`` holds the scratch arrays (see :func:`_make_work`), reused across particles."""
@@ -309,7 +314,7 @@ def _newton_one(
                     res_t = abs(v)
         if not (np.isfinite(res_f) and np.isfinite(res_g) and np.isfinite(res_t)):
             break
-        if res_f < TOL_TORQUE and res_g < TOL_CONSTRAINT and res_t < TOL_TENDON:
+        if res_f < tol[0] and res_g < tol[1] and res_t < tol[2]:
             ok = True
             break
         if it == max_iter:
@@ -389,7 +394,7 @@ def _newton_one(
             lam[c] += scale * F[n + c]
         for i in range(nc):
             mu[i] += scale * F[n + m + i]
-        if big < 1e-15 and res_f < 1e3 * TOL_TORQUE and res_g < 1e3 * TOL_CONSTRAINT and res_t < 1e3 * TOL_TENDON:
+        if big < 1e-15 and res_f < 1e3 * tol[0] and res_g < 1e3 * tol[1] and res_t < 1e3 * tol[2]:
             ok = True  # limited by round-off
             break
     resid[0] = res_f
@@ -428,11 +433,11 @@ def _make_work(N, K, m):  # pragma: no cover - numba
 @njit(cache=True)
 def _move_one(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, max_substeps, theta, lam, T, s_out, resid, work, th_c, s_c,
+    ideal, max_iter, max_step, tol, max_substeps, theta, lam, T, s_out, resid, work, th_c, s_c,
 ):  # pragma: no cover - numba
     o, it = _newton_one(
         theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest,
-        kappa, pairs, ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
+        kappa, pairs, ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
     )
     # Continuation: a failed particle is retried with the action ramped in substeps,
     # following the quasi-static branch from the current configuration.
@@ -445,7 +450,7 @@ def _move_one(
         for _ in range(nsub):
             o, it_k = _newton_one(
                 th_c, s_c, ddl, a, L, kst, D2, pad, base, u, rarm, rest,
-                kappa, pairs, ideal, max_iter, max_step, theta, lam, T, s_out, resid, work,
+                kappa, pairs, ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
             )
             it += it_k
             if not o:
@@ -464,7 +469,7 @@ def _move_one(
 @njit(cache=True, parallel=True)
 def _move_kernel(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, max_substeps, theta, lam, T, s_out, ok, iters, resid,
+    ideal, max_iter, max_step, tol, max_substeps, theta, lam, T, s_out, ok, iters, resid,
 ):  # pragma: no cover - numba
     P, N, K = theta0.shape
     m = pairs.shape[0]
@@ -482,7 +487,7 @@ def _move_kernel(
             pd = p if dl.shape[0] > 1 else 0
             o, it = _move_one(
                 theta0[p], s0[p], dl[pd], a[p], L[pl], kst[pk], D2[p], pad, base, u, rarm, rest,
-                kappa, pairs, ideal, max_iter, max_step, max_substeps, theta[p], lam[p], T[p], s_out[p],
+                kappa, pairs, ideal, max_iter, max_step, tol, max_substeps, theta[p], lam[p], T[p], s_out[p],
                 resid[p], work, th_c, s_c,
             )
             ok[p] = o
@@ -620,6 +625,7 @@ def move(
     max_iter: int = MAX_ITER,
     max_step: float = MAX_STEP,
     max_substeps: int = 0,
+    tolerance: str = "tight",
 ) -> MoveResult:
     """Gamma (Eq. 4/9): move every particle by the tendon action ``dl``.
 
@@ -641,8 +647,13 @@ def move(
             action ramped in 4, 16, ... substeps up to this many (quasi-static continuation;
             0, the default, disables it: on 60,000 wide-prior particles it rescued 0.1% of
             them for 40% more time). Particles that fail keep their angles and ``ok = False``.
+        tolerance: a key of :data:`TOLERANCES`: "tight" (default; the controller's
+            finite differences need it) or "filter".
     """
     if tendon not in TENDON_MODELS:
+        raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
+    if tolerance not in TOLERANCES:
+        raise ValueError(f"Newton tolerance must be one of {tuple(TOLERANCES)}, got '{tolerance}'")
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
@@ -669,8 +680,8 @@ def move(
     resid = np.zeros((P, 3))
     _move_kernel(
         theta, s0, dl, a, L, k, D2, hand.pad, hand.base, hand.u, hand.moment_arms, hand.rest_angles,
-        hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter), float(max_step), int(max_substeps),
-        out_theta, lam, T, s_out, ok, iters, resid,
+        hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter), float(max_step),
+        np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
     )
     return MoveResult(out_theta, s_out, T, lam, ok, iters, resid)
 
