@@ -5,7 +5,38 @@ Jacobian controller) is plain vectorised numpy/numba with particles on the leadi
 ``vlr_drake.systems`` wraps it as Drake LeafSystems.
 """
 
-from vlr_drake.hand import FingerSpec, HandModel, HandSpec, hand_by_name, model_o
+import hashlib
+from pathlib import Path
+
+#: Modules with compiled kernels (numba, ``cache=True``). Kernels call each other across them.
+_KERNEL_MODULES = ("kinematics.py", "motion.py", "observation.py")
+
+
+def _drop_stale_kernel_caches(here: Path = Path(__file__).parent) -> None:
+    """Delete numba's on-disk kernel caches when any kernel module changed.
+
+    numba keys a cached kernel on its own file's timestamp only, so after an edit (or a
+    ``git pull``) that changes ``kinematics.py`` alone, ``motion.py``'s cached kernels would
+    keep the old, inlined kinematics: silently stale code. A hash of all kernel modules,
+    kept beside the caches, catches that. Does nothing where the package folder is read-only.
+    """
+    digest = hashlib.sha256(b"".join((here / m).read_bytes() for m in _KERNEL_MODULES)).hexdigest()
+    cache = here / "__pycache__"
+    stamp = cache / "kernels.sha256"
+    try:
+        if stamp.exists() and stamp.read_text() == digest:
+            return
+        for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+            f.unlink()
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:
+        pass
+
+
+_drop_stale_kernel_caches()
+
+from vlr_drake.hand import FingerSpec  # noqa: E402, HandModel, HandSpec, hand_by_name, model_o
 
 __version__ = "0.1.0"
 __all__ = ["FingerSpec", "HandModel", "HandSpec", "hand_by_name", "model_o", "__version__"]

@@ -1,0 +1,22 @@
+"""Package plumbing: stale compiled-kernel caches are dropped when a kernel module changes."""
+
+import vlr_drake
+
+
+def test_kernel_caches_are_dropped_when_any_kernel_module_changes(tmp_path):
+    for m in vlr_drake._KERNEL_MODULES:
+        (tmp_path / m).write_text(f"# {m}\n")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    (cache / "motion._move_kernel-1.py311.nbi").write_text("old")
+    vlr_drake._drop_stale_kernel_caches(tmp_path)
+    assert not list(cache.glob("*.nbi")) and (cache / "kernels.sha256").exists()
+    # unchanged sources: the caches written since are kept
+    (cache / "motion._move_kernel-1.py311.nbi").write_text("new")
+    (cache / "motion._move_kernel-1.py311.1.nbc").write_text("new")
+    vlr_drake._drop_stale_kernel_caches(tmp_path)
+    assert len(list(cache.iterdir())) == 3
+    # an edit to the kinematics alone invalidates motion's kernels too (they inline it)
+    (tmp_path / "kinematics.py").write_text("# changed\n")
+    vlr_drake._drop_stale_kernel_caches(tmp_path)
+    assert [f.name for f in cache.iterdir()] == ["kernels.sha256"]
