@@ -290,3 +290,20 @@ def test_reference_solver_reports_failure(model_o_hand):
                        stretch=gs.stretch[0], solver="ipopt")
     with pytest.raises(ValueError, match="solver must be"):
         ref.solve_move(model_o_hand, gs.theta[0], np.zeros(3), a=gs.a[0], D2=gs.D2[0], stretch=gs.stretch[0], solver="cplex")
+
+
+def test_a_placed_grasp_settles_where_the_model_moves_it(model_o_hand):
+    """grasps.settle_under_command: a grasp placed at theta whose tendons are then pulled to
+    l + dl settles where Gamma moves it with the action dl (the filter's nominal grasp on the
+    physics plant); an equilibrium already under its command stays put."""
+    h = model_o_hand
+    gs = grasps.sample_grasps(h, np.random.default_rng(5), 4, stable=True)
+    for p in range(4):
+        l = h.tendon_travel(gs.theta[p]) + gs.stretch[p]
+        np.testing.assert_allclose(grasps.settle_under_command(h, gs.theta[p], gs.a[p], l), gs.theta[p], atol=1e-9)
+        dl = np.array([0.4e-3, 0.2e-3, 0.3e-3])
+        moved = motion.move(h, gs.theta[p:p + 1], dl, a=gs.a[p:p + 1], D2=gs.D2[p:p + 1], stretch=gs.stretch[p:p + 1])
+        assert moved.ok[0]
+        settled = grasps.settle_under_command(h, gs.theta[p], gs.a[p], l + dl)
+        np.testing.assert_allclose(settled, moved.theta[0], atol=1e-8)
+        assert np.abs(settled - gs.theta[p]).max() > 1e-3

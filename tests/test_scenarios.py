@@ -137,6 +137,9 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("camera: {width: -640}\n", "width"),
         ("physics: {time_step: 0.0}\n", "time_step"),
         ("prior: {stiffness_unknown: [[5, 1]]}\n", "stiffness_unknown"),
+        ("prior: {stiffness_prior: normal}\n", "stiffness_prior"),
+        ("prior: {stiffness_range: [0.0, 0.4]}\n", "stiffness_range"),
+        ("filter: {newton_tolerance: sloppy}\n", "newton_tolerance"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",

@@ -172,6 +172,14 @@ class PriorConfig:
     # Unknown joint stiffness: (finger, joint) pairs, with the range [min, max] [N m/rad].
     stiffness_unknown: list[tuple[int, int]] = field(default_factory=list)
     stiffness_range: tuple[float, float] = (0.05, 0.40)
+    # How the unknown stiffness is drawn in its range: "uniform" (default) or "log_uniform"
+    # (a scale parameter: every factor of 2 as likely). Measured, 5000 particles, 60
+    # iterations: on the model plant (seeds 0-7) uniform 0.0022 N m/rad mean error, 7 of 8
+    # truths inside; log-uniform 0.0043, 8 of 8. On the physics plant, where 0.5 mm actions
+    # pin the stiffness down only weakly, log-uniform lowered the bias a little (offline runs
+    # on recorded toy block and apple trajectories: 0.236 / 0.223 / 0.243 against uniform's
+    # 0.265 / 0.242 / 0.256, truths 0.189 / 0.172 / 0.189 N m/rad).
+    stiffness_prior: str = "uniform"
     # Fingers whose proximal link lengths are unknown, with the range [min, max] [m].
     links_unknown: list[int] = field(default_factory=list)
     link_range: tuple[float, float] = (0.030, 0.075)
@@ -180,6 +188,9 @@ class PriorConfig:
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
 
+
+#: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
+STIFFNESS_PRIORS = ("log_uniform", "uniform")
 
 #: Sources of an elastic tendon's stretch (FilterConfig.tendon_reference).
 TENDON_REFERENCES = ("commanded", "implied")
@@ -336,6 +347,10 @@ class SelfIdentificationFilter:
         for fi, j in prior.stiffness_unknown:
             if not (0 <= fi < N and 0 <= j < K):
                 raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
+        if prior.stiffness_prior not in STIFFNESS_PRIORS:
+            raise ValueError(f"prior: 'stiffness_prior' must be one of {STIFFNESS_PRIORS}, got '{prior.stiffness_prior}'")
+        if prior.stiffness_unknown and not 0 < prior.stiffness_range[0] < prior.stiffness_range[1]:
+            raise ValueError(f"prior: 'stiffness_range' must be 0 < min < max, got {prior.stiffness_range}")
         for fi in prior.links_unknown:
             if not 0 <= fi < N:
                 raise ValueError(f"prior: links_unknown entry {fi} is not a finger of a {N}-finger hand")
@@ -406,7 +421,9 @@ class SelfIdentificationFilter:
         k = np.broadcast_to(h.stiffness, (n, h.N, h.K)).copy()
         lo, hi = pr.stiffness_range
         for fi, j in pr.stiffness_unknown:
-            if center is None:
+            if center is None and pr.stiffness_prior == "log_uniform":
+                k[:, fi, j] = np.exp(self.rng.uniform(np.log(lo), np.log(hi), n))
+            elif center is None:
                 k[:, fi, j] = self.rng.uniform(lo, hi, n)
             else:
                 half = 0.5 * scale * (hi - lo)

@@ -16,6 +16,7 @@ is defined for both; tests that compare against an optimiser use stable grasps.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,3 +141,30 @@ def sample_grasps(
             total += idx.size
     cat = [np.concatenate([k[i] for k in kept])[:count] for i in range(6)]
     return GraspSample(*cat)
+
+
+def settle_under_command(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None) -> np.ndarray:
+    """Where the model predicts a placed grasp settles once its tendons hold ``tendon_command``.
+
+    A grasp is planned by placing the pads on the object (``theta``, (N, K), with the
+    contacts ``a`` (N,) held at their mutual distances); the tendons are then pulled to the
+    grasp's commands and the fingers settle. The settled angles are the model's equilibrium
+    reached from the placement with the tendon state ``s = l - R theta`` of the commands
+    (Eq. 9 with a zero action; the elastic tendon). On the physics plant (Model O) the
+    thumb's distal joint is placed at 0.05 rad and settles at 0.32-0.35 rad; this predicts
+    (0.05, 0.39) for the thumb against the true (0.09, 0.32). A filter may centre its prior
+    here (``IdentifyOptions.nominal_grasp = "settled"``, measured there). Where the model
+    finds no equilibrium the placement is returned, with a warning.
+    """
+    theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
+    a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
+    L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
+    D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
+    stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
+    res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=D2, stretch=stretch, link_lengths=L,
+                      stiffness=stiffness, max_substeps=64)
+    if not res.ok[0]:
+        warnings.warn("settle_under_command: the model finds no equilibrium under the grasp's tendon "
+                      "commands; the placed angles are used as the nominal grasp", RuntimeWarning, stacklevel=2)
+        return theta[0].copy()
+    return res.theta[0].copy()

@@ -115,6 +115,8 @@ class PriorSettings:
     stiffness_unknown: list[list[int]] = field(default_factory=list)
     # ... searched in [min, max] [N m/rad].
     stiffness_range: list[float] = field(default_factory=lambda: [0.05, 0.40])
+    # ... drawn "uniform" (default) or "log_uniform" in that range.
+    stiffness_prior: str = "uniform"
     # Fingers whose proximal link lengths are unknown (empty: all known) ...
     links_unknown: list[int] = field(default_factory=list)
     # ... searched in [min, max] [m].
@@ -131,6 +133,7 @@ class PriorSettings:
             contact_half_width=self.contact_half_width,
             stiffness_unknown=[(int(i), int(k)) for i, k in self.stiffness_unknown],
             stiffness_range=(float(self.stiffness_range[0]), float(self.stiffness_range[1])),
+            stiffness_prior=self.stiffness_prior,
             links_unknown=[int(i) for i in self.links_unknown],
             link_range=(float(self.link_range[0]), float(self.link_range[1])),
             contact_limits=(float(self.contact_limits[0]), float(self.contact_limits[1])),
@@ -145,6 +148,11 @@ class PriorSettings:
             v = getattr(self, name)
             if len(v) != 2 or not v[0] < v[1]:
                 raise ValueError(f"prior: '{name}' must be [min, max] with min < max, got {v}")
+        if self.stiffness_prior not in pf.STIFFNESS_PRIORS:
+            raise ValueError(f"prior: 'stiffness_prior' must be one of {pf.STIFFNESS_PRIORS}, got "
+                             f"'{self.stiffness_prior}'")
+        if not self.stiffness_range[0] > 0:
+            raise ValueError(f"prior: 'stiffness_range' must be positive, got {self.stiffness_range}")
         for pair in self.stiffness_unknown:
             if len(pair) != 2 or not (0 <= pair[0] < N and 0 <= pair[1] < K):
                 raise ValueError(
