@@ -30,8 +30,8 @@ def test_selfcheck(tmp_path):
 @pytest.mark.parametrize("experiment, extra", [("known_hand", []), ("stiffness", []),
                                                ("novel_fingers", ["--hand", "NH2"])])
 def test_identify_quick(tmp_path, experiment, extra):
-    r = _run(tmp_path, "identify", experiment, "--particles", "1500", "--iterations", "6", "--no-progress",
-             "--out", str(tmp_path / "out"), *extra)
+    r = _run(tmp_path, "identify", experiment, "--plant", "model", "--particles", "1500", "--iterations", "6",
+             "--no-progress", "--out", str(tmp_path / "out"), *extra)
     assert IDENTIFY_FIELDS <= set(r)
     assert r["experiment"] == experiment and r["plant"] == "model" and r["particles"] == 1500
     assert set(r["timing_s"]) >= {"physics", "render", "detect", "filter", "total"}
@@ -43,6 +43,14 @@ def test_identify_quick(tmp_path, experiment, extra):
     assert list((tmp_path / "out").glob("*_convergence.png"))
 
 
+def test_identify_defaults_to_the_physics_plant(tmp_path):
+    """Without a scenario or --plant the experiment runs as the paper's did: the physics plant
+    seen by the rendered camera (issues 4 and 7)."""
+    r = _run(tmp_path, "identify", "--particles", "500", "--iterations", "2", "--no-progress",
+             "--out", str(tmp_path / "out"))
+    assert r["plant"] == "physics" and r["timing_s"]["render"] > 0 and r["timing_s"]["detect"] > 0
+
+
 def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
     assert BENCH_MOTION_FIELDS <= set(r) and r["particles"] == 2000
@@ -52,7 +60,8 @@ def test_bench_motion_and_filter_quick(tmp_path):
 
 
 def test_write_quick(tmp_path):
-    r = _run(tmp_path, "write", "I", "--model", "true", "--no-progress", "--out", str(tmp_path / "out"))
+    r = _run(tmp_path, "write", "I", "--plant", "model", "--model", "true", "--no-progress",
+             "--out", str(tmp_path / "out"))
     assert TASK_FIELDS <= set(r) and r["task"] == "write"
     assert r["position_error_mm"]["mean"] < 1.0
 
@@ -219,6 +228,6 @@ def test_demo_runs_every_step_and_writes_its_outputs(tmp_path, capsys):
     assert "self-check" in printed and "wrote 'VLR'" in printed and "demo finished" in printed
     ident = json.loads((out / "identify_known_hand_seed0.json").read_text())
     write = json.loads((out / "demo_write.json").read_text())
-    assert ident["particles"] == 600 and ident["iterations"] <= 3 and ident["plant"] == "model"
+    assert ident["particles"] == 600 and ident["iterations"] <= 3 and ident["plant"] == "physics"
     assert write["task"] == "write" and np.isfinite(write["position_error_mm"]["mean"])
     assert (out / "write_path.png").is_file() and list(out.glob("known_hand_seed0_*.png"))

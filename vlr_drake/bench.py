@@ -55,7 +55,7 @@ def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", 
         "tendon": tendon,
         "particles": particles,
         "batched_move_s": batched,
-        # the filter's Newton tolerance (motion.TOLERANCES["filter"])
+        # with motion.TOLERANCES["filter"] (FilterConfig.newton_tolerance = "filter")
         "batched_move_filter_tolerance_s": batched_filter,
         "batched_success_fraction": float(res.ok.mean()),
         "median_newton_iterations": float(np.median(res.iterations)),
@@ -78,11 +78,11 @@ def format_motion(r: dict) -> str:
     return (
         f"batched move of {r['particles']} particles ({r['hand']}, {r['tendon']} tendon, {r['threads']} threads): "
         f"{r['batched_move_s'] * 1e3:.1f} ms  ({r['batched_success_fraction'] * 100:.1f}% converged, "
-        f"median {r['median_newton_iterations']:.0f} Newton iterations); with the filter's tolerance "
+        f"median {r['median_newton_iterations']:.0f} Newton iterations); with the \"filter\" tolerance "
         f"{r['batched_move_filter_tolerance_s'] * 1e3:.1f} ms\n"
         f"MathematicalProgram, one solve: IPOPT {r['ipopt_solve_s'] * 1e3:.2f} ms, SNOPT {r['snopt_solve_s'] * 1e3:.2f} ms\n"
         f"speed-up per particle: {r['speedup_per_particle']:.0f}x vs IPOPT, {r['speedup_per_particle_snopt']:.0f}x vs SNOPT "
-        f"({r['speedup_per_particle_filter_tolerance']:.0f}x vs IPOPT with the filter's tolerance)"
+        f"({r['speedup_per_particle_filter_tolerance']:.0f}x vs IPOPT with the \"filter\" tolerance)"
     )
 
 

@@ -99,6 +99,10 @@ def _load_scenario(args) -> None:
         args.loaded = load_scenario(args.scenario_path)
     if getattr(args, "seed", 0) is None:
         args.seed = args.loaded.seed if args.loaded is not None else 0
+    # the paper's setting: the physics plant with the rendered camera, unless a scenario says
+    # otherwise or --plant model asks for the fast one
+    if hasattr(args, "plant") and args.plant is None and args.loaded is None:
+        args.plant = "physics"
 
 
 def _identify_options(args):
@@ -305,12 +309,14 @@ stiffness or link lengths), writes convergence plots and the JSON result (DESIGN
 11) to --out. The experiment follows from the scenario's prior when not given:
 known_hand (joint angles and contacts unknown), stiffness (also the thumb's distal spring),
 novel_fingers (also the proximal link lengths of the replaced fingers of NH1/NH2/NH3).
-Plants: model (the VLR model with hidden truth, fast) or physics (Drake MultibodyPlant,
-rendered palm camera, AprilTag observer). --meshcat draws the hypotheses per iteration (the
+Plants: physics (the default without a scenario, as in the paper's experiments: Drake
+MultibodyPlant, rendered palm camera, AprilTag observer) or model (the VLR model with hidden
+truth, fast; --plant model). --meshcat draws the hypotheses per iteration (the
 paper's Fig. 4 colours) and saves an HTML recording.""",
-    "demo": """The main job: the self-check, then a self-identification run of the Model O holding an
-object (summary table, convergence plots, JSON), then a short handwriting task with the
-identified model (plot and JSON). Outputs go to --out; --meshcat prints the Meshcat URL and
+    "demo": """The main job: the self-check, then a self-identification run of the Model O holding the
+apple on the physics plant seen by the rendered camera (summary table, convergence plots,
+JSON; --plant model for the fast model plant), then a short handwriting task on the model
+plant with its identified model (plot and JSON). Outputs go to --out; --meshcat prints the Meshcat URL and
 saves HTML recordings of the hypotheses and of the writing.""",
     "write": """Handwriting (the paper's Fig. 9): the Model O moves the POM of the grasped object along the
 strokes of the letters, by the Jacobian controller (Eq. 10-12, position rows) with camera
@@ -330,9 +336,11 @@ each cup's goal pose beside it and saves stack.html.""",
     "reproduce": """The paper's table: the identification experiments (known hand, stiffness, NH1-NH3) and the
 tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...),
 mean +- SD of the paper's measure beside the paper's, and whether ours is better. Prints the
-markdown table and writes reproduce.md and reproduce.json to --out. A --scenario supplies
-the plant and its settings; each row sets its own experiment, hand and object. --quick: one
-small trial of each (a smoke run, not a result).""",
+markdown table and writes reproduce.md and reproduce.json to --out. The default is the
+paper's setting, the physics plant with the rendered camera (5 trials: about an hour on 2
+cores); --plant model runs the fast model plant (3 trials: about 8 minutes). A --scenario
+supplies the plant and its settings; each row sets its own experiment, hand and object.
+--quick: one small trial of each (a smoke run, not a result).""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text
 beside it, and render .svg pictures when Graphviz's dot is installed.""",
     "bench": """Benchmarks that print their figures: motion (one batched move of all particles vs one
@@ -351,7 +359,7 @@ def _common(p: argparse.ArgumentParser, particles: int, iterations: int) -> None
     p.add_argument("--out", default="out", help="output folder for plots, recordings and results (default ./out)")
     p.add_argument("--plant", choices=["model", "physics"], default=None,
                    help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant with the "
-                        "rendered camera (default: the scenario's, else model)")
+                        "rendered camera (default: the scenario's, else physics)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=False,
                    help="show the run in Meshcat (URL printed) and save an HTML recording in --out")

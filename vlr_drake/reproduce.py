@@ -51,7 +51,7 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-def reproduce(trials: int = 5, plant: str | None = "model", particles: int = 20_000, iterations: int = 100,
+def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 20_000, iterations: int = 100,
               quick: bool = False, out: str | Path = "out/reproduce", progress: bool = True, seed: int = 0,
               scenario=None, scenario_path=None, meshcat=None) -> dict:
     """Run the table; returns {"rows": [...], "runs": {...}} and writes markdown + JSON.
@@ -71,7 +71,7 @@ def reproduce(trials: int = 5, plant: str | None = "model", particles: int = 20_
         trials, particles, iterations = 1, 1000, 8
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plant = plant or (scenario.plant if scenario is not None else "model")
+    plant = plant or (scenario.plant if scenario is not None else "physics")
     seeds = range(seed, seed + trials)
     sc = (scenario, scenario_path)
     runs: dict[str, list] = {}
