@@ -383,3 +383,37 @@ def test_closed_loop_diagram_on_the_model_plant(grasp):
     assert np.linalg.norm(X.translation() - t_goal) < 0.05e-3
     l = ctrl.tendon_command_output_port().Eval(ctrl.GetMyContextFromRoot(ctx))
     assert np.all(l >= grasp.hand.tendon_range[:, 0]) and np.all(l <= grasp.hand.tendon_range[:, 1])
+
+
+def test_an_unphysical_mean_estimate_falls_back_to_the_nearest_hypothesis(grasp):
+    """The filter's weighted mean need not be a grasp: where the side fingers mirror each
+    other (measured on the physics plant, handwriting seed 0) it implies a pushing tendon,
+    and no perturbed action has an equilibrium, so no Jacobian. The
+    filter's model_fn then hands the controller the live hypothesis nearest the mean."""
+    from vlr_drake import filter as pf
+
+    h = grasp.hand
+    mirror = {"theta": np.array([[-0.0799, 0.3909], [0.0946, 0.2374], [0.0918, 0.2188]]),
+              "a": np.array([0.0265, 0.0264, 0.0274])}
+    bad = control.ControlModel.from_estimate(h, mirror, np.eye(3), np.array([0.0, 0.0, 0.11]))
+    assert not bad.physical and np.min(bad.stretch * h.kappa) < 0
+    with pytest.raises(RuntimeError, match="no equilibrium"):
+        control.jacobian(bad)
+    assert control.ControlModel.from_plant_truth(grasp.plant).physical
+
+    plant = fresh(grasp)
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), pf.PriorConfig(), np.random.default_rng(0))
+    R, t, _ = plant.measure()
+    f.initialise(plant.state.theta, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
+    near = f.nearest_hypothesis()
+    i = np.flatnonzero(np.all(f.particles.theta == near["theta"], axis=(1, 2)))
+    assert i.size == 1 and f.particles.a[i[0]] == pytest.approx(near["a"])
+    x = f._unknowns(f.particles)
+    z = (x - x.mean(axis=0)) / x.std(axis=0)
+    assert np.argmin((z**2).sum(axis=1)) == i[0]  # equal weights after initialisation
+    # an unphysical mean is replaced by that hypothesis; a physical one is kept
+    fn = control.filter_model_fn(f, h)
+    f.estimate = lambda: mirror  # the mean as measured
+    m = fn(np.zeros(h.N), R, t, True)
+    assert m.physical and np.allclose(m.theta, near["theta"], atol=1e-9)
+    control.jacobian(m)

@@ -639,6 +639,26 @@ class SelfIdentificationFilter:
                                               out["link_lengths"][None])[0]
         return out
 
+    def nearest_hypothesis(self) -> dict:
+        """The live hypothesis nearest the weighted mean, as an estimate dict (``theta``,
+        ``a``, ``stiffness``, ``link_lengths``, ``contacts``): distances in units of each
+        identified quantity's weighted standard deviation. Unlike the mean, it is one of the
+        hypotheses the filter moved (a physical grasp when it was drawn or last moved)."""
+        ps = self.particles
+        w = normalise(ps.log_w)
+        x = self._unknowns(ps)
+        mean = w @ x
+        sd = np.sqrt(np.maximum(w @ (x - mean) ** 2, 1e-30))
+        d2 = (((x - mean) / sd) ** 2).sum(axis=1)
+        d2[~(w > 0)] = np.inf
+        i = int(np.argmin(d2))
+        out = {"theta": ps.theta[i].copy(), "a": ps.a[i].copy(),
+               "stiffness": ps.stiffness[i if ps.stiffness.shape[0] > 1 else 0].copy(),
+               "link_lengths": ps.link_lengths[i if ps.link_lengths.shape[0] > 1 else 0].copy()}
+        out["contacts"] = kinematics.contacts(self.hand, out["theta"][None], out["a"][None],
+                                              out["link_lengths"][None])[0]
+        return out
+
     @property
     def converged(self) -> bool:
         return bool(self.history and self.history[-1].converged)
