@@ -639,11 +639,11 @@ class SelfIdentificationFilter:
                                               out["link_lengths"][None])[0]
         return out
 
-    def nearest_hypothesis(self) -> dict:
-        """The live hypothesis nearest the weighted mean, as an estimate dict (``theta``,
-        ``a``, ``stiffness``, ``link_lengths``, ``contacts``): distances in units of each
-        identified quantity's weighted standard deviation. Unlike the mean, it is one of the
-        hypotheses the filter moved (a physical grasp when it was drawn or last moved)."""
+    def nearest_hypotheses(self, count: int = 1) -> list[dict]:
+        """The ``count`` live hypotheses nearest the weighted mean, nearest first, as estimate
+        dicts (``theta``, ``a``, ``stiffness``, ``link_lengths``, ``contacts``): distances in
+        units of each identified quantity's weighted standard deviation. Unlike the mean, each
+        is one of the hypotheses the filter moved."""
         ps = self.particles
         w = normalise(ps.log_w)
         x = self._unknowns(ps)
@@ -651,13 +651,21 @@ class SelfIdentificationFilter:
         sd = np.sqrt(np.maximum(w @ (x - mean) ** 2, 1e-30))
         d2 = (((x - mean) / sd) ** 2).sum(axis=1)
         d2[~(w > 0)] = np.inf
-        i = int(np.argmin(d2))
-        out = {"theta": ps.theta[i].copy(), "a": ps.a[i].copy(),
-               "stiffness": ps.stiffness[i if ps.stiffness.shape[0] > 1 else 0].copy(),
-               "link_lengths": ps.link_lengths[i if ps.link_lengths.shape[0] > 1 else 0].copy()}
-        out["contacts"] = kinematics.contacts(self.hand, out["theta"][None], out["a"][None],
-                                              out["link_lengths"][None])[0]
+        out = []
+        for i in np.argsort(d2)[:count]:
+            if not np.isfinite(d2[i]):
+                break
+            est = {"theta": ps.theta[i].copy(), "a": ps.a[i].copy(),
+                   "stiffness": ps.stiffness[i if ps.stiffness.shape[0] > 1 else 0].copy(),
+                   "link_lengths": ps.link_lengths[i if ps.link_lengths.shape[0] > 1 else 0].copy()}
+            est["contacts"] = kinematics.contacts(self.hand, est["theta"][None], est["a"][None],
+                                                  est["link_lengths"][None])[0]
+            out.append(est)
         return out
+
+    def nearest_hypothesis(self) -> dict:
+        """The live hypothesis nearest the weighted mean (:meth:`nearest_hypotheses`)."""
+        return self.nearest_hypotheses(1)[0]
 
     @property
     def converged(self) -> bool:
