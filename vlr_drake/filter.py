@@ -235,12 +235,12 @@ class FilterConfig:
     max_substeps: int = 4
     # Newton tolerances of the moves (a key of motion.TOLERANCES). "filter" solves each
     # hypothesis to ~1e-8 rad, far finer than the camera resolves, and saves a Newton step on
-    # about half the particles (60,000-particle move 1.35x faster than last release's kernels
-    # instead of 1.25x), but on the physics plant a filter that keeps running during control
-    # then hands the controller estimates it cannot differentiate: handwriting 'SCIENCE'
-    # (reproduce --plant physics, 2 trials) had 34 and 66 "no_equilibrium" control steps and
-    # 0.79 mm mean error with it, against none and 0.12 mm with "tight" (the same with the
-    # tolerances loosened everywhere, last session). Not understood yet; "tight" is the default.
+    # about half the particles (60,000-particle move 1.31-1.35x faster than the previous
+    # kernels instead of 1.22-1.25x). With it, physics handwriting 'SCIENCE' seed 0 once had
+    # 34-66 "no_equilibrium" control steps; the cause was the controller's use of an
+    # unphysical mean estimate (control.filter_model_fn now falls back to a hypothesis), and
+    # with that fallback "filter" wrote seeds 0-1 at 0.11 and 0.16 mm. "tight" stays the
+    # default until the reproduction tables are re-measured with "filter".
     newton_tolerance: str = "tight"
     # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
     roughening: float = 0.2

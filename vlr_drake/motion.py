@@ -53,12 +53,10 @@ __all__ = [
 TENDON_MODELS = ("elastic", "ideal")
 
 #: Convergence tolerances of the Newton solver (SI units: N m, m^2, m), per caller.
-#: "tight" (default) solves to round-off: the controller's finite-difference Jacobians need
-#: it, and so, so far, does the filter (``FilterConfig.newton_tolerance``: with "filter"
-#: everywhere, physics handwriting 'SC' had 15 "no_equilibrium" control steps and 0.38 mm
-#: mean error, against none and 0.10 mm; with "filter" in the filter only, 'SCIENCE' had
-#: 34-66 and 0.79 mm). "filter" solves to ~1e-8 rad, far below what the camera resolves,
-#: and saves a Newton step on about half the particles.
+#: "tight" (default) solves to round-off, for the controller's finite-difference Jacobians
+#: (eps 0.2 mm). "filter" solves to ~1e-8 rad, far below what the camera resolves, and saves a
+#: Newton step on about half the particles (``FilterConfig.newton_tolerance`` says what it
+#: did to the physics handwriting).
 TOLERANCES = {"tight": (1e-12, 1e-15, 1e-13), "filter": (1e-9, 1e-12, 1e-11)}
 TOL_TORQUE, TOL_CONSTRAINT, TOL_TENDON = TOLERANCES["tight"]
 #: Tolerances accepted when the iteration budget runs out (angles within ~1e-5 rad).
