@@ -20,3 +20,11 @@ def test_kernel_caches_are_dropped_when_any_kernel_module_changes(tmp_path):
     (tmp_path / "kinematics.py").write_text("# changed\n")
     vlr_drake._drop_stale_kernel_caches(tmp_path)
     assert [f.name for f in cache.iterdir()] == ["kernels.sha256"]
+
+
+def test_the_package_exports_what_it_lists():
+    for name in vlr_drake.__all__:
+        assert hasattr(vlr_drake, name), name
+    from vlr_drake import HandModel, model_o
+
+    assert isinstance(model_o().model(), HandModel)

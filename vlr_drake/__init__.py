@@ -36,7 +36,7 @@ def _drop_stale_kernel_caches(here: Path = Path(__file__).parent) -> None:
 
 _drop_stale_kernel_caches()
 
-from vlr_drake.hand import FingerSpec  # noqa: E402, HandModel, HandSpec, hand_by_name, model_o
+from vlr_drake.hand import FingerSpec, HandModel, HandSpec, hand_by_name, model_o  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["FingerSpec", "HandModel", "HandSpec", "hand_by_name", "model_o", "__version__"]

@@ -651,17 +651,13 @@ class SelfIdentificationFilter:
         sd = np.sqrt(np.maximum(w @ (x - mean) ** 2, 1e-30))
         d2 = (((x - mean) / sd) ** 2).sum(axis=1)
         d2[~(w > 0)] = np.inf
-        out = []
-        for i in np.argsort(d2)[:count]:
-            if not np.isfinite(d2[i]):
-                break
-            est = {"theta": ps.theta[i].copy(), "a": ps.a[i].copy(),
-                   "stiffness": ps.stiffness[i if ps.stiffness.shape[0] > 1 else 0].copy(),
-                   "link_lengths": ps.link_lengths[i if ps.link_lengths.shape[0] > 1 else 0].copy()}
-            est["contacts"] = kinematics.contacts(self.hand, est["theta"][None], est["a"][None],
-                                                  est["link_lengths"][None])[0]
-            out.append(est)
-        return out
+        order = np.argsort(d2)[:count]
+        near = ps.take(order[np.isfinite(d2[order])])
+        p = kinematics.contacts(self.hand, near.theta, near.a, near.link_lengths)
+        shared = near.stiffness.shape[0] == 1, near.link_lengths.shape[0] == 1
+        return [{"theta": near.theta[j], "a": near.a[j], "stiffness": near.stiffness[0 if shared[0] else j],
+                 "link_lengths": near.link_lengths[0 if shared[1] else j], "contacts": p[j]}
+                for j in range(near.size)]
 
     def nearest_hypothesis(self) -> dict:
         """The live hypothesis nearest the weighted mean (:meth:`nearest_hypotheses`)."""

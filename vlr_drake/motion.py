@@ -653,7 +653,6 @@ def move(
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if tolerance not in TOLERANCES:
         raise ValueError(f"Newton tolerance must be one of {tuple(TOLERANCES)}, got '{tolerance}'")
-        raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     dl = np.asarray(dl, float)
