@@ -8,13 +8,18 @@ from vlr_drake import kinematics
 
 
 def _derivatives(hand, theta, a):
-    """Contact, Jacobian and Hessian of every finger of one configuration."""
+    """Contact, Jacobian and Hessian of every finger for W configurations side by side:
+    theta (W, N, K), a (W, N) -> (W, N, 3), (W, N, 3, K), (W, N, 3, K, K)."""
+    W = theta.shape[0]
     N, K = hand.N, hand.K
-    P, J, H = np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K))
+    P, J, H = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
+    lanes = np.ascontiguousarray(np.moveaxis(theta, 0, -1))  # (N, K, W): the kernels' layout
+    L = np.ascontiguousarray(np.repeat(hand.link_lengths[..., None], W, axis=-1))
+    a_l = np.ascontiguousarray(a.T)
     for i in range(N):
-        kinematics.finger_contact_derivatives(theta[i], hand.link_lengths[i], a[i], hand.pad[i], hand.base[i],
-                                              hand.u[i], P[i], J[i], H[i])
-    return P, J, H
+        kinematics.finger_contact_derivatives(lanes[i], L[i], a_l[i], hand.pad[i], hand.base[i], hand.u[i],
+                                              P[i], J[i], H[i])
+    return np.moveaxis(P, -1, 0), np.moveaxis(J, -1, 0), np.moveaxis(H, -1, 0)
 
 
 @pytest.mark.parametrize("hand_name", ["model_o_hand", "hand_4x3"])
@@ -22,17 +27,28 @@ def test_contact_derivatives_match_central_differences(request, hand_name, rng):
     hand = request.getfixturevalue(hand_name)
     N, K = hand.N, hand.K
     h = 1e-6
-    for _ in range(20):
-        theta = rng.uniform(-0.3, 1.2, (N, K))
-        a = rng.uniform(0.01, 0.04, N)
-        P, J, H = _derivatives(hand, theta, a)
-        np.testing.assert_allclose(P, kinematics.contacts(hand, theta[None], a[None])[0], atol=1e-15)
-        for k in range(K):
-            step = np.zeros((N, K))
-            step[:, k] = h
-            Pp, Jp, _ = _derivatives(hand, theta + step, a)
-            Pm, Jm, _ = _derivatives(hand, theta - step, a)
-            # a finger's contact depends on its own joints only: one column per finger at once
-            np.testing.assert_allclose(J[:, :, k], (Pp - Pm) / (2 * h), atol=1e-10)
-            np.testing.assert_allclose(H[:, :, :, k], (Jp - Jm) / (2 * h), atol=1e-9)
-        np.testing.assert_array_equal(H, np.swapaxes(H, 2, 3))
+    W = 20  # twenty configurations as lanes of one call
+    theta = rng.uniform(-0.3, 1.2, (W, N, K))
+    a = rng.uniform(0.01, 0.04, (W, N))
+    P, J, H = _derivatives(hand, theta, a)
+    np.testing.assert_allclose(P, kinematics.contacts(hand, theta, a), atol=1e-15)
+    for k in range(K):
+        step = np.zeros((N, K))
+        step[:, k] = h
+        Pp, Jp, _ = _derivatives(hand, theta + step, a)
+        Pm, Jm, _ = _derivatives(hand, theta - step, a)
+        # a finger's contact depends on its own joints only: one column per finger at once
+        np.testing.assert_allclose(J[..., k], (Pp - Pm) / (2 * h), atol=1e-10)
+        np.testing.assert_allclose(H[..., k], (Jp - Jm) / (2 * h), atol=1e-9)
+    np.testing.assert_array_equal(H, np.swapaxes(H, -1, -2))
+
+
+def test_lanes_are_independent(model_o_hand, rng):
+    """Each lane's derivatives are those of its configuration computed alone."""
+    theta = rng.uniform(-0.3, 1.2, (7, model_o_hand.N, model_o_hand.K))
+    a = rng.uniform(0.01, 0.04, (7, model_o_hand.N))
+    together = _derivatives(model_o_hand, theta, a)
+    for w in range(7):
+        alone = _derivatives(model_o_hand, theta[w : w + 1], a[w : w + 1])
+        for x, y in zip(together, alone, strict=True):
+            np.testing.assert_array_equal(x[w], y[0])

@@ -35,14 +35,16 @@ def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None
     N, K = hand.N, hand.K
     L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths).reshape(N, K - 1)
     k = hand.stiffness if stiffness is None else np.asarray(stiffness).reshape(N, K)
-    Pc = np.empty((N, 3))
-    Jc = np.empty((N, 3, K))
-    Hc = np.empty((N, 3, K, K))
-    motion._fk_all(np.ascontiguousarray(theta, float), np.ascontiguousarray(L, float),
-                   np.ascontiguousarray(a, float), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
-    g = np.empty(hand.num_constraints)
-    G = np.empty((hand.num_constraints, N * K))
-    motion._constraint_jacobian(Pc, Jc, hand.constraint_pairs, np.zeros(hand.num_constraints), g, G)
+    Pc = np.empty((N, 3, 1))  # the kernels' layout: one hypothesis on the last axis
+    Jc = np.empty((N, 3, K, 1))
+    Hc = np.empty((N, 3, K, K, 1))
+    motion._fk_all(np.ascontiguousarray(np.reshape(theta, (N, K, 1)), float),
+                   np.ascontiguousarray(np.reshape(L, (N, K - 1, 1)), float),
+                   np.ascontiguousarray(np.reshape(a, (N, 1)), float), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
+    g = np.empty((hand.num_constraints, 1))
+    G = np.empty((hand.num_constraints, N * K, 1))
+    motion._constraint_jacobian(Pc, Jc, hand.constraint_pairs, np.zeros((hand.num_constraints, 1)), g, G)
+    Pc, Jc, Hc, G = Pc[..., 0], Jc[..., 0], Hc[..., 0], G[..., 0]
     H = np.diag(k.ravel()).astype(float)
     if tendon == "elastic":
         H += hand.R.T @ np.diag(hand.kappa) @ hand.R

@@ -36,47 +36,72 @@ __all__ = [
 
 @njit(cache=True, fastmath=False)
 def finger_contact_derivatives(theta, L, a, n, base, u, P_out, J_out, H_out):  # pragma: no cover - numba
-    """Contact of one finger with its first and second derivatives (in place).
+    """Contact of one finger with its first and second derivatives, for W hypotheses side
+    by side (in place).
 
-    theta (K,), L (K-1,), a, n scalars, base (3,), u (3,) -> P_out (3,), J_out (3, K),
-    H_out (3, K, K). z is the palm normal (0, 0, 1).
+    theta (K, W), L (K-1, W), a (W,), n scalar, base (3,), u (3,) -> P_out (3, W),
+    J_out (3, K, W), H_out (3, K, K, W). z is the palm normal (0, 0, 1). The hypotheses
+    ("lanes") are the last axis so that every loop over them is a SIMD loop; the Newton
+    solver of :mod:`vlr_drake.motion` runs eight at once, other callers one (W = 1).
     """
-    K = theta.shape[0]
-    phi = 0.0
+    K, W = theta.shape
+    # Walk from the tip back to the base with the suffix sums (ex, ez) of the links'
+    # in-plane vectors ell_k e(psi_k); P_out's rows hold them (and phi) until the end, so no
+    # scratch arrays are allocated. Since e'(psi) is e(psi) turned by -90 degrees, the
+    # suffix sums of ell_k e'(psi_k) are (ez, -ex). The virtual last link d e(phi + gamma)
+    # is a e(phi) + n e'(phi) (d cos gamma = a, d sin gamma = n): no square root or arctangent.
+    ex = P_out[0]
+    phi = P_out[1]
+    ez = P_out[2]
+    for w in range(W):
+        ex[w] = 0.0
+        ez[w] = 0.0
+        phi[w] = 0.0
     for k in range(K):
-        phi += theta[k]
-    # Walk from the tip back to the base with scalar suffix sums (ex, ez) of the links'
-    # in-plane vectors ell_k e(psi_k): no scratch arrays, so no allocation per Newton step.
-    # Since e'(psi) is e(psi) turned by -90 degrees, the suffix sums of ell_k e'(psi_k) are
-    # (ez, -ex). The virtual last link d e(phi + gamma) is a e(phi) + n e'(phi) (d cos gamma
-    # = a, d sin gamma = n): no square root or arctangent.
-    ex = 0.0
-    ez = 0.0
+        for w in range(W):
+            phi[w] += theta[k, w]
     for k in range(K - 1, -1, -1):
-        s = np.sin(phi)
-        c = np.cos(phi)
         if k < K - 1:
-            ex += L[k] * s
-            ez += L[k] * c
+            for w in range(W):
+                s = np.sin(phi[w])
+                c = np.cos(phi[w])
+                ex[w] += L[k, w] * s
+                ez[w] += L[k, w] * c
+                phi[w] -= theta[k, w]
         else:
-            ex += a * s + n * c
-            ez += a * c - n * s
-        phi -= theta[k]
+            for w in range(W):
+                s = np.sin(phi[w])
+                c = np.cos(phi[w])
+                ex[w] += a[w] * s + n * c
+                ez[w] += a[w] * c - n * s
+                phi[w] -= theta[k, w]
         for r in range(3):
-            J_out[r, k] = ez * u[r]
-        J_out[2, k] -= ex
+            ur = u[r]
+            for w in range(W):
+                J_out[r, k, w] = ez[w] * ur
+        for w in range(W):
+            J_out[2, k, w] -= ex[w]
         # second derivatives with max(j, l) == k
         for l in range(k + 1):
             for r in range(3):
-                v = -ex * u[r]
-                H_out[r, k, l] = v
-                H_out[r, l, k] = v
-            H_out[2, k, l] -= ez
+                ur = u[r]
+                for w in range(W):
+                    v = -ex[w] * ur
+                    H_out[r, k, l, w] = v
+                    H_out[r, l, k, w] = v
+            for w in range(W):
+                H_out[2, k, l, w] -= ez[w]
             if l != k:
-                H_out[2, l, k] -= ez
-    for r in range(3):
-        P_out[r] = base[r] + ex * u[r]
-    P_out[2] += ez
+                for w in range(W):
+                    H_out[2, l, k, w] -= ez[w]
+    b0, b1, b2 = base[0], base[1], base[2]
+    u0, u1, u2 = u[0], u[1], u[2]
+    for w in range(W):
+        x = ex[w]
+        z = ez[w]
+        P_out[0, w] = b0 + x * u0
+        P_out[1, w] = b1 + x * u1
+        P_out[2, w] = b2 + x * u2 + z
 
 
 @njit(cache=True, parallel=True)

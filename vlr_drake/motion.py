@@ -23,9 +23,14 @@ from the current angles, with analytic first and second derivatives
 tendon tension is ``T = kappa s'`` (elastic) or ``T = -mu`` (ideal); a negative one means
 the hypothesis would need a pushing tendon, which :class:`MoveResult` flags.
 
-The per-particle kernel is compiled with numba and runs in parallel over particles; the
-reference solver for one configuration is :mod:`vlr_drake.motion_reference`
-(Drake MathematicalProgram with IPOPT or SNOPT), and the tests hold the two to 1e-6 rad.
+The kernel is compiled with numba and runs in parallel over particles. Each thread solves
+:data:`LANES` particles side by side, the particles on the last axis of every array, so
+that the arithmetic (kinematics, KKT assembly, elimination without pivoting) runs as SIMD
+loops; each lane keeps its own particle's Newton iteration (iteration count, step cap,
+convergence test) and takes the next particle when it is done, and a lane whose matrix
+needs pivoting is solved again with partial pivoting. The reference solver for one
+configuration is :mod:`vlr_drake.motion_reference` (Drake MathematicalProgram with IPOPT
+or SNOPT), and the tests hold the two to 1e-6 rad.
 """
 
 from __future__ import annotations
@@ -165,8 +170,16 @@ def _solve(A, b):  # pragma: no cover - numba
     return True
 
 
+#: Hypotheses solved side by side by one thread of the Newton kernel ("lanes"): every
+#: array of a solve has them on its last axis, so the arithmetic runs as SIMD loops (AVX2:
+#: four doubles at a time) and only the sines and cosines stay scalar.
+LANES = 32
+
+
 @njit(cache=True)
 def _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc):  # pragma: no cover - numba
+    """Contacts and their derivatives of all fingers: theta (N, K, W), L (N, K-1, W),
+    a (N, W) -> Pc (N, 3, W), Jc (N, 3, K, W), Hc (N, 3, K, K, W)."""
     N = theta.shape[0]
     for i in range(N):
         finger_contact_derivatives(theta[i], L[i], a[i], pad[i], base[i], u[i], Pc[i], Jc[i], Hc[i])
@@ -174,21 +187,28 @@ def _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc):  # pragma: no cover - numba
 
 @njit(cache=True)
 def _constraint_jacobian(Pc, Jc, pairs, D2, g, G):  # pragma: no cover - numba
-    """g_c = 0.5 (|p_i - p_j|^2 - D2_c) and its gradient rows G (m, N*K)."""
+    """g_c = 0.5 (|p_i - p_j|^2 - D2_c) (m, W) and its gradient rows G (m, N*K, W)."""
     m = pairs.shape[0]
     K = Jc.shape[2]
-    G[:, :] = 0.0
+    W = Pc.shape[2]
+    n = G.shape[1]
     for c in range(m):
         i = pairs[c, 0]
         j = pairs[c, 1]
-        dsq = 0.0
+        for q in range(n):
+            for w in range(W):
+                G[c, q, w] = 0.0
+        for w in range(W):
+            g[c, w] = -0.5 * D2[c, w]
         for r in range(3):
-            dp = Pc[i, r] - Pc[j, r]
-            dsq += dp * dp
+            for w in range(W):
+                dp = Pc[i, r, w] - Pc[j, r, w]
+                g[c, w] += 0.5 * dp * dp
             for k in range(K):
-                G[c, i * K + k] += dp * Jc[i, r, k]
-                G[c, j * K + k] -= dp * Jc[j, r, k]
-        g[c] = 0.5 * (dsq - D2[c])
+                for w in range(W):
+                    dp = Pc[i, r, w] - Pc[j, r, w]
+                    G[c, i * K + k, w] += dp * Jc[i, r, k, w]
+                    G[c, j * K + k, w] -= dp * Jc[j, r, k, w]
 
 
 @njit(cache=True)
@@ -216,253 +236,488 @@ def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _newton_one(
-    theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
-):  # pragma: no cover - numba
-    """Newton on the KKT system of one particle; returns (ok, iterations).
+def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
+    """Solve A x = b for every lane at once, in place (A (d, d, W), b (d, W)), by Gaussian
+    elimination without pivoting, which vectorises across lanes. A lane with a pivot below
+    ``tiny1`` (W,) in the first ``n1`` columns or below ``tiny2`` (W,) in the others is
+    marked in ``bad`` (W,), to be solved again with pivoting (:func:`_solve`)."""
+    d = A.shape[0]
+    W = A.shape[2]
+    for c in range(d):
+        tiny = tiny1 if c < n1 else tiny2
+        for w in range(W):
+            if not abs(A[c, c, w]) > tiny[w]:
+                bad[w] = True
+                A[c, c, w] = 1.0  # keep the other lanes' arithmetic finite
+        for r in range(c + 1, d):
+            for w in range(W):
+                A[r, c, w] /= A[c, c, w]
+            for j in range(c + 1, d):
+                for w in range(W):
+                    A[r, j, w] -= A[r, c, w] * A[c, j, w]
+            for w in range(W):
+                b[r, w] -= A[r, c, w] * b[c, w]
+    for r in range(d - 1, -1, -1):
+        for j in range(r + 1, d):
+            for w in range(W):
+                b[r, w] -= A[r, j, w] * b[j, w]
+        for w in range(W):
+            b[r, w] /= A[r, r, w]
 
-    ``tol`` (3,): convergence tolerances on the torque, constraint and tendon residuals
-    (:data:`TOLERANCES`).
 
-    ``resid`` (3,) receives the final max residuals (torque, constraint, tendon);
-    ``work`` holds the scratch arrays (see :func:`_make_work`), reused across particles."""
-    N, K = theta0.shape
+@njit(cache=True)
+def _lanes_work(N, K, m, nc, W):  # pragma: no cover - numba
+    """Scratch arrays of one thread's lanes, C-contiguous with the lanes last (so that the
+    loops over them vectorise); nc = N for the ideal tendon's extra unknowns, else 0."""
+    n = N * K
+    dim = n + m + nc
+    nb = m + nc
+    return (
+        np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W)),  # Pc, Jc, Hc
+        np.empty((m, W)), np.empty((m, n, W)),  # g, G
+        np.empty((dim, dim, W)), np.empty((dim, W)), np.empty((dim, dim, W)), np.empty((dim, W)),  # A, F, copies
+        np.empty((n, nb)), np.empty(n), np.empty((nb, nb)), np.empty(nb),  # B, f0, M, rhs (initial multipliers)
+        np.empty((dim, dim)), np.empty(dim),  # one lane's pivoted fallback
+    )
+
+
+@njit(cache=True)
+def _initial_multipliers(w, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B, f0, M, rhs):  # pragma: no cover
+    """Multipliers of lane ``w`` at the start of a solve: least squares of the stationarity
+    rows at its starting angles (:func:`_ridge_solve`)."""
+    N, K = th.shape[0], th.shape[1]
+    m = G.shape[0]
+    nc = N if ideal else 0
+    nb = m + nc
+    for i in range(N):
+        for k in range(K):
+            q = i * K + k
+            v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+            if not ideal:
+                v -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
+            f0[q] = v
+            for c in range(m):
+                B[q, c] = G[c, q, w]
+            for c in range(nc):
+                B[q, m + c] = rarm[i, k] if c == i else 0.0
+    ok = _ridge_solve(B[:, :nb], f0, M[:nb, :nb], rhs[:nb])
+    for c in range(m):
+        lam[c, w] = rhs[c] if ok else 0.0
+    for i in range(N):
+        mu[i, w] = rhs[m + i] if (ok and ideal) else 0.0
+
+
+@njit(cache=True)
+def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d):  # pragma: no cover
+    """The KKT residuals F (dim, W) of every lane, the tendon stretch s' (N, W) and the
+    largest residuals ``res`` (3, W): torque [N m], constraint [m^2], tendon [m] (ideal);
+    ``res_d`` (W,) the constraint residual as a distance error [m]."""
+    N, K, W = th.shape
+    n = N * K
+    m = G.shape[0]
+# residuals
+    for i in range(N):
+        for w in range(W):
+            v = s0[i, w] + dls[i, w]
+            for k in range(K):
+                v -= rarm[i, k] * (th[i, k, w] - th0[i, k, w])
+            sp[i, w] = v
+    for w in range(W):
+        res[0, w] = 0.0
+        res[1, w] = 0.0
+        res[2, w] = 0.0
+        res_d[w] = 0.0
+    for i in range(N):
+        for k in range(K):
+            q = i * K + k
+            for w in range(W):
+                v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+                if ideal:
+                    v += rarm[i, k] * mu[i, w]
+                else:
+                    v -= rarm[i, k] * kappa[i] * sp[i, w]
+                F[q, w] = v
+            for c in range(m):
+                for w in range(W):
+                    F[q, w] += G[c, q, w] * lam[c, w]
+            for w in range(W):
+                res[0, w] = max(res[0, w], abs(F[q, w]))
+    for c in range(m):
+        for w in range(W):
+            F[n + c, w] = g[c, w]
+            res[1, w] = max(res[1, w], abs(g[c, w]))
+            # the same residual as a distance error [m]: |g| / D, g = (d^2 - D^2) / 2
+            res_d[w] = max(res_d[w], abs(g[c, w]) / sqD[c, w])
+    if ideal:
+        for i in range(N):
+            for w in range(W):
+                v = -dls[i, w]
+                for k in range(K):
+                    v += rarm[i, k] * (th[i, k, w] - th0[i, k, w])
+                F[n + m + i, w] = v
+                res[2, w] = max(res[2, w], abs(v))
+
+
+@njit(cache=True)
+def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale):  # pragma: no cover
+    """The KKT matrix A (dim, dim, W) of every lane; ``hscale`` and ``gscale`` (W,) receive
+    each lane's largest Hessian diagonal and constraint-gradient entries. Hten (n, n) is
+    the elastic tendons' part, the same for every lane."""
+    N = Pc.shape[0]
+    K = Jc.shape[2]
+    W = Pc.shape[2]
     n = N * K
     m = pairs.shape[0]
     nc = N if ideal else 0
     dim = n + m + nc
-    Pc, Jc, Hc, g, G, Afull, Ffull, mu, sp, Bfull, f0, BBtfull, rhsfull = work
-    A = Afull[:dim, :dim]
-    F = Ffull[:dim]
-    mu[:] = 0.0
+    # (lanes not stepping compute on valid numbers, unused)
+    for q in range(dim):
+        for q2 in range(dim):
+            for w in range(W):
+                A[q, q2, w] = 0.0
     for i in range(N):
         for k in range(K):
-            theta[i, k] = theta0[i, k]
-
-    # Initial multipliers: least squares of the stationarity rows at theta0.
-    _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
-    _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-    nb = m + nc
-    B = Bfull[:, :nb]
-    B[:, :] = 0.0
-    BBt = BBtfull[:nb, :nb]
-    rhs = rhsfull[:nb]
-    for i in range(N):
-        for k in range(K):
-            f0[i * K + k] = kst[i, k] * (theta[i, k] - rest[i, k])
+            q = i * K + k
+            for w in range(W):
+                A[q, q, w] += kst[i, k, w]
             if not ideal:
-                f0[i * K + k] -= rarm[i, k] * kappa[i] * (s0[i] + dl[i])
-    for c in range(m):
-        for q in range(n):
-            B[q, c] = G[c, q]
-    if ideal:
-        for i in range(N):
-            for k in range(K):
-                B[i * K + k, m + i] = rarm[i, k]
-    if _ridge_solve(B, f0, BBt, rhs):
-        for c in range(m):
-            lam[c] = rhs[c]
-        for i in range(nc):
-            mu[i] = rhs[m + i]
-    else:
-        lam[:] = 0.0
-
-    ok = False
-    it = 0
-    for it in range(max_iter + 1):
-        if it > 0:
-            _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
-            _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-        # residual
-        for i in range(N):
-            sp[i] = s0[i] + dl[i]
-            for k in range(K):
-                sp[i] -= rarm[i, k] * (theta[i, k] - theta0[i, k])
-        res_f = 0.0
-        for i in range(N):
-            for k in range(K):
-                q = i * K + k
-                v = kst[i, k] * (theta[i, k] - rest[i, k])
-                if ideal:
-                    v += rarm[i, k] * mu[i]
-                else:
-                    v -= rarm[i, k] * kappa[i] * sp[i]
-                for c in range(m):
-                    v += G[c, q] * lam[c]
-                F[q] = v
-                if abs(v) > res_f:
-                    res_f = abs(v)
-        res_g = 0.0
-        res_d = 0.0  # the same residual as a distance error [m]: |g| / D, g = (d^2 - D^2) / 2
-        for c in range(m):
-            F[n + c] = g[c]
-            if abs(g[c]) > res_g:
-                res_g = abs(g[c])
-            dd = abs(g[c]) / np.sqrt(D2[c])
-            if dd > res_d:
-                res_d = dd
-        res_t = 0.0
-        if ideal:
-            for i in range(N):
-                v = -dl[i]
-                for k in range(K):
-                    v += rarm[i, k] * (theta[i, k] - theta0[i, k])
-                F[n + m + i] = v
-                if abs(v) > res_t:
-                    res_t = abs(v)
-        if not (np.isfinite(res_f) and np.isfinite(res_g) and np.isfinite(res_t)):
-            break
-        if res_f < tol[0] and res_g < tol[1] and res_t < tol[2]:
-            ok = True
-            break
-        if it == max_iter:
-            # Out of iterations: accept the solution at physical tolerances (convergence is
-            # only linear near the Model O's symmetric grasps, where one constraint is second
-            # order in the motion), else fail.
-            ok = res_f < LOOSE_TORQUE and res_d < LOOSE_DISTANCE and res_t < LOOSE_TENDON
-            break
-        if it >= 7 and res_f > 1e-3:
-            # Not converging at all after 7 steps: an action with no nearby equilibrium (the
-            # grasp's fold). Measured (bench motion, 60,000 grasps, +-1.5 mm): 19% of particles
-            # end here; stopping at 7 rather than 12 steps took the move from 0.42 to 0.36 s
-            # and lost 0.05% of the successes (slow ones, which max_substeps retries).
-            break
-        # KKT matrix
-        A[:, :] = 0.0
-        for i in range(N):
-            for k in range(K):
-                q = i * K + k
-                A[q, q] += kst[i, k]
-                if not ideal:
-                    for k2 in range(K):
-                        A[q, i * K + k2] += kappa[i] * rarm[i, k] * rarm[i, k2]
-        for c in range(m):
-            i = pairs[c, 0]
-            j = pairs[c, 1]
-            lc = lam[c]
-            for k in range(K):
                 for k2 in range(K):
+                    q2 = i * K + k2
+                    for w in range(W):
+                        A[q, q2, w] += Hten[q, q2]
+    for c in range(m):
+        i = pairs[c, 0]
+        j = pairs[c, 1]
+        for k in range(K):
+            for k2 in range(K):
+                for w in range(W):
                     hii = 0.0
                     hjj = 0.0
                     hij = 0.0
                     for r in range(3):
-                        dp = Pc[i, r] - Pc[j, r]
-                        hii += Jc[i, r, k] * Jc[i, r, k2] + dp * Hc[i, r, k, k2]
-                        hjj += Jc[j, r, k] * Jc[j, r, k2] - dp * Hc[j, r, k, k2]
-                        hij -= Jc[i, r, k] * Jc[j, r, k2]
-                    A[i * K + k, i * K + k2] += lc * hii
-                    A[j * K + k, j * K + k2] += lc * hjj
-                    A[i * K + k, j * K + k2] += lc * hij
-                    A[j * K + k2, i * K + k] += lc * hij
+                        dp = Pc[i, r, w] - Pc[j, r, w]
+                        hii += Jc[i, r, k, w] * Jc[i, r, k2, w] + dp * Hc[i, r, k, k2, w]
+                        hjj += Jc[j, r, k, w] * Jc[j, r, k2, w] - dp * Hc[j, r, k, k2, w]
+                        hij -= Jc[i, r, k, w] * Jc[j, r, k2, w]
+                    lc = lam[c, w]
+                    A[i * K + k, i * K + k2, w] += lc * hii
+                    A[j * K + k, j * K + k2, w] += lc * hjj
+                    A[i * K + k, j * K + k2, w] += lc * hij
+                    A[j * K + k2, i * K + k, w] += lc * hij
+        for q in range(n):
+            for w in range(W):
+                A[n + c, q, w] = G[c, q, w]
+                A[q, n + c, w] = G[c, q, w]
+    if ideal:
+        for i in range(N):
+            for k in range(K):
+                q = i * K + k
+                for w in range(W):
+                    A[n + m + i, q, w] = rarm[i, k]
+                    A[q, n + m + i, w] = rarm[i, k]
+    # A tiny negative diagonal on the multiplier block keeps the KKT matrix regular where
+    # a constraint's gradient vanishes: the Model O's side fingers in mirror-image poses,
+    # whose contacts are separated along the normal of both finger planes, so that no
+    # finger motion changes their distance to first order. It changes the Newton steps,
+    # not the solution (the multiplier steps vanish at convergence).
+    for w in range(W):
+        hscale[w] = 0.0
+        gscale[w] = 0.0
+    for q in range(n):
+        for w in range(W):
+            hscale[w] = max(hscale[w], abs(A[q, q, w]))
+    for c in range(m + nc):
+        for w in range(W):
+            A[n + c, n + c, w] = -1e-12 * hscale[w]
+    # The pivots' scales: |H| for the angles' columns and |G|^2 / |H| (a Schur complement)
+    # for the multipliers' (the ideal tendon's rows R are scaled like G's by the arms).
+    for c in range(m):
+        for q in range(n):
+            for w in range(W):
+                gscale[w] = max(gscale[w], abs(G[c, q, w]))
+    for i in range(nc):
+        for k in range(K):
+            for w in range(W):
+                gscale[w] = max(gscale[w], abs(rarm[i, k]))
+
+
+@njit(cache=True)
+def _move_lanes(
+    theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest, kappa, pairs,
+    ideal, max_iter, max_step, tol, max_substeps, start, stop,
+    theta, lam_out, T_out, s_out, ok_out, iters, resid,
+):  # pragma: no cover - numba
+    """Newton on the KKT system of Eq. 9 for particles ``start:stop``, LANES at a time.
+
+    Each lane runs its own particle's Newton iteration (its own iteration count, step cap
+    and convergence test, exactly those of the scalar method); a lane whose particle is
+    done, converged or failed, writes it out and takes the next one, so the lanes stay
+    busy. A particle that fails with the whole action is retried in the same lane with the
+    action ramped in 4, 16, ... substeps up to ``max_substeps`` (quasi-static continuation).
+    """
+    P, N, K = theta0.shape
+    n = N * K
+    m = pairs.shape[0]
+    nc = N if ideal else 0
+    dim = n + m + nc
+    W = LANES
+    work = _lanes_work(N, K, m, nc, W)
+    Pc, Jc, Hc, g, G, A, F, A2, F2 = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7], work[8]
+    B1, f01, M1, rhs1, A1, F1 = work[9], work[10], work[11], work[12], work[13], work[14]
+    # the lanes' particles: current angles, the current (sub)solve's start, the particle's own start
+    th = np.empty((N, K, W))
+    th0 = np.empty((N, K, W))
+    thP = np.empty((N, K, W))
+    s0 = np.empty((N, W))
+    sP = np.empty((N, W))
+    dls = np.empty((N, W))
+    dlP = np.empty((N, W))
+    a = np.empty((N, W))
+    L = np.empty((N, max(K - 1, 1), W))
+    kst = np.empty((N, K, W))
+    D2 = np.empty((m, W))
+    sqD = np.empty((m, W))
+    lam = np.zeros((m, W))
+    mu = np.zeros((N, W))
+    sp = np.zeros((N, W))
+    res = np.zeros((3, W))
+    res_d = np.zeros(W)
+    hscale = np.zeros(W)
+    gscale = np.zeros(W)
+    tiny1 = np.zeros(W)
+    tiny2 = np.zeros(W)
+    bad = np.zeros(W, dtype=np.bool_)  # lanes whose KKT matrix needs pivoting
+    pid = np.full(W, -1, dtype=np.int64)
+    itn = np.zeros(W, dtype=np.int64)  # Newton steps of the lane's current solve
+    it_acc = np.zeros(W, dtype=np.int64)  # steps of the finished substeps of this attempt
+    nsub = np.ones(W, dtype=np.int64)
+    sub = np.zeros(W, dtype=np.int64)
+    fresh = np.zeros(W, dtype=np.bool_)
+    step = np.zeros(W, dtype=np.bool_)  # lanes that take a Newton step this cycle
+    # The elastic tendon's part of the KKT matrix is the same for every lane.
+    Hten = np.zeros((n, n))
+    if not ideal:
+        for i in range(N):
+            for k in range(K):
+                for k2 in range(K):
+                    Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
+    nxt = start
+    # fill every lane
+    for w in range(W):
+        p = nxt
+        nxt += 1
+        if p >= stop:
+            p = start  # an idle lane computes on a valid particle and never writes
+            pid[w] = -1
+        else:
+            pid[w] = p
+        _load_lane(p, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
+                   kst, D2, sqD)
+        fresh[w] = True
+    while True:
+        busy = False
+        for w in range(W):
+            busy = busy or pid[w] >= 0
+        if not busy:
+            break
+        _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
+        _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
+        for w in range(W):
+            if fresh[w]:
+                _initial_multipliers(w, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B1, f01, M1, rhs1)
+                fresh[w] = False
+        _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d)
+        # each lane's decision, as in the scalar method
+        any_step = False
+        for w in range(W):
+            step[w] = False
+            if pid[w] < 0:
+                continue
+            rf, rg, rt = res[0, w], res[1, w], res[2, w]
+            it = itn[w]
+            if not (np.isfinite(rf) and np.isfinite(rg) and np.isfinite(rt)):
+                done, o = True, False
+            elif rf < tol[0] and rg < tol[1] and rt < tol[2]:
+                done, o = True, True
+            elif it == max_iter:
+                # Out of iterations: accept the solution at physical tolerances (convergence
+                # is only linear near the Model O's symmetric grasps, where one constraint is
+                # second order in the motion), else fail.
+                done, o = True, rf < LOOSE_TORQUE and res_d[w] < LOOSE_DISTANCE and rt < LOOSE_TENDON
+            elif it >= 7 and rf > 1e-3:
+                # Not converging at all after 7 steps: an action with no nearby equilibrium
+                # (the grasp's fold). Measured (bench motion, 60,000 grasps, +-1.5 mm): 19% of
+                # particles end here; stopping at 7 rather than 12 steps took the move from
+                # 0.42 to 0.36 s and lost 0.05% of the successes (slow ones, which
+                # max_substeps retries).
+                done, o = True, False
+            else:
+                done, o = False, False
+            if done:
+                nxt = _finish_lane(
+                    w, o, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+                    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+                    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+                )
+            else:
+                step[w] = True
+                any_step = True
+        if not any_step:
+            continue
+        _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale)
+        for q in range(dim):
+            for w in range(W):
+                F[q, w] = -F[q, w]
+                F2[q, w] = F[q, w]
+        for w in range(W):
+            bad[w] = False
+            tiny1[w] = 1e-9 * hscale[w]
+            tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w]
+        _lu_lanes(A, F, n, tiny1, tiny2, bad)
+        any_bad = False
+        for w in range(W):
+            any_bad = any_bad or (bad[w] and step[w])
+        if any_bad:  # rare: the matrices again, for the lanes that need pivoting
+            _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A2, hscale, gscale)
+        for w in range(W):
+            if not step[w]:
+                continue
+            if bad[w]:
+                # a small pivot: this lane again, with partial pivoting
+                for q in range(dim):
+                    F1[q] = F2[q, w]
+                    for q2 in range(dim):
+                        A1[q, q2] = A2[q, q2, w]
+                if not _solve(A1, F1):
+                    nxt = _finish_lane(
+                        w, False, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+                        kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+                        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+                    )
+                    continue
+                for q in range(dim):
+                    F[q, w] = F1[q]
+            big = 0.0
             for q in range(n):
-                A[n + c, q] = G[c, q]
-                A[q, n + c] = G[c, q]
-        if ideal:
+                big = max(big, abs(F[q, w]))
+            sc = 1.0
+            if big > max_step:
+                sc = max_step / big
             for i in range(N):
                 for k in range(K):
-                    q = i * K + k
-                    A[n + m + i, q] = rarm[i, k]
-                    A[q, n + m + i] = rarm[i, k]
-        # A tiny negative diagonal on the multiplier block keeps the KKT matrix regular where
-        # a constraint's gradient vanishes: the Model O's side fingers in mirror-image poses,
-        # whose contacts are separated along the normal of both finger planes, so that no
-        # finger motion changes their distance to first order. It changes the Newton steps,
-        # not the solution (the multiplier steps vanish at convergence).
-        hscale = 0.0
-        for q in range(n):
-            if abs(A[q, q]) > hscale:
-                hscale = abs(A[q, q])
-        for c in range(m + nc):
-            A[n + c, n + c] = -1e-12 * hscale
-        for q in range(dim):
-            F[q] = -F[q]
-        if not _solve(A, F):
-            break
-        big = 0.0
-        for q in range(n):
-            if abs(F[q]) > big:
-                big = abs(F[q])
-        scale = 1.0
-        if big > max_step:
-            scale = max_step / big
-        for i in range(N):
-            for k in range(K):
-                theta[i, k] += scale * F[i * K + k]
-        for c in range(m):
-            lam[c] += scale * F[n + c]
-        for i in range(nc):
-            mu[i] += scale * F[n + m + i]
-        if big < 1e-15 and res_f < 1e3 * tol[0] and res_g < 1e3 * tol[1] and res_t < 1e3 * tol[2]:
-            ok = True  # limited by round-off
-            break
-    resid[0] = res_f
-    resid[1] = res_g
-    resid[2] = res_t
-    if ok:
-        for i in range(N):
-            if ideal:
-                T[i] = -mu[i]
-                s_out[i] = T[i] / kappa[i]
-            else:
-                s_out[i] = sp[i]
-                T[i] = kappa[i] * sp[i]
-    else:
-        for i in range(N):
-            for k in range(K):
-                theta[i, k] = theta0[i, k]
-            s_out[i] = s0[i]
-            T[i] = kappa[i] * s0[i]
-        lam[:] = 0.0
-    return ok, it
+                    th[i, k, w] += sc * F[i * K + k, w]
+            for c in range(m):
+                lam[c, w] += sc * F[n + c, w]
+            for i in range(nc):
+                mu[i, w] += sc * F[n + m + i, w]
+            if big < 1e-15 and res[0, w] < 1e3 * tol[0] and res[1, w] < 1e3 * tol[1] and res[2, w] < 1e3 * tol[2]:
+                # limited by round-off
+                nxt = _finish_lane(
+                    w, True, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+                    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+                    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+                )
+                continue
+            itn[w] += 1
 
 
 @njit(cache=True)
-def _make_work(N, K, m):  # pragma: no cover - numba
-    """Scratch arrays of one Newton solve (sized for the ideal model, the larger one)."""
-    n = N * K
-    dim = n + m + N
-    return (
-        np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K)), np.empty(m), np.empty((m, n)),
-        np.empty((dim, dim)), np.empty(dim), np.zeros(N), np.empty(N), np.empty((n, m + N)), np.empty(n),
-        np.empty((m + N, m + N)), np.empty(m + N),
-    )
+def _load_lane(p, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
+               kst, D2, sqD):  # pragma: no cover - numba
+    """Copy particle ``p``'s problem into lane ``w``."""
+    N, K = th.shape[0], th.shape[1]
+    pl = p if L_all.shape[0] > 1 else 0
+    pk = p if kst_all.shape[0] > 1 else 0
+    pd = p if dl.shape[0] > 1 else 0
+    for i in range(N):
+        s0[i, w] = s0_all[p, i]
+        sP[i, w] = s0_all[p, i]
+        dls[i, w] = dl[pd, i]
+        dlP[i, w] = dl[pd, i]
+        a[i, w] = a_all[p, i]
+        for k in range(K):
+            th[i, k, w] = theta0[p, i, k]
+            th0[i, k, w] = theta0[p, i, k]
+            thP[i, k, w] = theta0[p, i, k]
+            kst[i, k, w] = kst_all[pk, i, k]
+        for k in range(K - 1):
+            L[i, k, w] = L_all[pl, i, k]
+    for c in range(D2.shape[0]):
+        D2[c, w] = D2_all[p, c]
+        sqD[c, w] = np.sqrt(D2_all[p, c])
 
 
 @njit(cache=True)
-def _move_one(
-    theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, max_step, tol, max_substeps, theta, lam, T, s_out, resid, work, th_c, s_c,
+def _finish_lane(
+    w, o, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
-    o, it = _newton_one(
-        theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest,
-        kappa, pairs, ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
-    )
-    # Continuation: a failed particle is retried with the action ramped in substeps,
-    # following the quasi-static branch from the current configuration.
-    nsub = 4
-    while not o and nsub <= max_substeps:
-        th_c[:, :] = theta0
-        s_c[:] = s0
-        ddl = dl / nsub
-        it = 0
-        for _ in range(nsub):
-            o, it_k = _newton_one(
-                th_c, s_c, ddl, a, L, kst, D2, pad, base, u, rarm, rest,
-                kappa, pairs, ideal, max_iter, max_step, tol, theta, lam, T, s_out, resid, work,
-            )
-            it += it_k
-            if not o:
-                break
-            th_c[:, :] = theta
-            s_c[:] = s_out
-        if not o:
-            theta[:, :] = theta0
-            s_out[:] = s0
-            for i in range(theta0.shape[0]):
-                T[i] = kappa[i] * s0[i]
-        nsub *= 4
-    return o, it
+    """Lane ``w``'s Newton solve ended (``o``: converged). Go on with the next substep, retry
+    with more substeps, or write the particle out and load the next one; returns the next
+    unclaimed particle."""
+    N, K = th.shape[0], th.shape[1]
+    m = lam.shape[0]
+    p = pid[w]
+    it = it_acc[w] + itn[w]
+    if o and sub[w] < nsub[w] - 1:
+        # the next substep of the continuation, from where this one ended
+        for i in range(N):
+            s0[i, w] = -mu[i, w] / kappa[i] if ideal else sp[i, w]
+            for k in range(K):
+                th0[i, k, w] = th[i, k, w]
+        sub[w] += 1
+        it_acc[w] = it
+        itn[w] = 0
+        fresh[w] = True
+        return nxt
+    if not o:
+        more = 4 if nsub[w] == 1 else 4 * nsub[w]
+        if more <= max_substeps:
+            # retry from the particle's start with the action ramped in ``more`` substeps
+            nsub[w] = more
+            sub[w] = 0
+            it_acc[w] = 0
+            itn[w] = 0
+            fresh[w] = True
+            for i in range(N):
+                s0[i, w] = sP[i, w]
+                dls[i, w] = dlP[i, w] / more
+                for k in range(K):
+                    th[i, k, w] = thP[i, k, w]
+                    th0[i, k, w] = thP[i, k, w]
+            return nxt
+    # the particle is done
+    for r in range(3):
+        resid[p, r] = res[r, w]
+    ok_out[p] = o
+    iters[p] = it
+    for i in range(N):
+        if o:
+            T = -mu[i, w] if ideal else kappa[i] * sp[i, w]
+            T_out[p, i] = T
+            s_out[p, i] = T / kappa[i] if ideal else sp[i, w]
+        else:
+            s_out[p, i] = sP[i, w]
+            T_out[p, i] = kappa[i] * sP[i, w]
+        for k in range(K):
+            theta[p, i, k] = th[i, k, w] if o else thP[i, k, w]
+    for c in range(m):
+        lam_out[p, c] = lam[c, w] if o else 0.0
+    q = nxt
+    nxt += 1
+    if q >= stop:
+        pid[w] = -1
+        return nxt
+    pid[w] = q
+    _load_lane(q, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
+               kst, D2, sqD)
+    nsub[w] = 1
+    sub[w] = 0
+    it_acc[w] = 0
+    itn[w] = 0
+    fresh[w] = True
+    return nxt
 
 
 @njit(cache=True, parallel=True)
@@ -470,27 +725,17 @@ def _move_kernel(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
     ideal, max_iter, max_step, tol, max_substeps, theta, lam, T, s_out, ok, iters, resid,
 ):  # pragma: no cover - numba
-    P, N, K = theta0.shape
-    m = pairs.shape[0]
-    chunk = 256
+    P = theta0.shape[0]
+    chunk = 2048
     nchunks = (P + chunk - 1) // chunk
     for cc in prange(nchunks):
-        work = _make_work(N, K, m)
-        th_c = np.empty((N, K))
-        s_c = np.empty(N)
         start = np.int64(cc) * chunk
         stop = min(start + chunk, P)
-        for p in range(start, stop):
-            pl = p if L.shape[0] > 1 else 0
-            pk = p if kst.shape[0] > 1 else 0
-            pd = p if dl.shape[0] > 1 else 0
-            o, it = _move_one(
-                theta0[p], s0[p], dl[pd], a[p], L[pl], kst[pk], D2[p], pad, base, u, rarm, rest,
-                kappa, pairs, ideal, max_iter, max_step, tol, max_substeps, theta[p], lam[p], T[p], s_out[p],
-                resid[p], work, th_c, s_c,
-            )
-            ok[p] = o
-            iters[p] = it
+        _move_lanes(
+            theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
+            ideal, max_iter, max_step, tol, max_substeps, start, stop,
+            theta, lam, T, s_out, ok, iters, resid,
+        )
 
 
 @njit(cache=True)
@@ -504,8 +749,14 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, 
     m = pairs.shape[0]
     n = N * K
     nb = N + m
-    Pc, Jc, Hc, g, G, D2, B, f0, M, rhs = work
-    _fk_all(theta, L, a, pad, base, u, Pc, Jc, Hc)
+    Pc, Jc, Hc, g, G, D2, B, f0, M, rhs, th1, L1, a1 = work
+    for i in range(N):  # one lane of the kinematics
+        a1[i, 0] = a[i]
+        for k in range(K):
+            th1[i, k, 0] = theta[i, k]
+        for k in range(K - 1):
+            L1[i, k, 0] = L[i, k]
+    _fk_all(th1, L1, a1, pad, base, u, Pc, Jc, Hc)
     _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
     B[:, :] = 0.0
     for i in range(N):
@@ -514,7 +765,7 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, 
             f0[q] = kst[i, k] * (theta[i, k] - rest[i, k])
             B[q, i] = -rarm[i, k]
             for c in range(m):
-                B[q, N + c] = G[c, q]
+                B[q, N + c] = G[c, q, 0]
     if not _ridge_solve(B, f0, M, rhs):
         T[:] = 0.0
         lam[:] = 0.0
@@ -535,8 +786,9 @@ def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, 
 @njit(cache=True)
 def _make_equilibrium_work(N, K, m):  # pragma: no cover - numba
     n = N * K
-    return (np.empty((N, 3)), np.empty((N, 3, K)), np.empty((N, 3, K, K)), np.empty(m), np.empty((m, n)),
-            np.zeros(m), np.zeros((n, N + m)), np.empty(n), np.empty((N + m, N + m)), np.empty(N + m))
+    return (np.empty((N, 3, 1)), np.empty((N, 3, K, 1)), np.empty((N, 3, K, K, 1)), np.empty((m, 1)),
+            np.empty((m, n, 1)), np.zeros((m, 1)), np.zeros((n, N + m)), np.empty(n), np.empty((N + m, N + m)),
+            np.empty(N + m), np.empty((N, K, 1)), np.empty((N, K - 1, 1)), np.empty((N, 1)))
 
 
 @njit(cache=True, parallel=True)
