@@ -173,7 +173,7 @@ def _solve(A, b):  # pragma: no cover - numba
 #: Hypotheses solved side by side by one thread of the Newton kernel ("lanes"): every
 #: array of a solve has them on its last axis, so the arithmetic runs as SIMD loops (AVX2:
 #: four doubles at a time) and only the sines and cosines stay scalar.
-LANES = 32
+LANES = 64
 
 
 @njit(cache=True)
@@ -237,10 +237,12 @@ def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
 
 @njit(cache=True)
 def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
-    """Solve A x = b for every lane at once, in place (A (d, d, W), b (d, W)), by Gaussian
-    elimination without pivoting, which vectorises across lanes. A lane with a pivot below
-    ``tiny1`` (W,) in the first ``n1`` columns or below ``tiny2`` (W,) in the others is
-    marked in ``bad`` (W,), to be solved again with pivoting (:func:`_solve`)."""
+    """Solve the symmetric systems A x = b of every lane at once, in place (A (d, d, W),
+    b (d, W); only A's upper triangle is read), by Gaussian elimination without pivoting,
+    which vectorises across lanes; the trailing matrices stay symmetric, so only their
+    upper triangles are updated. A lane with a pivot below ``tiny1`` (W,) in the first
+    ``n1`` columns or below ``tiny2`` (W,) in the others is marked in ``bad`` (W,), to be
+    solved again with pivoting (:func:`_solve`)."""
     d = A.shape[0]
     W = A.shape[2]
     for c in range(d):
@@ -250,9 +252,9 @@ def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
                 bad[w] = True
                 A[c, c, w] = 1.0  # keep the other lanes' arithmetic finite
         for r in range(c + 1, d):
-            for w in range(W):
-                A[r, c, w] /= A[c, c, w]
-            for j in range(c + 1, d):
+            for w in range(W):  # the multiplier, kept in the (unused) lower triangle
+                A[r, c, w] = A[c, r, w] / A[c, c, w]
+            for j in range(r, d):
                 for w in range(W):
                     A[r, j, w] -= A[r, c, w] * A[c, j, w]
             for w in range(W):
@@ -282,29 +284,33 @@ def _lanes_work(N, K, m, nc, W):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _initial_multipliers(w, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B, f0, M, rhs):  # pragma: no cover
-    """Multipliers of lane ``w`` at the start of a solve: least squares of the stationarity
-    rows at its starting angles (:func:`_ridge_solve`)."""
-    N, K = th.shape[0], th.shape[1]
+def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B, f0, M, rhs):  # pragma: no cover
+    """Multipliers of the lanes starting a solve (``fresh``, then cleared): least squares
+    of the stationarity rows at their starting angles (:func:`_ridge_solve`)."""
+    N, K, W = th.shape
     m = G.shape[0]
     nc = N if ideal else 0
     nb = m + nc
-    for i in range(N):
-        for k in range(K):
-            q = i * K + k
-            v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
-            if not ideal:
-                v -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
-            f0[q] = v
-            for c in range(m):
-                B[q, c] = G[c, q, w]
-            for c in range(nc):
-                B[q, m + c] = rarm[i, k] if c == i else 0.0
-    ok = _ridge_solve(B[:, :nb], f0, M[:nb, :nb], rhs[:nb])
-    for c in range(m):
-        lam[c, w] = rhs[c] if ok else 0.0
-    for i in range(N):
-        mu[i, w] = rhs[m + i] if (ok and ideal) else 0.0
+    for w in range(W):
+        if not fresh[w]:
+            continue
+        fresh[w] = False
+        for i in range(N):
+            for k in range(K):
+                q = i * K + k
+                v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+                if not ideal:
+                    v -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
+                f0[q] = v
+                for c in range(m):
+                    B[q, c] = G[c, q, w]
+                for c in range(nc):
+                    B[q, m + c] = rarm[i, k] if c == i else 0.0
+        ok = _ridge_solve(B[:, :nb], f0, M[:nb, :nb], rhs[:nb])
+        for c in range(m):
+            lam[c, w] = rhs[c] if ok else 0.0
+        for i in range(N):
+            mu[i, w] = rhs[m + i] if (ok and ideal) else 0.0
 
 
 @njit(cache=True)
@@ -360,7 +366,7 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
 
 @njit(cache=True)
 def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale):  # pragma: no cover
-    """The KKT matrix A (dim, dim, W) of every lane; ``hscale`` and ``gscale`` (W,) receive
+    """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane; ``hscale`` and ``gscale`` (W,) receive
     each lane's largest Hessian diagonal and constraint-gradient entries. Hten (n, n) is
     the elastic tendons' part, the same for every lane."""
     N = Pc.shape[0]
@@ -372,7 +378,7 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
     dim = n + m + nc
     # (lanes not stepping compute on valid numbers, unused)
     for q in range(dim):
-        for q2 in range(dim):
+        for q2 in range(q, dim):
             for w in range(W):
                 A[q, q2, w] = 0.0
     for i in range(N):
@@ -381,7 +387,7 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
             for w in range(W):
                 A[q, q, w] += kst[i, k, w]
             if not ideal:
-                for k2 in range(K):
+                for k2 in range(k, K):
                     q2 = i * K + k2
                     for w in range(W):
                         A[q, q2, w] += Hten[q, q2]
@@ -390,30 +396,32 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
         j = pairs[c, 1]
         for k in range(K):
             for k2 in range(K):
+                # the pair's cross block, in the upper triangle
+                q1 = min(i * K + k, j * K + k2)
+                q2 = max(i * K + k, j * K + k2)
+                for w in range(W):
+                    hij = 0.0
+                    for r in range(3):
+                        hij -= Jc[i, r, k, w] * Jc[j, r, k2, w]
+                    A[q1, q2, w] += lam[c, w] * hij
+            for k2 in range(k, K):
                 for w in range(W):
                     hii = 0.0
                     hjj = 0.0
-                    hij = 0.0
                     for r in range(3):
                         dp = Pc[i, r, w] - Pc[j, r, w]
                         hii += Jc[i, r, k, w] * Jc[i, r, k2, w] + dp * Hc[i, r, k, k2, w]
                         hjj += Jc[j, r, k, w] * Jc[j, r, k2, w] - dp * Hc[j, r, k, k2, w]
-                        hij -= Jc[i, r, k, w] * Jc[j, r, k2, w]
-                    lc = lam[c, w]
-                    A[i * K + k, i * K + k2, w] += lc * hii
-                    A[j * K + k, j * K + k2, w] += lc * hjj
-                    A[i * K + k, j * K + k2, w] += lc * hij
-                    A[j * K + k2, i * K + k, w] += lc * hij
+                    A[i * K + k, i * K + k2, w] += lam[c, w] * hii
+                    A[j * K + k, j * K + k2, w] += lam[c, w] * hjj
         for q in range(n):
             for w in range(W):
-                A[n + c, q, w] = G[c, q, w]
                 A[q, n + c, w] = G[c, q, w]
     if ideal:
         for i in range(N):
             for k in range(K):
                 q = i * K + k
                 for w in range(W):
-                    A[n + m + i, q, w] = rarm[i, k]
                     A[q, n + m + i, w] = rarm[i, k]
     # A tiny negative diagonal on the multiplier block keeps the KKT matrix regular where
     # a constraint's gradient vanishes: the Model O's side fingers in mirror-image poses,
@@ -441,6 +449,10 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
                 gscale[w] = max(gscale[w], abs(rarm[i, k]))
 
 
+#: A lane's state at the end of a Newton cycle (see :func:`_move_lanes`).
+RUNNING, CONVERGED, FAILED, EMPTY = 0, 1, 2, 3
+
+
 @njit(cache=True)
 def _move_lanes(
     theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest, kappa, pairs,
@@ -450,7 +462,7 @@ def _move_lanes(
     """Newton on the KKT system of Eq. 9 for particles ``start:stop``, LANES at a time.
 
     Each lane runs its own particle's Newton iteration (its own iteration count, step cap
-    and convergence test, exactly those of the scalar method); a lane whose particle is
+    and convergence test, those of a one-particle Newton method); a lane whose particle is
     done, converged or failed, writes it out and takes the next one, so the lanes stay
     busy. A particle that fails with the whole action is retried in the same lane with the
     action ramped in 4, 16, ... substeps up to ``max_substeps`` (quasi-static continuation).
@@ -473,7 +485,7 @@ def _move_lanes(
     dls = np.empty((N, W))
     dlP = np.empty((N, W))
     a = np.empty((N, W))
-    L = np.empty((N, max(K - 1, 1), W))
+    L = np.empty((N, K - 1, W))
     kst = np.empty((N, K, W))
     D2 = np.empty((m, W))
     sqD = np.empty((m, W))
@@ -494,6 +506,7 @@ def _move_lanes(
     sub = np.zeros(W, dtype=np.int64)
     fresh = np.zeros(W, dtype=np.bool_)
     step = np.zeros(W, dtype=np.bool_)  # lanes that take a Newton step this cycle
+    status = np.full(W, EMPTY, dtype=np.int64)
     # The elastic tendon's part of the KKT matrix is the same for every lane.
     Hten = np.zeros((n, n))
     if not ideal:
@@ -501,19 +514,11 @@ def _move_lanes(
             for k in range(K):
                 for k2 in range(K):
                     Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
-    nxt = start
-    # fill every lane
-    for w in range(W):
-        p = nxt
-        nxt += 1
-        if p >= stop:
-            p = start  # an idle lane computes on a valid particle and never writes
-            pid[w] = -1
-        else:
-            pid[w] = p
-        _load_lane(p, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
-                   kst, D2, sqD)
-        fresh[w] = True
+    nxt = _finish_lanes(
+        status, start, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+        kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+    )
     while True:
         busy = False
         for w in range(W):
@@ -522,12 +527,9 @@ def _move_lanes(
             break
         _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
         _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-        for w in range(W):
-            if fresh[w]:
-                _initial_multipliers(w, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B1, f01, M1, rhs1)
-                fresh[w] = False
+        _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B1, f01, M1, rhs1)
         _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d)
-        # each lane's decision, as in the scalar method
+        # each lane's decision, as in a one-particle Newton method
         any_step = False
         for w in range(W):
             step[w] = False
@@ -536,187 +538,179 @@ def _move_lanes(
             rf, rg, rt = res[0, w], res[1, w], res[2, w]
             it = itn[w]
             if not (np.isfinite(rf) and np.isfinite(rg) and np.isfinite(rt)):
-                done, o = True, False
+                status[w] = FAILED
             elif rf < tol[0] and rg < tol[1] and rt < tol[2]:
-                done, o = True, True
+                status[w] = CONVERGED
             elif it == max_iter:
                 # Out of iterations: accept the solution at physical tolerances (convergence
                 # is only linear near the Model O's symmetric grasps, where one constraint is
                 # second order in the motion), else fail.
-                done, o = True, rf < LOOSE_TORQUE and res_d[w] < LOOSE_DISTANCE and rt < LOOSE_TENDON
+                o = rf < LOOSE_TORQUE and res_d[w] < LOOSE_DISTANCE and rt < LOOSE_TENDON
+                status[w] = CONVERGED if o else FAILED
             elif it >= 7 and rf > 1e-3:
                 # Not converging at all after 7 steps: an action with no nearby equilibrium
                 # (the grasp's fold). Measured (bench motion, 60,000 grasps, +-1.5 mm): 19% of
                 # particles end here; stopping at 7 rather than 12 steps took the move from
                 # 0.42 to 0.36 s and lost 0.05% of the successes (slow ones, which
                 # max_substeps retries).
-                done, o = True, False
-            else:
-                done, o = False, False
-            if done:
-                nxt = _finish_lane(
-                    w, o, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-                    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-                    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
-                )
+                status[w] = FAILED
             else:
                 step[w] = True
                 any_step = True
-        if not any_step:
-            continue
-        _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale)
-        for q in range(dim):
+        if any_step:
+            _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale)
+            for q in range(dim):
+                for w in range(W):
+                    F[q, w] = -F[q, w]
+                    F2[q, w] = F[q, w]
             for w in range(W):
-                F[q, w] = -F[q, w]
-                F2[q, w] = F[q, w]
-        for w in range(W):
-            bad[w] = False
-            tiny1[w] = 1e-9 * hscale[w]
-            tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w]
-        _lu_lanes(A, F, n, tiny1, tiny2, bad)
-        any_bad = False
-        for w in range(W):
-            any_bad = any_bad or (bad[w] and step[w])
-        if any_bad:  # rare: the matrices again, for the lanes that need pivoting
-            _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A2, hscale, gscale)
-        for w in range(W):
-            if not step[w]:
-                continue
-            if bad[w]:
-                # a small pivot: this lane again, with partial pivoting
-                for q in range(dim):
-                    F1[q] = F2[q, w]
-                    for q2 in range(dim):
-                        A1[q, q2] = A2[q, q2, w]
-                if not _solve(A1, F1):
-                    nxt = _finish_lane(
-                        w, False, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-                        kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-                        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
-                    )
+                bad[w] = False
+                tiny1[w] = 1e-9 * hscale[w]
+                tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w]
+            _lu_lanes(A, F, n, tiny1, tiny2, bad)
+            any_bad = False
+            for w in range(W):
+                any_bad = any_bad or (bad[w] and step[w])
+            if any_bad:  # rare: the matrices again, for the lanes that need pivoting
+                _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A2, hscale, gscale)
+            for w in range(W):
+                if not step[w]:
                     continue
-                for q in range(dim):
-                    F[q, w] = F1[q]
-            big = 0.0
-            for q in range(n):
-                big = max(big, abs(F[q, w]))
-            sc = 1.0
-            if big > max_step:
-                sc = max_step / big
-            for i in range(N):
-                for k in range(K):
-                    th[i, k, w] += sc * F[i * K + k, w]
-            for c in range(m):
-                lam[c, w] += sc * F[n + c, w]
-            for i in range(nc):
-                mu[i, w] += sc * F[n + m + i, w]
-            if big < 1e-15 and res[0, w] < 1e3 * tol[0] and res[1, w] < 1e3 * tol[1] and res[2, w] < 1e3 * tol[2]:
-                # limited by round-off
-                nxt = _finish_lane(
-                    w, True, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-                    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-                    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
-                )
-                continue
-            itn[w] += 1
+                if bad[w]:
+                    # a small pivot: this lane again, with partial pivoting
+                    for q in range(dim):
+                        F1[q] = F2[q, w]
+                        for q2 in range(q, dim):
+                            A1[q, q2] = A2[q, q2, w]
+                            A1[q2, q] = A2[q, q2, w]
+                    if not _solve(A1, F1):
+                        status[w] = FAILED
+                        continue
+                    for q in range(dim):
+                        F[q, w] = F1[q]
+                big = 0.0
+                for q in range(n):
+                    big = max(big, abs(F[q, w]))
+                sc = 1.0
+                if big > max_step:
+                    sc = max_step / big
+                for i in range(N):
+                    for k in range(K):
+                        th[i, k, w] += sc * F[i * K + k, w]
+                for c in range(m):
+                    lam[c, w] += sc * F[n + c, w]
+                for i in range(nc):
+                    mu[i, w] += sc * F[n + m + i, w]
+                if big < 1e-15 and res[0, w] < 1e3 * tol[0] and res[1, w] < 1e3 * tol[1] and res[2, w] < 1e3 * tol[2]:
+                    status[w] = CONVERGED  # limited by round-off
+                else:
+                    itn[w] += 1
+        nxt = _finish_lanes(
+            status, nxt, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+            kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+            nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+        )
 
 
 @njit(cache=True)
-def _load_lane(p, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
-               kst, D2, sqD):  # pragma: no cover - numba
-    """Copy particle ``p``'s problem into lane ``w``."""
-    N, K = th.shape[0], th.shape[1]
-    pl = p if L_all.shape[0] > 1 else 0
-    pk = p if kst_all.shape[0] > 1 else 0
-    pd = p if dl.shape[0] > 1 else 0
-    for i in range(N):
-        s0[i, w] = s0_all[p, i]
-        sP[i, w] = s0_all[p, i]
-        dls[i, w] = dl[pd, i]
-        dlP[i, w] = dl[pd, i]
-        a[i, w] = a_all[p, i]
-        for k in range(K):
-            th[i, k, w] = theta0[p, i, k]
-            th0[i, k, w] = theta0[p, i, k]
-            thP[i, k, w] = theta0[p, i, k]
-            kst[i, k, w] = kst_all[pk, i, k]
-        for k in range(K - 1):
-            L[i, k, w] = L_all[pl, i, k]
-    for c in range(D2.shape[0]):
-        D2[c, w] = D2_all[p, c]
-        sqD[c, w] = np.sqrt(D2_all[p, c])
-
-
-@njit(cache=True)
-def _finish_lane(
-    w, o, nxt, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+def _finish_lanes(
+    status, nxt, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
     kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
     nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
-    """Lane ``w``'s Newton solve ended (``o``: converged). Go on with the next substep, retry
-    with more substeps, or write the particle out and load the next one; returns the next
-    unclaimed particle."""
-    N, K = th.shape[0], th.shape[1]
+    """The lanes whose Newton solve ended (``status`` CONVERGED or FAILED) go on with the
+    next substep, retry with more substeps, or write their particle out; those and the
+    EMPTY ones take the next unclaimed particle ``nxt``, which is returned. A lane left
+    without a particle gets ``pid`` -1 (and, if it never had one, particle ``start``'s
+    numbers, so that it computes on valid ones)."""
+    N, K, W = th.shape
     m = lam.shape[0]
-    p = pid[w]
-    it = it_acc[w] + itn[w]
-    if o and sub[w] < nsub[w] - 1:
-        # the next substep of the continuation, from where this one ended
-        for i in range(N):
-            s0[i, w] = -mu[i, w] / kappa[i] if ideal else sp[i, w]
-            for k in range(K):
-                th0[i, k, w] = th[i, k, w]
-        sub[w] += 1
-        it_acc[w] = it
+    for w in range(W):
+        st = status[w]
+        if st == RUNNING:
+            continue
+        status[w] = RUNNING
+        if st != EMPTY:
+            o = st == CONVERGED
+            p = pid[w]
+            it = it_acc[w] + itn[w]
+            if o and sub[w] < nsub[w] - 1:
+                # the next substep of the continuation, from where this one ended
+                for i in range(N):
+                    s0[i, w] = -mu[i, w] / kappa[i] if ideal else sp[i, w]
+                    for k in range(K):
+                        th0[i, k, w] = th[i, k, w]
+                sub[w] += 1
+                it_acc[w] = it
+                itn[w] = 0
+                fresh[w] = True
+                continue
+            more = 4 if nsub[w] == 1 else 4 * nsub[w]
+            if not o and more <= max_substeps:
+                # retry from the particle's start with the action ramped in ``more`` substeps
+                nsub[w] = more
+                sub[w] = 0
+                it_acc[w] = 0
+                itn[w] = 0
+                fresh[w] = True
+                for i in range(N):
+                    s0[i, w] = sP[i, w]
+                    dls[i, w] = dlP[i, w] / more
+                    for k in range(K):
+                        th[i, k, w] = thP[i, k, w]
+                        th0[i, k, w] = thP[i, k, w]
+                continue
+            # the particle is done
+            for r in range(3):
+                resid[p, r] = res[r, w]
+            ok_out[p] = o
+            iters[p] = it
+            for i in range(N):
+                if o:
+                    T = -mu[i, w] if ideal else kappa[i] * sp[i, w]
+                    T_out[p, i] = T
+                    s_out[p, i] = T / kappa[i] if ideal else sp[i, w]
+                else:
+                    s_out[p, i] = sP[i, w]
+                    T_out[p, i] = kappa[i] * sP[i, w]
+                for k in range(K):
+                    theta[p, i, k] = th[i, k, w] if o else thP[i, k, w]
+            for c in range(m):
+                lam_out[p, c] = lam[c, w] if o else 0.0
+        # the next particle into this lane
+        q = nxt
+        nxt += 1
+        if q >= stop:
+            pid[w] = -1
+            if st != EMPTY:
+                continue
+            q = start
+        else:
+            pid[w] = q
+        nsub[w] = 1
+        sub[w] = 0
+        it_acc[w] = 0
         itn[w] = 0
         fresh[w] = True
-        return nxt
-    if not o:
-        more = 4 if nsub[w] == 1 else 4 * nsub[w]
-        if more <= max_substeps:
-            # retry from the particle's start with the action ramped in ``more`` substeps
-            nsub[w] = more
-            sub[w] = 0
-            it_acc[w] = 0
-            itn[w] = 0
-            fresh[w] = True
-            for i in range(N):
-                s0[i, w] = sP[i, w]
-                dls[i, w] = dlP[i, w] / more
-                for k in range(K):
-                    th[i, k, w] = thP[i, k, w]
-                    th0[i, k, w] = thP[i, k, w]
-            return nxt
-    # the particle is done
-    for r in range(3):
-        resid[p, r] = res[r, w]
-    ok_out[p] = o
-    iters[p] = it
-    for i in range(N):
-        if o:
-            T = -mu[i, w] if ideal else kappa[i] * sp[i, w]
-            T_out[p, i] = T
-            s_out[p, i] = T / kappa[i] if ideal else sp[i, w]
-        else:
-            s_out[p, i] = sP[i, w]
-            T_out[p, i] = kappa[i] * sP[i, w]
-        for k in range(K):
-            theta[p, i, k] = th[i, k, w] if o else thP[i, k, w]
-    for c in range(m):
-        lam_out[p, c] = lam[c, w] if o else 0.0
-    q = nxt
-    nxt += 1
-    if q >= stop:
-        pid[w] = -1
-        return nxt
-    pid[w] = q
-    _load_lane(q, w, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, th, th0, thP, s0, sP, dls, dlP, a, L,
-               kst, D2, sqD)
-    nsub[w] = 1
-    sub[w] = 0
-    it_acc[w] = 0
-    itn[w] = 0
-    fresh[w] = True
+        pl = q if L_all.shape[0] > 1 else 0
+        pk = q if kst_all.shape[0] > 1 else 0
+        pd = q if dl.shape[0] > 1 else 0
+        for i in range(N):
+            s0[i, w] = s0_all[q, i]
+            sP[i, w] = s0_all[q, i]
+            dls[i, w] = dl[pd, i]
+            dlP[i, w] = dl[pd, i]
+            a[i, w] = a_all[q, i]
+            for k in range(K):
+                th[i, k, w] = theta0[q, i, k]
+                th0[i, k, w] = theta0[q, i, k]
+                thP[i, k, w] = theta0[q, i, k]
+                kst[i, k, w] = kst_all[pk, i, k]
+            for k in range(K - 1):
+                L[i, k, w] = L_all[pl, i, k]
+        for c in range(m):
+            D2[c, w] = D2_all[q, c]
+            sqD[c, w] = np.sqrt(D2_all[q, c])
     return nxt
 
 
