@@ -21,7 +21,7 @@ One iteration (one action dl and one camera measurement of the POM):
    there (weight collapse locks a filter into wrong modes),
 5. resample (systematic, every iteration that had a valid measurement),
 6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h std eps, a = sqrt(1 - h^2),
-   which keeps the cloud's mean and variance), recompute the equilibrium stretch, and
+   which keeps the cloud's mean and variance), recompute each tendon state, and
 7. re-anchor the attachment a fraction ``anchor_fraction`` of the way from the particle's own
    predicted POM pose towards the measured one (holding it fixed for ever makes the filter
    overconfident; DESIGN.md section 3).
@@ -571,7 +571,10 @@ class SelfIdentificationFilter:
             ps.link_lengths = L
 
     def _roughen(self, ps: ParticleSet) -> None:
-        """Liu-West kernel shrinkage with the cloud's full covariance; recompute equilibria.
+        """Liu-West kernel shrinkage with the cloud's full covariance, then each hypothesis'
+        tendon state: the commanded stretch l - R theta (after settling the angles to an
+        equilibrium on hands with more joints than tendons and contact pairs), or the implied
+        equilibrium stretch (``tendon_reference = "implied"``).
 
         x <- a x + (1 - a) mean + h C^(1/2) eps,  a = sqrt(1 - h^2): the cloud keeps its mean
         and covariance. The full covariance matters: joint angles and contact positions of a
@@ -586,11 +589,14 @@ class SelfIdentificationFilter:
         Lc = np.linalg.cholesky(cov)
         x = shrink * x + (1.0 - shrink) * mean + hh * self.rng.standard_normal(x.shape) @ Lc.T
         self._set_unknowns(ps, x)
-        eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
-        ps.theta = eq.theta
-        ps.stretch = eq.stretch
         if self._uses_command():
+            if not self.hand.statically_determinate:  # settle the angles to an equilibrium
+                ps.theta = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths,
+                                              stiffness=ps.stiffness).theta
             ps.stretch = self._commanded_stretch(ps.theta)
+        else:
+            eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+            ps.theta, ps.stretch = eq.theta, eq.stretch
 
     def _reinitialise(self, R_meas, t_meas) -> None:
         est = self.estimates[-1] if self.estimates else None
@@ -672,8 +678,4 @@ def _blend_poses(R_a, t_a, R_b, t_b, fraction):
     """Poses a fraction of the way from (R_a, t_a) (P, ...) to one pose (R_b, t_b)."""
     if fraction == 0.0:
         return R_a, t_a
-    dR = np.swapaxes(R_a, 1, 2) @ R_b  # R_a^T R_b
-    w = observation.rotvec(dR) * fraction
-    R = R_a @ observation.rotvec_to_matrix(w)
-    t = (1.0 - fraction) * t_a + fraction * t_b[None]
-    return R, t
+    return observation.blend_poses(R_a, t_a, R_b, t_b, fraction)

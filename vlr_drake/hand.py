@@ -274,6 +274,13 @@ class HandModel:
     def num_constraints(self) -> int:
         return len(self.constraint_pairs)
 
+    @property
+    def statically_determinate(self) -> bool:
+        """True where the grasp's stationarity conditions are square in (T, lambda)
+        (N K = N + m, the Model O): every grasp configuration is then an equilibrium for
+        exactly one tendon state (:func:`vlr_drake.motion.equilibrium`)."""
+        return self.N * self.K == self.N + self.num_constraints
+
     def finger_index(self, name: str) -> int:
         if name not in self.names:
             raise ValueError(f"hand '{self.spec.name}' has no finger '{name}' (fingers: {self.names})")

@@ -733,74 +733,74 @@ def _move_kernel(
 
 
 @njit(cache=True)
-def _equilibrium_one(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, work):  # pragma: no cover
-    """Least-squares (T, lambda) of one particle; returns the residual norm (inf: singular).
-
-    ``work`` holds scratch arrays (see :func:`_make_equilibrium_work`), reused across
-    particles; the products are written as loops (numba's ``@`` on small arrays goes
-    through BLAS calls that cost more than the arithmetic)."""
-    N, K = theta.shape
+def _equilibrium_lanes(theta, a, L, kst, pad, base, u, rarm, rest, pairs, start, stop, T, lam, resid):  # pragma: no cover
+    """Least-squares (T, lambda) with k (theta - theta0) - R^T T + G^T lambda = 0 for
+    particles ``start:stop``: the kinematics LANES at a time, then each particle's ridge
+    solve (:func:`_ridge_solve`); ``resid`` receives the residual norm (inf: singular)."""
+    P, N, K = theta.shape
     m = pairs.shape[0]
     n = N * K
     nb = N + m
-    Pc, Jc, Hc, g, G, D2, B, f0, M, rhs, th1, L1, a1 = work
-    for i in range(N):  # one lane of the kinematics
-        a1[i, 0] = a[i]
-        for k in range(K):
-            th1[i, k, 0] = theta[i, k]
-        for k in range(K - 1):
-            L1[i, k, 0] = L[i, k]
-    _fk_all(th1, L1, a1, pad, base, u, Pc, Jc, Hc)
-    _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-    B[:, :] = 0.0
-    for i in range(N):
-        for k in range(K):
-            q = i * K + k
-            f0[q] = kst[i, k] * (theta[i, k] - rest[i, k])
-            B[q, i] = -rarm[i, k]
+    W = LANES
+    th = np.zeros((N, K, W))
+    Ll = np.ones((N, K - 1, W))
+    al = np.zeros((N, W))
+    Pc, Jc, Hc = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
+    g, G, D2 = np.empty((m, W)), np.empty((m, n, W)), np.zeros((m, W))
+    B, f0, M, rhs = np.zeros((n, nb)), np.empty(n), np.empty((nb, nb)), np.empty(nb)
+    for b0 in range(start, stop, W):
+        nw = min(W, stop - b0)
+        for w in range(nw):
+            p = b0 + w
+            pl = p if L.shape[0] > 1 else 0
+            for i in range(N):
+                al[i, w] = a[p, i]
+                for k in range(K):
+                    th[i, k, w] = theta[p, i, k]
+                for k in range(K - 1):
+                    Ll[i, k, w] = L[pl, i, k]
+        _fk_all(th, Ll, al, pad, base, u, Pc, Jc, Hc)
+        _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
+        for w in range(nw):
+            p = b0 + w
+            pk = p if kst.shape[0] > 1 else 0
+            for i in range(N):
+                for k in range(K):
+                    q = i * K + k
+                    f0[q] = kst[pk, i, k] * (theta[p, i, k] - rest[i, k])
+                    B[q, i] = -rarm[i, k]
+                    for c in range(m):
+                        B[q, N + c] = G[c, q, w]
+            if not _ridge_solve(B, f0, M, rhs):
+                for i in range(N):
+                    T[p, i] = 0.0
+                for c in range(m):
+                    lam[p, c] = 0.0
+                resid[p] = np.inf
+                continue
+            for i in range(N):
+                T[p, i] = rhs[i]
             for c in range(m):
-                B[q, N + c] = G[c, q, 0]
-    if not _ridge_solve(B, f0, M, rhs):
-        T[:] = 0.0
-        lam[:] = 0.0
-        return np.inf
-    for i in range(N):
-        T[i] = rhs[i]
-    for c in range(m):
-        lam[c] = rhs[N + c]
-    r2 = 0.0
-    for q in range(n):
-        v = f0[q]
-        for c in range(nb):
-            v += B[q, c] * rhs[c]
-        r2 += v * v
-    return np.sqrt(r2)
-
-
-@njit(cache=True)
-def _make_equilibrium_work(N, K, m):  # pragma: no cover - numba
-    n = N * K
-    return (np.empty((N, 3, 1)), np.empty((N, 3, K, 1)), np.empty((N, 3, K, K, 1)), np.empty((m, 1)),
-            np.empty((m, n, 1)), np.zeros((m, 1)), np.zeros((n, N + m)), np.empty(n), np.empty((N + m, N + m)),
-            np.empty(N + m), np.empty((N, K, 1)), np.empty((N, K - 1, 1)), np.empty((N, 1)))
+                lam[p, c] = rhs[N + c]
+            r2 = 0.0
+            for q in range(n):
+                v = f0[q]
+                for c in range(nb):
+                    v += B[q, c] * rhs[c]
+                r2 += v * v
+            resid[p] = np.sqrt(r2)
 
 
 @njit(cache=True, parallel=True)
 def _equilibrium_kernel(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, lam, resid):  # pragma: no cover
-    """Least-squares (T, lambda) with k (theta - theta0) - R^T T + G^T lambda = 0."""
-    P, N, K = theta.shape
-    m = pairs.shape[0]
-    chunk = 256
+    """Least-squares (T, lambda) of every particle (:func:`_equilibrium_lanes`)."""
+    P = theta.shape[0]
+    chunk = 2048
     nchunks = (P + chunk - 1) // chunk
     for cc in prange(nchunks):
-        work = _make_equilibrium_work(N, K, m)
         start = np.int64(cc) * chunk
-        stop = min(start + chunk, P)
-        for p in range(start, stop):
-            pl = p if L.shape[0] > 1 else 0
-            pk = p if kst.shape[0] > 1 else 0
-            resid[p] = _equilibrium_one(theta[p], a[p], L[pl], kst[pk], pad, base, u, rarm, rest, pairs, T[p],
-                                        lam[p], work)
+        _equilibrium_lanes(theta, a, L, kst, pad, base, u, rarm, rest, pairs, start, min(start + chunk, P), T, lam,
+                           resid)
 
 
 # --------------------------------------------------------------------------------------
@@ -954,9 +954,8 @@ def equilibrium(
         hand.constraint_pairs, T, lam, resid,
     )
     ok = np.isfinite(resid)
-    square = hand.N * hand.K == hand.N + hand.num_constraints
     if settle is None:
-        settle = not square
+        settle = not hand.statically_determinate
     stretch = np.where(ok[:, None], T / hand.kappa, 0.0)
     if not settle:
         return Equilibrium(theta.copy(), stretch, np.where(ok[:, None], T, 0.0), np.nan_to_num(lam), ok)

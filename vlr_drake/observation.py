@@ -23,6 +23,7 @@ __all__ = [
     "rotation_angle",
     "rotvec",
     "rotvec_to_matrix",
+    "blend_poses",
     "pose_error",
 ]
 
@@ -34,23 +35,25 @@ class CollinearContactsError(ValueError):
     """The first three contacts are (nearly) collinear: they do not fix an object pose."""
 
 
+#: Particles per task of the parallel kernels (each task allocates its scratch once).
+_CHUNK = 1024
+
+
 @njit(cache=True)
 def _triad_one(p, F):  # pragma: no cover - numba
     """Orthonormal frame (columns) on points p[0], p[1], p[2]; returns twice the area."""
-    e1 = p[1] - p[0]
-    v = p[2] - p[0]
-    n = np.empty(3)
-    n[0] = e1[1] * v[2] - e1[2] * v[1]
-    n[1] = e1[2] * v[0] - e1[0] * v[2]
-    n[2] = e1[0] * v[1] - e1[1] * v[0]
-    area2 = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
-    l1 = np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    e1x, e1y, e1z = p[1, 0] - p[0, 0], p[1, 1] - p[0, 1], p[1, 2] - p[0, 2]
+    vx, vy, vz = p[2, 0] - p[0, 0], p[2, 1] - p[0, 1], p[2, 2] - p[0, 2]
+    nx = e1y * vz - e1z * vy
+    ny = e1z * vx - e1x * vz
+    nz = e1x * vy - e1y * vx
+    area2 = np.sqrt(nx * nx + ny * ny + nz * nz)
+    l1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
     if area2 <= 0.0 or l1 <= 0.0:
         F[:, :] = np.nan
         return 0.0
-    for r in range(3):
-        F[r, 0] = e1[r] / l1
-        F[r, 2] = n[r] / area2
+    F[0, 0], F[1, 0], F[2, 0] = e1x / l1, e1y / l1, e1z / l1
+    F[0, 2], F[1, 2], F[2, 2] = nx / area2, ny / area2, nz / area2
     F[0, 1] = F[1, 2] * F[2, 0] - F[2, 2] * F[1, 0]
     F[1, 1] = F[2, 2] * F[0, 0] - F[0, 2] * F[2, 0]
     F[2, 1] = F[0, 2] * F[1, 0] - F[1, 2] * F[0, 0]
@@ -60,22 +63,98 @@ def _triad_one(p, F):  # pragma: no cover - numba
 @njit(cache=True, parallel=True)
 def _pose_kernel(p_O, p_P, R, t, area):  # pragma: no cover - numba
     P, N, _ = p_O.shape
-    for pp in prange(P):
+    for cc in prange((P + _CHUNK - 1) // _CHUNK):
         Fo = np.empty((3, 3))
         Fp = np.empty((3, 3))
-        a1 = _triad_one(p_O[pp], Fo)
-        a2 = _triad_one(p_P[pp], Fp)
-        area[pp] = 0.5 * min(a1, a2)
-        Rp = Fp @ Fo.T
-        co = np.zeros(3)
-        cp = np.zeros(3)
-        for i in range(N):
-            co += p_O[pp, i]
-            cp += p_P[pp, i]
-        co /= N
-        cp /= N
-        R[pp] = Rp
-        t[pp] = cp - Rp @ co
+        for pp in range(cc * _CHUNK, min((cc + 1) * _CHUNK, P)):
+            a1 = _triad_one(p_O[pp], Fo)
+            a2 = _triad_one(p_P[pp], Fp)
+            area[pp] = 0.5 * min(a1, a2)
+            for r in range(3):
+                for c in range(3):  # R = Fp Fo^T
+                    R[pp, r, c] = Fp[r, 0] * Fo[c, 0] + Fp[r, 1] * Fo[c, 1] + Fp[r, 2] * Fo[c, 2]
+            for r in range(3):  # t = centroid(p_P) - R centroid(p_O)
+                v = 0.0
+                for i in range(N):
+                    v += p_P[pp, i, r] - (R[pp, r, 0] * p_O[pp, i, 0] + R[pp, r, 1] * p_O[pp, i, 1]
+                                          + R[pp, r, 2] * p_O[pp, i, 2])
+                t[pp, r] = v / N
+
+
+@njit(cache=True)
+def _rotvec_one(R, out):  # pragma: no cover - numba
+    """Rotation vector (axis * angle) of one rotation matrix R (3, 3), into ``out`` (3,)."""
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    angle = np.arccos(min(1.0, max(-1.0, c)))
+    wx, wy, wz = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    s = np.sin(angle)
+    if s >= 1e-6:
+        f = angle / (2.0 * s)
+        out[0], out[1], out[2] = wx * f, wy * f, wz * f
+    elif angle < 1.0:  # near 0: R ~ I + [w]x
+        out[0], out[1], out[2] = 0.5 * wx, 0.5 * wy, 0.5 * wz
+    else:  # near pi: the axis from the symmetric part (R + I) / 2 = k k^T
+        k = 0
+        for j in range(1, 3):
+            if R[j, j] > R[k, k]:
+                k = j
+        scale = angle / np.sqrt(max(0.5 * (R[k, k] + 1.0), 1e-300))
+        for r in range(3):
+            out[r] = 0.5 * (R[r, k] + (1.0 if r == k else 0.0)) * scale
+
+
+@njit(cache=True)
+def _rodrigues_one(w0, w1, w2, R):  # pragma: no cover - numba
+    """Rotation matrix of the rotation vector (w0, w1, w2), into ``R`` (3, 3)."""
+    th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if th > 1e-12:
+        kx, ky, kz = w0 / th, w1 / th, w2 / th
+    else:
+        kx = ky = kz = 0.0
+    s = np.sin(th)
+    c1 = 1.0 - np.cos(th)
+    kk = kx * kx + ky * ky + kz * kz
+    # R = I + sin(th) [k]x + (1 - cos(th)) [k]x^2, with [k]x^2 = k k^T - |k|^2 I
+    R[0, 0] = 1.0 + c1 * (kx * kx - kk)
+    R[1, 1] = 1.0 + c1 * (ky * ky - kk)
+    R[2, 2] = 1.0 + c1 * (kz * kz - kk)
+    R[0, 1] = -s * kz + c1 * kx * ky
+    R[1, 0] = s * kz + c1 * kx * ky
+    R[0, 2] = s * ky + c1 * kx * kz
+    R[2, 0] = -s * ky + c1 * kx * kz
+    R[1, 2] = -s * kx + c1 * ky * kz
+    R[2, 1] = s * kx + c1 * ky * kz
+
+
+@njit(cache=True, parallel=True)
+def _rotvec_kernel(R, out):  # pragma: no cover - numba
+    for p in prange(R.shape[0]):
+        _rotvec_one(R[p], out[p])
+
+
+@njit(cache=True, parallel=True)
+def _rodrigues_kernel(w, R):  # pragma: no cover - numba
+    for p in prange(w.shape[0]):
+        _rodrigues_one(w[p, 0], w[p, 1], w[p, 2], R[p])
+
+
+@njit(cache=True, parallel=True)
+def _blend_kernel(R_a, t_a, R_b, t_b, fraction, R_out, t_out):  # pragma: no cover - numba
+    P = R_a.shape[0]
+    for cc in prange((P + _CHUNK - 1) // _CHUNK):
+        dR = np.empty((3, 3))
+        E = np.empty((3, 3))
+        v = np.empty(3)
+        for p in range(cc * _CHUNK, min((cc + 1) * _CHUNK, P)):
+            for r in range(3):
+                for c in range(3):  # R_a^T R_b
+                    dR[r, c] = R_a[p, 0, r] * R_b[0, c] + R_a[p, 1, r] * R_b[1, c] + R_a[p, 2, r] * R_b[2, c]
+            _rotvec_one(dR, v)
+            _rodrigues_one(fraction * v[0], fraction * v[1], fraction * v[2], E)
+            for r in range(3):
+                for c in range(3):  # R_a exp(fraction log(R_a^T R_b))
+                    R_out[p, r, c] = R_a[p, r, 0] * E[0, c] + R_a[p, r, 1] * E[1, c] + R_a[p, r, 2] * E[2, c]
+                t_out[p, r] = (1.0 - fraction) * t_a[p, r] + fraction * t_b[r]
 
 
 def triad(points: np.ndarray) -> np.ndarray:
@@ -147,36 +226,31 @@ def rotation_angle(R_a, R_b) -> np.ndarray:
 
 def rotvec(R) -> np.ndarray:
     """Rotation vectors (P, 3) of rotation matrices (P, 3, 3) (axis * angle)."""
-    R = np.asarray(R, float).reshape(-1, 3, 3)
-    angle = rotation_angle(np.broadcast_to(np.eye(3), R.shape), R)
-    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
-    s = np.sin(angle)
-    out = np.empty_like(w)
-    small = s < 1e-6
-    out[~small] = w[~small] * (angle[~small] / (2.0 * s[~small]))[:, None]
-    # near 0: R ~ I + [w]x ; near pi: from the symmetric part
-    near0 = small & (angle < 1.0)
-    out[near0] = 0.5 * w[near0]
-    nearpi = small & ~near0
-    for p in np.flatnonzero(nearpi):
-        B = 0.5 * (R[p] + np.eye(3))
-        k = np.argmax(np.diag(B))
-        v = B[:, k] / np.sqrt(max(B[k, k], 1e-300))
-        out[p] = v * angle[p]
+    R = np.ascontiguousarray(np.asarray(R, float).reshape(-1, 3, 3))
+    out = np.empty((R.shape[0], 3))
+    _rotvec_kernel(R, out)
     return out
 
 
 def rotvec_to_matrix(w) -> np.ndarray:
     """Rodrigues: rotation matrices (P, 3, 3) of rotation vectors (P, 3)."""
-    w = np.asarray(w, float).reshape(-1, 3)
-    th = np.linalg.norm(w, axis=1)
-    k = np.where(th[:, None] > 1e-12, w / np.maximum(th, 1e-300)[:, None], 0.0)
-    Kx = np.zeros((len(w), 3, 3))
-    Kx[:, 0, 1], Kx[:, 0, 2] = -k[:, 2], k[:, 1]
-    Kx[:, 1, 0], Kx[:, 1, 2] = k[:, 2], -k[:, 0]
-    Kx[:, 2, 0], Kx[:, 2, 1] = -k[:, 1], k[:, 0]
-    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
-    return np.eye(3) + s * Kx + (1 - c) * Kx @ Kx
+    w = np.ascontiguousarray(np.asarray(w, float).reshape(-1, 3))
+    R = np.empty((w.shape[0], 3, 3))
+    _rodrigues_kernel(w, R)
+    return R
+
+
+def blend_poses(R_a, t_a, R_b, t_b, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """Poses a ``fraction`` of the way from (R_a (P, 3, 3), t_a (P, 3)) to one pose
+    (R_b (3, 3), t_b (3,)): R_a exp(fraction log(R_a^T R_b)) and the linear blend of t."""
+    R_a = np.ascontiguousarray(R_a, dtype=float)
+    t_a = np.ascontiguousarray(t_a, dtype=float)
+    R_b = np.ascontiguousarray(np.reshape(R_b, (3, 3)), dtype=float)
+    t_b = np.ascontiguousarray(np.reshape(t_b, 3), dtype=float)
+    R = np.empty_like(R_a)
+    t = np.empty_like(t_a)
+    _blend_kernel(R_a, t_a, R_b, t_b, float(fraction), R, t)
+    return R, t
 
 
 def pose_error(R_pred, t_pred, R_meas, t_meas) -> tuple[np.ndarray, np.ndarray]:

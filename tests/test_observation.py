@@ -1,0 +1,92 @@
+"""The observation function Lambda (Eq. 5) and the rotation helpers of vlr_drake.observation:
+rigid prediction of the POM from moved contacts, refusal of collinear contacts, and the
+compiled rotation-vector kernels against scipy's implementation."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vlr_drake import grasps, kinematics, motion, observation
+
+
+def _random_rotations(rng, count):
+    return Rotation.random(count, random_state=rng.integers(2**31)).as_matrix()
+
+
+def test_pom_pose_recovers_a_rigid_motion(rng):
+    P = 200
+    p_O = rng.normal(scale=0.04, size=(P, 3, 3))
+    R = _random_rotations(rng, P)
+    t = rng.normal(scale=0.1, size=(P, 3))
+    p_P = np.einsum("pij,pnj->pni", R, p_O) + t[:, None, :]
+    R_est, t_est, ok = observation.pom_pose(p_O, p_P)
+    assert ok.all()
+    np.testing.assert_allclose(R_est, R, atol=1e-12)
+    np.testing.assert_allclose(t_est, t, atol=1e-12)
+
+
+def test_the_pom_moves_rigidly_with_the_contacts_through_gamma(model_o_hand, rng):
+    """After a move with Gamma, the predicted POM keeps its distance to every contact."""
+    h = model_o_hand
+    g = grasps.sample_grasps(h, rng, 300)
+    p0 = kinematics.contacts(h, g.theta, g.a)
+    pom = rng.normal(scale=0.01, size=(g.theta.shape[0], 3)) + p0.mean(axis=1)  # a POM near the object
+    p_O = observation.attach(p0, np.eye(3)[None], pom)
+    res = motion.move(h, g.theta, rng.uniform(-1e-3, 1e-3, h.N), a=g.a, D2=g.D2, stretch=g.stretch)
+    assert res.ok.mean() > 0.75  # some random actions have no equilibrium (the grasp's fold)
+    p1 = kinematics.contacts(h, res.theta, g.a)
+    R1, t1, ok = observation.pom_pose(p_O, p1)
+    keep = res.ok & ok
+    before = np.linalg.norm(p0 - pom[:, None, :], axis=2)[keep]
+    after = np.linalg.norm(p1 - t1[:, None, :], axis=2)[keep]
+    np.testing.assert_allclose(after, before, rtol=0, atol=1e-9)
+    # and the attached points land on the moved contacts
+    mapped = np.einsum("pij,pnj->pni", R1, p_O) + t1[:, None, :]
+    np.testing.assert_allclose(mapped[keep], p1[keep], rtol=0, atol=1e-9)
+
+
+def test_collinear_contacts_are_refused_and_flagged():
+    line = np.array([[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.03, 0.0, 0.0]]])
+    with pytest.raises(observation.CollinearContactsError, match="collinear"):
+        observation.attach(line, np.eye(3)[None], np.zeros((1, 3)))
+    good = np.array([[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.02, 0.0]]])
+    R, t, ok = observation.pom_pose(np.concatenate([good, good]), np.concatenate([good, line]))
+    assert ok.tolist() == [True, False]
+    assert np.all(np.isfinite(R)) and np.all(np.isfinite(t))
+    np.testing.assert_array_equal(R[1], np.eye(3))
+    with pytest.raises(ValueError, match="p_O"):
+        observation.pom_pose(np.zeros((2, 2, 3)), np.zeros((2, 2, 3)))
+
+
+def test_rotation_vectors_match_scipy(rng):
+    R = _random_rotations(rng, 2000)
+    np.testing.assert_allclose(observation.rotvec(R), Rotation.from_matrix(R).as_rotvec(), atol=1e-9)
+    w = rng.normal(size=(2000, 3))
+    np.testing.assert_allclose(observation.rotvec_to_matrix(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+    # the edges: no rotation, tiny rotations, and half turns (axis from the symmetric part)
+    small = np.array([[0.0, 0.0, 0.0], [1e-9, -2e-9, 3e-9], [0.0, 0.0, 1e-7]])
+    np.testing.assert_allclose(observation.rotvec(observation.rotvec_to_matrix(small)), small, atol=1e-15)
+    for axis in np.eye(3):
+        half = np.pi * axis
+        back = observation.rotvec(observation.rotvec_to_matrix(half))[0]
+        assert np.isclose(np.linalg.norm(back), np.pi)
+        np.testing.assert_allclose(np.abs(back), np.abs(half), atol=1e-7)
+
+
+def test_blend_poses_interpolates_on_the_rotation_group(rng):
+    P = 100
+    R_a = _random_rotations(rng, P)
+    t_a = rng.normal(size=(P, 3))
+    R_b = _random_rotations(rng, 1)[0]
+    t_b = rng.normal(size=3)
+    R0, t0 = observation.blend_poses(R_a, t_a, R_b, t_b, 0.0)
+    np.testing.assert_allclose(R0, R_a, atol=1e-12)
+    R1, t1 = observation.blend_poses(R_a, t_a, R_b, t_b, 1.0)
+    np.testing.assert_allclose(R1, np.broadcast_to(R_b, R_a.shape), atol=1e-9)
+    np.testing.assert_allclose(t1, np.broadcast_to(t_b, t_a.shape), atol=1e-15)
+    f = 0.3
+    Rf, tf = observation.blend_poses(R_a, t_a, R_b, t_b, f)
+    d = Rotation.from_matrix(np.swapaxes(R_a, 1, 2) @ R_b).as_rotvec()
+    want = R_a @ Rotation.from_rotvec(f * d).as_matrix()
+    np.testing.assert_allclose(Rf, want, atol=1e-9)
+    np.testing.assert_allclose(tf, (1 - f) * t_a + f * t_b, atol=1e-15)
