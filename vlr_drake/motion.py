@@ -248,12 +248,14 @@ def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
     for c in range(d):
         tiny = tiny1 if c < n1 else tiny2
         for w in range(W):
-            if not abs(A[c, c, w]) > tiny[w]:
-                bad[w] = True
-                A[c, c, w] = 1.0  # keep the other lanes' arithmetic finite
+            small = not abs(A[c, c, w]) > tiny[w]
+            bad[w] = bad[w] or small
+            # 1 / pivot, kept on the diagonal for the back substitution (1 where the pivot
+            # is too small, to keep the other lanes' arithmetic finite)
+            A[c, c, w] = 1.0 if small else 1.0 / A[c, c, w]
         for r in range(c + 1, d):
             for w in range(W):  # the multiplier, kept in the (unused) lower triangle
-                A[r, c, w] = A[c, r, w] / A[c, c, w]
+                A[r, c, w] = A[c, r, w] * A[c, c, w]
             for j in range(r, d):
                 for w in range(W):
                     A[r, j, w] -= A[r, c, w] * A[c, j, w]
@@ -264,7 +266,7 @@ def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
             for w in range(W):
                 b[r, w] -= A[r, j, w] * b[j, w]
         for w in range(W):
-            b[r, w] /= A[r, r, w]
+            b[r, w] *= A[r, r, w]
 
 
 @njit(cache=True)
@@ -278,39 +280,91 @@ def _lanes_work(N, K, m, nc, W):  # pragma: no cover - numba
         np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W)),  # Pc, Jc, Hc
         np.empty((m, W)), np.empty((m, n, W)),  # g, G
         np.empty((dim, dim, W)), np.empty((dim, W)), np.empty((dim, dim, W)), np.empty((dim, W)),  # A, F, copies
-        np.empty((n, nb)), np.empty(n), np.empty((nb, nb)), np.empty(nb),  # B, f0, M, rhs (initial multipliers)
+        np.empty((n, W)), np.empty((nb, nb, W)), np.empty((nb, W)), np.empty(W),  # f0, M, rhs, scale (multipliers)
         np.empty((dim, dim)), np.empty(dim),  # one lane's pivoted fallback
     )
 
 
 @njit(cache=True)
-def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B, f0, M, rhs):  # pragma: no cover
+def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0, M, rhs, scale, bad):  # pragma: no cover
     """Multipliers of the lanes starting a solve (``fresh``, then cleared): least squares
-    of the stationarity rows at their starting angles (:func:`_ridge_solve`)."""
+    of the stationarity rows at their starting angles, min |B x + f0| with B = [G^T, R^T]
+    (ideal tendon) or G^T, by the normal equations with a 1e-12-relative ridge that picks
+    the minimum-norm multipliers where B loses rank (as :func:`_ridge_solve`, vectorised
+    over all lanes); a singular lane starts from zero multipliers."""
     N, K, W = th.shape
+    n = N * K
     m = G.shape[0]
     nc = N if ideal else 0
     nb = m + nc
+    any_fresh = False
+    for w in range(W):
+        any_fresh = any_fresh or fresh[w]
+    if not any_fresh:
+        return
+    for i in range(N):
+        for k in range(K):
+            q = i * K + k
+            for w in range(W):
+                f0[q, w] = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+            if not ideal:
+                for w in range(W):
+                    f0[q, w] -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
+    # normal equations M = B^T B (upper triangle), rhs = -B^T f0
+    for c1 in range(m):
+        for w in range(W):
+            rhs[c1, w] = 0.0
+        for q in range(n):
+            for w in range(W):
+                rhs[c1, w] -= G[c1, q, w] * f0[q, w]
+        for c2 in range(c1, m):
+            for w in range(W):
+                M[c1, c2, w] = 0.0
+            for q in range(n):
+                for w in range(W):
+                    M[c1, c2, w] += G[c1, q, w] * G[c2, q, w]
+        for i in range(nc):
+            for w in range(W):
+                M[c1, m + i, w] = 0.0
+            for k in range(K):
+                for w in range(W):
+                    M[c1, m + i, w] += G[c1, i * K + k, w] * rarm[i, k]
+    for i in range(nc):
+        r2 = 0.0
+        for k in range(K):
+            r2 += rarm[i, k] * rarm[i, k]
+        for w in range(W):
+            rhs[m + i, w] = 0.0
+            M[m + i, m + i, w] = r2
+        for k in range(K):
+            for w in range(W):
+                rhs[m + i, w] -= rarm[i, k] * f0[i * K + k, w]
+        for i2 in range(i + 1, nc):
+            for w in range(W):
+                M[m + i, m + i2, w] = 0.0
+    for w in range(W):
+        scale[w] = 0.0
+        bad[w] = False
+    for c in range(nb):
+        for w in range(W):
+            scale[w] = max(scale[w], M[c, c, w])
+    for c in range(nb):
+        for w in range(W):
+            M[c, c, w] += 1e-12 * scale[w]
+    for w in range(W):
+        scale[w] *= 1e-17  # a singular matrix (the pivoted solve's test)
+    _lu_lanes(M, rhs, nb, scale, scale, bad)
     for w in range(W):
         if not fresh[w]:
             continue
         fresh[w] = False
-        for i in range(N):
-            for k in range(K):
-                q = i * K + k
-                v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
-                if not ideal:
-                    v -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
-                f0[q] = v
-                for c in range(m):
-                    B[q, c] = G[c, q, w]
-                for c in range(nc):
-                    B[q, m + c] = rarm[i, k] if c == i else 0.0
-        ok = _ridge_solve(B[:, :nb], f0, M[:nb, :nb], rhs[:nb])
+        ok = not bad[w]
+        for c in range(nb):
+            ok = ok and np.isfinite(rhs[c, w])
         for c in range(m):
-            lam[c, w] = rhs[c] if ok else 0.0
+            lam[c, w] = rhs[c, w] if ok else 0.0
         for i in range(N):
-            mu[i, w] = rhs[m + i] if (ok and ideal) else 0.0
+            mu[i, w] = rhs[m + i, w] if (ok and ideal) else 0.0
 
 
 @njit(cache=True)
@@ -475,7 +529,7 @@ def _move_lanes(
     W = LANES
     work = _lanes_work(N, K, m, nc, W)
     Pc, Jc, Hc, g, G, A, F, A2, F2 = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7], work[8]
-    B1, f01, M1, rhs1, A1, F1 = work[9], work[10], work[11], work[12], work[13], work[14]
+    f0l, Ml, rhsl, scl, A1, F1 = work[9], work[10], work[11], work[12], work[13], work[14]
     # the lanes' particles: current angles, the current (sub)solve's start, the particle's own start
     th = np.empty((N, K, W))
     th0 = np.empty((N, K, W))
@@ -527,7 +581,7 @@ def _move_lanes(
             break
         _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
         _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-        _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, B1, f01, M1, rhs1)
+        _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0l, Ml, rhsl, scl, bad)
         _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d)
         # each lane's decision, as in a one-particle Newton method
         any_step = False
