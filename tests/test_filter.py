@@ -45,6 +45,20 @@ def test_temper_hits_the_target_ess():
     assert pf.temper(np.zeros(50), 10.0) == 1.0
 
 
+def test_tempered_ess_matches_the_definition():
+    """The bisection's compiled ESS equals 1 / sum(w^2) of the tempered weights, with
+    impossible particles (-inf) weighing nothing."""
+    rng = np.random.default_rng(3)
+    log_w0 = rng.normal(size=500)
+    log_lik = -0.5 * (3 * rng.standard_normal(500)) ** 2
+    log_lik[::7] = -np.inf
+    for beta in (0.0, 0.3, 1.0):
+        finite = np.isfinite(log_lik)
+        want = pf.effective_sample_size(log_w0 + np.where(finite, beta * np.where(finite, log_lik, 0.0), -np.inf))
+        assert pf._tempered_ess(log_w0, log_lik, beta) == pytest.approx(want, rel=1e-12)
+    assert pf._tempered_ess(np.full(5, -np.inf), np.zeros(5), 1.0) == 0.0
+
+
 def test_weighted_interval_matches_sorted_definition():
     rng = np.random.default_rng(2)
     x = rng.standard_normal((2000, 3))

@@ -38,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from vlr_drake import kinematics, motion, observation
 from vlr_drake.hand import HandModel
@@ -109,14 +110,38 @@ def temper(log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> floa
     return _temper_increment(np.zeros_like(np.asarray(log_lik, float)), log_lik, ess_target, iterations)
 
 
+@njit(cache=True)
+def _tempered_ess(log_w0, log_lik, beta):  # pragma: no cover - numba
+    """ESS of the log weights log_w0 + beta log_lik (non-finite ones weigh nothing), in two
+    passes without temporaries: the bisection of :func:`_temper_increment` calls it ~40 times."""
+    top = -np.inf
+    for i in range(log_w0.shape[0]):
+        v = log_w0[i] + beta * log_lik[i]
+        if v > top and v < np.inf:
+            top = v
+    if not np.isfinite(top):
+        return 0.0
+    s = 0.0
+    s2 = 0.0
+    for i in range(log_w0.shape[0]):
+        v = log_w0[i] + beta * log_lik[i]
+        if v > -np.inf and v < np.inf:
+            e = np.exp(v - top)
+            s += e
+            s2 += e * e
+    return s * s / s2
+
+
 def _temper_increment(log_w0: np.ndarray, log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> float:
-    """Largest beta in (0, 1] with ESS(log_w0 + beta * log_lik) >= ess_target."""
-    if effective_sample_size(log_w0 + log_lik) >= ess_target:
+    """Largest beta in (0, 1] with ESS(log_w0 + beta * log_lik) >= ess_target (bisection)."""
+    log_w0 = np.ascontiguousarray(log_w0, dtype=float)
+    log_lik = np.ascontiguousarray(log_lik, dtype=float)
+    if _tempered_ess(log_w0, log_lik, 1.0) >= ess_target:
         return 1.0
     lo, hi = 0.0, 1.0
     for _ in range(iterations):
         mid = 0.5 * (lo + hi)
-        if effective_sample_size(log_w0 + mid * log_lik) >= ess_target:
+        if _tempered_ess(log_w0, log_lik, mid) >= ess_target:
             lo = mid
         else:
             hi = mid
