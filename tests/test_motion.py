@@ -307,3 +307,21 @@ def test_a_placed_grasp_settles_where_the_model_moves_it(model_o_hand):
         settled = grasps.settle_under_command(h, gs.theta[p], gs.a[p], l + dl)
         np.testing.assert_allclose(settled, moved.theta[0], atol=1e-8)
         assert np.abs(settled - gs.theta[p]).max() > 1e-3
+
+
+def test_lane_elimination_solves_symmetric_systems_and_flags_small_pivots(rng):
+    """The kernel's elimination without pivoting (all lanes at once) against numpy; a lane
+    whose leading pivot vanishes is flagged for the pivoted re-solve, the others unharmed."""
+    d, W = 9, 16
+    A = rng.normal(size=(W, d, d))
+    A = A + np.swapaxes(A, 1, 2) + 8 * np.eye(d)  # symmetric, well conditioned
+    A[3, 0, 0] = 0.0  # a zero first pivot (a matrix that needs pivoting)
+    b = rng.normal(size=(W, d))
+    A_l = np.ascontiguousarray(np.moveaxis(A, 0, -1))
+    b_l = np.ascontiguousarray(b.T)
+    bad = np.zeros(W, dtype=bool)
+    motion._lu_lanes(A_l, b_l, d, np.full(W, 1e-9), np.full(W, 1e-9), bad)
+    assert bad.tolist() == [w == 3 for w in range(W)]
+    good = ~bad
+    np.testing.assert_allclose(b_l.T[good], np.linalg.solve(A[good], b[good]), atol=1e-12)
+    assert np.all(np.isfinite(b_l))

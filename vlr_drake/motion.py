@@ -172,7 +172,8 @@ def _solve(A, b):  # pragma: no cover - numba
 
 #: Hypotheses solved side by side by one thread of the Newton kernel ("lanes"): every
 #: array of a solve has them on its last axis, so the arithmetic runs as SIMD loops (AVX2:
-#: four doubles at a time) and only the sines and cosines stay scalar.
+#: four doubles at a time). Longer lanes amortise each short loop's set-up; measured per
+#: 60,000-particle move on 2 cores: 16 lanes 114 ms, 32 95 ms, 64 87 ms, 128 89 ms.
 LANES = 64
 
 
