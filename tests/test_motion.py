@@ -323,5 +323,5 @@ def test_lane_elimination_solves_symmetric_systems_and_flags_small_pivots(rng):
     motion._lu_lanes(A_l, b_l, d, np.full(W, 1e-9), np.full(W, 1e-9), bad)
     assert bad.tolist() == [w == 3 for w in range(W)]
     good = ~bad
-    np.testing.assert_allclose(b_l.T[good], np.linalg.solve(A[good], b[good]), atol=1e-12)
+    np.testing.assert_allclose(b_l.T[good], np.linalg.solve(A[good], b[good][..., None])[..., 0], atol=1e-12)
     assert np.all(np.isfinite(b_l))
