@@ -55,8 +55,13 @@ def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
     assert BENCH_MOTION_FIELDS <= set(r) and r["particles"] == 2000
     assert r["speedup_per_particle"] > 1
-    r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2")
+    r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2", "--run-iterations", "3")
     assert BENCH_FILTER_FIELDS <= set(r)
+    run = r["identification"]
+    assert run["plant"] == "physics" and run["iterations"] == 3
+    t = run["timing_s"]
+    assert min(t["physics"], t["render"], t["detect"], t["filter"]) > 0
+    assert t["physics"] + t["render"] + t["detect"] + t["filter"] <= t["total"] * 1.01
 
 
 def test_write_quick(tmp_path):
