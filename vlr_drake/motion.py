@@ -271,22 +271,6 @@ def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _lanes_work(N, K, m, nc, W):  # pragma: no cover - numba
-    """Scratch arrays of one thread's lanes, C-contiguous with the lanes last (so that the
-    loops over them vectorise); nc = N for the ideal tendon's extra unknowns, else 0."""
-    n = N * K
-    dim = n + m + nc
-    nb = m + nc
-    return (
-        np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W)),  # Pc, Jc, Hc
-        np.empty((m, W)), np.empty((m, n, W)),  # g, G
-        np.empty((dim, dim, W)), np.empty((dim, W)), np.empty((dim, dim, W)), np.empty((dim, W)),  # A, F, copies
-        np.empty((n, W)), np.empty((nb, nb, W)), np.empty((nb, W)), np.empty(W),  # f0, M, rhs, scale (multipliers)
-        np.empty((dim, dim)), np.empty(dim),  # one lane's pivoted fallback
-    )
-
-
-@njit(cache=True)
 def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0, M, rhs, scale, bad):  # pragma: no cover
     """Multipliers of the lanes starting a solve (``fresh``, then cleared): least squares
     of the stationarity rows at their starting angles, min |B x + f0| with B = [G^T, R^T]
@@ -528,9 +512,14 @@ def _move_lanes(
     nc = N if ideal else 0
     dim = n + m + nc
     W = LANES
-    work = _lanes_work(N, K, m, nc, W)
-    Pc, Jc, Hc, g, G, A, F, A2, F2 = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7], work[8]
-    f0l, Ml, rhsl, scl, A1, F1 = work[9], work[10], work[11], work[12], work[13], work[14]
+    nb = m + nc
+    # scratch, C-contiguous with the lanes last (so that the loops over them vectorise)
+    Pc, Jc, Hc = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
+    g, G = np.empty((m, W)), np.empty((m, n, W))
+    A, F = np.empty((dim, dim, W)), np.empty((dim, W))  # KKT matrix and right-hand side
+    A2, F2 = np.empty((dim, dim, W)), np.empty((dim, W))  # their copies for the pivoted re-solve
+    A1, F1 = np.empty((dim, dim)), np.empty(dim)  # one lane's pivoted re-solve
+    f0l, Ml, rhsl, scl = np.empty((n, W)), np.empty((nb, nb, W)), np.empty((nb, W)), np.empty(W)  # multipliers
     # the lanes' particles: current angles, the current (sub)solve's start, the particle's own start
     th = np.empty((N, K, W))
     th0 = np.empty((N, K, W))
