@@ -32,3 +32,26 @@ def test_short_physics_run_lowers_the_error_from_its_prior(obj, seed):
     assert final < 0.6 * prior, (prior, final)
     assert r["truth_inside_95_theta"] >= 0.66 and r["truth_inside_95_contact"] >= 0.66
     assert r["lost_measurements"] == 0 and r["reinitialisations"] == 0
+
+
+@pytest.mark.slow
+def test_squeezes_identify_the_thumb_spring_on_the_physics_plant():
+    """The thumb's distal spring unknown (prior 0.05-0.40 N m/rad), physics plant, rendered
+    camera, 3000 particles, 40 iterations. With the default squeeze exploration (+-1.5 mm
+    common-mode pulls in a 3 mm window on top of the 0.5 mm actions) the error is well
+    under half of the plain exploration's on the same grasp, and seed 0's 95% interval
+    holds the truth. Measured: seed 0 0.059, interval 0.156-0.387 around 0.189 (plain
+    0.136, interval 0.200-0.400: the truth outside), seed 2 0.029, interval 0.142-0.195
+    around 0.137 (just outside; plain 0.142). At 10,000 particles x 60 iterations seeds
+    0-4: 0.004, 0.086, 0.011, 0.004, 0.050, 4 of 5 truths inside (seed 1's interval starts
+    at 0.179 against 0.172; plain seeds 0-1: 0.125, 0.133, both outside)."""
+    def run(seed, **kw):
+        return run_identification(IdentifyOptions(experiment="stiffness", plant="physics", particles=3000,
+                                                  max_iterations=40, seed=seed, progress=False, **kw))
+
+    squeezed = [run(0), run(2)]
+    plain = run(0, squeeze_range=0.0, squeeze_window=0.0)
+    errors = [r["stiffness_error_Nm_per_rad"] for r in squeezed]
+    assert max(errors) < 0.09, errors
+    assert squeezed[0]["stiffness_inside_95"], squeezed[0]["stiffness_interval_Nm_per_rad"]
+    assert errors[0] < 0.6 * plain["stiffness_error_Nm_per_rad"], (errors, plain["stiffness_error_Nm_per_rad"])

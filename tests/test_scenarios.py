@@ -68,6 +68,23 @@ def test_exploration_defaults_follow_the_plant():
     assert (options_from_scenario(s).action_range, task_settings(s)["window"]) == (1.5e-3, 4.0e-3)
 
 
+def test_squeeze_defaults_follow_the_plant_and_experiment():
+    """The physics stiffness experiment squeezes by default (vlr_drake.identify.SQUEEZE),
+    the other experiments and the model plant do not, and a scenario's setting wins."""
+    from vlr_drake.identify import SQUEEZE
+    from vlr_drake.scenario import options_from_scenario
+
+    s = load_scenario(DIAGRAMS_DIR / "stiffness.yaml")
+    opts = options_from_scenario(s, plant="physics").validate()
+    assert (opts.squeeze_range, opts.squeeze_window) == SQUEEZE[("physics", "stiffness")]
+    assert s.exploration.squeeze_and_window("physics", s.experiment()) == SQUEEZE[("physics", "stiffness")]
+    assert options_from_scenario(s, plant="model").validate().squeeze_range == 0.0
+    known = options_from_scenario(load_scenario(DIAGRAMS_DIR / "default.yaml"), plant="physics").validate()
+    assert known.squeeze_range == 0.0 and known.squeeze_window == 0.0
+    s = load_scenario(DIAGRAMS_DIR / "stiffness.yaml", "exploration: {squeeze: 0.0, squeeze_window: 0.0}\n")
+    assert options_from_scenario(s, plant="physics").validate().squeeze_range == 0.0
+
+
 def test_overrides_apply_after_the_file():
     path = DIAGRAMS_DIR / "stiffness.yaml"
     s = load_scenario(path, "filter: {particles: 123}\nseed: 7\n")
@@ -140,6 +157,8 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("prior: {stiffness_prior: normal}\n", "stiffness_prior"),
         ("prior: {stiffness_range: [0.0, 0.4]}\n", "stiffness_range"),
         ("filter: {newton_tolerance: sloppy}\n", "newton_tolerance"),
+        ("exploration: {squeeze: 0.004, squeeze_window: 0.003}\n", "squeeze"),
+        ("exploration: {squeeze: -0.001}\n", "squeeze"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",

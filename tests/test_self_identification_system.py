@@ -1,13 +1,14 @@
 """The self-identification LeafSystems: ports with FixValue, and the loop under Simulator."""
 
 import numpy as np
+import pytest
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from vlr_drake import filter as pf
 from vlr_drake.diagram import build_model_identification_diagram
 from vlr_drake.hand import model_o
-from vlr_drake.identify import _truth_grasp
+from vlr_drake.identify import Exploration, IdentifyOptions, _truth_grasp
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.systems.self_identification import ExplorationPolicy, SelfIdentificationSystem
 
@@ -89,3 +90,68 @@ def test_identification_loop_under_the_simulator():
                                    plant.state.tendon_command)
     assert plant.failures <= 3
     assert np.all(np.isfinite(theta_est.Eval(ctx))) and np.all(np.isfinite(theta_true.Eval(ctx)))
+
+
+def test_squeeze_exploration_splits_common_and_differential_modes():
+    """With a squeeze the commands' offset from the grasp is a common mode (mean over the
+    tendons) inside +-squeeze_window, walking by at most +-squeeze per action, and a
+    differential mode inside +-window; every command stays in the tendon range."""
+    h = model_o().model()
+    l0 = np.full(3, 0.015)
+    ex = Exploration(l0, h.tendon_range, 0.5e-3, 1.2e-3, np.random.default_rng(4), squeeze=1.5e-3,
+                     squeeze_window=3e-3)
+    common, diff = [0.0], []
+    for _ in range(400):
+        dl = ex.next_action()
+        ex.commit(dl)
+        u = ex.l - l0
+        common.append(u.mean())
+        diff.append(u - u.mean())
+        assert np.all(ex.l >= h.tendon_range[:, 0]) and np.all(ex.l <= h.tendon_range[:, 1])
+    common, diff = np.array(common), np.array(diff)
+    assert np.all(np.abs(common) <= 3e-3 + 1e-12) and np.all(np.abs(diff) <= 1.2e-3 + 1e-12)
+    assert np.abs(np.diff(common)).max() <= 1.5e-3 + 1e-12
+    assert common.max() > 2e-3 and common.min() < -2e-3  # it squeezes and releases across the window
+    assert np.abs(diff).max() > 0.8e-3  # and still moves the object
+
+
+def test_exploration_without_squeeze_keeps_its_draws():
+    """squeeze = 0 is the plain per-tendon walk, draw for draw."""
+    h = model_o().model()
+    l0 = np.full(3, 0.015)
+    a = Exploration(l0, h.tendon_range, 0.5e-3, 1.2e-3, np.random.default_rng(9))
+    rng = np.random.default_rng(9)
+    l = l0.copy()
+    for _ in range(50):
+        dl = a.next_action()
+        a.commit(dl)
+        want = l + rng.uniform(-0.5e-3, 0.5e-3, 3)
+        hi, lo = l0 + 1.2e-3, l0 - 1.2e-3
+        want = np.clip(np.where(want < lo, 2 * lo - want, np.where(want > hi, 2 * hi - want, want)), lo, hi)
+        np.testing.assert_allclose(a.l, want, atol=1e-15)
+        l = want
+
+
+@pytest.mark.parametrize("squeeze, window", [(1e-3, 0.0), (-1e-3, 2e-3), (0.0, 2e-3)])
+def test_bad_squeeze_settings_are_named(squeeze, window):
+    h = model_o().model()
+    with pytest.raises(ValueError, match="squeeze"):
+        Exploration(np.full(3, 0.015), h.tendon_range, 0.5e-3, 1.2e-3, np.random.default_rng(0), squeeze, window)
+    with pytest.raises(ValueError, match="squeeze"):
+        ExplorationPolicy(h, np.full(3, 0.015), 1.0, 0.5e-3, 1.2e-3, squeeze=squeeze, squeeze_window=window)
+    with pytest.raises(ValueError, match="squeeze_range"):
+        IdentifyOptions(squeeze_range=squeeze, squeeze_window=window).validate()
+
+
+def test_exploration_policy_squeezes_by_its_settings():
+    h = model_o().model()
+    l0 = np.full(3, 0.015)
+    pol = ExplorationPolicy(h, l0, period_sec=1.0, span=0.5e-3, window=1.2e-3, seed=3, squeeze=1.5e-3,
+                            squeeze_window=3e-3)
+    sim = Simulator(pol)
+    u = []
+    for k in range(1, 80):
+        sim.AdvanceTo(k + 0.5)
+        u.append(pol.GetOutputPort("tendon_command").Eval(sim.get_context()) - l0)
+    common = np.array(u).mean(axis=1)
+    assert np.abs(common).max() > 1.5e-3 and np.all(np.abs(common) <= 3e-3 + 1e-12)

@@ -292,7 +292,9 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         )
         sensor_name = "tag_observer"
     span, window = s.exploration.span_and_window(s.plant)
-    policy = ExplorationPolicy(h, l0, T, span=span, window=window, seed=s.seed + SEED_POLICY)
+    squeeze, squeeze_window = s.exploration.squeeze_and_window(s.plant, s.experiment())
+    policy = ExplorationPolicy(h, l0, T, span=span, window=window, seed=s.seed + SEED_POLICY, squeeze=squeeze,
+                               squeeze_window=squeeze_window)
     flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()

@@ -48,6 +48,15 @@ KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
 STIFFNESS_RANGE = (0.10, 0.24)
 #: Default exploration per plant: (action range, window) [m] (see IdentifyOptions).
 EXPLORATION = {"model": (3.0e-3, 6.0e-3), "physics": (0.5e-3, 1.2e-3)}
+#: Default squeeze (common-mode) exploration per (plant, experiment): (squeeze, window) [m]
+#: (see Exploration); (0, 0) elsewhere. The physics stiffness experiment needs it: with
+#: 0.5 mm per-tendon actions the thumb's distal spring came out 0.27-0.31 N m/rad against
+#: truths of 0.17-0.19 (seeds 0-1, 10,000 particles, 60 iterations; the spring and the
+#: thumb's distal angle trade off in the cloud), with +-1.5 mm squeezes in a 3 mm window
+#: 0.20 / 0.27 (the thumb's proximal error 0.4-1.2 deg instead of 3-5). On the known hand
+#: the squeeze made the side fingers worse (proximal error 1.1-2.7 deg against 0.1-0.8), so
+#: the other experiments keep plain exploration.
+SQUEEZE = {("physics", "stiffness"): (1.5e-3, 3.0e-3)}
 
 
 @dataclass
@@ -79,6 +88,11 @@ class IdentifyOptions:
     # the model plant's stiffer grasps need 3 mm actions to be informative.
     action_range: float | None = None
     window: float | None = None
+    # Squeeze exploration: a common-mode pull of +-squeeze_range reflected inside
+    # +-squeeze_window [m] on top of the actions above (Exploration). None: the default of
+    # the plant and experiment (SQUEEZE; 0 = none).
+    squeeze_range: float | None = None
+    squeeze_window: float | None = None
     # Pose noise of the model plant's camera stand-in.
     sigma_position: float = 0.2e-3
     sigma_rotation_deg: float = 0.5
@@ -141,29 +155,72 @@ class IdentifyOptions:
         self.window = window if self.window is None else self.window
         if not 0 < self.action_range <= self.window:
             raise ValueError(f"action_range must be in (0, window], got {self.action_range} and window {self.window}")
+        squeeze, squeeze_window = SQUEEZE.get((self.plant, self.experiment), (0.0, 0.0))
+        self.squeeze_range = squeeze if self.squeeze_range is None else self.squeeze_range
+        self.squeeze_window = squeeze_window if self.squeeze_window is None else self.squeeze_window
+        if not 0 <= self.squeeze_range <= self.squeeze_window or (self.squeeze_range > 0) != (self.squeeze_window > 0):
+            raise ValueError(f"squeeze_range must be in (0, squeeze_window] (or both 0), got {self.squeeze_range} "
+                             f"and squeeze_window {self.squeeze_window}")
         return self
 
 
 class Exploration:
     """Random exploratory actions (DESIGN.md section 6): uniform in +-``span`` per tendon,
     reflected at the edges of a window around the grasp's tendon commands and of the
-    tendon range, so the random walk never slackens a tendon or leaves its limits."""
+    tendon range, so the random walk never slackens a tendon or leaves its limits.
 
-    def __init__(self, l_grasp, tendon_range, span: float, window: float, rng: np.random.Generator):
+    With ``squeeze`` > 0 the walk has two parts. The commands' offset from the grasp is
+    split into its mean over the tendons (the common mode: every tendon pulled or released
+    together, a change of grip force) and the rest (the differential mode, which moves the
+    object). The differential part walks by +-``span`` per tendon inside +-``window``, the
+    common part by +-``squeeze`` inside +-``squeeze_window``. A squeeze changes every
+    tendon's tension while the object moves little, so the joint springs show in the
+    object's motion; uniform per-tendon actions small enough for a compliant grasp change
+    the tension by ~1 N of 20-34 N (see ``SQUEEZE``). Both parts are read back from the
+    current command, so one step needs no state beyond ``l``."""
+
+    def __init__(self, l_grasp, tendon_range, span: float, window: float, rng: np.random.Generator,
+                 squeeze: float = 0.0, squeeze_window: float = 0.0):
+        if squeeze < 0 or squeeze_window < 0 or (squeeze > 0) != (squeeze_window > 0):
+            raise ValueError(f"exploration: 'squeeze' and 'squeeze_window' must both be positive or both 0, "
+                             f"got {squeeze} and {squeeze_window}")
         self.l = np.array(l_grasp, float)
-        self.lo = np.maximum(self.l - window, tendon_range[:, 0])
-        self.hi = np.minimum(self.l + window, tendon_range[:, 1])
-        self.span, self.rng = span, rng
+        self.l0 = self.l.copy()
+        self.range = np.asarray(tendon_range, float)
+        self.lo = np.maximum(self.l - window, self.range[:, 0])
+        self.hi = np.minimum(self.l + window, self.range[:, 1])
+        self.span, self.window, self.rng = span, window, rng
+        self.squeeze, self.squeeze_window = squeeze, squeeze_window
 
     def next_action(self) -> np.ndarray:
+        if self.squeeze > 0:
+            return self._next_split()
         want = self.l + self.rng.uniform(-self.span, self.span, self.l.shape)
         want = np.where(want > self.hi, 2 * self.hi - want, want)
         want = np.where(want < self.lo, 2 * self.lo - want, want)
         want = np.clip(want, self.lo, self.hi)
         return want - self.l
 
+    def _next_split(self) -> np.ndarray:
+        u = self.l - self.l0
+        c = u.mean() + self.rng.uniform(-self.squeeze, self.squeeze)
+        d = u - u.mean() + self.rng.uniform(-self.span, self.span, self.l.shape)
+        d = _reflect(d - d.mean(), self.window)
+        d -= d.mean()  # a reflection can shift the mean; shrink what then overshoots the window
+        d *= min(1.0, self.window / max(np.abs(d).max(), 1e-300))
+        c = _reflect(c, self.squeeze_window)
+        want = np.clip(self.l0 + c + d, self.range[:, 0], self.range[:, 1])
+        return want - self.l
+
     def commit(self, dl) -> None:
         self.l = self.l + np.asarray(dl)
+
+
+def _reflect(x, half_width: float):
+    """``x`` reflected back inside [-half_width, half_width] (one bounce, then clipped)."""
+    x = np.where(x > half_width, 2 * half_width - x, x)
+    x = np.where(x < -half_width, -2 * half_width - x, x)
+    return np.clip(x, -half_width, half_width)
 
 
 def _hand_name(opts: IdentifyOptions) -> str:
@@ -257,7 +314,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     if on_iteration is not None:
         on_iteration(0, f)
     explore = Exploration(plant.tendon_command(), filt_hand.tendon_range, opts.action_range, opts.window,
-                          np.random.default_rng(opts.seed + 2))
+                          np.random.default_rng(opts.seed + 2), opts.squeeze_range, opts.squeeze_window)
     truths = [plant.truth()]
     converged_at = None
     lost = 0

@@ -174,6 +174,12 @@ class ExplorationSettings:
     # the plant's default, ``vlr_drake.identify.EXPLORATION`` (model 3 / 6 mm, physics and
     # hardware 0.5 / 1.2 mm: a compliant grasp).
     window: float | None = None
+    # A common-mode pull of +-squeeze [m] on every tendon at once, reflected inside
+    # +-squeeze_window [m] (vlr_drake.identify.Exploration). None (either): the default of
+    # the plant and experiment, ``vlr_drake.identify.SQUEEZE`` (physics stiffness 1.5 / 3 mm,
+    # else none); 0 and 0: none.
+    squeeze: float | None = None
+    squeeze_window: float | None = None
     # Action period T [s]; 0: the plant's own (model 1 s, physics ``physics.action_period``
     # (ramp + settle cap), hardware 1 s).
     period_sec: float = 0.0
@@ -186,11 +192,27 @@ class ExplorationSettings:
         return (span if self.span is None else float(self.span),
                 window if self.window is None else float(self.window))
 
+    def squeeze_and_window(self, plant: str, experiment: str) -> tuple[float, float]:
+        """(squeeze, window) [m] for ``plant`` and ``experiment``: the scenario's, else the
+        default (``vlr_drake.identify.SQUEEZE``; (0, 0) where it names none)."""
+        from vlr_drake.identify import SQUEEZE
+
+        squeeze, window = SQUEEZE.get(("model" if plant == "model" else "physics", experiment), (0.0, 0.0))
+        return (squeeze if self.squeeze is None else float(self.squeeze),
+                window if self.squeeze_window is None else float(self.squeeze_window))
+
     def validate(self) -> "ExplorationSettings":
         if (self.span is not None and not self.span > 0) or (self.window is not None and not self.window > 0):
             raise ValueError(
                 f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}"
             )
+        for name in ("squeeze", "squeeze_window"):
+            value = getattr(self, name)
+            if value is not None and not value >= 0:
+                raise ValueError(f"exploration: '{name}' must be >= 0, got {value}")
+        if self.squeeze is not None and self.squeeze_window is not None and self.squeeze > self.squeeze_window:
+            raise ValueError(f"exploration: 'squeeze' ({self.squeeze}) must not exceed 'squeeze_window' "
+                             f"({self.squeeze_window})")
         if self.period_sec < 0:
             raise ValueError(f"exploration: 'period_sec' must be >= 0, got {self.period_sec}")
         return self
@@ -316,6 +338,11 @@ class Scenario:
         if self.object_spec is not None:
             return copy.deepcopy(self.object_spec)
         return preset(self.object)
+
+    def experiment(self) -> str:
+        """The identification experiment its prior describes: "stiffness", "novel_fingers"
+        or "known_hand" (what the prior leaves unknown)."""
+        return _experiment_of(self.prior)
 
     def period_sec(self) -> float:
         """The action period T [s] (``exploration.period_sec`` or the plant's own)."""
@@ -531,7 +558,7 @@ def _common_settings(scenario: Scenario, path, plant: str | None) -> dict:
 def options_from_scenario(scenario: Scenario | None, path: str | Path | None = None, **overrides):
     """The :class:`vlr_drake.identify.IdentifyOptions` of an identification run: the
     scenario's plant, hand (preset or ``hand_spec``), object (preset or ``object_spec``),
-    seed, filter (and its particle count), prior, exploration span and window, the model
+    seed, filter (and its particle count), prior, exploration span, window and squeeze, the model
     plant's noise, dropout, contact drift, nominal-grasp offset and true stiffness and link
     lengths (plant "model"), the physics settings and camera, then the ``overrides``
     (IdentifyOptions fields; None means "not given"). ``scenario=None``: the IdentifyOptions
@@ -562,6 +589,8 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         object_spec=copy.deepcopy(s.object_spec),
         filter=copy.deepcopy(s.filter),
         prior=s.prior.to_prior(),
+        squeeze_range=s.exploration.squeeze,
+        squeeze_window=s.exploration.squeeze_window,
     )
     if opts["plant"] == "model":
         mp = s.model_plant

@@ -146,10 +146,11 @@ class SelfIdentificationSystem(LeafSystem):
 class ExplorationPolicy(LeafSystem):
     """Random exploratory tendon commands: every ``period_sec`` the command moves by a
     uniform draw in +-``span`` per tendon, reflected inside +-``window`` around the initial
-    (grasp) commands and inside the tendon range (see :class:`vlr_drake.identify.Exploration`)."""
+    (grasp) commands and inside the tendon range, plus, with ``squeeze`` > 0, a common-mode
+    pull of +-``squeeze`` inside +-``squeeze_window`` (see :class:`vlr_drake.identify.Exploration`)."""
 
     def __init__(self, hand: HandModel, l_grasp, period_sec: float, span: float = 1.5e-3, window: float = 4e-3,
-                 seed: int = 0):
+                 seed: int = 0, squeeze: float = 0.0, squeeze_window: float = 0.0):
         super().__init__()
         self._l0 = np.asarray(l_grasp, float)
         self._seed = seed
@@ -158,11 +159,14 @@ class ExplorationPolicy(LeafSystem):
         self._out = self.DeclareStateOutputPort("tendon_command", self._state)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=period_sec, update=self._update)
         self._span, self._window, self._range = span, window, hand.tendon_range
+        self._squeeze = (squeeze, squeeze_window)
+        Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
 
     def _update(self, context, discrete_state):
         n = int(context.get_discrete_state(self._draws).GetAtIndex(0))
         l_now = np.array(context.get_discrete_state(self._state).get_value())
-        ex = Exploration(self._l0, self._range, self._span, self._window, np.random.default_rng((self._seed, n)))
+        ex = Exploration(self._l0, self._range, self._span, self._window, np.random.default_rng((self._seed, n)),
+                         *self._squeeze)
         ex.l = l_now
         discrete_state.get_mutable_vector(self._state).SetFromVector(l_now + ex.next_action())
         discrete_state.get_mutable_vector(self._draws).SetAtIndex(0, n + 1)
