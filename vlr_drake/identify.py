@@ -49,13 +49,15 @@ STIFFNESS_RANGE = (0.10, 0.24)
 #: Default exploration per plant: (action range, window) [m] (see IdentifyOptions).
 EXPLORATION = {"model": (3.0e-3, 6.0e-3), "physics": (0.5e-3, 1.2e-3)}
 #: Default squeeze (common-mode) exploration per (plant, experiment): (squeeze, window) [m]
-#: (see Exploration); (0, 0) elsewhere. The physics stiffness experiment needs it: with
-#: 0.5 mm per-tendon actions the thumb's distal spring came out 0.27-0.31 N m/rad against
-#: truths of 0.17-0.19 (seeds 0-1, 10,000 particles, 60 iterations; the spring and the
-#: thumb's distal angle trade off in the cloud), with +-1.5 mm squeezes in a 3 mm window
-#: 0.20 / 0.27 (the thumb's proximal error 0.4-1.2 deg instead of 3-5). On the known hand
-#: the squeeze made the side fingers worse (proximal error 1.1-2.7 deg against 0.1-0.8), so
-#: the other experiments keep plain exploration.
+#: (see Exploration); (0, 0) elsewhere ("physics" stands for hardware too). The physics
+#: stiffness experiment needs it: with 0.5 mm per-tendon actions the thumb's distal spring
+#: came out 0.31 / 0.30 N m/rad against truths of 0.19 / 0.17, outside the intervals (seeds
+#: 0-1, 10,000 particles, 60 iterations; the spring and the thumb's distal angle trade off in
+#: the cloud); with +-1.5 mm squeezes in a 3 mm window 0.197 / 0.247, the thumb's proximal
+#: error 0.4-1.0 deg instead of 3.2-4.8 (seeds 0-4: errors 0.005-0.076, every truth inside;
+#: 20,000 particles, 100 iterations: 0.006-0.064). On the known hand the squeeze made the
+#: side fingers worse (proximal error 1.6-2.7 deg against 0.1-0.5), so the other
+#: experiments keep plain exploration.
 SQUEEZE = {("physics", "stiffness"): (1.5e-3, 3.0e-3)}
 
 

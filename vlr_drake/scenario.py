@@ -176,8 +176,8 @@ class ExplorationSettings:
     window: float | None = None
     # A common-mode pull of +-squeeze [m] on every tendon at once, reflected inside
     # +-squeeze_window [m] (vlr_drake.identify.Exploration). None (either): the default of
-    # the plant and experiment, ``vlr_drake.identify.SQUEEZE`` (physics stiffness 1.5 / 3 mm,
-    # else none); 0 and 0: none.
+    # the plant and experiment, ``vlr_drake.identify.SQUEEZE`` (the stiffness experiment on the
+    # physics plant and on hardware: 1.5 / 3 mm; else none); 0 and 0: none.
     squeeze: float | None = None
     squeeze_window: float | None = None
     # Action period T [s]; 0: the plant's own (model 1 s, physics ``physics.action_period``
