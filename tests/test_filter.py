@@ -146,6 +146,94 @@ def test_roughening_keeps_mean_and_covariance():
     np.testing.assert_allclose(np.corrcoef(after, rowvar=False), np.corrcoef(before, rowvar=False), atol=0.05)
 
 
+def test_information_gain_matches_its_definition():
+    """0.5 log det(I + Cov) over the valid predictions; too few valid ones score -inf."""
+    rng = np.random.default_rng(3)
+    y = rng.normal(size=(3, 50, 6)) * np.array([0.1, 1.0, 3.0])[:, None, None]
+    ok = np.ones((3, 50), bool)
+    ok[2, :40] = False  # 10 of 50 valid
+    got = pf.information_gain(y, ok, min_valid=0.5)
+    for c in range(2):
+        cov = np.cov(y[c], rowvar=False, bias=True)
+        assert got[c] == pytest.approx(0.5 * np.linalg.slogdet(np.eye(6) + cov)[1], rel=1e-12)
+    assert got[2] == -np.inf and got[0] < got[1]  # more spread, more information
+    ok[2, :] = True
+    ok[2, 0] = False  # the invalid prediction is left out, whatever its value
+    y[2, 0] = 1e6
+    cov = np.cov(y[2, 1:], rowvar=False, bias=True)
+    assert pf.information_gain(y, ok)[2] == pytest.approx(0.5 * np.linalg.slogdet(np.eye(6) + cov)[1], rel=1e-12)
+    with pytest.raises(ValueError, match="information_gain"):
+        pf.information_gain(y[0], ok[0])
+
+
+def test_action_information_scores_actions_without_changing_the_filter():
+    """After a few iterations a full action back along a move the grasp made scores more
+    than a null action; the particles are untouched. Even a null action scores: the
+    roughened hypotheses are off their equilibria and settle under it, differently (here
+    null 2.44, half the action 2.40, the whole action 2.72). Right after initialisation
+    40% of the hypotheses find no equilibrium even for a null action (they start out of
+    equilibrium with the commanded tendons), so every candidate scores -inf there."""
+    h, plant, f = _filter_and_plant(4, particles=3000)
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        dl = rng.uniform(-1e-3, 1e-3, 3)
+        if plant.apply_action(dl):
+            R, t, _ = plant.measure()
+            f.step(dl, R, t)
+            last = dl
+    before = f.particles.theta.copy(), f.particles.log_w.copy(), f.particles.p_O.copy()
+    acts = np.array([0.0, 0.5, 1.0])[:, None] * -last[None]  # back along a move the grasp made
+    score = f.action_information(acts, np.random.default_rng(0), samples=300)
+    assert score.shape == (3,)
+    assert np.all(np.isfinite(score)) and score[2] > score[0] + 0.1, score
+    for x, y in zip(before, (f.particles.theta, f.particles.log_w, f.particles.p_O)):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(ValueError, match="actions"):
+        f.action_information(np.zeros(3), np.random.default_rng(0))
+
+
+def test_informative_exploration_falls_back_to_random_after_a_refusal():
+    from vlr_drake.identify import Exploration, InformativeExploration
+
+    class Scores:  # prefers the proposal with the largest first pull
+        def action_information(self, proposals, rng):
+            return proposals[:, 0]
+
+    h = model_o().model()
+    l0 = np.full(3, 0.015)
+    ex = InformativeExploration(Exploration(l0, h.tendon_range, 1e-3, 3e-3, np.random.default_rng(1)), Scores(), 8,
+                                np.random.default_rng(2))
+    twin = Exploration(l0, h.tendon_range, 1e-3, 3e-3, np.random.default_rng(1))
+    proposals = np.array([twin.next_action() for _ in range(8)])
+    first = ex.next_action()
+    np.testing.assert_array_equal(first, proposals[np.argmax(proposals[:, 0])])
+    # refused (not committed): the next action is the next plain draw, not another choice
+    np.testing.assert_array_equal(ex.next_action(), twin.next_action())
+    ex.commit(first)
+    np.testing.assert_allclose(ex.l, l0 + first)
+
+
+@pytest.mark.slow
+def test_informative_actions_converge_sooner_and_stay_honest():
+    """Model plant, known hand, 20,000 particles, at most 100 iterations, seeds 0-3: choosing
+    the most informative of 8 random actions converges in fewer iterations than random
+    actions, with the truth inside the 95% intervals as often. Measured over seeds 0-23:
+    31.5 against 56 iterations, 24 of 24 converged against 21-22, coverage 0.97 / 0.92
+    (joints / contacts) against 1.00 / 1.00 (vlr_drake.identify.ACTION_CHOICE)."""
+    its, inside = {}, {}
+    for choice in ("random", "informative"):
+        its[choice], inside[choice] = [], []
+        for seed in range(4):
+            r = run_identification(IdentifyOptions(experiment="known_hand", particles=20000, max_iterations=100,
+                                                   seed=seed, progress=False, action_choice=choice))
+            assert r["action_choice"] == choice
+            its[choice].append(r["iterations"])
+            inside[choice] += [r["truth_inside_95_theta"]] * 6 + [r["truth_inside_95_contact"]] * 3
+            assert np.mean(r["proximal_joint_error_deg"]) < 1.5
+    assert np.mean(its["informative"]) < 0.8 * np.mean(its["random"]), its
+    assert np.mean(inside["informative"]) >= 0.9, inside
+
+
 def test_lost_tag_moves_but_does_not_learn():
     h, plant, f = _filter_and_plant(6, particles=2000)
     dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])

@@ -111,7 +111,7 @@ def _identify_options(args):
     opts = options_from_scenario(
         args.loaded, args.scenario_path, experiment=args.experiment, plant=args.plant, object=args.object,
         hand=args.hand, seed=args.seed, particles=args.particles, max_iterations=args.iterations,
-        progress=not args.no_progress,
+        progress=not args.no_progress, action_choice=getattr(args, "actions", None),
     )
     if args.loaded is None:
         opts.scenario = None  # described by the flags alone
@@ -391,6 +391,11 @@ def main(argv: list[str] | None = None) -> int:
                            help="known_hand: angles and contacts; stiffness: also the thumb's distal spring; "
                                 "novel_fingers: also the proximal lengths of replaced fingers (default: what the "
                                 "scenario's prior leaves unknown, else known_hand)")
+        if name == "identify":
+            p.add_argument("--actions", choices=["random", "informative"], default=None,
+                           help="how each exploratory action is chosen: random (the paper's) or informative (the "
+                                "most informative of 8 random proposals; default: informative on the model plant, "
+                                "random on the physics plant)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else apple)")
         p.add_argument("--hand", default=None,
                        help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "

@@ -55,6 +55,7 @@ __all__ = [
     "effective_sample_size",
     "temper",
     "interval95",
+    "information_gain",
 ]
 
 
@@ -146,6 +147,25 @@ def _temper_increment(log_w0: np.ndarray, log_lik: np.ndarray, ess_target: float
         else:
             hi = mid
     return max(lo, 1e-6)
+
+
+def information_gain(y: np.ndarray, ok: np.ndarray, min_valid: float = 0.9) -> np.ndarray:
+    """0.5 log det(I + Cov_s(y[c])) per candidate c (C,), for predicted measurements ``y``
+    (C, S, D) in units of the measurement noise and validity flags ``ok`` (C, S): the mutual
+    information between a Gaussian cloud of predictions and one noisy measurement of it. The
+    covariance is over the valid predictions; a candidate with fewer than ``min_valid`` of
+    them valid scores -inf."""
+    y = np.asarray(y, float)
+    ok = np.asarray(ok, bool)
+    if y.ndim != 3 or ok.shape != y.shape[:2]:
+        raise ValueError(f"information_gain: y must be (C, S, D) and ok (C, S), got {y.shape} and {ok.shape}")
+    n = ok.sum(axis=1)
+    w = ok / np.maximum(n, 1)[:, None]
+    mean = np.einsum("cs,csd->cd", w, y)
+    d = np.where(ok[..., None], y - mean[:, None], 0.0)
+    cov = np.einsum("cs,csd,cse->cde", w, d, d)
+    logdet = np.linalg.slogdet(np.eye(y.shape[2])[None] + cov)[1]
+    return np.where((n >= min_valid * y.shape[1]) & (n > 1), 0.5 * logdet, -np.inf)
 
 
 def interval95(x: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -484,6 +504,50 @@ class SelfIdentificationFilter:
     def _within_limits(self, theta):
         h = self.hand
         return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
+
+    # ---------------------------------------------------------------- action choice
+    def action_information(self, actions, rng: np.random.Generator, samples: int = 256,
+                           min_valid: float = 0.9) -> np.ndarray:
+        """Expected information (C,) of each candidate action (C, N) about the hypotheses.
+
+        A weighted subsample of ``samples`` hypotheses (systematic, drawn with ``rng``) is
+        moved by every candidate with Gamma, and each predicts the POM's motion (translation
+        and rotation vector in its own frame, in units of sigma_p and sigma_r). Where the
+        hypotheses disagree the camera can tell them apart: the score is the Gaussian
+        mutual information between hypothesis and measurement, 0.5 log det(I + Cov), over
+        the hypotheses that stay physical (an equilibrium, pulling tendons, joints in their
+        limits; :func:`information_gain`). A candidate under which more than
+        ``1 - min_valid`` of them find no equilibrium scores -inf: the grasp itself may have
+        none there. The filter is not changed."""
+        if self.particles is None:
+            raise RuntimeError("filter: call initialise() before action_information()")
+        cfg, h, ps = self.config, self.hand, self.particles
+        actions = np.asarray(actions, float)
+        if actions.ndim != 2 or actions.shape[1] != h.N or actions.shape[0] < 1:
+            raise ValueError(f"filter: 'actions' must have shape (C, {h.N}), got {actions.shape}")
+        if samples < 2:
+            raise ValueError(f"filter: 'samples' must be >= 2, got {samples}")
+        C = actions.shape[0]
+        idx = systematic_resample(normalise(ps.log_w), rng)
+        sub = ps.take(idx[:: max(1, ps.size // samples)][:samples])
+        S = sub.size
+        stretch = self._commanded_stretch(sub.theta) if self._uses_command() else sub.stretch
+
+        def tile(x):  # candidate-major: row c * S + s is hypothesis s under candidate c
+            return x if x.shape[0] == 1 else np.tile(x, (C,) + (1,) * (x.ndim - 1))
+
+        theta, a, L, p_O = tile(sub.theta), tile(sub.a), tile(sub.link_lengths), tile(sub.p_O)
+        res = motion.move(h, theta, np.repeat(actions, S, axis=0), a=a, D2=motion.contact_distances_sq(h, p_O),
+                          stretch=tile(stretch), link_lengths=L, stiffness=tile(sub.stiffness), tendon=cfg.tendon,
+                          tolerance=cfg.newton_tolerance)
+        R0, t0, ok0 = observation.pom_pose(p_O, kinematics.contacts(h, theta, a, L))
+        R1, t1, ok1 = observation.pom_pose(p_O, kinematics.contacts(h, res.theta, a, L))
+        solved = (res.ok & ok0 & ok1).reshape(C, S)
+        live = solved & (res.tension_feasible() & self._within_limits(res.theta)).reshape(C, S)
+        turn = observation.rotvec(np.einsum("pji,pjk->pik", R0, R1))
+        y = np.concatenate([(t1 - t0) / cfg.sigma_position, turn / cfg.sigma_rotation], axis=1)
+        score = information_gain(y.reshape(C, S, 6), live, min_valid=0.0)
+        return np.where(solved.mean(axis=1) >= min_valid, score, -np.inf)
 
     # ---------------------------------------------------------------- one iteration
     def step(self, dl, R_meas=None, t_meas=None, valid: bool = True, tendon_command=None) -> StepReport:
