@@ -147,7 +147,11 @@ class ExplorationPolicy(LeafSystem):
     """Random exploratory tendon commands: every ``period_sec`` the command moves by a
     uniform draw in +-``span`` per tendon, reflected inside +-``window`` around the initial
     (grasp) commands and inside the tendon range, plus, with ``squeeze`` > 0, a common-mode
-    pull of +-``squeeze`` inside +-``squeeze_window`` (see :class:`vlr_drake.identify.Exploration`)."""
+    pull of +-``squeeze`` inside +-``squeeze_window`` (see :class:`vlr_drake.identify.Exploration`).
+
+    Its actions are random, the paper's choice, on every plant: the informative choice of
+    ``vlr-drake identify`` on the model plant (:class:`vlr_drake.identify.InformativeExploration`)
+    scores proposals against the filter's hypotheses and lives in the identification loop."""
 
     def __init__(self, hand: HandModel, l_grasp, period_sec: float, span: float = 1.5e-3, window: float = 4e-3,
                  seed: int = 0, squeeze: float = 0.0, squeeze_window: float = 0.0):
