@@ -186,7 +186,7 @@ def test_action_information_scores_actions_without_changing_the_filter():
     score = f.action_information(acts, np.random.default_rng(0), samples=300)
     assert score.shape == (3,)
     assert np.all(np.isfinite(score)) and score[2] > score[0] + 0.1, score
-    for x, y in zip(before, (f.particles.theta, f.particles.log_w, f.particles.p_O)):
+    for x, y in zip(before, (f.particles.theta, f.particles.log_w, f.particles.p_O), strict=True):
         np.testing.assert_array_equal(x, y)
     with pytest.raises(ValueError, match="actions"):
         f.action_information(np.zeros(3), np.random.default_rng(0))

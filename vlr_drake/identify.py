@@ -73,6 +73,14 @@ ACTION_CHOICE = {"model": "informative", "physics": "random"}
 ACTION_CHOICES = ("random", "informative")
 
 
+def default_squeeze(plant: str, experiment: str) -> tuple[float, float]:
+    """(squeeze, window) [m] of ``experiment`` on ``plant`` ("model"; "physics" or
+    "hardware"): its entry in SQUEEZE, else (0, 0)."""
+    return SQUEEZE.get(("model" if plant == "model" else "physics", experiment), (0.0, 0.0))
+
+
+
+
 @dataclass
 class IdentifyOptions:
     """One identification trial."""
@@ -179,7 +187,7 @@ class IdentifyOptions:
             raise ValueError(f"action_choice must be one of {ACTION_CHOICES}, got '{self.action_choice}'")
         if self.candidates < 1:
             raise ValueError(f"candidates must be >= 1, got {self.candidates}")
-        squeeze, squeeze_window = SQUEEZE.get((self.plant, self.experiment), (0.0, 0.0))
+        squeeze, squeeze_window = default_squeeze(self.plant, self.experiment)
         self.squeeze_range = squeeze if self.squeeze_range is None else self.squeeze_range
         self.squeeze_window = squeeze_window if self.squeeze_window is None else self.squeeze_window
         if not 0 <= self.squeeze_range <= self.squeeze_window or (self.squeeze_range > 0) != (self.squeeze_window > 0):
@@ -255,7 +263,7 @@ class InformativeExploration:
         self._pending = False  # an informative choice not yet committed
 
     @property
-    def l(self) -> np.ndarray:
+    def l(self) -> np.ndarray:  # noqa: E743 - the tendon commands, named as Exploration.l
         return self.explore.l
 
     def next_action(self) -> np.ndarray:

@@ -195,9 +195,9 @@ class ExplorationSettings:
     def squeeze_and_window(self, plant: str, experiment: str) -> tuple[float, float]:
         """(squeeze, window) [m] for ``plant`` and ``experiment``: the scenario's, else the
         default (``vlr_drake.identify.SQUEEZE``; (0, 0) where it names none)."""
-        from vlr_drake.identify import SQUEEZE
+        from vlr_drake.identify import default_squeeze
 
-        squeeze, window = SQUEEZE.get(("model" if plant == "model" else "physics", experiment), (0.0, 0.0))
+        squeeze, window = default_squeeze(plant, experiment)
         return (squeeze if self.squeeze is None else float(self.squeeze),
                 window if self.squeeze_window is None else float(self.squeeze_window))
 
