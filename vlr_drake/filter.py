@@ -501,6 +501,11 @@ class SelfIdentificationFilter:
         """(M, N) stretch l - R theta of hypotheses ``theta`` under the current tendon command."""
         return self.tendon_command[None] - self.hand.tendon_travel(theta)
 
+    def _feasible(self, res, pose_ok) -> np.ndarray:
+        """(P,) hypotheses that stay physical after the move ``res``: solved, a POM pose
+        (``pose_ok``), pulling tendons and joints inside their limits."""
+        return res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)
+
     def _within_limits(self, theta):
         h = self.hand
         return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
@@ -543,7 +548,7 @@ class SelfIdentificationFilter:
         R0, t0, ok0 = observation.pom_pose(p_O, kinematics.contacts(h, theta, a, L))
         R1, t1, ok1 = observation.pom_pose(p_O, kinematics.contacts(h, res.theta, a, L))
         solved = (res.ok & ok0 & ok1).reshape(C, S)
-        live = solved & (res.tension_feasible() & self._within_limits(res.theta)).reshape(C, S)
+        live = self._feasible(res, ok0 & ok1).reshape(C, S)
         turn = observation.rotvec(np.einsum("pji,pjk->pik", R0, R1))
         y = np.concatenate([(t1 - t0) / cfg.sigma_position, turn / cfg.sigma_rotation], axis=1)
         score = information_gain(y.reshape(C, S, 6), live, min_valid=0.0)
@@ -579,7 +584,7 @@ class SelfIdentificationFilter:
                           tolerance=cfg.newton_tolerance)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
         R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
-        feasible = res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)
+        feasible = self._feasible(res, pose_ok)
         ps.theta, ps.stretch = res.theta, res.stretch
         if not valid or R_meas is None:
             report = self._report(False, float(ps.size), 1.0, res, feasible, False, np.nan)
