@@ -72,6 +72,37 @@ def test_weighted_interval_matches_sorted_definition():
     assert lo_w[0] > 0
 
 
+def _sorted_weighted_quantile(x, w, q):
+    """The definition: the smallest sample whose cumulative normalised weight reaches q."""
+    order = np.argsort(x, kind="stable")
+    cw = np.cumsum(w[order])
+    return x[order[np.argmax(cw / cw[-1] >= q)]]
+
+
+def test_weighted_interval_selection_matches_the_sorted_definition():
+    """The weighted selection against a sort, on small hand-made clouds with ties, zero
+    weights and one dominant particle, and on a large cloud where the histogram's bins
+    hold many values each."""
+    rng = np.random.default_rng(5)
+    for trial in range(400):
+        M = int(rng.integers(2, 40))
+        x = rng.integers(0, 4, (M, 2)).astype(float) if trial % 2 else rng.standard_normal((M, 2))
+        w = rng.random(M) * (rng.random(M) < 0.6)
+        w[rng.integers(M)] += 1.0 if trial % 5 == 0 else 0.01
+        lo, hi = pf.interval95(x, w / w.sum())
+        for c in range(2):
+            assert lo[c] == _sorted_weighted_quantile(x[:, c], w, 0.025)
+            assert hi[c] == _sorted_weighted_quantile(x[:, c], w, 0.975)
+    x = rng.standard_normal((50_000, 3, 2)).cumsum(axis=0)
+    w = rng.random(50_000) ** 4
+    lo, hi = pf.interval95(x, w / w.sum())
+    flat = x.reshape(50_000, -1)
+    np.testing.assert_array_equal(lo.ravel(), [_sorted_weighted_quantile(flat[:, c], w, 0.025) for c in range(6)])
+    np.testing.assert_array_equal(hi.ravel(), [_sorted_weighted_quantile(flat[:, c], w, 0.975) for c in range(6)])
+    with pytest.raises(ValueError, match="finite"):
+        pf.interval95(np.array([[0.0], [np.nan]]), np.array([0.3, 0.7]))
+
+
 def test_motion_error_widens_sigma_by_the_predicted_motion():
     """The likelihood against its definition: Gaussian in (dp, ang) with sigma^2 = s^2 +
     (c * predicted motion)^2 and its log-normaliser; c = 0 is the plain likelihood."""

@@ -38,7 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from vlr_drake import kinematics, motion, observation
 from vlr_drake.hand import HandModel
@@ -111,26 +111,40 @@ def temper(log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> floa
     return _temper_increment(np.zeros_like(np.asarray(log_lik, float)), log_lik, ess_target, iterations)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _tempered_ess(log_w0, log_lik, beta):  # pragma: no cover - numba
     """ESS of the log weights log_w0 + beta log_lik (non-finite ones weigh nothing), in two
-    passes without temporaries: the bisection of :func:`_temper_increment` calls it ~40 times."""
-    top = -np.inf
-    for i in range(log_w0.shape[0]):
-        v = log_w0[i] + beta * log_lik[i]
-        if v > top and v < np.inf:
-            top = v
+    passes without temporaries, each split into blocks summed in parallel: the bisection of
+    :func:`_temper_increment` calls it ~40 times."""
+    M = log_w0.shape[0]
+    nb = 16
+    size = (M + nb - 1) // nb
+    part = np.full(nb, -np.inf)
+    for b in prange(nb):
+        top = -np.inf
+        for i in range(b * size, min(M, (b + 1) * size)):
+            v = log_w0[i] + beta * log_lik[i]
+            if v > top and v < np.inf:
+                top = v
+        part[b] = top
+    top = part.max()
     if not np.isfinite(top):
         return 0.0
-    s = 0.0
-    s2 = 0.0
-    for i in range(log_w0.shape[0]):
-        v = log_w0[i] + beta * log_lik[i]
-        if v > -np.inf and v < np.inf:
-            e = np.exp(v - top)
-            s += e
-            s2 += e * e
-    return s * s / s2
+    s1 = np.zeros(nb)
+    s2 = np.zeros(nb)
+    for b in prange(nb):
+        a1 = 0.0
+        a2 = 0.0
+        for i in range(b * size, min(M, (b + 1) * size)):
+            v = log_w0[i] + beta * log_lik[i]
+            if v > -np.inf and v < np.inf:
+                e = np.exp(v - top)
+                a1 += e
+                a2 += e * e
+        s1[b] = a1
+        s2[b] = a2
+    s = s1.sum()
+    return s * s / s2.sum()
 
 
 def _temper_increment(log_w0: np.ndarray, log_lik: np.ndarray, ess_target: float, iterations: int = 40) -> float:
@@ -172,7 +186,8 @@ def interval95(x: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, 
     """Weighted 2.5 and 97.5 percentiles over the particle axis (axis 0).
 
     With weights, the quantile is the smallest sample whose cumulative normalised weight
-    reaches the level (the inverse of the weighted empirical CDF)."""
+    reaches the level (the inverse of the weighted empirical CDF); it is found by weighted
+    selection (:func:`_weighted_quantiles`, linear time per column) rather than a sort."""
     x = np.asarray(x, float)
     if w is None:
         lo, hi = np.percentile(x, [2.5, 97.5], axis=0)
@@ -184,15 +199,97 @@ def interval95(x: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, 
         k = [int(np.ceil(q * M - 1e-9)) - 1 for q in (0.025, 0.975)]
         part = np.partition(flat, k, axis=0)
         return part[k[0]].reshape(x.shape[1:]), part[k[1]].reshape(x.shape[1:])
-    order = np.argsort(flat, axis=0)
-    cw = np.cumsum(np.asarray(w)[order], axis=0)
-    cw /= cw[-1]
-    cols = np.arange(flat.shape[1])
-    out = []
-    for q in (0.025, 0.975):
-        k = np.argmax(cw >= q, axis=0)
-        out.append(flat[order[k, cols], cols].reshape(x.shape[1:]))
-    return out[0], out[1]
+    if not np.isfinite(flat).all():
+        raise ValueError("interval95: the samples must be finite")
+    out = _weighted_quantiles(np.ascontiguousarray(flat.T), w, np.array([0.025, 0.975]))
+    return out[:, 0].reshape(x.shape[1:]), out[:, 1].reshape(x.shape[1:])
+
+
+@njit(cache=True)
+def _weighted_select(v, w, target):  # pragma: no cover - numba
+    """Smallest value x of ``v`` with W(v <= x) >= ``target`` (W: the summed weights ``w``),
+    by three-way quickselect; ``v`` and ``w`` are scratch (reordered in place). Expected
+    linear time: every pass keeps only the side that holds the answer."""
+    lo, hi = 0, v.shape[0]
+    below = 0.0  # weight of the values already known to lie below v[lo:hi]
+    while hi - lo > 1:
+        a, b, c = v[lo], v[(lo + hi) // 2], v[hi - 1]  # median-of-three pivot
+        p = max(min(a, b), min(max(a, b), c))
+        # partition v[lo:hi] into < p | == p | > p, carrying the weights along
+        i, lt, gt = lo, lo, hi
+        w_lt = 0.0
+        w_eq = 0.0
+        while i < gt:
+            if v[i] < p:
+                w_lt += w[i]
+                v[i], v[lt] = v[lt], v[i]
+                w[i], w[lt] = w[lt], w[i]
+                lt += 1
+                i += 1
+            elif v[i] > p:
+                gt -= 1
+                v[i], v[gt] = v[gt], v[i]
+                w[i], w[gt] = w[gt], w[i]
+            else:
+                w_eq += w[i]
+                i += 1
+        if below + w_lt >= target and lt > lo:
+            hi = lt
+        elif below + w_lt + w_eq >= target or gt == hi:
+            return p
+        else:
+            below += w_lt + w_eq
+            lo = gt
+    return v[lo]
+
+
+@njit(cache=True, parallel=True)
+def _weighted_quantiles(cols, w, levels):  # pragma: no cover - numba
+    """Weighted quantiles (C, Q) of every row of ``cols`` (C, M) (finite values) with
+    weights ``w`` (M,) at ``levels`` (Q,) in (0, 1]: the smallest value whose cumulative
+    normalised weight reaches the level. Rows in parallel; per row, a weight histogram of
+    1024 bins finds the bin that holds each quantile, and :func:`_weighted_select` picks it
+    among that bin's values (two passes over the row instead of a sort)."""
+    C, M = cols.shape
+    B = 1024
+    total = 0.0
+    for i in range(M):
+        total += w[i]
+    out = np.empty((C, levels.shape[0]))
+    for c in prange(C):
+        x = cols[c]
+        vmin, vmax = x[0], x[0]
+        for i in range(M):
+            vmin = min(vmin, x[i])
+            vmax = max(vmax, x[i])
+        if vmax == vmin:
+            out[c, :] = vmin
+            continue
+        scale = B / (vmax - vmin)
+        hist = np.zeros(B)
+        for i in range(M):
+            hist[min(int((x[i] - vmin) * scale), B - 1)] += w[i]
+        for q in range(levels.shape[0]):
+            target = levels[q] * total
+            below = 0.0
+            k = 0
+            while k < B - 1 and below + hist[k] < target:
+                below += hist[k]
+                k += 1
+            n = 0
+            for i in range(M):
+                if min(int((x[i] - vmin) * scale), B - 1) == k:
+                    n += 1
+            v = np.empty(n)
+            ww = np.empty(n)
+            n = 0
+            for i in range(M):
+                if min(int((x[i] - vmin) * scale), B - 1) == k:
+                    v[n] = x[i]
+                    ww[n] = w[i]
+                    n += 1
+            out[c, q] = _weighted_select(v, ww, target - below)
+    return out
 
 
 # --------------------------------------------------------------------------------------

@@ -245,7 +245,11 @@ class HandModel:
     def tendon_travel(self, theta) -> np.ndarray:
         """R theta per finger: the tendon length the joints take up, (..., N) for angles
         (..., N, K) [m] (Eq. 7 without the differences)."""
-        return (np.asarray(theta, float) * self.moment_arms).sum(axis=-1)
+        theta = np.asarray(theta, float)
+        out = theta[..., 0] * self.moment_arms[:, 0]
+        for k in range(1, self.K):  # the order of numpy's sum over this short axis: same round-off
+            out += theta[..., k] * self.moment_arms[:, k]
+        return out
 
     @cached_property
     def R(self) -> np.ndarray:
