@@ -110,6 +110,8 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     small = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=100), pf.PriorConfig(), np.random.default_rng(0))
     small.initialise(theta, a, R, t, tendon_command=plant.state.tendon_command)
     small.step(np.zeros(h.N), R, t)
+    pf.interval95(np.arange(8.0)[:, None], np.arange(1.0, 9.0) / 36.0)  # weighted intervals
+    pf.temper(-np.arange(8.0) ** 2, 4.0)  # tempering
     times, resampled = [], []
     for _ in range(iterations):
         dl = explore.next_action()
