@@ -37,7 +37,8 @@ class PhysicsAdapter:
         self.opts = opts
         self.spec = hand_spec
         self.hand = hand_spec.model()
-        self.obj = preset(opts.object)
+        spec = getattr(opts, "object_spec", None)
+        self.obj = spec if spec is not None else preset(opts.object)
         self.camera = (camera or CameraConfig()).validate()
         self.physics = physics or PhysicsConfig()
         self.diagram, self.ph, self.sim = build_physics_hand(hand_spec, self.obj, self.physics, self.camera, meshcat)

@@ -156,13 +156,16 @@ class PhysicsTaskPlant:
 
     kind = "physics"
 
-    def __init__(self, object_name: str, seed: int, physics=None, camera=None):
+    def __init__(self, object_name: str, seed: int, physics=None, camera=None, object_spec=None):
+        """``object_spec`` (an :class:`vlr_drake.objects.ObjectSpec`) replaces the preset
+        ``object_name``, e.g. to place it differently."""
         from types import SimpleNamespace
 
         from vlr_drake.physics_identify import PhysicsAdapter
 
         self.adapter = PhysicsAdapter(
-            SimpleNamespace(object=object_name), model_o(), np.random.default_rng(seed), physics, camera
+            SimpleNamespace(object=object_name, object_spec=object_spec), model_o(), np.random.default_rng(seed),
+            physics, camera,
         )
         self.hand = self.adapter.hand
         self.plant = self

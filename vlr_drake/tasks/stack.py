@@ -23,10 +23,16 @@ while it drops in), and tilt <= 20 deg. Errors (DESIGN.md section 11) are the tr
 position and orientation errors against the goal at release.
 
 On the physics plant (``plant="physics"``) each cup is the preset ``cup_k`` (a cylinder),
-grasped by the physics hand; the goal is the POM pose the grasp planned for it (the base
-was placed for that pose), the unknown tilt is wherever the cup settled, and the nesting
-test applies the same geometry to its POM frame (an approximation: the preset's tag frame
-stands in for the cup axis frame).
+grasped by the physics hand twice: upright, which gives the goal (the base is placed for
+the cup where the hand settles it, sag included, as a taught arm pose would), then placed
+tilted by ``tilt_range_deg`` about the axis that grasp can rotate, which gives the unknown
+pose to correct (:func:`_tilted_physics_grasp`). The nesting test applies the same
+geometry to its POM frame (an approximation: the preset's tag frame stands in for the cup
+axis frame).
+
+The weighted error of Eq. 12 is in mm and rad here (``STACK_POSITION_UNIT``,
+``STACK_ROTATION_UNIT``; the controller's default is mm and deg), so that alpha = 9.5
+weighs tilt against offset as nesting does.
 """
 
 from __future__ import annotations
@@ -42,6 +48,17 @@ __all__ = ["CUPS", "ALPHA_STACK", "cup_clearance", "nested", "run_stack"]
 
 #: The paper's rotational weight for cup stacking (Eq. 12).
 ALPHA_STACK = 9.5
+#: Units of the weighted error for cup stacking (Eq. 12): positions in mm, rotations in rad,
+#: so that alpha = 9.5 weighs 1 deg of cup tilt like 0.17 mm of offset. Nesting weighs them
+#: alike within a factor of 3 (a tilt sweeps the cup's bottom 0.5 H sin(tilt) sideways: 0.5
+#: mm per degree for these cups), and the paper's residuals (2.1 mm, 5.16 deg) show the
+#: same priority. In the controller's default units (mm and deg) alpha = 9.5 weighs 1 deg
+#: like 9.5 mm: physics plant, true model, seed 0, cups grasped tilted 3-9 deg, the
+#: controller corrected the tilts to 0.3-2 deg by moving the cups 5-12.5 mm off (two of
+#: four not nested), against 0.05-0.14 mm and 2.1-6.2 deg (all nested) in mm and rad (cup
+#: 1, whose true model had no Jacobian, unmoved in both).
+STACK_POSITION_UNIT = 1e-3
+STACK_ROTATION_UNIT = 1.0
 #: (rim outer diameter D, height H) [m] of the target cup and the four cups, largest first.
 CUPS = ((0.080, 0.070), (0.072, 0.064), (0.064, 0.058), (0.056, 0.052), (0.048, 0.046))
 WALL = 0.0015
@@ -143,9 +160,7 @@ def run_stack(
                 a=tp0.a0,
             )
         else:
-            # the physics grasp settles the cup wherever it goes: the unknown tilt is real
-            tp = common.PhysicsTaskPlant(f"cup_{k}", cup_seed, physics, camera)
-            R_goal, t_goal = tp.X_PO_planned
+            tp, R_goal, t_goal = _tilted_physics_grasp(k, cup_seed, rng, tilt_range_deg, physics, camera)
             R_s, t_s = tp.true_pose()
             tilt = float(observation.rotation_angle(R_goal[None], R_s[None])[0])
             offset = t_s - t_goal
@@ -165,6 +180,8 @@ def run_stack(
             model_fn,
             rows="full",
             alpha=alpha,
+            position_unit=STACK_POSITION_UNIT,
+            rotation_unit=STACK_ROTATION_UNIT,
             tol_position=tol_position,
             tol_rotation=np.deg2rad(tol_rotation_deg),
             max_steps=max_steps,
@@ -204,6 +221,7 @@ def run_stack(
         "plant": plant,
         "model": model,
         "alpha": alpha,
+        "alpha_units": {"position_m": STACK_POSITION_UNIT, "rotation_rad": STACK_ROTATION_UNIT},
         "position_error_mm": common.stats(pos, 1.0),
         "orientation_error_deg": common.stats(rot, 1.0),
         "success": bool(all(c["nested"] for c in cups)),
@@ -216,6 +234,35 @@ def run_stack(
         result["plots"] = [_plot(cups, os.path.join(out, "stack.png"), alpha)]
     common.save_view(view, out, "stack", result)
     return result
+
+
+def _tilted_physics_grasp(k: int, cup_seed: int, rng: np.random.Generator, tilt_range_deg, physics, camera):
+    """Cup ``k`` grasped by the physics hand at a random tilt, and its goal POM pose.
+
+    The goal is where the arm's plan expects the cup: the settled POM pose of a reference
+    grasp of the same cup, placed upright (its sag under gravity included, as a taught arm
+    pose would include it). The cup is then placed tilted by ``tilt_range_deg`` (either
+    sign) about the axis that grasp can rotate (the strongest rotation direction of its
+    Jacobian; the paper tilted the cups with a small object underneath) and grasped again:
+    where it settles is the unknown pose the hand must correct."""
+    import copy
+
+    from pydrake.math import RollPitchYaw, RotationMatrix
+
+    from vlr_drake.objects import preset
+
+    ref = common.PhysicsTaskPlant(f"cup_{k}", cup_seed, physics, camera)
+    R_goal, t_goal = ref.true_pose()
+    try:
+        J = control.jacobian(control.ControlModel.from_estimate(ref.hand, ref.truth_estimate(), R_goal, t_goal))
+        axis = np.linalg.svd(J[3:])[0][:, 0]
+    except RuntimeError:  # no model Jacobian at the reference grasp: tilt across the fingers
+        axis = np.array([1.0, 0.0, 0.0])
+    tilt = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(*tilt_range_deg))
+    spec = copy.deepcopy(preset(f"cup_{k}"))
+    R_PB = observation.rotvec_to_matrix(tilt * axis)[0] @ spec.X_PB().rotation().matrix()
+    spec.placement_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(R_PB)).vector()).tolist()
+    return common.PhysicsTaskPlant(f"cup_{k}", cup_seed, physics, camera, object_spec=spec), R_goal, t_goal
 
 
 def _plot(cups, path: str, alpha: float) -> str:
