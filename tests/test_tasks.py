@@ -117,9 +117,10 @@ def test_stack_on_the_model_plant(tmp_path):
     assert len(r["cups"]) == 4
     # control made the cups' poses better than the unknown grasps left them (in the
     # stacking weighting, offset first: a cup may keep some of its tilt) and every cup nests
-    for key in ("position_error_mm", "orientation_error_deg"):
-        assert np.mean([c[key] for c in r["cups"]]) < np.mean([c[f"initial_{key}"] for c in r["cups"]])
-    assert max(c["position_error_mm"] for c in r["cups"]) < 1.0
+    for c in r["cups"]:
+        assert c["position_error_mm"] < c["initial_position_error_mm"]
+    assert np.mean([c["orientation_error_deg"] for c in r["cups"]]) < np.mean(
+        [c["initial_orientation_error_deg"] for c in r["cups"]])
     assert r["success"]
     assert os.path.getsize(r["plots"][0]) > 1000
 
@@ -158,3 +159,23 @@ def test_physics_cups_are_grasped_at_the_drawn_tilt():
     tilt = np.rad2deg(observation.rotation_angle(R_goal[None], R[None])[0])
     assert 2.0 < tilt < 10.0
     assert not tp.fell and np.linalg.norm(t - t_goal) < 5e-3
+
+
+def test_task_grasps_have_room_to_move():
+    """A task grasp (``min_possible``) has an equilibrium for most random tendon offsets in
+    its grip window; ``ModelPlant.possible_actions`` answers as ``apply_action`` does."""
+    from vlr_drake.tasks import common
+
+    tp = common.make_model_plant(0, min_possible=common.MIN_POSSIBLE_ACTIONS)
+    assert common._possible_fraction(tp.hand, tp.theta0, tp.a0) >= common.MIN_POSSIBLE_ACTIONS
+    rng = np.random.default_rng(3)
+    loose = common.make_model_plant(0)  # no room test: a grasp next to a fold (seed 0)
+    dls = rng.uniform(-4e-3, 4e-3, (12, loose.hand.N))
+    possible = loose.plant.possible_actions(dls)
+    assert 0 < possible.sum() < len(dls)
+    import copy
+
+    for dl, p in zip(dls, possible, strict=True):
+        assert copy.deepcopy(loose.plant).apply_action(dl) == p
+    with pytest.raises(ValueError, match="possible_actions"):
+        loose.plant.possible_actions(np.zeros(3))

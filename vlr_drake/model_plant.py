@@ -61,6 +61,34 @@ class ModelPlant:
         s = self.state
         return kinematics.contacts(self.hand, s.theta[None], s.a[None], self.link_lengths[None])[0]
 
+    def _moves(self, dls: np.ndarray, l_now=None):
+        """The true system moved from its current state by each action of ``dls`` (S, N)
+        (batched; the state is not changed), and which of them it can make (S,). ``l_now``:
+        check the one action against the tendon range (raises TendonLimitError)."""
+        h, s = self.hand, self.state
+        S = dls.shape[0]
+
+        def rep(x):
+            return np.repeat(x[None], S, axis=0)
+
+        D2 = motion.contact_distances_sq(h, self.p_O[None])
+        res = motion.move(h, rep(s.theta), dls, a=rep(s.a), D2=np.repeat(D2, S, axis=0), stretch=rep(s.stretch),
+                          link_lengths=rep(self.link_lengths), stiffness=rep(self.stiffness), tendon=self.tendon,
+                          l_now=l_now, max_substeps=64)
+        th = res.theta
+        within = np.all((th >= h.joint_lower) & (th <= h.joint_upper), axis=(1, 2))
+        return res, res.ok & within & res.tension_feasible()
+
+    def possible_actions(self, dls) -> np.ndarray:
+        """(S,) whether the true system has a nearby physical equilibrium for each action of
+        ``dls`` (S, N) from where it is now (what :meth:`apply_action` would accept)."""
+        dls = np.asarray(dls, float)
+        if dls.ndim != 2 or dls.shape[1] != self.hand.N:
+            raise ValueError(f"possible_actions: dls must have shape (S, {self.hand.N}), got {dls.shape}")
+        l_new = self.state.tendon_command + dls
+        in_range = np.all((l_new >= self.hand.tendon_range[:, 0]) & (l_new <= self.hand.tendon_range[:, 1]), axis=1)
+        return self._moves(dls)[1] & in_range
+
     def apply_action(self, dl) -> bool:
         """Move the true system by ``dl``; returns False (and stays put) if the model has
         no nearby physical equilibrium for it: the solve fails, a joint would pass its limit,
@@ -69,13 +97,8 @@ class ModelPlant:
         far-away roots for mm actions (joints at -130 deg)."""
         h, s = self.hand, self.state
         dl = np.asarray(dl, float).reshape(h.N)
-        D2 = motion.contact_distances_sq(h, self.p_O[None])
-        res = motion.move(h, s.theta[None], dl, a=s.a[None], D2=D2, stretch=s.stretch[None],
-                          link_lengths=self.link_lengths[None], stiffness=self.stiffness[None], tendon=self.tendon,
-                          l_now=s.tendon_command, max_substeps=64)
-        th = res.theta[0]
-        physical = np.all((th >= h.joint_lower) & (th <= h.joint_upper)) and res.tension_feasible()[0]
-        if not res.ok[0] or not physical:
+        res, ok = self._moves(dl[None], l_now=s.tendon_command)
+        if not ok[0]:
             self.failures += 1
             return False
         s.theta, s.stretch = res.theta[0], res.stretch[0]

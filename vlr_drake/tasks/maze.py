@@ -242,7 +242,8 @@ def run_maze(
     runs = orientation_sequence(cells, np.deg2rad(tilt_deg))
     if plant == "model":
         tp = common.make_model_plant(
-            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
+            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
+            min_possible=common.MIN_POSSIBLE_ACTIONS,
         )
     else:
         tp = common.PhysicsTaskPlant("marble_maze", seed, physics, camera)

@@ -142,7 +142,8 @@ def run_stack(
     for k in range(1, len(CUPS)):
         cup_seed = int(rng.integers(1 << 30))
         if plant == "model":
-            tp0 = common.make_model_plant(cup_seed, sigma_position=0.0, sigma_rotation_deg=0.0)
+            tp0 = common.make_model_plant(cup_seed, sigma_position=0.0, sigma_rotation_deg=0.0,
+                                          min_possible=common.MIN_POSSIBLE_ACTIONS)
             # the grasp's rotation axis and translation plane, from the nominal grasp's Jacobian
             J = control.jacobian(control.ControlModel.from_plant_truth(tp0.plant))
             k_rot = np.linalg.svd(J[3:])[0][:, 0]

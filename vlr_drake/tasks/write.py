@@ -168,7 +168,8 @@ def run_write(
 
     if plant == "model":
         tp = common.make_model_plant(
-            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg
+            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
+            min_possible=common.MIN_POSSIBLE_ACTIONS,
         )
     else:
         tp = common.PhysicsTaskPlant(physics_object, seed, physics, camera)
