@@ -411,7 +411,8 @@ def main(argv: list[str] | None = None) -> int:
         if name == "write":
             p.add_argument("word", nargs="?", default="SCIENCE", help="letters A-Z (default SCIENCE)")
         if name == "stack":
-            p.add_argument("--alpha", type=float, default=9.5, help="rotational weight of Eq. 12 (paper: 9.5)")
+            p.add_argument("--alpha", type=float, default=9.5,
+                           help="rotational weight of Eq. 12, on rotations in rad against positions in mm (paper: 9.5)")
 
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
     _common(p, particles=20_000, iterations=100)
