@@ -267,8 +267,10 @@ def _weighted_quantiles(cols, w, levels):  # pragma: no cover - numba
             continue
         scale = B / (vmax - vmin)
         hist = np.zeros(B)
+        bins = np.empty(M, dtype=np.int64)
         for i in range(M):
-            hist[min(int((x[i] - vmin) * scale), B - 1)] += w[i]
+            bins[i] = min(int((x[i] - vmin) * scale), B - 1)
+            hist[bins[i]] += w[i]
         for q in range(levels.shape[0]):
             target = levels[q] * total
             below = 0.0
@@ -278,13 +280,12 @@ def _weighted_quantiles(cols, w, levels):  # pragma: no cover - numba
                 k += 1
             n = 0
             for i in range(M):
-                if min(int((x[i] - vmin) * scale), B - 1) == k:
-                    n += 1
+                n += bins[i] == k
             v = np.empty(n)
             ww = np.empty(n)
             n = 0
             for i in range(M):
-                if min(int((x[i] - vmin) * scale), B - 1) == k:
+                if bins[i] == k:
                     v[n] = x[i]
                     ww[n] = w[i]
                     n += 1
