@@ -40,7 +40,22 @@ def test_identify_quick(tmp_path, experiment, extra):
         assert r["stiffness_error_Nm_per_rad"] is not None
     if experiment == "novel_fingers":
         assert set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}
+    assert r["stuck_probability"] == 0.0  # the model plant's default: its truth always has an equilibrium
     assert list((tmp_path / "out").glob("*_convergence.png"))
+
+
+def test_identify_stuck_probability_defaults_and_flag(tmp_path):
+    """Novel fingers on the physics plant (and hardware) hold hypotheses that find no
+    equilibrium; everything else discards them; --stuck-probability overrides."""
+    from vlr_drake.identify import default_stuck_probability
+
+    assert default_stuck_probability("physics", "novel_fingers") == 1.0
+    assert default_stuck_probability("hardware", "novel_fingers") == 1.0
+    assert default_stuck_probability("model", "novel_fingers") == 0.0
+    assert default_stuck_probability("physics", "stiffness") == 0.0
+    r = _run(tmp_path, "identify", "novel_fingers", "--hand", "NH1", "--plant", "model", "--particles", "500",
+             "--iterations", "2", "--no-progress", "--stuck-probability", "0.25", "--out", str(tmp_path / "out"))
+    assert r["stuck_probability"] == 0.25
 
 
 def test_identify_defaults_to_the_physics_plant(tmp_path):

@@ -330,6 +330,52 @@ def test_tendon_state_follows_the_commanded_pull():
         pf.FilterConfig(tendon_reference="absolute").validate()
 
 
+def test_failed_moves_are_discarded_or_held(monkeypatch):
+    """stuck_probability: a hypothesis whose move finds no equilibrium weighs nothing at 0;
+    above 0 it keeps its angles, predicts an unmoved POM, and the camera weighs that
+    prediction, times the probability (here the measurement is exactly hypothesis 0's
+    unmoved pose: it weighs the most at 1, and the moved ones gain log(1/p) on it at p)."""
+    from vlr_drake import kinematics, observation
+
+    real_move = pf.motion.move
+    solved = {}
+
+    def move_failing_evens(hand, theta, dl, **kw):  # every other hypothesis finds no equilibrium
+        res = real_move(hand, theta, dl, **kw)
+        res.ok[::2] = False
+        res.theta[::2] = theta[::2]  # as motion.move leaves a failed hypothesis
+        solved["ok"] = res.ok.copy()
+        return res
+
+    monkeypatch.setattr(pf.motion, "move", move_failing_evens)
+    dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])
+    relative = {}
+    for p in (0.0, 1.0, 0.1):  # no tempering, no resampling: the weights are the likelihoods
+        h, plant, f = _filter_and_plant(6, particles=400, stuck_probability=p, resample_fraction=0.0,
+                                        ess_fraction=1e-12)
+        ps = f.particles
+        theta0 = ps.theta.copy()
+        R0, t0, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
+        rep = f.step(dl, R0[0], t0[0])  # the camera sees hypothesis 0's unmoved pose
+        assert rep.solve_failures >= 200 and rep.beta == 1.0
+        log_w = f.particles.log_w
+        if p == 0:
+            assert np.all(np.isneginf(log_w[~solved["ok"]])) and np.isfinite(log_w[solved["ok"]]).mean() > 0.9
+            continue
+        np.testing.assert_array_equal(f.particles.theta[::2], theta0[::2])
+        assert np.isfinite(log_w[::2]).mean() > 0.9
+        relative[p] = log_w - log_w[0]
+        if p == 1:
+            assert np.argmax(log_w) == 0 and log_w[0] == 0.0
+    live = np.isfinite(relative[1.0])
+    moved, held = live & solved["ok"], live & ~solved["ok"]
+    assert moved.sum() > 100 and held.sum() > 150
+    np.testing.assert_allclose(relative[0.1][moved], relative[1.0][moved] + np.log(10.0))
+    np.testing.assert_allclose(relative[0.1][held], relative[1.0][held])
+    with pytest.raises(ValueError, match="stuck_probability"):
+        pf.FilterConfig(stuck_probability=1.5).validate()
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

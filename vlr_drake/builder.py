@@ -35,7 +35,7 @@ import re
 import shutil
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -295,7 +295,12 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     squeeze, squeeze_window = s.exploration.squeeze_and_window(s.plant, s.experiment())
     policy = ExplorationPolicy(h, l0, T, span=span, window=window, seed=s.seed + SEED_POLICY, squeeze=squeeze,
                                squeeze_window=squeeze_window)
-    flt = SelfIdentificationSystem(h, s.filter, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
+    config = s.filter
+    if config.stuck_probability is None:  # the plant's and experiment's default
+        from vlr_drake.identify import default_stuck_probability
+
+        config = replace(config, stuck_probability=default_stuck_probability(s.plant, s.experiment()))
+    flt = SelfIdentificationSystem(h, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")

@@ -115,6 +115,8 @@ def _identify_options(args):
     )
     if args.loaded is None:
         opts.scenario = None  # described by the flags alone
+    if getattr(args, "stuck_probability", None) is not None:
+        opts.filter.stuck_probability = args.stuck_probability
     return opts
 
 
@@ -396,6 +398,10 @@ def main(argv: list[str] | None = None) -> int:
                            help="how each exploratory action is chosen: random (the paper's) or informative (the "
                                 "most informative of 8 random proposals; default: informative on the model plant, "
                                 "random on the physics plant)")
+            p.add_argument("--stuck-probability", type=float, default=None, metavar="P",
+                           help="probability that a hypothesis with no equilibrium after an action is held "
+                                "where it was by friction (0 discards it; default: 1 for novel fingers on the "
+                                "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else apple)")
         p.add_argument("--hand", default=None,
                        help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "

@@ -376,6 +376,13 @@ class FilterConfig:
     # 16) and cheaper: a particle with no equilibrium costs up to 7 + 4 x 7 Newton steps
     # instead of 147 (60,000 particles: 0.43 s per iteration instead of 0.48).
     max_substeps: int = 4
+    # Probability that a hypothesis whose move finds no equilibrium (even with the
+    # continuation) is held where it was by friction, which the VLR does not model (the
+    # physics plant and a real hand have it). Such a hypothesis keeps its joint angles,
+    # predicts that the POM did not move, and weighs stuck_probability times the camera's
+    # likelihood of that; 0 discards it. None: 0 here; an identification run takes its
+    # plant's and experiment's default (vlr_drake.identify.STUCK_PROBABILITY).
+    stuck_probability: float | None = None
     # Newton tolerances of the moves (a key of motion.TOLERANCES). "filter" solves each
     # hypothesis to ~1e-8 rad, far finer than the camera resolves, and saves a Newton step on
     # about half the particles (60,000-particle move 1.31-1.35x faster than the previous
@@ -413,6 +420,8 @@ class FilterConfig:
         if self.tendon_reference not in TENDON_REFERENCES:
             raise ValueError(
                 f"filter: 'tendon_reference' must be one of {TENDON_REFERENCES}, got '{self.tendon_reference}'")
+        if self.stuck_probability is not None and not 0 <= self.stuck_probability <= 1:
+            raise ValueError(f"filter: 'stuck_probability' must be in [0, 1], got {self.stuck_probability}")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
         if self.newton_tolerance not in motion.TOLERANCES:
@@ -601,8 +610,10 @@ class SelfIdentificationFilter:
 
     def _feasible(self, res, pose_ok) -> np.ndarray:
         """(P,) hypotheses that stay physical after the move ``res``: solved, a POM pose
-        (``pose_ok``), pulling tendons and joints inside their limits."""
-        return res.ok & pose_ok & res.tension_feasible() & self._within_limits(res.theta)
+        (``pose_ok``), pulling tendons and joints inside their limits. With a
+        ``stuck_probability`` an unsolved hypothesis (which keeps its angles) counts as solved."""
+        solved = res.ok | bool(self.config.stuck_probability)
+        return solved & pose_ok & (res.tension_feasible() | ~res.ok) & self._within_limits(res.theta)
 
     def _within_limits(self, theta):
         h = self.hand
@@ -691,6 +702,8 @@ class SelfIdentificationFilter:
         t_meas = np.asarray(t_meas, float).reshape(3)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
+        if cfg.stuck_probability:  # held by friction where it was (motion.move kept its angles)
+            log_lik = np.where(res.ok, log_lik, log_lik + np.log(cfg.stuck_probability))
         log_lik = np.where(feasible, log_lik, -np.inf)
         best = float(np.sqrt(np.min(maha2[feasible]))) if feasible.any() else np.inf
         if not feasible.any() or best > cfg.divergence_sigmas:

@@ -70,7 +70,29 @@ SQUEEZE = {("physics", "stiffness"): (1.5e-3, 3.0e-3)}
 #: 0-1: proximal error 1.03 / 0.37 deg against 0.21 / 0.47; NH3 4.9 / 4.1 mm against 5.1 /
 #: 6.5): there the model's mismatch, not the choice of action, limits what is learnt.
 ACTION_CHOICE = {"model": "informative", "physics": "random"}
+#: Default FilterConfig.stuck_probability per (plant, experiment); 0 elsewhere ("physics"
+#: stands for hardware too). On the physics plant the novel hands' grasps are held by
+#: friction where the frictionless VLR has no equilibrium: NH1 seed 0 from iteration 59 on,
+#: the truth itself found none under the commanded tendon stretch, the hypotheses near it
+#: died, and the survivors carried the cloud sure and wrong (20,000 particles, 100
+#: iterations, seeds 0-4: link errors 6.7-12.5 mm, four of five converged with the truth
+#: inside 17-50% of the joint intervals). Holding such hypotheses (1.0): NH1 0.25-5.85 mm
+#: (mean 2.85), joints inside 0.83-1.00, none converged; NH2 3.84 -> 3.22 mm, NH3 4.62 ->
+#: 3.84 mm, every truth inside. 0.1 was less honest (NH1 2.43 mm, one run converged with a
+#: third of the joints inside). Elsewhere a failed move is evidence: the physics stiffness
+#: experiment's squeezes rule out springs that way (1.0: errors 0.007-0.076 N m/rad
+#: against 0.006-0.064, joints inside 0.33-0.83 against 0.67-1.00, seeds 0-3), the physics
+#: known hand is unchanged (0.62 deg either way), and on the model plant, where the truth
+#: always has an equilibrium, holding cost honesty (known hand, seeds 0-11: truth inside
+#: 0.93 / 0.92 against 0.99 / 1.00, 40 iterations against 30).
+STUCK_PROBABILITY = {("physics", "novel_fingers"): 1.0}
 ACTION_CHOICES = ("random", "informative")
+
+
+def default_stuck_probability(plant: str, experiment: str) -> float:
+    """FilterConfig.stuck_probability of ``experiment`` on ``plant`` ("model"; "physics" or
+    "hardware"): its entry in STUCK_PROBABILITY, else 0."""
+    return STUCK_PROBABILITY.get(("model" if plant == "model" else "physics", experiment), 0.0)
 
 
 def default_squeeze(plant: str, experiment: str) -> tuple[float, float]:
@@ -355,6 +377,8 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     after every filter iteration, e.g. to draw the hypotheses in Meshcat."""
     opts.validate()
     opts.filter.particles = opts.particles
+    if opts.filter.stuck_probability is None:
+        opts.filter.stuck_probability = default_stuck_probability(opts.plant, opts.experiment)
     rng = np.random.default_rng(opts.seed)
     true_spec, filt_spec, prior, k_true = _hands(opts, rng)
     true_hand, filt_hand = true_spec.model(), filt_spec.model()
@@ -433,6 +457,7 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
         "hand": _hand_name(opts),
         "seed": opts.seed,
         "particles": opts.filter.particles,
+        "stuck_probability": opts.filter.stuck_probability,
         "plant": opts.plant,
         "converged": converged_at is not None,
         "iterations": int(converged_at if converged_at is not None else last_it),
