@@ -340,8 +340,8 @@ each cup's goal pose beside it and saves stack.html.""",
 tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...),
 mean +- SD of the paper's measure beside the paper's, and whether ours is better. Prints the
 markdown table and writes reproduce.md and reproduce.json to --out. The default is the
-paper's setting, the physics plant with the rendered camera (5 trials: about an hour on 2
-cores); --plant model runs the fast model plant (3 trials: about 4 minutes). A --scenario
+paper's setting, the physics plant with the rendered camera (5 trials: about 45 minutes on
+2 cores); --plant model runs the fast model plant (5 trials: about 5 minutes). A --scenario
 supplies the plant and its settings; each row sets its own experiment, hand and object.
 --quick: one small trial of each (a smoke run, not a result).""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text

@@ -15,7 +15,9 @@ One iteration (one action dl and one camera measurement of the POM):
 2. predict its POM pose with Lambda (Eq. 5),
 3. weigh: log w = -0.5 (|dp|^2 / sigma_p^2 + angle(dR)^2 / sigma_r^2), minus infinity for
    particles whose solve failed, whose joints left their limits, or whose implied tendon
-   tension is negative (a pushing tendon is not a grasp),
+   tension is negative (a pushing tendon is not a grasp); with ``stuck_probability`` p > 0
+   a particle whose solve failed is instead held where it was (friction, which the VLR
+   lacks) and weighs p times the likelihood of its unmoved POM pose,
 4. temper: if the effective sample size (ESS) would fall below ``ess_fraction * M``, the
    log-likelihood is scaled by beta in (0, 1], found by bisection, so that the ESS stays
    there (weight collapse locks a filter into wrong modes),
