@@ -144,6 +144,17 @@ def test_stiffness_scenario_true_hand_differs_from_the_filters():
     assert b.hand.stiffness[0, 1] == pytest.approx(0.16)
 
 
+def test_novel_finger_scenarios_hold_failed_hypotheses_on_the_physics_plant():
+    """The diagram's filter takes the plant's and experiment's stuck_probability
+    (identify.STUCK_PROBABILITY) unless the scenario gives one."""
+    nh1 = DIAGRAMS_DIR / "novel_NH1.yaml"
+    assert build_diagram(load_scenario(nh1, FAST)).filter.config().stuck_probability == 1.0
+    assert build_diagram(load_scenario(nh1, FAST + "plant: model\n")).filter.config().stuck_probability == 0.0
+    given = "filter: {particles: 400, stuck_probability: 0.3}\n"
+    assert build_diagram(load_scenario(nh1, given)).filter.config().stuck_probability == 0.3
+    assert build_diagram(load_scenario(DIAGRAMS_DIR / "stiffness.yaml", FAST)).filter.config().stuck_probability == 0.0
+
+
 def test_model_plant_builder_matches_the_scenario_wiring():
     """build_model_plant_diagram (the old vlr_drake.diagram signature) wires the same ports."""
     s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)

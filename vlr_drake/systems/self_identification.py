@@ -96,6 +96,10 @@ class SelfIdentificationSystem(LeafSystem):
     def X_PO_valid_input_port(self):
         return self._valid
 
+    def config(self) -> pf.FilterConfig:
+        """The filter configuration this system runs."""
+        return self._config
+
     def filter(self, context) -> pf.SelfIdentificationFilter | None:
         """The filter object held in ``context`` (None before the first valid measurement)."""
         return context.get_abstract_state(self._box).get_value().filter
