@@ -62,3 +62,17 @@ def test_too_few_fingers_and_unknown_names():
         hand_by_name("NH9")
     with pytest.raises(ValueError, match="no finger 'pinky'"):
         spec.replaced({"pinky": novel_finger("NF1")})
+
+
+def test_joint_limits_and_tendon_range_checks(model_o_hand):
+    """Batched limit checks against the hand's arrays: one angle or one pull just outside
+    fails its hypothesis only."""
+    h = model_o_hand
+    theta = np.repeat(((h.joint_lower + h.joint_upper) / 2)[None], 3, axis=0)
+    theta[1, 2, 0] = h.joint_upper[2, 0] + 1e-6
+    theta[2, 0, 1] = h.joint_lower[0, 1] - 1e-6
+    np.testing.assert_array_equal(h.within_joint_limits(theta), [True, False, False])
+    l = np.repeat(h.tendon_range.mean(axis=1)[None], 3, axis=0)
+    l[1, 1] = h.tendon_range[1, 1] + 1e-9
+    l[2, 0] = h.tendon_range[0, 0]  # at the bound: inside
+    np.testing.assert_array_equal(h.within_tendon_range(l), [[True] * 3, [True, False, True], [True] * 3])

@@ -544,7 +544,7 @@ class SelfIdentificationFilter:
             stiff = self._draw_stiffness(n, stiffness_center, scale)
             links = self._draw_links(n, link_center, scale)
             eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff)
-            good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & self._within_limits(eq.theta)
+            good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & self.hand.within_joint_limits(eq.theta)
             idx = np.flatnonzero(good)
             if idx.size:
                 kept.append((eq.theta[idx], a[idx], stiff[idx] if stiff.shape[0] > 1 else stiff,
@@ -615,11 +615,7 @@ class SelfIdentificationFilter:
         (``pose_ok``), pulling tendons and joints inside their limits. With a
         ``stuck_probability`` an unsolved hypothesis (which keeps its angles) counts as solved."""
         solved = res.ok | bool(self.config.stuck_probability)
-        return solved & pose_ok & (res.tension_feasible() | ~res.ok) & self._within_limits(res.theta)
-
-    def _within_limits(self, theta):
-        h = self.hand
-        return np.all((theta >= h.joint_lower) & (theta <= h.joint_upper), axis=(1, 2))
+        return solved & pose_ok & (res.tension_feasible() | ~res.ok) & self.hand.within_joint_limits(res.theta)
 
     # ---------------------------------------------------------------- action choice
     def action_information(self, actions, rng: np.random.Generator, samples: int = 256,

@@ -242,6 +242,17 @@ class HandModel:
     def num_angles(self) -> int:
         return self.N * self.K
 
+    def within_joint_limits(self, theta) -> np.ndarray:
+        """(...,) True where every joint angle of ``theta`` (..., N, K) is inside its limits."""
+        theta = np.asarray(theta, float)
+        return np.all((theta >= self.joint_lower) & (theta <= self.joint_upper), axis=(-2, -1))
+
+    def within_tendon_range(self, l) -> np.ndarray:
+        """(..., N) True where each tendon pull of ``l`` (..., N) [m] is inside its range
+        (to 1e-12 m)."""
+        l = np.asarray(l, float)
+        return (l >= self.tendon_range[:, 0] - 1e-12) & (l <= self.tendon_range[:, 1] + 1e-12)
+
     def tendon_travel(self, theta) -> np.ndarray:
         """R theta per finger: the tendon length the joints take up, (..., N) for angles
         (..., N, K) [m] (Eq. 7 without the differences)."""

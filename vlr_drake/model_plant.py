@@ -75,9 +75,7 @@ class ModelPlant:
         res = motion.move(h, rep(s.theta), dls, a=rep(s.a), D2=np.repeat(D2, S, axis=0), stretch=rep(s.stretch),
                           link_lengths=rep(self.link_lengths), stiffness=rep(self.stiffness), tendon=self.tendon,
                           l_now=l_now, max_substeps=64)
-        th = res.theta
-        within = np.all((th >= h.joint_lower) & (th <= h.joint_upper), axis=(1, 2))
-        return res, res.ok & within & res.tension_feasible()
+        return res, res.ok & h.within_joint_limits(res.theta) & res.tension_feasible()
 
     def possible_actions(self, dls) -> np.ndarray:
         """(S,) whether the true system has a nearby physical equilibrium for each action of
@@ -85,8 +83,7 @@ class ModelPlant:
         dls = np.asarray(dls, float)
         if dls.ndim != 2 or dls.shape[1] != self.hand.N:
             raise ValueError(f"possible_actions: dls must have shape (S, {self.hand.N}), got {dls.shape}")
-        l_new = self.state.tendon_command + dls
-        in_range = np.all((l_new >= self.hand.tendon_range[:, 0]) & (l_new <= self.hand.tendon_range[:, 1]), axis=1)
+        in_range = self.hand.within_tendon_range(self.state.tendon_command + dls).all(axis=1)
         return self._moves(dls)[1] & in_range
 
     def apply_action(self, dl) -> bool:

@@ -870,7 +870,7 @@ def check_action(hand: HandModel, l_now, dl) -> np.ndarray:
         raise ValueError(f"tendon command and action must have {hand.N} entries, got {l_now.shape} and {dl.shape}")
     l_new = l_now + dl
     lo, hi = hand.tendon_range[:, 0], hand.tendon_range[:, 1]
-    bad = np.flatnonzero((l_new < lo - 1e-12) | (l_new > hi + 1e-12))
+    bad = np.flatnonzero(~hand.within_tendon_range(l_new))
     if bad.size:
         i = bad[0]
         raise TendonLimitError(
