@@ -117,8 +117,27 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert all(r["scenario"] == "model_plant" for r in data["runs"]["write"] + data["runs"]["known_hand"])
     assert "| proximal joint error, known hand [deg] | 1.78 +- 0.92 |" in table
     assert len(data["rows"]) == 10 and data["quick"]
+    # as the paper ran them: the known hand with each of its four objects, the stiffness with the toy block
+    assert [r["object"] for r in data["runs"]["known_hand"]] == ["apple", "wine_glass", "gelatin_box",
+                                                                 "flat_screwdriver"]
+    assert [r["object"] for r in data["runs"]["stiffness"]] == ["toy_block"]
+    assert next(r for r in data["rows"] if r["key"] == "known_hand")["trials"] == 4
     for row in data["rows"]:
         assert np.isfinite(row["ours_mean"]) and row["better"] == (row["ours_mean"] < row["paper_mean"])
+
+
+def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):
+    out = tmp_path / "rep"
+    assert main(["reproduce", "--quick", "--no-progress", "--scenario", "model_plant", "--out", str(out),
+                 "--experiments", "stiffness, NH1"]) == 0
+    data = json.loads((out / "reproduce.json").read_text())
+    assert data["experiments"] == ["stiffness", "NH1"] and sorted(data["runs"]) == ["NH1", "stiffness"]
+    assert [r["key"] for r in data["rows"]] == ["stiffness", "NH1"]
+    assert "NH1 link length error" in (out / "reproduce.md").read_text()
+    assert "known hand" not in (out / "reproduce.md").read_text().split("\n", 2)[2]
+    capsys.readouterr()
+    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--experiments", "known_hand,juggling"]) == 2
+    assert "juggling" in capsys.readouterr().err
 
 
 def test_diagrams_command_writes_dot_files(tmp_path):

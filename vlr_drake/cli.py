@@ -425,6 +425,9 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(out="out/reproduce")
     p.add_argument("--trials", type=int, default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
+    p.add_argument("--experiments", default=None,
+                   help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
+                        "(default: all of known_hand, stiffness, NH1, NH2, NH3, write, maze, stack)")
 
     p = _parser("diagrams", sub, "write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
     p.add_argument("--folder", default=None,
@@ -466,7 +469,9 @@ def main(argv: list[str] | None = None) -> int:
                           particles=args.particles or (args.loaded.filter.particles if args.loaded else 20_000),
                           iterations=args.iterations, quick=args.quick, out=args.out,
                           progress=not args.no_progress, seed=args.seed, scenario=args.loaded,
-                          scenario_path=args.scenario_path, meshcat=_meshcat(args))
+                          scenario_path=args.scenario_path, meshcat=_meshcat(args),
+                          experiments=None if args.experiments is None else [
+                              e.strip() for e in args.experiments.split(",") if e.strip()])
             print(format_table(r))
             print(f"wrote {args.out}/reproduce.md and reproduce.json")
             write_json(r, args.json)

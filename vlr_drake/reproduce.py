@@ -1,6 +1,7 @@
 """``vlr-drake reproduce``: the paper's experiments and tasks, with its numbers beside ours.
 
-Each row runs its trials (5 by default, seeds 0..4), takes mean +- SD over the trials of the
+Each row runs its trials (5 by default, seeds 0..4; the known hand's with each of the paper's
+four objects, so 20 runs, as the paper's Fig. 4 did), takes mean +- SD over the runs of the
 paper's measure, and says whether ours is better (smaller) than the paper's mean. The
 table is printed and written as markdown (and the rows as JSON). ``quick`` runs one trial
 of each with few particles and iterations: a smoke run of the whole table, not a result.
@@ -14,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.identify import run_identification
+from vlr_drake.identify import KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.scenario import options_from_scenario, task_settings
 
-__all__ = ["PAPER_ROWS", "reproduce", "format_table"]
+__all__ = ["PAPER_ROWS", "EXPERIMENTS", "reproduce", "format_table"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,12 @@ class PaperRow:
     sd: float
     unit: str
 
+
+#: The table's experiments, in its order (``reproduce(experiments=...)`` runs some of them).
+EXPERIMENTS = ("known_hand", "stiffness", "NH1", "NH2", "NH3", "write", "maze", "stack")
+
+#: The object of the stiffness experiment (the paper's Fig. 5: the toy block).
+STIFFNESS_OBJECT = "toy_block"
 
 #: The paper's figures (Hang et al. 2021, real hardware; DESIGN.md section 10).
 PAPER_ROWS = [
@@ -44,17 +51,21 @@ PAPER_ROWS = [
 ]
 
 
-def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None):
+def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None, obj=None):
     opts = options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, seed=seed, plant=plant,
-                                 particles=particles, max_iterations=iterations, progress=False)
+                                 particles=particles, max_iterations=iterations, progress=False, object=obj)
     r = run_identification(opts)
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
 def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 20_000, iterations: int = 100,
               quick: bool = False, out: str | Path = "out/reproduce", progress: bool = True, seed: int = 0,
-              scenario=None, scenario_path=None, meshcat=None) -> dict:
+              scenario=None, scenario_path=None, meshcat=None, experiments=None) -> dict:
     """Run the table; returns {"rows": [...], "runs": {...}} and writes markdown + JSON.
+
+    ``experiments``: the names (of :data:`EXPERIMENTS`) to run, in the table's order, e.g.
+    the identification experiments alone; None runs them all. A row is in the table when its
+    experiment ran.
 
     Trials use seeds ``seed`` .. ``seed + trials - 1``. ``scenario`` (a
     :class:`vlr_drake.scenario.Scenario`, loaded from ``scenario_path``) supplies the plant
@@ -69,14 +80,22 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
     if quick:
         trials, particles, iterations = 1, 1000, 8
+    chosen = EXPERIMENTS if experiments is None else tuple(experiments)
+    unknown = [e for e in chosen if e not in EXPERIMENTS]
+    if unknown or not chosen:
+        raise ValueError(f"reproduce: experiments must be some of {', '.join(EXPERIMENTS)}, got {list(chosen)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plant = plant or (scenario.plant if scenario is not None else "physics")
     seeds = range(seed, seed + trials)
     sc = (scenario, scenario_path)
     runs: dict[str, list] = {}
-    jobs = [("known_hand", lambda s: _identify("known_hand", "model_o", s, plant, particles, iterations, *sc)),
-            ("stiffness", lambda s: _identify("stiffness", "model_o", s, plant, particles, iterations, *sc))]
+    # As the paper ran them: the known hand with each of its four objects (Fig. 4; trials
+    # each), the stiffness with the toy block (Fig. 5); the novel hands name no object.
+    jobs = [("known_hand", lambda s: [_identify("known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o)
+                                      for o in KNOWN_HAND_OBJECTS]),
+            ("stiffness", lambda s: [_identify("stiffness", "model_o", s, plant, particles, iterations, *sc,
+                                               obj=STIFFNESS_OBJECT)])]
     for nh in ("NH1", "NH2", "NH3"):
         jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations, *sc)))
     # Tasks run with the identified model (self-identification first, then the filter keeps
@@ -90,36 +109,37 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     jobs += [("write", lambda s: run_write("I" if quick else "SCIENCE", **task("write", s))),
              ("maze", lambda s: run_maze(**task("maze", s))),
              ("stack", lambda s: run_stack(**task("stack", s)))]
-    bar = tqdm(total=len(jobs) * trials, disable=not progress, desc="reproduce", unit="run")
+    jobs = [(name, job) for name, job in jobs if name in chosen]
+    bar = tqdm(total=len(jobs) * trials, disable=not progress, desc="reproduce", unit="trial")
     for name, job in jobs:
         runs[name] = []
         for s in seeds:
-            runs[name].append(job(s))
+            r = job(s)
+            runs[name] += r if isinstance(r, list) else [r]
             bar.update(1)
     bar.close()
 
-    def ident(name, key):
-        return [float(np.mean(r[key])) for r in runs[name]]
-
-    ours = {
-        "known_hand": ident("known_hand", "proximal_joint_error_deg"),
-        "known_hand_iterations": [float(r["iterations"]) for r in runs["known_hand"]],
-        "stiffness": [float(r["stiffness_error_Nm_per_rad"]) for r in runs["stiffness"]],
-        "write": [r["position_error_mm"]["mean"] for r in runs["write"]],
-        "maze": [r["orientation_error_deg"]["mean"] for r in runs["maze"]],
-        "stack_position": [r["position_error_mm"]["mean"] for r in runs["stack"]],
-        "stack_orientation": [r["orientation_error_deg"]["mean"] for r in runs["stack"]],
+    measures = {  # row key: (experiment, the paper's measure of one run)
+        "known_hand": ("known_hand", lambda r: np.mean(r["proximal_joint_error_deg"])),
+        "known_hand_iterations": ("known_hand", lambda r: r["iterations"]),
+        "stiffness": ("stiffness", lambda r: r["stiffness_error_Nm_per_rad"]),
+        **{nh: (nh, lambda r: np.mean(list(r["link_length_error_mm"].values()))) for nh in ("NH1", "NH2", "NH3")},
+        "write": ("write", lambda r: r["position_error_mm"]["mean"]),
+        "maze": ("maze", lambda r: r["orientation_error_deg"]["mean"]),
+        "stack_position": ("stack", lambda r: r["position_error_mm"]["mean"]),
+        "stack_orientation": ("stack", lambda r: r["orientation_error_deg"]["mean"]),
     }
-    for nh in ("NH1", "NH2", "NH3"):
-        ours[nh] = [float(np.mean(list(r["link_length_error_mm"].values()))) for r in runs[nh]]
     rows = []
     for p in PAPER_ROWS:
-        v = np.asarray(ours[p.key], float)
+        name, measure = measures[p.key]
+        if name not in runs:
+            continue
+        v = np.asarray([float(measure(r)) for r in runs[name]], float)
         rows.append({"key": p.key, "experiment": p.label, "unit": p.unit, "paper_mean": p.mean, "paper_sd": p.sd,
                      "ours_mean": float(v.mean()), "ours_sd": float(v.std()), "trials": len(v),
                      "better": bool(v.mean() < p.mean)})
     result = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
-              "seed": seed, "scenario": None if scenario is None else scenario.name,
+              "seed": seed, "experiments": [name for name, _ in jobs], "scenario": None if scenario is None else scenario.name,
               "scenario_path": None if scenario_path is None else str(scenario_path),
               "rows": rows}
     (out / "reproduce.md").write_text(format_table(result))
@@ -128,7 +148,9 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
 
 def format_table(result: dict) -> str:
+    objects = f" (the known hand's with each of the paper's {len(KNOWN_HAND_OBJECTS)} objects)"
     head = (f"Reproduction on the {result['plant']} plant, {result['trials']} trial(s) each"
+            f"{objects if 'known_hand' in result.get('experiments', EXPERIMENTS) else ''}"
             f"{' (quick: a smoke run, not a result)' if result['quick'] else ''}\n\n")
     lines = ["| experiment | paper | ours | better |", "|---|---|---|---|"]
     for r in result["rows"]:
