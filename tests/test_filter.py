@@ -409,6 +409,33 @@ def test_unknown_stiffness_prior_draws(kind):
     assert abs(np.median(k[:, 0, 1]) - median) < 0.01
 
 
+def _initialised(prior, config=None, seed=0):
+    h = model_o().model()
+    theta, a = _truth_grasp(h, np.random.default_rng(seed))
+    f = pf.SelfIdentificationFilter(h, config or pf.FilterConfig(particles=8000), prior, np.random.default_rng(seed + 1))
+    l = h.tendon_travel(theta[None])[0] + 0.004  # a squeeze: the tendons pull 4 mm past the grasp
+    f.initialise(theta, a, np.eye(3), np.array([0.0, 0.0, 0.1]), tendon_command=l)
+    return h, f
+
+
+def test_settled_prior_is_at_rest_under_the_command():
+    """With settle_prior every initial hypothesis is an equilibrium under the motors'
+    command: a zero action leaves it where it is (no settling in the first prediction),
+    and each is a physical grasp. Without it the first move carries hypotheses degrees away."""
+    prior = pf.PriorConfig()
+    for settle in (False, True):
+        h, f = _initialised(prior, pf.FilterConfig(particles=2000, settle_prior=settle))
+        ps = f.particles
+        assert np.all(ps.stretch > 0) and np.all(h.within_joint_limits(ps.theta))
+        res = pf.motion.move(h, ps.theta, np.zeros(h.N), a=ps.a, D2=pf.motion.contact_distances_sq(h, ps.p_O),
+                             stretch=ps.stretch, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+        jump = np.rad2deg(np.abs(res.theta - ps.theta).max(axis=(1, 2)))[res.ok]
+        if settle:
+            assert res.ok.all() and jump.max() < 1e-3
+        else:
+            assert np.median(jump) > 1.0
+
+
 @pytest.mark.slow
 def test_known_hand_converges_accurately_and_honestly():
     """Model plant, exact truth, 12 seeds x at most 180 iterations at 20,000 particles (the
