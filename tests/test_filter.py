@@ -133,6 +133,35 @@ def test_motion_error_widens_sigma_by_the_predicted_motion():
         pf.FilterConfig(motion_error=-1.0).validate()
 
 
+def test_student_t_likelihood_matches_its_definition():
+    """Two independent 3-D Student-t densities scaled to agree with the Gaussian near zero
+    error, with logarithmic tails far out; bad settings are named."""
+    from vlr_drake.hand import model_o
+
+    hand = model_o().model()
+    cfg = pf.FilterConfig(likelihood="student_t", likelihood_dof=4.0)
+    f = pf.SelfIdentificationFilter(hand, cfg, pf.PriorConfig(), np.random.default_rng(0))
+    g = pf.SelfIdentificationFilter(hand, pf.FilterConfig(), pf.PriorConfig(), np.random.default_rng(0))
+    sp, sr, nu = cfg.sigma_position, cfg.sigma_rotation, 4.0
+    dp = np.array([0.0, 1e-6, 0.3e-3, 3e-3])
+    ang = np.array([0.0, 1e-6, np.deg2rad(1.5), 0.0])
+    R = np.repeat(np.eye(3)[None], 4, axis=0)
+    t = np.zeros((4, 3))
+    ll, maha2 = f._log_likelihood(dp, ang, R, t, None, None)
+    lg, maha2_g = g._log_likelihood(dp, ang, R, t, None, None)
+    k = nu + 3  # the t's scale^2 is sigma^2 k / nu: -k/2 log(1 + r^2 nu / (nu k)) ~ -r^2 / 2 near 0
+    want = (-0.5 * k * (np.log1p(dp**2 / (k * sp**2)) + np.log1p(ang**2 / (k * sr**2)))
+            - 1.5 * np.log(sp**2) - 1.5 * np.log(sr**2))
+    np.testing.assert_allclose(ll, want)
+    np.testing.assert_allclose(maha2, maha2_g)  # the divergence test is unchanged
+    np.testing.assert_allclose(ll[:2] - ll[0], lg[:2] - lg[0], atol=1e-9)  # the same near zero
+    assert lg[0] - lg[3] == pytest.approx(50.0) and ll[0] - ll[3] < 10  # a 10-sigma miss: 50 nats, 9.5 for t
+    with pytest.raises(ValueError, match="likelihood_dof"):
+        pf.FilterConfig(likelihood="student_t", likelihood_dof=0.0).validate()
+    with pytest.raises(ValueError, match="likelihood"):
+        pf.FilterConfig(likelihood="cauchy").validate()
+
+
 def _filter_and_plant(seed, particles=4000, **cfg):
     from vlr_drake.hand import model_o
 

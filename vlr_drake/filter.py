@@ -340,6 +340,9 @@ STIFFNESS_PRIORS = ("log_uniform", "uniform")
 #: Sources of an elastic tendon's stretch (FilterConfig.tendon_reference).
 TENDON_REFERENCES = ("commanded", "implied")
 
+#: Shapes of the measurement likelihood (FilterConfig.likelihood).
+LIKELIHOODS = ("gaussian", "student_t")
+
 
 @dataclass
 class FilterConfig:
@@ -351,6 +354,13 @@ class FilterConfig:
     sigma_position: float = 0.3e-3
     # Rotation noise of the POM measurement plus model error, sigma_r [rad].
     sigma_rotation: float = np.deg2rad(1.5)
+    # Shape of the likelihood of each 3-D error (position, rotation): "gaussian" (default)
+    # or "student_t", a multivariate t with ``likelihood_dof`` degrees of freedom whose
+    # scale makes it agree with the Gaussian near zero error (scale^2 = sigma^2 (nu + 3) /
+    # nu): heavy tails, so that an occasional large error (a slip or a stuck step the VLR
+    # does not model) costs a hypothesis log(error) instead of error squared.
+    likelihood: str = "gaussian"
+    likelihood_dof: float = 4.0
     # Motion-model error, relative: each particle's predicted POM motion of this iteration
     # (translation |dt|, rotation |dr|) adds c |dt| and c |dr| in quadrature to sigma_p and
     # sigma_r. 0 trusts Gamma exactly (the model plant); a real hand or the physics plant,
@@ -435,6 +445,10 @@ class FilterConfig:
         if self.tendon_reference not in TENDON_REFERENCES:
             raise ValueError(
                 f"filter: 'tendon_reference' must be one of {TENDON_REFERENCES}, got '{self.tendon_reference}'")
+        if self.likelihood not in LIKELIHOODS:
+            raise ValueError(f"filter: 'likelihood' must be one of {LIKELIHOODS}, got '{self.likelihood}'")
+        if not self.likelihood_dof > 0:
+            raise ValueError(f"filter: 'likelihood_dof' must be positive, got {self.likelihood_dof}")
         if self.stuck_probability is not None and not 0 <= self.stuck_probability <= 1:
             raise ValueError(f"filter: 'stuck_probability' must be in [0, 1], got {self.stuck_probability}")
         if self.max_substeps < 0:
@@ -780,8 +794,8 @@ class SelfIdentificationFilter:
         return self._report(True, ess, beta, res, feasible, False, best)
 
     def _log_likelihood(self, dp, ang, R_pred, t_pred, R_prev, t_prev):
-        """Gaussian log-likelihood of the measured POM pose (up to a constant) and the squared
-        Mahalanobis distance, (P,) each. Position error ``dp`` [m] and rotation error ``ang``
+        """Log-likelihood of the measured POM pose (up to a constant; Gaussian, or Student-t
+        with ``likelihood = "student_t"``) and the squared Mahalanobis distance, (P,) each. Position error ``dp`` [m] and rotation error ``ang``
         [rad] against sigma_p and sigma_r, widened in quadrature by the relative motion-model
         error c times each particle's predicted motion (``motion_error``); the log-normaliser
         (-3 log sigma per 3-D error) keeps particles that predict large motions from being
@@ -794,7 +808,12 @@ class SelfIdentificationFilter:
             sp2 = sp2 + (cfg.motion_error * move_t) ** 2
             sr2 = sr2 + (cfg.motion_error * move_r) ** 2
         maha2 = dp**2 / sp2 + ang**2 / sr2
-        return -0.5 * maha2 - 1.5 * (np.log(sp2) + np.log(sr2)), maha2
+        norm = -1.5 * (np.log(sp2) + np.log(sr2))
+        if cfg.likelihood == "student_t":  # two independent 3-D t's (the constant dropped)
+            k = cfg.likelihood_dof + 3.0  # scale^2 = sigma^2 (nu + 3) / nu: the Gaussian's core
+            shape = np.log1p(dp**2 / (k * sp2)) + np.log1p(ang**2 / (k * sr2))
+            return -0.5 * k * shape + norm, maha2
+        return -0.5 * maha2 + norm, maha2
 
     def _unknowns(self, ps: ParticleSet) -> np.ndarray:
         """The identified quantities as one (M, D) matrix: theta, a, then extras."""
