@@ -358,7 +358,13 @@ class FilterConfig:
     # or "student_t", a multivariate t with ``likelihood_dof`` degrees of freedom whose
     # scale makes it agree with the Gaussian near zero error (scale^2 = sigma^2 (nu + 3) /
     # nu): heavy tails, so that an occasional large error (a slip or a stuck step the VLR
-    # does not model) costs a hypothesis log(error) instead of error squared.
+    # does not model) costs a hypothesis log(error) instead of error squared. Measured on
+    # the physics plant (nu = 4, 20,000 particles, 100 iterations, seeds 0-1 or 0-2), against
+    # the Gaussian: known hand, apple / gelatin box / wine glass 0.89 deg against 1.05,
+    # truth inside 0.89 either way, no run converged (with sigma_r 0.75 deg as well: 1.08
+    # deg, 0.83 inside); but flat screwdriver 2.43 / 4.12 against 2.51 / 2.48 deg, NH2 4.40
+    # mm against 3.48, NH1 2.01 / 5.90 against 0.25 / 5.85 mm, toy block stiffness 0.049
+    # against 0.044 N m/rad. So the default stays Gaussian.
     likelihood: str = "gaussian"
     likelihood_dof: float = 4.0
     # Motion-model error, relative: each particle's predicted POM motion of this iteration
