@@ -337,11 +337,13 @@ rotational weight alpha (Eq. 12), then released; success when every cup nests. W
 stack.png and the JSON result (position and orientation error) to --out; --meshcat shows
 each cup's goal pose beside it and saves stack.html.""",
     "reproduce": """The paper's table: the identification experiments (known hand, stiffness, NH1-NH3) and the
-tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...),
-mean +- SD of the paper's measure beside the paper's, and whether ours is better. Prints the
-markdown table and writes reproduce.md and reproduce.json to --out. The default is the
-paper's setting, the physics plant with the rendered camera (5 trials: about 45 minutes on
-2 cores); --plant model runs the fast model plant (5 trials: about 5 minutes). A --scenario
+tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...; on the
+physics plant the known hand's with each of the paper's four objects, the stiffness with the
+toy block), mean +- SD of the paper's measure beside the paper's, and whether ours is better.
+Prints the markdown table and writes reproduce.md and reproduce.json to --out. The default is
+the paper's setting, the physics plant with the rendered camera (5 trials: about 55 minutes
+on 2 cores, 26 of them the identification rows); --plant model runs the fast model plant (5
+trials: about 5 minutes); --experiments runs some of the rows. A --scenario
 supplies the plant and its settings; each row sets its own experiment, hand and object.
 --quick: one small trial of each (a smoke run, not a result).""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text

@@ -601,7 +601,7 @@ class SelfIdentificationFilter:
         prior conditioned on a physical grasp. A parameter value with few physical grasps
         in the boxes is drawn less often, which is evidence, not bias: drawing a grasp for
         each value until one is physical (its marginal as drawn) made the physics plant's
-        novel hands worse (NH2 4.30 mm against 3.22, NH3 seeds 0-3 6.0 against 3.8; 20,000
+        novel hands worse (NH2 4.30 mm against 3.23, NH3 seeds 0-3 6.0 against 3.8; 20,000
         particles, 100 iterations)."""
         M = self.config.particles
         kept, total = [], 0

@@ -77,7 +77,7 @@ ACTION_CHOICE = {"model": "informative", "physics": "random"}
 #: died, and the survivors carried the cloud sure and wrong (20,000 particles, 100
 #: iterations, seeds 0-4: link errors 6.7-12.5 mm, four of five converged with the truth
 #: inside 17-50% of the joint intervals). Holding such hypotheses (1.0): NH1 0.25-5.85 mm
-#: (mean 2.85), joints inside 0.83-1.00, none converged; NH2 3.84 -> 3.22 mm, NH3 4.62 ->
+#: (mean 2.85), joints inside 0.83-1.00, none converged; NH2 3.84 -> 3.23 mm, NH3 4.62 ->
 #: 3.84 mm, every truth inside. 0.1 was less honest (NH1 2.43 mm, one run converged with a
 #: third of the joints inside). Elsewhere a failed move is evidence: the physics stiffness
 #: experiment's squeezes rule out springs that way (1.0: errors 0.007-0.076 N m/rad
