@@ -1,10 +1,11 @@
 """``vlr-drake reproduce``: the paper's experiments and tasks, with its numbers beside ours.
 
 Each row runs its trials (5 by default, seeds 0..4; on the physics plant the known hand's
-with each of the paper's four objects, so 20 runs, as the paper's Fig. 4 did), takes mean +- SD over the runs of the
-paper's measure, and says whether ours is better (smaller) than the paper's mean. The
-table is printed and written as markdown (and the rows as JSON). ``quick`` runs one trial
-of each with few particles and iterations: a smoke run of the whole table, not a result.
+with each of the paper's four objects, so 20 runs, as the paper's Fig. 4 did), takes mean
++- SD over the runs of the paper's measure, and says whether ours is better (smaller) than
+the paper's mean. The table is printed and written as markdown (and the rows as JSON).
+``quick`` runs one trial of each with few particles and iterations: a smoke run of the
+whole table, not a result.
 """
 
 from __future__ import annotations
