@@ -591,9 +591,12 @@ class SelfIdentificationFilter:
         eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff)
         good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & h.within_joint_limits(eq.theta)
         theta, stretch = eq.theta, eq.stretch
-        if self.config.settle_prior and self._uses_command():
-            theta, stretch, settled = self._settle(theta, a, stiff, links)
-            good &= settled
+        if self.config.settle_prior and self._uses_command() and good.any():  # only the physical draws
+            idx = np.flatnonzero(good)
+            theta, stretch = theta.copy(), stretch.copy()
+            theta[idx], stretch[idx], good[idx] = self._settle(
+                theta[idx], a[idx], stiff[idx] if stiff.shape[0] > 1 else stiff,
+                links[idx] if links.shape[0] > 1 else links)
         return theta, a, stiff, links, stretch, good
 
     def _grasps(self, theta_center, a_center, scale, stiffness_center, link_center):
