@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from vlr_drake.hand import model_o
 from vlr_drake.physics.agreement import main, run_agreement
 
 
@@ -27,6 +28,48 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
     assert split.shape == (3, 2) and np.max(np.abs(split)) < 5.0
     np.testing.assert_allclose(first["carried_joint_error_deg"], split)
     assert np.isfinite(r["one_step_error_mm_median"])
+    # the commanded equilibrium: the VLR under the plant's own tendon state sits within a few
+    # degrees of the plant's angles (the object's weight, which the VLR lacks, is most of it)
+    offset = np.array(first["commanded_offset_deg"])
+    assert offset.shape == (3, 2) and 0.0 < np.max(np.abs(offset)) < 5.0
+    assert r["commanded_offset_deg_mean"] == pytest.approx(
+        np.mean([np.abs(row["commanded_offset_deg"]) for row in r["actions"]]))
+    assert r["gravity"] == pytest.approx(9.81) and r["commanded_failures"] == 0
+    assert first["settled_one_step_error_mm"] < 0.4 * first["true_motion_mm"]
+
+
+def test_commanded_equilibrium_holds_a_model_equilibrium_and_follows_the_command():
+    """A VLR grasp at rest under its own tendon state is its own commanded equilibrium; a
+    longer thumb command (a release) moves it by a fraction of a degree or more."""
+    from vlr_drake import kinematics, motion
+    from vlr_drake.identify import _truth_grasp
+    from vlr_drake.physics.agreement import commanded_equilibrium
+
+    h = model_o().model()
+    theta, a = _truth_grasp(h, np.random.default_rng(3))
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta[None], a[None]))[0]
+    stretch = motion.equilibrium(h, theta[None], a=a[None]).stretch[0]
+    l_cmd = stretch + h.tendon_travel(theta)
+    th, ok = commanded_equilibrium(h, theta, a, D2, l_cmd)
+    assert ok
+    np.testing.assert_allclose(th, theta, atol=1e-8)
+    th2, ok2 = commanded_equilibrium(h, theta, a, D2, l_cmd + np.array([0.5e-3, 0.0, 0.0]))
+    assert ok2 and np.max(np.abs(np.rad2deg(th2 - theta))) > 0.1
+
+
+def test_physics_overrides_parse_and_name_bad_keys():
+    from vlr_drake.physics.agreement import physics_overrides
+
+    cfg = physics_overrides(["gravity=0", "settle_object_speed=1e-4", "seed=3"])
+    assert cfg.gravity == 0.0 and cfg.settle_object_speed == 1e-4 and cfg.seed == 3
+    with pytest.raises(ValueError, match="'bogus=1'.*gravity"):
+        physics_overrides(["bogus=1"])
+    with pytest.raises(ValueError, match="'contact_model=point'"):
+        physics_overrides(["contact_model=point"])  # not a number
+    with pytest.raises(ValueError, match="'heavy' is not a number"):
+        physics_overrides(["gravity=heavy"])
+    with pytest.raises(ValueError, match="'gravity' must be >= 0"):
+        physics_overrides(["gravity=-9.81"])
 
 
 def test_bad_direction_is_named():

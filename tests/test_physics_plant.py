@@ -175,6 +175,17 @@ def test_physics_config_loads_from_yaml_and_validates():
         PhysicsConfig(time_step=0.0).validate()
     with pytest.raises(ValueError, match="discrete_contact_approximation"):
         PhysicsConfig(discrete_contact_approximation="tamsi").validate()
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="'gravity' must be >= 0"):
+            PhysicsConfig(gravity=bad).validate()
+
+
+@pytest.mark.parametrize("g", [9.81, 0.0])
+def test_gravity_setting_reaches_the_plant(g):
+    """PhysicsConfig.gravity sets the plant's gravity field (world -z); 0 removes the object's
+    weight, which the VLR does not model, for the model-vs-plant comparison."""
+    _, ph, _ = build_physics_hand(model_o(), preset("toy_block"), PhysicsConfig(gravity=g), None, None)
+    np.testing.assert_allclose(ph.plant.gravity_field().gravity_vector(), [0.0, 0.0, -g])
 
 
 def test_meshcat_recording_saves_html(tmp_path):

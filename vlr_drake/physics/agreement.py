@@ -12,7 +12,19 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   far the model drifts from the plant over a run, which is what a particle lives through);
 - the joint angles of both against the plant's (model minus truth, N x K, degrees): how the
   model splits a tendon's pull between a finger's joints;
-- bodies other than the last links touching the object (contacts the VLR does not have).
+- bodies other than the last links touching the object (contacts the VLR does not have);
+- the commanded equilibrium, as the filter sees the truth: the VLR's equilibrium under the
+  motors' commands (stretch l - R theta, the filter's ``tendon_reference = "commanded"``),
+  reached from the plant's angles with the object's shape held. Its angles minus the
+  plant's (``commanded_offset_deg``) are how far the best hypothesis sits from the truth
+  even with a perfect camera, and the motion between the commanded equilibria before and
+  after an action, applied to the true pose, is that hypothesis' one-step prediction
+  (``settled_one_step_error_mm`` / ``_deg``, settling excluded).
+
+The one-step and carried models start from the tendon stretch that holds the plant's angles
+in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
+fingers it is poorly determined and can differ from the plant's by several mm of stretch);
+the commanded equilibrium uses the plant's own tendon state.
 
     python -m vlr_drake.physics.agreement --object apple --actions 40
     python -m vlr_drake.physics.agreement --object apple --direction -1 1 1 --step 0.5e-3 --actions 8
@@ -21,11 +33,22 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
 Measured with it (apple, seed 0, 2000 N/m tendons): a thumb-vs-fingers pull (-1, 1, 1) moves
 the apple 10.8 mm per mm in the plant and 12.1 mm in the model; past ~1 mm the apple touches
 the thumb's proximal link and the plant stiffens (13.9 mm at 2 mm of pull, model 24.4 mm).
+
+The commanded equilibrium's angles are off the plant's by 1.1-1.9 deg on average (20
+actions, seed 0: toy block 1.11, apple 1.41, wine glass 1.94, gelatin box 1.31; the flat
+screwdriver, a power grasp, has none). Without gravity in the plant (``--physics
+gravity=0``) that is 0.39, 1.39, 0.20 and 0.10 deg: the objects' weight, which Eq. 9 does
+not have, is most of it everywhere but on the apple.
+
+``--physics KEY=VALUE`` overrides a setting of the physics plant
+(:class:`vlr_drake.systems.physics_plant.PhysicsConfig`), e.g. ``gravity=0`` (no object
+weight, which the VLR lacks) or ``settle_object_speed=1e-4`` (a stricter settle test).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -33,10 +56,11 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
-from vlr_drake.hand import HandSpec, model_o
+from vlr_drake.hand import HandModel, HandSpec, model_o
 from vlr_drake.identify import EXPLORATION
+from vlr_drake.systems.physics_plant import PhysicsConfig
 
-__all__ = ["run_agreement", "main"]
+__all__ = ["run_agreement", "commanded_equilibrium", "physics_overrides", "main"]
 
 
 def _pose(adapter):
@@ -67,6 +91,58 @@ class _ModelState:
         return R[0], t[0]
 
 
+def commanded_equilibrium(h: HandModel, theta, a, D2, tendon_command):
+    """The VLR's equilibrium (N, K) under the absolute tendon commands ``tendon_command``
+    (N,), reached from ``theta`` (N, K) with the contacts ``a`` (N,) at the squared
+    distances ``D2`` (m,): Eq. 9 with a zero action and the stretch l - R theta, as the
+    filter moves a hypothesis. Returns (angles, ok); the angles are ``theta`` where Newton
+    (with continuation) finds no equilibrium."""
+    theta = np.asarray(theta, float).reshape(1, h.N, h.K)
+    stretch = np.asarray(tendon_command, float).reshape(1, h.N) - h.tendon_travel(theta)
+    res = motion.move(h, theta, np.zeros(h.N), a=np.asarray(a, float).reshape(1, h.N),
+                      D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch, max_substeps=16)
+    ok = bool(res.ok[0])
+    return (res.theta[0] if ok else theta[0]).copy(), ok
+
+
+def _settled_prediction(h, truth, l_before, dl, R, t):
+    """Commanded equilibria before and after ``dl`` from the plant's state (``truth``), and
+    the predicted POM pose: their relative motion applied to the true pose (R, t). Returns
+    (offset before [rad] (N, K) or None, (R_pred, t_pred) or None)."""
+    a = truth["a"]
+    p = kinematics.contacts(h, truth["theta"][None], a[None])
+    D2 = motion.contact_distances_sq(h, p)[0]
+    th0, ok0 = commanded_equilibrium(h, truth["theta"], a, D2, l_before)
+    if not ok0:
+        return None, None
+    th1, ok1 = commanded_equilibrium(h, th0, a, D2, l_before + dl)
+    if not ok1:
+        return th0 - truth["theta"], None
+    p_O = observation.attach(p, R[None], t[None])
+    R0, t0, _ = observation.pom_pose(p_O, kinematics.contacts(h, th0[None], a[None]))
+    R1, t1, _ = observation.pom_pose(p_O, kinematics.contacts(h, th1[None], a[None]))
+    dR = R1[0] @ R0[0].T
+    return th0 - truth["theta"], (dR @ R, dR @ (t - t0[0]) + t1[0])
+
+
+def physics_overrides(items: list[str]) -> PhysicsConfig:
+    """A PhysicsConfig with ``KEY=VALUE`` overrides of its numeric fields (e.g.
+    ``gravity=0``); an unknown or non-numeric key is named."""
+    fields = {f.name: f for f in dataclasses.fields(PhysicsConfig)}
+    kw = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        f = fields.get(key)
+        if not sep or f is None or f.type not in (float, int, "float", "int"):
+            numeric = sorted(n for n, g in fields.items() if g.type in (float, int, "float", "int"))
+            raise ValueError(f"--physics '{item}': expected KEY=VALUE with KEY one of {', '.join(numeric)}")
+        try:
+            kw[key] = (int if f.type in (int, "int") else float)(value)
+        except ValueError:
+            raise ValueError(f"--physics '{item}': '{value}' is not a number") from None
+    return PhysicsConfig(**kw).validate()
+
+
 def _other_contacts(adapter) -> list[str]:
     """Names of bodies other than the last links that touch the object."""
     plant, ctx = adapter.ph.plant, adapter.ph.plant_context(adapter.root)
@@ -93,11 +169,13 @@ def run_agreement(
     window: float = EXPLORATION["physics"][1],
     direction=None,
     step: float = 0.5e-3,
+    physics: PhysicsConfig | None = None,
 ) -> dict:
     """Grasp ``object_name`` with the physics hand (``hand``: the Model O by default) and
     compare ``actions`` actions with Gamma's predictions (module docstring). Actions: random,
     uniform in +-``span`` per tendon within +-``window`` of the grasp (seeded), or, with
-    ``direction`` (N,), ``step`` [m] times its unit vector each time (a sweep)."""
+    ``direction`` (N,), ``step`` [m] times its unit vector each time (a sweep). ``physics``:
+    the plant's settings (default: PhysicsConfig())."""
     from vlr_drake.identify import Exploration, IdentifyOptions
     from vlr_drake.physics_identify import PhysicsAdapter
 
@@ -112,7 +190,7 @@ def run_agreement(
         direction = direction / np.linalg.norm(direction)
     opts = IdentifyOptions(plant="physics", object=object_name, seed=seed, action_range=span, window=window).validate()
     t_start = time.perf_counter()
-    adapter = PhysicsAdapter(opts, spec, np.random.default_rng(seed))
+    adapter = PhysicsAdapter(opts, spec, np.random.default_rng(seed), physics)
     adapter.start(pf.PriorConfig())
     explore = Exploration(adapter.tendon_command(), h.tendon_range, opts.action_range, opts.window,
                           np.random.default_rng(seed + 2))
@@ -127,6 +205,7 @@ def run_agreement(
         one = _ModelState(h, truth["theta"], truth["a"], R, t)  # restarted at the truth
         one_ok = one.move(dl)
         carried_ok = carried_ok and carried.move(dl)
+        offset, settled = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
         adapter.act(dl, timing)
         explore.commit(dl)
         R1, t1 = _pose(adapter)
@@ -136,7 +215,12 @@ def run_agreement(
                "other_contacts": _other_contacts(adapter),
                "one_step_error_mm": None, "one_step_error_deg": None, "predicted_motion_mm": None,
                "carried_error_mm": None, "carried_error_deg": None,
-               "one_step_joint_error_deg": None, "carried_joint_error_deg": None}
+               "one_step_joint_error_deg": None, "carried_joint_error_deg": None,
+               "commanded_offset_deg": None if offset is None else np.rad2deg(offset).tolist(),
+               "settled_one_step_error_mm": None, "settled_one_step_error_deg": None}
+        if settled is not None:
+            dp, ang = observation.pose_error(settled[0][None], settled[1][None], R1[None], t1[None])
+            row.update(settled_one_step_error_mm=float(dp[0] * 1e3), settled_one_step_error_deg=float(np.rad2deg(ang[0])))
         if one_ok:
             Rp, tp = one.pose()
             dp, ang = observation.pose_error(Rp[None], tp[None], R1[None], t1[None])
@@ -153,6 +237,8 @@ def run_agreement(
     ok = [r for r in rows if r["one_step_error_mm"] is not None]
     moved = [r for r in ok if r["true_motion_mm"] > 0.05]
     carried_errors = [r["carried_error_mm"] for r in rows if r["carried_error_mm"] is not None]
+    offsets = [np.abs(r["commanded_offset_deg"]) for r in rows if r["commanded_offset_deg"] is not None]
+    settled = [r for r in rows if r["settled_one_step_error_mm"] is not None]
     return {
         "object": object_name,
         "hand": spec.name,
@@ -167,6 +253,16 @@ def run_agreement(
         "carried_error_mm_max": max(carried_errors) if carried_errors else None,
         "carried_model_failed": not carried_ok,
         "actions_with_other_contacts": int(sum(bool(r["other_contacts"]) for r in rows)),
+        "gravity": float(adapter.physics.gravity),
+        # the commanded equilibrium (module docstring): mean |offset| per joint (N, K) and
+        # over all joints [deg], the failures, and the settled one-step errors' medians
+        "commanded_offset_deg_mean_per_joint": np.mean(offsets, axis=0).tolist() if offsets else None,
+        "commanded_offset_deg_mean": float(np.mean(offsets)) if offsets else None,
+        "commanded_failures": len(rows) - len(settled),
+        "settled_one_step_error_mm_median": (float(np.median([r["settled_one_step_error_mm"] for r in settled]))
+                                             if settled else None),
+        "settled_one_step_error_deg_median": (float(np.median([r["settled_one_step_error_deg"] for r in settled]))
+                                              if settled else None),
         "wall_s": time.perf_counter() - t_start,
     }
 
@@ -185,15 +281,21 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--step", type=float, default=0.5e-3, help="sweep step along --direction [m]")
     ap.add_argument("--tendon-stiffness", type=float, default=None,
                     help="tendon stiffness of every finger [N/m] (default: the Model O spec's)")
+    ap.add_argument("--physics", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="physics plant settings, e.g. gravity=0 settle_object_speed=1e-4")
     ap.add_argument("--json", default=None, help="write the result as JSON to this path")
     args = ap.parse_args(argv)
+    try:
+        physics = physics_overrides(args.physics)
+    except ValueError as e:
+        ap.error(str(e))
     spec = model_o()
     if args.tendon_stiffness is not None:
         for f in spec.fingers:
             f.tendon_stiffness = args.tendon_stiffness
         spec.validate()
     r = run_agreement(args.object, hand=spec, actions=args.actions, seed=args.seed, span=args.span,
-                      window=args.window, direction=args.direction, step=args.step)
+                      window=args.window, direction=args.direction, step=args.step, physics=physics)
     print(f"{r['object']}, {r['hand']}, tendons {r['tendon_stiffness']:.0f} N/m, {len(r['actions'])} actions")
     print(" k   true [mm]  one-step err [mm, deg]  predicted/true  carried err [mm]  other contacts")
     for k, row in enumerate(r["actions"]):
@@ -212,6 +314,15 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"median one-step error {r['one_step_error_mm_median']} mm / {r['one_step_error_deg_median']} deg, "
           f"predicted/true motion {r['motion_ratio_median']}, carried model off by up to {r['carried_error_mm_max']} mm, "
           f"{r['actions_with_other_contacts']} actions with other bodies touching the object")
+    if r["commanded_offset_deg_mean"] is not None:
+        print(f"commanded equilibrium (gravity {r['gravity']:g} m/s^2): angles off the plant's by "
+              f"{r['commanded_offset_deg_mean']:.2f} deg on average (per joint: "
+              + ", ".join(f"{name} " + "/".join(f"{x:.2f}" for x in row)
+                          for name, row in zip(spec.finger_names(), r["commanded_offset_deg_mean_per_joint"], strict=True))
+          + f"); settled one-step error {r['settled_one_step_error_mm_median']:.3f} mm / "
+          f"{r['settled_one_step_error_deg_median']:.3f} deg; {r['commanded_failures']} failures")
+    else:
+        print(f"commanded equilibrium: the VLR found none under the plant's tendon state in {len(r['actions'])} actions")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(r, fh, indent=1)

@@ -176,6 +176,10 @@ class PhysicsConfig:
     fall_distance: float = 0.04
     # Seed of the camera's pixel noise.
     seed: int = 0
+    # Magnitude of gravity [m/s^2], along the world's -z. The VLR (Eq. 9) has no object
+    # weight; 0 takes it out of the plant too, to measure how much of the model's mismatch
+    # it causes (python -m vlr_drake.physics.agreement --physics gravity=0).
+    gravity: float = 9.81
 
     def validate(self) -> "PhysicsConfig":
         if not self.time_step > 0:
@@ -203,8 +207,9 @@ class PhysicsConfig:
             "settle_max",
             "grasp_settle_max",
             "fixed_settle_time",
+            "gravity",
         ]:
-            if getattr(self, name) < 0:
+            if not getattr(self, name) >= 0:  # NaN too
                 raise ValueError(f"physics: '{name}' must be >= 0, got {getattr(self, name)}")
         for name in [
             "ramp_update_period",
@@ -899,6 +904,7 @@ def add_physics_hand(
     (obj_instances,) = parser.AddModelsFromString(object_sdf(obj, tag_mesh_uri(obj.tag_id)), "sdf")
     palm = plant.GetBodyByName("palm", hand_instance)
     plant.WeldFrames(plant.world_frame(), palm.body_frame(), physics.X_WP())
+    plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -physics.gravity])
     plant.Finalize()
 
     N, K = model.N, model.K
