@@ -42,18 +42,18 @@ def test_commanded_equilibrium_holds_a_model_equilibrium_and_follows_the_command
     """A VLR grasp at rest under its own tendon state is its own commanded equilibrium; a
     longer thumb command (a release) moves it by a fraction of a degree or more."""
     from vlr_drake import kinematics, motion
+    from vlr_drake.grasps import commanded_equilibrium
     from vlr_drake.identify import _truth_grasp
-    from vlr_drake.physics.agreement import commanded_equilibrium
 
     h = model_o().model()
     theta, a = _truth_grasp(h, np.random.default_rng(3))
     D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta[None], a[None]))[0]
     stretch = motion.equilibrium(h, theta[None], a=a[None]).stretch[0]
     l_cmd = stretch + h.tendon_travel(theta)
-    th, ok = commanded_equilibrium(h, theta, a, D2, l_cmd)
+    th, ok = commanded_equilibrium(h, theta, a, l_cmd, D2=D2)
     assert ok
     np.testing.assert_allclose(th, theta, atol=1e-8)
-    th2, ok2 = commanded_equilibrium(h, theta, a, D2, l_cmd + np.array([0.5e-3, 0.0, 0.0]))
+    th2, ok2 = commanded_equilibrium(h, theta, a, l_cmd + np.array([0.5e-3, 0.0, 0.0]))  # D2 from theta
     assert ok2 and np.max(np.abs(np.rad2deg(th2 - theta))) > 0.1
 
 

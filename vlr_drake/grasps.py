@@ -24,7 +24,8 @@ import numpy as np
 from vlr_drake import kinematics, motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian"]
+__all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian", "commanded_equilibrium",
+           "settle_under_command"]
 
 
 def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None, tendon="elastic"):
@@ -145,6 +146,25 @@ def sample_grasps(
     return GraspSample(*cat)
 
 
+def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None, D2=None):
+    """The model's equilibrium (N, K) under the absolute tendon commands ``tendon_command``
+    (N,), reached from ``theta`` (N, K) with the contacts ``a`` (N,) held at their mutual
+    distances (``D2`` (m,), squared; default: those at ``theta``): Eq. 9 with a zero action
+    and the elastic tendon's stretch ``s = l - R theta``, as the filter moves a hypothesis
+    (``FilterConfig.tendon_reference = "commanded"``). Returns (angles, ok); the angles are
+    ``theta`` where Newton, with continuation, finds no equilibrium."""
+    theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
+    a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
+    L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
+    if D2 is None:
+        D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
+    stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
+    res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
+                      link_lengths=L, stiffness=stiffness, max_substeps=64)
+    ok = bool(res.ok[0])
+    return (res.theta[0] if ok else theta[0]).copy(), ok
+
+
 def settle_under_command(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None) -> np.ndarray:
     """Where the model predicts a placed grasp settles once its tendons hold ``tendon_command``.
 
@@ -152,21 +172,14 @@ def settle_under_command(hand: HandModel, theta, a, tendon_command, link_lengths
     contacts ``a`` (N,) held at their mutual distances); the tendons are then pulled to the
     grasp's commands and the fingers settle. The settled angles are the model's equilibrium
     reached from the placement with the tendon state ``s = l - R theta`` of the commands
-    (Eq. 9 with a zero action; the elastic tendon). On the physics plant (Model O) the
+    (:func:`commanded_equilibrium`). On the physics plant (Model O) the
     thumb's distal joint is placed at 0.05 rad and settles at 0.32-0.35 rad; this predicts
     (0.05, 0.39) for the thumb against the true (0.09, 0.32). A filter may centre its prior
     here (``IdentifyOptions.nominal_grasp = "settled"``, measured there). Where the model
     finds no equilibrium the placement is returned, with a warning.
     """
-    theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
-    a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
-    L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
-    D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
-    stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
-    res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=D2, stretch=stretch, link_lengths=L,
-                      stiffness=stiffness, max_substeps=64)
-    if not res.ok[0]:
+    settled, ok = commanded_equilibrium(hand, theta, a, tendon_command, link_lengths, stiffness)
+    if not ok:
         warnings.warn("settle_under_command: the model finds no equilibrium under the grasp's tendon "
                       "commands; the placed angles are used as the nominal grasp", RuntimeWarning, stacklevel=2)
-        return theta[0].copy()
-    return res.theta[0].copy()
+    return settled

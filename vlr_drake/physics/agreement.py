@@ -15,7 +15,8 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
 - bodies other than the last links touching the object (contacts the VLR does not have);
 - the commanded equilibrium, as the filter sees the truth: the VLR's equilibrium under the
   motors' commands (stretch l - R theta, the filter's ``tendon_reference = "commanded"``),
-  reached from the plant's angles with the object's shape held. Its angles minus the
+  reached from the plant's angles with the object's shape held
+  (:func:`vlr_drake.grasps.commanded_equilibrium`). Its angles minus the
   plant's (``commanded_offset_deg``) are how far the best hypothesis sits from the truth
   even with a perfect camera, and the motion between the commanded equilibria before and
   after an action, applied to the true pose, is that hypothesis' one-step prediction
@@ -56,11 +57,12 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
-from vlr_drake.hand import HandModel, HandSpec, model_o
+from vlr_drake.grasps import commanded_equilibrium
+from vlr_drake.hand import HandSpec, model_o
 from vlr_drake.identify import EXPLORATION
 from vlr_drake.systems.physics_plant import PhysicsConfig
 
-__all__ = ["run_agreement", "commanded_equilibrium", "physics_overrides", "main"]
+__all__ = ["run_agreement", "physics_overrides", "main"]
 
 
 def _pose(adapter):
@@ -91,20 +93,6 @@ class _ModelState:
         return R[0], t[0]
 
 
-def commanded_equilibrium(h: HandModel, theta, a, D2, tendon_command):
-    """The VLR's equilibrium (N, K) under the absolute tendon commands ``tendon_command``
-    (N,), reached from ``theta`` (N, K) with the contacts ``a`` (N,) at the squared
-    distances ``D2`` (m,): Eq. 9 with a zero action and the stretch l - R theta, as the
-    filter moves a hypothesis. Returns (angles, ok); the angles are ``theta`` where Newton
-    (with continuation) finds no equilibrium."""
-    theta = np.asarray(theta, float).reshape(1, h.N, h.K)
-    stretch = np.asarray(tendon_command, float).reshape(1, h.N) - h.tendon_travel(theta)
-    res = motion.move(h, theta, np.zeros(h.N), a=np.asarray(a, float).reshape(1, h.N),
-                      D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch, max_substeps=16)
-    ok = bool(res.ok[0])
-    return (res.theta[0] if ok else theta[0]).copy(), ok
-
-
 def _settled_prediction(h, truth, l_before, dl, R, t):
     """Commanded equilibria before and after ``dl`` from the plant's state (``truth``), and
     the predicted POM pose: their relative motion applied to the true pose (R, t). Returns
@@ -112,10 +100,10 @@ def _settled_prediction(h, truth, l_before, dl, R, t):
     a = truth["a"]
     p = kinematics.contacts(h, truth["theta"][None], a[None])
     D2 = motion.contact_distances_sq(h, p)[0]
-    th0, ok0 = commanded_equilibrium(h, truth["theta"], a, D2, l_before)
+    th0, ok0 = commanded_equilibrium(h, truth["theta"], a, l_before, D2=D2)
     if not ok0:
         return None, None
-    th1, ok1 = commanded_equilibrium(h, th0, a, D2, l_before + dl)
+    th1, ok1 = commanded_equilibrium(h, th0, a, l_before + dl, D2=D2)
     if not ok1:
         return th0 - truth["theta"], None
     p_O = observation.attach(p, R[None], t[None])
