@@ -52,6 +52,7 @@ import argparse
 import dataclasses
 import json
 import time
+import typing
 
 import numpy as np
 
@@ -116,16 +117,15 @@ def _settled_prediction(h, truth, l_before, dl, R, t):
 def physics_overrides(items: list[str]) -> PhysicsConfig:
     """A PhysicsConfig with ``KEY=VALUE`` overrides of its numeric fields (e.g.
     ``gravity=0``); an unknown or non-numeric key is named."""
-    fields = {f.name: f for f in dataclasses.fields(PhysicsConfig)}
+    hints = typing.get_type_hints(PhysicsConfig)
+    numeric = {f.name: hints[f.name] for f in dataclasses.fields(PhysicsConfig) if hints[f.name] in (float, int)}
     kw = {}
     for item in items:
         key, sep, value = item.partition("=")
-        f = fields.get(key)
-        if not sep or f is None or f.type not in (float, int, "float", "int"):
-            numeric = sorted(n for n, g in fields.items() if g.type in (float, int, "float", "int"))
-            raise ValueError(f"--physics '{item}': expected KEY=VALUE with KEY one of {', '.join(numeric)}")
+        if not sep or key not in numeric:
+            raise ValueError(f"--physics '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted(numeric))}")
         try:
-            kw[key] = (int if f.type in (int, "int") else float)(value)
+            kw[key] = numeric[key](value)
         except ValueError:
             raise ValueError(f"--physics '{item}': '{value}' is not a number") from None
     return PhysicsConfig(**kw).validate()
@@ -302,7 +302,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"median one-step error {r['one_step_error_mm_median']} mm / {r['one_step_error_deg_median']} deg, "
           f"predicted/true motion {r['motion_ratio_median']}, carried model off by up to {r['carried_error_mm_max']} mm, "
           f"{r['actions_with_other_contacts']} actions with other bodies touching the object")
-    if r["commanded_offset_deg_mean"] is not None:
+    if r["settled_one_step_error_mm_median"] is not None:
         print(f"commanded equilibrium (gravity {r['gravity']:g} m/s^2): angles off the plant's by "
               f"{r['commanded_offset_deg_mean']:.2f} deg on average (per joint: "
               + ", ".join(f"{name} " + "/".join(f"{x:.2f}" for x in row)
@@ -310,7 +310,8 @@ def main(argv: list[str] | None = None) -> dict:
           + f"); settled one-step error {r['settled_one_step_error_mm_median']:.3f} mm / "
           f"{r['settled_one_step_error_deg_median']:.3f} deg; {r['commanded_failures']} failures")
     else:
-        print(f"commanded equilibrium: the VLR found none under the plant's tendon state in {len(r['actions'])} actions")
+        print(f"commanded equilibrium: the VLR found none before and after the action under the plant's tendon "
+              f"state in {len(r['actions'])} actions")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(r, fh, indent=1)
