@@ -4,6 +4,8 @@
                           summary table and convergence plots
     vlr-drake selfcheck   build the default hand, move it with both solvers, compare
     vlr-drake identify    one of the paper's identification experiments (JSON + plots)
+    vlr-drake replay      replay an identification's trace offline: other filter settings,
+                          or the evidence profile of a hand parameter
     vlr-drake write       handwriting with the POM (position control, Eq. 10-12)
     vlr-drake maze        a marble maze by orientation control
     vlr-drake stack       cup stacking in SE(3) with the rotational weight alpha
@@ -181,9 +183,66 @@ def identify(args) -> dict:
     print_summary(result)
     if finish is not None:
         result["recording"] = str(finish())
+    if getattr(args, "trace", None):
+        result["trace"] = str(result["_trace"].save(args.trace))
+        print(f"wrote {result['trace']}")
     _plots(result, out)
     write_json(result, args.json or str(out / f"{stem}.json"))
     return result
+
+
+def replay_trace(args) -> dict:
+    """``vlr-drake replay``: the trace's run again with ``--filter`` overrides, or the
+    evidence profile of ``--profile`` over ``--values``."""
+    from vlr_drake.scenario import config_overrides
+    from vlr_drake.trace import IdentificationTrace, evidence_profile, replay
+
+    trace = IdentificationTrace.load(args.trace)
+    config = config_overrides(trace.filter, args.filter or [], "--filter")
+    meta = trace.meta
+    print(f"trace {args.trace}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, "
+          f"object {meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, "
+          f"{config.particles} particles")
+    if args.profile is None:
+        if args.values is not None:
+            raise ValueError("--values needs --profile")
+        r = replay(trace, config, progress=not args.no_progress)
+        out = {"trace": str(args.trace), "filter_overrides": args.filter or [], "log_evidence": r["log_evidence"],
+               "converged_at": r["converged_at"], "reinitialisations": r["reinitialisations"],
+               **(r.get("errors") or {})}
+        conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
+        print(f"log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
+        if r.get("errors"):
+            print(_errors_line(r["errors"]))
+    else:
+        if not args.values:
+            raise ValueError("--profile needs --values, e.g. --values 0.13,0.17,0.21")
+        try:
+            values = [float(v) for v in args.values.split(",") if v.strip()]
+        except ValueError:
+            raise ValueError(f"--values '{args.values}': expected comma-separated numbers") from None
+        rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress)
+        unit = "N m/rad" if args.profile == "stiffness" else "m"
+        print(f"evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
+        for r in rows:
+            extra = f"; {_errors_line(r['errors'])}" if r["errors"] else ""
+            print(f"  {r['value']:.5g}: {r['relative']:8.2f} (log evidence {r['log_evidence']:.2f}; "
+                  f"{r['replay']['reinitialisations']} re-initialisations){extra}")
+        out = {"trace": str(args.trace), "filter_overrides": args.filter or [], "parameter": args.profile,
+               "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
+    write_json(out, args.json)
+    return out
+
+
+def _errors_line(e: dict) -> str:
+    text = (f"mean joint error {e['joint_error_deg_mean']:.2f} deg, truth inside 95%: "
+            f"{100 * e['truth_inside_95_theta']:.0f}% of joints")
+    if e.get("stiffness_error_Nm_per_rad") is not None:
+        text += (f", spring {e['stiffness_estimate_Nm_per_rad']:.4f} N m/rad (truth "
+                 f"{e['stiffness_true_Nm_per_rad']:.4f})")
+    if e.get("link_length_error_mm"):
+        text += ", link errors " + ", ".join(f"{k} {v:.2f} mm" for k, v in e["link_length_error_mm"].items())
+    return text
 
 
 def _meshcat_hypotheses(meshcat, html_path: Path):
@@ -346,6 +405,14 @@ on 2 cores, 26 of them the identification rows); --plant model runs the fast mod
 trials: about 5 minutes); --experiments runs some of the rows. A --scenario
 supplies the plant and its settings; each row sets its own experiment, hand and object.
 --quick: one small trial of each (a smoke run, not a result).""",
+    "replay": """Replay an identification's trace (vlr-drake identify --trace PATH) without the plant: the
+filter gets the same measurements, actions and motor readings, so with the run's settings it
+reproduces the run exactly, and with --filter KEY=VALUE overrides it shows what other
+settings would have made of the same data (exact for random exploration, the physics
+plant's default). --profile fixes one identified hand parameter (stiffness, or
+link_length:<finger>) at each of --values and prints each value's log evidence, the sum over
+the run of log p(measurement | the ones before), relative to the best: how strongly the
+measurements themselves favour each value, apart from the prior and the point estimate.""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text
 beside it, and render .svg pictures when Graphviz's dot is installed.""",
     "bench": """Benchmarks that print their figures: motion (one batched move of all particles vs one
@@ -400,6 +467,9 @@ def main(argv: list[str] | None = None) -> int:
                            help="how each exploratory action is chosen: random (the paper's) or informative (the "
                                 "most informative of 8 random proposals; default: informative on the model plant, "
                                 "random on the physics plant)")
+            p.add_argument("--trace", default=None, metavar="PATH",
+                           help="also save the run's trace (the filter's inputs and the truth) as .npz, for "
+                                "vlr-drake replay")
             p.add_argument("--stuck-probability", type=float, default=None, metavar="P",
                            help="probability that a hypothesis with no equilibrium after an action is held "
                                 "where it was by friction (0 discards it; default: 1 for novel fingers on the "
@@ -431,6 +501,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
                         "(default: all of known_hand, stiffness, NH1, NH2, NH3, write, maze, stack)")
 
+    p = _parser("replay", sub, "replay an identification's trace offline")
+    p.add_argument("trace", help="a trace written by vlr-drake identify --trace")
+    p.add_argument("--filter", action="append", metavar="KEY=VALUE",
+                   help="override a filter setting (vlr_drake.filter.FilterConfig), e.g. --filter particles=60000 "
+                        "--filter sigma_rotation=0.02; repeatable")
+    p.add_argument("--profile", default=None, metavar="PARAMETER",
+                   help="fix this identified hand parameter at each of --values and compare the evidence: "
+                        "stiffness [N m/rad] or link_length:<finger> [m]")
+    p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter")
+    p.add_argument("--json", default=None, help="write the result as JSON to this path")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     p = _parser("diagrams", sub, "write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
     p.add_argument("--folder", default=None,
                    help="folder of scenario files; the diagrams are written beside them (default: diagrams/)")
@@ -453,6 +535,8 @@ def main(argv: list[str] | None = None) -> int:
             write_json(selfcheck(args.seed), args.json)
         elif args.command == "identify":
             identify(args)
+        elif args.command == "replay":
+            replay_trace(args)
         elif args.command == "demo":
             demo(args)
         elif args.command == "bench":

@@ -58,6 +58,7 @@ __all__ = [
     "temper",
     "interval95",
     "information_gain",
+    "log_evidence_increment",
 ]
 
 
@@ -87,6 +88,23 @@ def normalise(log_w: np.ndarray) -> np.ndarray:
     w = np.exp(log_w - log_w[finite].max())
     w[~finite] = 0.0
     return w / w.sum()
+
+
+def log_evidence_increment(log_w: np.ndarray, log_lik: np.ndarray) -> float:
+    """log p(y_t | y_1..t-1) ~= log sum_i w_i exp(log_lik_i), the weights w normalised from
+    ``log_w``: the particle estimate of the marginal likelihood of one measurement (its sum
+    over a run is the log evidence of the model behind the filter). -inf entries of either
+    array contribute nothing; -inf when no particle explains the measurement. Up to the
+    likelihood's dropped constant, which is the same for every filter with the same noise
+    model, so differences between runs over the same measurements compare their models."""
+    lw = np.asarray(log_w, float) + np.asarray(log_lik, float)
+    finite = np.isfinite(lw)
+    if not finite.any():
+        return -np.inf
+    w0 = np.asarray(log_w, float)
+    f0 = np.isfinite(w0)
+    m, m0 = lw[finite].max(), w0[f0].max()
+    return float(m + np.log(np.exp(lw[finite] - m).sum()) - m0 - np.log(np.exp(w0[f0] - m0).sum()))
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -518,6 +536,9 @@ class StepReport:
     best_mahalanobis: float
     mean_interval_deg: float
     converged: bool
+    # log p(measurement | the ones before) under the filter's model (log_evidence_increment);
+    # NaN where nothing was measured.
+    log_evidence: float = float("nan")
 
 
 class SelfIdentificationFilter:
@@ -778,9 +799,10 @@ class SelfIdentificationFilter:
             log_lik = np.where(res.ok, log_lik, log_lik + np.log(cfg.stuck_probability))
         log_lik = np.where(feasible, log_lik, -np.inf)
         best = float(np.sqrt(np.min(maha2[feasible]))) if feasible.any() else np.inf
+        evidence = log_evidence_increment(ps.log_w, log_lik)
         if not feasible.any() or best > cfg.divergence_sigmas:
             self._reinitialise(R_meas, t_meas)
-            return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best)
+            return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best, evidence)
         # temper this iteration's likelihood only, relative to the weights carried so far
         beta = _temper_increment(ps.log_w, log_lik, cfg.ess_fraction * ps.size)
         log_w = ps.log_w + beta * log_lik
@@ -800,7 +822,7 @@ class SelfIdentificationFilter:
         p_now = kinematics.contacts(h, new.theta, new.a, new.link_lengths)
         new.p_O = (p_now - t_anchor[:, None, :]) @ R_anchor  # R^T (p - t), particle by particle
         self.particles = new
-        return self._report(True, ess, beta, res, feasible, False, best)
+        return self._report(True, ess, beta, res, feasible, False, best, evidence)
 
     def _log_likelihood(self, dp, ang, R_pred, t_pred, R_prev, t_prev):
         """Log-likelihood of the measured POM pose (up to a constant; Gaussian, or Student-t
@@ -892,7 +914,7 @@ class SelfIdentificationFilter:
         self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0)
         self.estimates.pop()  # initialise appended one; the report below appends the current
 
-    def _report(self, measured, ess, beta, res, feasible, reinit, best) -> StepReport:
+    def _report(self, measured, ess, beta, res, feasible, reinit, best, evidence=np.nan) -> StepReport:
         est = self.estimate()
         self.estimates.append(est)
         width = est["theta_half_width"] if self.config.convergence_measure == "half_width" else est["theta_full_width"]
@@ -901,7 +923,7 @@ class SelfIdentificationFilter:
             iteration=self.iteration, measured=measured, ess=ess, beta=beta,
             solve_failures=int((~res.ok).sum()), infeasible=int((~feasible).sum()), reinitialised=reinit,
             best_mahalanobis=best, mean_interval_deg=mean_int,
-            converged=bool(mean_int < self.config.convergence_deg and not reinit),
+            converged=bool(mean_int < self.config.convergence_deg and not reinit), log_evidence=evidence,
         )
         self.history.append(report)
         return report

@@ -31,6 +31,7 @@ from vlr_drake import grasps
 from vlr_drake.hand import NOVEL_HANDS, hand_by_name
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.objects import preset_names
+from vlr_drake.trace import TraceRecorder
 
 if TYPE_CHECKING:
     from vlr_drake.hand import HandSpec
@@ -314,7 +315,7 @@ def _hand_name(opts: IdentifyOptions) -> str:
 
 
 def _hands(opts: IdentifyOptions, rng):
-    """(true hand spec, filter's hand spec, prior config, true stiffness or None).
+    """(true hand spec, filter's hand spec, prior config).
 
     The filter's hand is the nominal one (``hand_spec`` or the preset); the true hand is
     that with the stiffness and link lengths of ``true_stiffness`` / ``true_link_lengths``
@@ -323,7 +324,6 @@ def _hands(opts: IdentifyOptions, rng):
     prior = pf.PriorConfig() if opts.prior is None else copy.deepcopy(opts.prior)
     nominal = copy.deepcopy(opts.hand_spec) if opts.hand_spec is not None else hand_by_name(opts.hand)
     true_spec = copy.deepcopy(nominal)
-    k_true = None
     if opts.experiment == "stiffness":
         if not prior.stiffness_unknown:
             prior.stiffness_unknown = [(0, 1)]
@@ -339,9 +339,6 @@ def _hands(opts: IdentifyOptions, rng):
     if opts.true_link_lengths is not None:
         for finger, lengths in zip(true_spec.fingers, opts.true_link_lengths, strict=True):
             finger.link_lengths = [float(x) for x in lengths]
-    if prior.stiffness_unknown:
-        fi, j = prior.stiffness_unknown[0]
-        k_true = float(true_spec.fingers[fi].stiffness[j])
     if opts.experiment == "novel_fingers" and not prior.links_unknown:
         # The filter knows which fingers were replaced, not how long their proximal links
         # are: the prior searches a range there.
@@ -349,7 +346,7 @@ def _hands(opts: IdentifyOptions, rng):
         names = nominal.finger_names()  # replaced fingers are named "<old>_<NFx>"
         prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
         prior.link_range = (0.030, 0.075)
-    return true_spec, nominal, prior, k_true
+    return true_spec, nominal, prior
 
 
 def _truth_grasp(hand, rng, link_lengths=None):
@@ -380,7 +377,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     if opts.filter.stuck_probability is None:
         opts.filter.stuck_probability = default_stuck_probability(opts.plant, opts.experiment)
     rng = np.random.default_rng(opts.seed)
-    true_spec, filt_spec, prior, k_true = _hands(opts, rng)
+    true_spec, filt_spec, prior = _hands(opts, rng)
     true_hand, filt_hand = true_spec.model(), filt_spec.model()
     timing = {"physics": 0.0, "render": 0.0, "detect": 0.0, "filter": 0.0, "total": 0.0}
     t_start = time.perf_counter()
@@ -399,13 +396,15 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     tf = time.perf_counter()
     f.initialise(theta_c, a_c, R0, t0, k_center, L_center, tendon_command=plant.tendon_command())
     timing["filter"] += time.perf_counter() - tf
+    recorder = TraceRecorder(filt_spec, opts.filter, prior, opts.seed + 1, meta=_trace_meta(opts))
+    truths = [plant.truth()]
+    recorder.start(theta_c, a_c, R0, t0, plant.tendon_command(), truths[0])
     if on_iteration is not None:
         on_iteration(0, f)
     explore = Exploration(plant.tendon_command(), filt_hand.tendon_range, opts.action_range, opts.window,
                           np.random.default_rng(opts.seed + 2), opts.squeeze_range, opts.squeeze_window)
     if opts.action_choice == "informative":
         explore = InformativeExploration(explore, f, opts.candidates, np.random.default_rng(opts.seed + 4))
-    truths = [plant.truth()]
     converged_at = None
     lost = 0
     from tqdm.auto import tqdm
@@ -424,6 +423,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         rep = f.step(dl, R, t, valid, tendon_command=plant.tendon_command())
         timing["filter"] += time.perf_counter() - tf
         truths.append(plant.truth())
+        recorder.step(dl, R, t, valid, plant.tendon_command(), truths[-1])
         if on_iteration is not None:
             on_iteration(it, f)
         bar.update(1)
@@ -436,19 +436,57 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     timing["total"] = time.perf_counter() - t_start
     est = f.estimates[-1]
     truth = truths[-1]
-    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, k_true, f, lost, plant)
+    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, f, lost, plant)
     result["_estimates"] = f.estimates
     result["_history"] = f.history
     result["_truths"] = truths
     result["_finger_names"] = filt_hand.names
+    result["_trace"] = recorder.trace()
     return result
 
 
-def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k_true, f, lost, plant) -> dict:
+def _trace_meta(opts: IdentifyOptions) -> dict:
+    return {"experiment": opts.experiment, "plant": opts.plant, "hand": _hand_name(opts), "seed": opts.seed,
+            "object": opts.object_spec.name if opts.object_spec is not None else opts.object,
+            "action_choice": opts.action_choice, "scenario": opts.scenario}
+
+
+def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict:
+    """The result fields (DESIGN.md section 11) that compare an estimate with the truth:
+    joint, contact, stiffness and link-length errors and whether the truth lies inside the
+    95% intervals. ``truth``: a plant's truth dict (theta, a, contacts, stiffness, link_lengths)."""
     th_err = np.rad2deg(np.abs(est["theta"] - truth["theta"]))
     c_err = 1e3 * np.linalg.norm(est["contacts"] - truth["contacts"], axis=1)
     inside_theta = (truth["theta"] >= est["theta_lo"]) & (truth["theta"] <= est["theta_hi"])
     inside_a = (truth["a"] >= est["a_lo"]) & (truth["a"] <= est["a_hi"])
+    res = {
+        "proximal_joint_error_deg": th_err[:, 0].tolist(),
+        "joint_error_deg_mean": float(th_err.mean()),
+        "contact_error_mm": c_err.tolist(),
+        "stiffness_error_Nm_per_rad": None,
+        "link_length_error_mm": None,
+        "interval_half_width_deg_mean": float(np.rad2deg(est["theta_half_width"].mean())),
+        "interval_full_width_deg_mean": float(np.rad2deg(est["theta_full_width"].mean())),
+        "truth_inside_95_theta": float(inside_theta.mean()),
+        "truth_inside_95_contact": float(inside_a.mean()),
+    }
+    if prior.stiffness_unknown:
+        fi, j = prior.stiffness_unknown[0]
+        k_true = float(truth["stiffness"][fi, j])
+        res["stiffness_true_Nm_per_rad"] = k_true
+        res["stiffness_estimate_Nm_per_rad"] = float(est["stiffness"][fi, j])
+        res["stiffness_error_Nm_per_rad"] = float(abs(est["stiffness"][fi, j] - k_true))
+        res["stiffness_inside_95"] = bool(est["stiffness_lo"][fi, j] <= k_true <= est["stiffness_hi"][fi, j])
+        res["stiffness_interval_Nm_per_rad"] = [float(est["stiffness_lo"][fi, j]), float(est["stiffness_hi"][fi, j])]
+        res["stiffness_prior_Nm_per_rad"] = [float(x) for x in prior.stiffness_range]
+    if prior.links_unknown:
+        res["link_length_error_mm"] = {
+            hand.names[fi]: float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))
+            for fi in prior.links_unknown}
+    return res
+
+
+def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f, lost, plant) -> dict:
     res = {
         "experiment": opts.experiment,
         "scenario": opts.scenario,
@@ -461,34 +499,14 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, k
         "plant": opts.plant,
         "converged": converged_at is not None,
         "iterations": int(converged_at if converged_at is not None else last_it),
-        "proximal_joint_error_deg": th_err[:, 0].tolist(),
-        "joint_error_deg_mean": float(th_err.mean()),
-        "contact_error_mm": c_err.tolist(),
-        "stiffness_error_Nm_per_rad": None,
-        "link_length_error_mm": None,
         "timing_s": timing,
-        "interval_half_width_deg_mean": float(np.rad2deg(est["theta_half_width"].mean())),
-        "interval_full_width_deg_mean": float(np.rad2deg(est["theta_full_width"].mean())),
-        "truth_inside_95_theta": float(inside_theta.mean()),
-        "truth_inside_95_contact": float(inside_a.mean()),
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),
         "actions_refused": int(getattr(plant, "refused", 0)),
         "action_choice": opts.action_choice,
     }
-    if prior.stiffness_unknown:
-        fi, j = prior.stiffness_unknown[0]
-        res["stiffness_true_Nm_per_rad"] = k_true
-        res["stiffness_estimate_Nm_per_rad"] = float(est["stiffness"][fi, j])
-        res["stiffness_error_Nm_per_rad"] = float(abs(est["stiffness"][fi, j] - k_true))
-        res["stiffness_inside_95"] = bool(est["stiffness_lo"][fi, j] <= k_true <= est["stiffness_hi"][fi, j])
-        res["stiffness_interval_Nm_per_rad"] = [float(est["stiffness_lo"][fi, j]), float(est["stiffness_hi"][fi, j])]
-        res["stiffness_prior_Nm_per_rad"] = [float(x) for x in prior.stiffness_range]
-    if prior.links_unknown:
-        errs = {}
-        for fi in prior.links_unknown:
-            errs[hand.names[fi]] = float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))
-        res["link_length_error_mm"] = errs
+    res.update(estimate_errors(hand, prior, est, truth))
+    res["log_evidence"] = float(np.nansum([r.log_evidence for r in f.history]))
     return res
 
 

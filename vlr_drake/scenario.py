@@ -59,6 +59,7 @@ __all__ = [
     "find_scenario",
     "options_from_scenario",
     "task_settings",
+    "config_overrides",
 ]
 
 #: The plants a scenario can drive.
@@ -630,3 +631,41 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
     if s.exploration.window is None:
         del settings["window"]
     return {**settings, **given}
+
+
+def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float, int, bool, str)):
+    """A copy of the dataclass ``config`` with ``KEY=VALUE`` overrides of its scalar fields
+    (those whose type is one of ``kinds``, optionally ``| None``; "none" sets such a field
+    to None), validated when the class has ``validate()``. A bad key or value is named with
+    the command-line ``flag`` it came from."""
+    cls = type(config)
+    hints = typing.get_type_hints(cls)
+    scalar = {}
+    for f in dataclasses.fields(cls):
+        t, args = hints[f.name], typing.get_args(hints[f.name])
+        optional = type(None) in args and len(args) == 2
+        if optional:
+            t = next(a for a in args if a is not type(None))
+        if t in kinds:
+            scalar[f.name] = (t, optional)
+    out = copy.deepcopy(config)
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in scalar:
+            raise ValueError(f"{flag} '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted(scalar))}")
+        t, optional = scalar[key]
+        if optional and value.lower() == "none":
+            v = None
+        elif t is bool:
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(f"{flag} '{item}': '{value}' is not true or false")
+            v = value.lower() in ("true", "1")
+        elif t is str:
+            v = value
+        else:
+            try:
+                v = t(value)
+            except ValueError:
+                raise ValueError(f"{flag} '{item}': '{value}' is not a number") from None
+        setattr(out, key, v)
+    return out.validate() if hasattr(out, "validate") else out

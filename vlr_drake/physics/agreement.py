@@ -49,10 +49,8 @@ weight, which the VLR lacks) or ``settle_object_speed=1e-4`` (a stricter settle 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
-import typing
 
 import numpy as np
 
@@ -117,18 +115,9 @@ def _settled_prediction(h, truth, l_before, dl, R, t):
 def physics_overrides(items: list[str]) -> PhysicsConfig:
     """A PhysicsConfig with ``KEY=VALUE`` overrides of its numeric fields (e.g.
     ``gravity=0``); an unknown or non-numeric key is named."""
-    hints = typing.get_type_hints(PhysicsConfig)
-    numeric = {f.name: hints[f.name] for f in dataclasses.fields(PhysicsConfig) if hints[f.name] in (float, int)}
-    kw = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or key not in numeric:
-            raise ValueError(f"--physics '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted(numeric))}")
-        try:
-            kw[key] = numeric[key](value)
-        except ValueError:
-            raise ValueError(f"--physics '{item}': '{value}' is not a number") from None
-    return PhysicsConfig(**kw).validate()
+    from vlr_drake.scenario import config_overrides
+
+    return config_overrides(PhysicsConfig(), items, "--physics", kinds=(float, int))
 
 
 def _other_contacts(adapter) -> list[str]:

@@ -1,0 +1,305 @@
+"""Identification traces: what the filter was given during a run, kept so that the run can
+be replayed offline.
+
+A trace holds the filter's inputs (its hand, settings, prior, seed, the nominal grasp and
+the first POM measurement, then every action with the POM measured after it and the
+motors' tendon commands) and, where the plant knows it, the ground truth after each step.
+Replaying a trace with the same settings reproduces the run's estimates exactly; with
+other filter settings it answers "what would this filter have made of the same
+measurements" without the plant (the physics plant's simulation and rendering, or the
+hardware). That is exact whenever the actions did not depend on the filter (random
+exploration, the physics plant's and hardware's default); informative actions are replayed
+as they were chosen.
+
+Replay also gives the filter's log evidence, sum_t log p(y_t | y_1..t-1) (Eq. 5's
+likelihood integrated over the hypotheses), and :func:`evidence_profile` fixes one
+identified hand parameter at a list of values and compares their evidence: how strongly
+the measurements themselves favour each value, apart from the prior and the filter's
+point estimate.
+
+    vlr-drake identify stiffness --trace out/stiffness.npz
+    vlr-drake replay out/stiffness.npz --profile stiffness --values 0.13,0.17,0.21,0.25
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vlr_drake import filter as pf
+from vlr_drake.hand import FingerSpec, HandSpec
+
+__all__ = ["IdentificationTrace", "TraceRecorder", "replay", "evidence_profile", "PROFILE_PARAMETERS"]
+
+#: Format version written into every trace file.
+TRACE_VERSION = 1
+#: Hand parameters :func:`evidence_profile` can fix: the prior's (first) unknown stiffness,
+#: or the proximal link length of a named finger ("link_length:<finger>").
+PROFILE_PARAMETERS = ("stiffness", "link_length:<finger>")
+#: Ground-truth arrays a trace keeps per step (the plant's truth dicts).
+TRUTH_KEYS = ("theta", "a", "contacts", "stiffness", "link_lengths")
+
+
+@dataclass
+class IdentificationTrace:
+    """The filter's inputs of one identification run (shapes: T steps, N fingers, K joints)."""
+
+    hand: HandSpec  # the filter's hand
+    filter: pf.FilterConfig
+    prior: pf.PriorConfig
+    filter_seed: int  # seed of the filter's random generator
+    theta_center: np.ndarray  # (N, K) nominal grasp [rad]
+    a_center: np.ndarray  # (N,) [m]
+    R0: np.ndarray  # (3, 3) first POM measurement
+    t0: np.ndarray  # (3,) [m]
+    tendon_command0: np.ndarray  # (N,) [m]
+    actions: np.ndarray  # (T, N) [m]
+    R: np.ndarray  # (T, 3, 3), NaN where the tag was lost
+    t: np.ndarray  # (T, 3) [m], NaN where the tag was lost
+    valid: np.ndarray  # (T,) bool
+    tendon_commands: np.ndarray  # (T, N) [m] after each action
+    truths: dict[str, np.ndarray] | None = None  # TRUTH_KEYS -> (T + 1, ...), or None (hardware)
+    meta: dict = field(default_factory=dict)  # experiment, plant, object, seed, ...
+
+    @property
+    def steps(self) -> int:
+        return int(self.actions.shape[0])
+
+    def validate(self) -> IdentificationTrace:
+        """Check the arrays' shapes against the hand; raises ``ValueError`` naming the field."""
+        self.hand.validate()
+        N, K, T = self.hand.num_fingers, self.hand.num_joints_per_finger, self.steps
+        expected = {"theta_center": (N, K), "a_center": (N,), "R0": (3, 3), "t0": (3,), "tendon_command0": (N,),
+                    "actions": (T, N), "R": (T, 3, 3), "t": (T, 3), "valid": (T,), "tendon_commands": (T, N)}
+        for name, shape in expected.items():
+            got = np.shape(getattr(self, name))
+            if got != shape:
+                raise ValueError(f"trace: '{name}' must have shape {shape}, got {got}")
+        bad = self.valid & ~(np.isfinite(self.R).all(axis=(1, 2)) & np.isfinite(self.t).all(axis=1))
+        if bad.any():
+            raise ValueError(f"trace: step {int(np.flatnonzero(bad)[0]) + 1} is marked valid but its POM pose is not finite")
+        if self.truths is not None:
+            missing = [k for k in TRUTH_KEYS if k not in self.truths]
+            if missing:
+                raise ValueError(f"trace: truths lack {missing}")
+            for k in TRUTH_KEYS:
+                if self.truths[k].shape[0] != T + 1:
+                    raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
+                                     f"got {self.truths[k].shape[0]}")
+        return self
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: str | Path) -> Path:
+        """Write the trace as one compressed ``.npz`` (arrays, and the settings as JSON)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        header = {"version": TRACE_VERSION, "hand": dataclasses.asdict(self.hand),
+                  "filter": dataclasses.asdict(self.filter), "prior": dataclasses.asdict(self.prior),
+                  "filter_seed": int(self.filter_seed), "meta": self.meta, "has_truths": self.truths is not None}
+        arrays = {name: np.asarray(getattr(self, name)) for name in (
+            "theta_center", "a_center", "R0", "t0", "tendon_command0", "actions", "R", "t", "valid", "tendon_commands")}
+        if self.truths is not None:
+            arrays.update({f"truth_{k}": np.asarray(v) for k, v in self.truths.items()})
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, header=np.array(json.dumps(header, default=_json_default)), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> IdentificationTrace:
+        """Read a trace written by :meth:`save`; raises ``ValueError`` naming what is wrong."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"trace file not found: {path}")
+        with np.load(path, allow_pickle=False) as z:
+            if "header" not in z.files:
+                raise ValueError(f"{path}: not an identification trace (no header)")
+            header = json.loads(str(z["header"]))
+            if header.get("version") != TRACE_VERSION:
+                raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
+            arrays = {k: z[k] for k in z.files if k != "header"}
+        try:
+            truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS} if header["has_truths"] else None)
+            trace = cls(
+                hand=_hand_from_dict(header["hand"]),
+                filter=_config_from_dict(pf.FilterConfig, header["filter"]),
+                prior=_config_from_dict(pf.PriorConfig, header["prior"]),
+                filter_seed=int(header["filter_seed"]),
+                truths=truths, meta=header.get("meta", {}),
+                **{k: arrays[k] for k in ("theta_center", "a_center", "R0", "t0", "tendon_command0", "actions",
+                                          "R", "t", "valid", "tendon_commands")},
+            )
+        except KeyError as e:
+            raise ValueError(f"{path}: trace lacks {e}") from None
+        return trace.validate()
+
+
+class TraceRecorder:
+    """Collects a trace while an identification runs (``run_identification`` feeds it)."""
+
+    def __init__(self, hand: HandSpec, config: pf.FilterConfig, prior: pf.PriorConfig, filter_seed: int,
+                 meta: dict | None = None):
+        self._fixed = dict(hand=copy.deepcopy(hand), filter=copy.deepcopy(config), prior=copy.deepcopy(prior),
+                           filter_seed=int(filter_seed), meta=dict(meta or {}))
+        self._start: dict | None = None
+        self._steps: list[tuple] = []
+        self._truths: list[dict] = []
+
+    def start(self, theta_center, a_center, R0, t0, tendon_command, truth: dict | None = None) -> None:
+        self._start = dict(theta_center=np.array(theta_center, float), a_center=np.array(a_center, float),
+                           R0=np.array(R0, float), t0=np.array(t0, float),
+                           tendon_command0=np.array(tendon_command, float))
+        self._add_truth(truth)
+
+    def step(self, dl, R, t, valid: bool, tendon_command, truth: dict | None = None) -> None:
+        valid = bool(valid) and R is not None and t is not None
+        self._steps.append((np.array(dl, float), np.array(R, float) if valid else np.full((3, 3), np.nan),
+                            np.array(t, float) if valid else np.full(3, np.nan), valid,
+                            np.array(tendon_command, float)))
+        self._add_truth(truth)
+
+    def _add_truth(self, truth):
+        if truth is not None:
+            self._truths.append({k: np.array(truth[k], float) for k in TRUTH_KEYS})
+
+    def trace(self) -> IdentificationTrace:
+        if self._start is None:
+            raise RuntimeError("trace recorder: start() was never called")
+        N = self._start["a_center"].shape[0]
+        steps = self._steps
+        truths = None
+        if self._truths and len(self._truths) == len(steps) + 1:
+            truths = {k: np.stack([tr[k] for tr in self._truths]) for k in TRUTH_KEYS}
+        return IdentificationTrace(
+            **self._fixed, **self._start,
+            actions=np.array([s[0] for s in steps]).reshape(len(steps), N),
+            R=np.array([s[1] for s in steps]).reshape(len(steps), 3, 3),
+            t=np.array([s[2] for s in steps]).reshape(len(steps), 3),
+            valid=np.array([s[3] for s in steps], dtype=bool),
+            tendon_commands=np.array([s[4] for s in steps]).reshape(len(steps), N),
+            truths=truths,
+        ).validate()
+
+
+# ---------------------------------------------------------------------- replay
+def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, prior: pf.PriorConfig | None = None,
+           hand: HandSpec | None = None, progress: bool = False) -> dict:
+    """Run the filter over the trace's measurements.
+
+    ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
+    the run's). Returns ``estimates`` (one per step and the initial one), ``history`` (the
+    StepReports), ``log_evidence`` (their sum of ``log_evidence``, NaN steps skipped),
+    ``log_evidence_steps`` (T,) and, where the trace has truths, ``errors`` (the result
+    fields of DESIGN.md section 11 that compare the final estimate with the truth).
+    """
+    from tqdm.auto import tqdm
+
+    from vlr_drake.identify import estimate_errors
+
+    config = copy.deepcopy(trace.filter if config is None else config)
+    prior = copy.deepcopy(trace.prior if prior is None else prior)
+    spec = trace.hand if hand is None else hand
+    h = spec.validate().model()
+    f = pf.SelfIdentificationFilter(h, config, prior, np.random.default_rng(trace.filter_seed))
+    k_center = L_center = None
+    f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, k_center, L_center,
+                 tendon_command=trace.tendon_command0)
+    for i in tqdm(range(trace.steps), disable=not progress, desc="replay", unit="it", leave=False):
+        valid = bool(trace.valid[i])
+        f.step(trace.actions[i], trace.R[i] if valid else None, trace.t[i] if valid else None, valid,
+               tendon_command=trace.tendon_commands[i])
+    steps = np.array([r.log_evidence for r in f.history])
+    out = {"estimates": f.estimates, "history": f.history, "log_evidence_steps": steps,
+           "log_evidence": float(np.nansum(steps)), "reinitialisations": f.reinitialisations,
+           "converged_at": next((r.iteration for r in f.history if r.converged), None)}
+    if trace.truths is not None:
+        truth = {k: v[-1] for k, v in trace.truths.items()}
+        out["errors"] = estimate_errors(h, prior, f.estimates[-1], truth)
+    return out
+
+
+def evidence_profile(trace: IdentificationTrace, parameter: str, values, config: pf.FilterConfig | None = None,
+                     progress: bool = False) -> list[dict]:
+    """Replay the trace once per value with one identified hand parameter fixed there.
+
+    ``parameter``: "stiffness" (the prior's first unknown spring, finger and joint from
+    ``prior.stiffness_unknown``) [N m/rad], or "link_length:<finger>" (that finger's
+    proximal link, which must be one of the prior's ``links_unknown``) [m]. The parameter
+    leaves the prior's unknowns and is set in the filter's hand. Returns one dict per value:
+    ``value``, ``log_evidence`` and ``relative`` (minus the largest: log Bayes factors),
+    ``errors`` (where the trace has truths) and ``replay`` (the full :func:`replay` output).
+    """
+    values = np.atleast_1d(np.asarray(values, float))
+    if values.ndim != 1 or values.size == 0:
+        raise ValueError("evidence profile: 'values' must be a non-empty list of numbers")
+    if not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise ValueError(f"evidence profile: '{parameter}' values must be finite and positive, got {values.tolist()}")
+    base_prior = trace.prior
+    names = trace.hand.finger_names()
+    if parameter == "stiffness":
+        if not base_prior.stiffness_unknown:
+            raise ValueError("evidence profile: the trace's prior identifies no stiffness")
+        fi, j = (int(x) for x in base_prior.stiffness_unknown[0])
+    elif parameter.startswith("link_length:"):
+        finger = parameter.split(":", 1)[1]
+        if finger not in names:
+            raise ValueError(f"evidence profile: the hand has no finger '{finger}' (fingers: {names})")
+        fi = names.index(finger)
+        if fi not in [int(x) for x in base_prior.links_unknown]:
+            unknown = [names[int(i)] for i in base_prior.links_unknown]
+            raise ValueError(f"evidence profile: finger '{finger}' has a known link length in this trace "
+                             f"(unknown: {unknown or 'none'})")
+    else:
+        raise ValueError(f"evidence profile: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
+    rows = []
+    for v in values:
+        spec, prior = copy.deepcopy(trace.hand), copy.deepcopy(base_prior)
+        if parameter == "stiffness":
+            k = list(spec.fingers[fi].stiffness)
+            k[j] = float(v)
+            spec.fingers[fi].stiffness = k
+            prior.stiffness_unknown = [p for p in prior.stiffness_unknown if tuple(int(x) for x in p) != (fi, j)]
+        else:
+            spec.fingers[fi].link_lengths = [float(v)] + list(spec.fingers[fi].link_lengths[1:])
+            prior.links_unknown = [i for i in prior.links_unknown if int(i) != fi]
+        r = replay(trace, config, prior, spec, progress=progress)
+        rows.append({"value": float(v), "log_evidence": r["log_evidence"], "errors": r.get("errors"), "replay": r})
+    best = max(r["log_evidence"] for r in rows)
+    for r in rows:
+        r["relative"] = r["log_evidence"] - best
+    return rows
+
+
+# ---------------------------------------------------------------------- helpers
+def _json_default(x):
+    if isinstance(x, (np.ndarray, np.generic)):  # tolist(): a list, or the Python scalar
+        return x.tolist()
+    raise TypeError(f"cannot write {type(x).__name__} into a trace header")
+
+
+def _config_from_dict(cls, data: dict):
+    """A FilterConfig / PriorConfig from its ``asdict``; JSON lists become the tuples the
+    defaults use, and unknown keys are named."""
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ValueError(f"trace: {cls.__name__} has no fields {unknown} (written by another vlr_drake version?)")
+    default = cls()
+    kw = {}
+    for name, value in data.items():
+        d = getattr(default, name)
+        if isinstance(d, tuple) and isinstance(value, list):
+            value = tuple(value)
+        elif name == "stiffness_unknown":
+            value = [tuple(int(x) for x in p) for p in value]
+        kw[name] = value
+    return cls(**kw)
+
+
+def _hand_from_dict(data: dict) -> HandSpec:
+    fingers = [FingerSpec(**f) for f in data.get("fingers", [])]
+    return HandSpec(**{**data, "fingers": fingers}).validate()
