@@ -19,6 +19,7 @@ from pathlib import Path
 
 import nbclient  # a dev dependency: if it is missing the tests must fail, not skip
 import nbformat
+import numpy as np
 import pytest
 
 TUTORIALS = Path(__file__).resolve().parents[1] / "tutorials"
@@ -90,6 +91,10 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     s = run_notebook("04_novel_fingers_and_stiffness.ipynb", tmp_path, monkeypatch)
     assert s["stiffness_interval_final"] < 0.6 * s["stiffness_interval_prior"]
     assert abs(s["stiffness_estimate"] - s["stiffness_true"]) < 0.08
+    # the evidence profile peaks within one grid step of the true spring and falls off away from it
+    values, rel = np.array(s["profile_values"]), np.array(s["profile_relative"])
+    assert abs(values[np.argmax(rel)] - s["stiffness_true"]) <= 0.05 + 1e-9
+    assert rel[0] < -3.0 and rel[-1] < -3.0
     assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
     assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
 
