@@ -138,6 +138,13 @@ def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):
     assert [r["key"] for r in data["rows"]] == ["stiffness", "NH1"]
     assert "NH1 link length error" in (out / "reproduce.md").read_text()
     assert "known hand" not in (out / "reproduce.md").read_text().split("\n", 2)[2]
+    # every identification run left its trace; replaying them gives the table's rows again
+    traces = sorted(str(p) for p in (out / "traces").glob("*.npz"))
+    assert data["traces"] == str(out / "traces") and len(traces) == 2
+    assert main(["replay", *traces, "--no-progress", "--json", str(tmp_path / "replay.json")]) == 0
+    replayed = json.loads((tmp_path / "replay.json").read_text())["rows"]
+    for row in data["rows"]:
+        assert replayed[row["key"]]["mean"] == pytest.approx(row["ours_mean"], rel=1e-12, abs=1e-15)
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--experiments", "known_hand,juggling"]) == 2
     assert "juggling" in capsys.readouterr().err

@@ -115,11 +115,11 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     out = tmp_path / "replay.json"
     assert main(["replay", str(path), "--filter", "particles=800", "--json", str(out), "--no-progress"]) == 0
     r = json.loads(out.read_text())
-    assert r["filter_overrides"] == ["particles=800"] and np.isfinite(r["log_evidence"])
-    assert "stiffness_error_Nm_per_rad" in r
+    assert r["filter_overrides"] == ["particles=800"] and np.isfinite(r["runs"][0]["log_evidence"])
+    assert r["runs"][0]["stiffness_error_Nm_per_rad"] == r["rows"]["stiffness"]["mean"]
     assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1,0.2", "--json", str(out),
                  "--no-progress"]) == 0
-    r = json.loads(out.read_text())
+    r = json.loads(out.read_text())["runs"][0]
     assert [p["value"] for p in r["profile"]] == [0.1, 0.2] and max(p["relative"] for p in r["profile"]) == 0.0
     capsys.readouterr()
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2

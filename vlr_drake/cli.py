@@ -192,44 +192,63 @@ def identify(args) -> dict:
 
 
 def replay_trace(args) -> dict:
-    """``vlr-drake replay``: the trace's run again with ``--filter`` overrides, or the
-    evidence profile of ``--profile`` over ``--values``."""
+    """``vlr-drake replay``: each trace's run again with ``--filter`` overrides, and for
+    several traces the table's rows (mean +- SD of the paper's measures); or, with
+    ``--profile``, each trace's evidence profile over ``--values``."""
+    from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_row
     from vlr_drake.scenario import config_overrides
     from vlr_drake.trace import IdentificationTrace, evidence_profile, replay
 
-    trace = IdentificationTrace.load(args.trace)
-    config = config_overrides(trace.filter, args.filter or [], "--filter")
-    meta = trace.meta
-    print(f"trace {args.trace}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, "
-          f"object {meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, "
-          f"{config.particles} particles")
-    if args.profile is None:
-        if args.values is not None:
-            raise ValueError("--values needs --profile")
-        r = replay(trace, config, progress=not args.no_progress)
-        out = {"trace": str(args.trace), "filter_overrides": args.filter or [], "log_evidence": r["log_evidence"],
-               "converged_at": r["converged_at"], "reinitialisations": r["reinitialisations"],
-               **(r.get("errors") or {})}
-        conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
-        print(f"log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
-        if r.get("errors"):
-            print(_errors_line(r["errors"]))
-    else:
+    if args.profile is None and args.values is not None:
+        raise ValueError("--values needs --profile")
+    values = None
+    if args.profile is not None:
         if not args.values:
             raise ValueError("--profile needs --values, e.g. --values 0.13,0.17,0.21")
         try:
             values = [float(v) for v in args.values.split(",") if v.strip()]
         except ValueError:
             raise ValueError(f"--values '{args.values}': expected comma-separated numbers") from None
-        rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress)
-        unit = "N m/rad" if args.profile == "stiffness" else "m"
-        print(f"evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
-        for r in rows:
-            extra = f"; {_errors_line(r['errors'])}" if r["errors"] else ""
-            print(f"  {r['value']:.5g}: {r['relative']:8.2f} (log evidence {r['log_evidence']:.2f}; "
-                  f"{r['replay']['reinitialisations']} re-initialisations){extra}")
-        out = {"trace": str(args.trace), "filter_overrides": args.filter or [], "parameter": args.profile,
-               "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
+    traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
+    runs, measured = [], {}
+    for path, trace in traces:
+        config = config_overrides(trace.filter, args.filter or [], "--filter")
+        meta = trace.meta
+        print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
+              f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
+        if values is None:
+            r = replay(trace, config, progress=not args.no_progress)
+            run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
+                   "reinitialisations": r["reinitialisations"], **(r.get("errors") or {})}
+            conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
+            print(f"  log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
+            if r.get("errors"):
+                print(f"  {_errors_line(r['errors'])}")
+                experiment = meta.get("experiment")
+                if experiment in IDENTIFICATION_MEASURES:
+                    row = identification_row(experiment, meta.get("hand"))
+                    measured.setdefault(row, []).append(
+                        (float(IDENTIFICATION_MEASURES[experiment](r["errors"])), r["errors"]["truth_inside_95_theta"]))
+        else:
+            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress)
+            unit = "N m/rad" if args.profile == "stiffness" else "m"
+            print(f"  evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
+            for r in rows:
+                extra = f"; {_errors_line(r['errors'])}" if r["errors"] else ""
+                print(f"    {r['value']:.5g}: {r['relative']:8.2f} (log evidence {r['log_evidence']:.2f}; "
+                      f"{r['replay']['reinitialisations']} re-initialisations){extra}")
+            run = {"trace": str(path), "parameter": args.profile,
+                   "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
+        runs.append(run)
+    table = {row: {"mean": float(np.mean([m for m, _ in v])), "sd": float(np.std([m for m, _ in v])),
+                   "truth_inside_95_theta": float(np.mean([c for _, c in v])), "trials": len(v)}
+             for row, v in measured.items()}
+    if len(traces) > 1 and table:
+        print("rows (the paper's measure, mean +- SD over the traces):")
+        for row, t in table.items():
+            print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} runs; truth inside "
+                  f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
+    out = {"filter_overrides": args.filter or [], "runs": runs, "rows": table}
     write_json(out, args.json)
     return out
 
@@ -409,7 +428,8 @@ supplies the plant and its settings; each row sets its own experiment, hand and 
 filter gets the same measurements, actions and motor readings, so with the run's settings it
 reproduces the run exactly, and with --filter KEY=VALUE overrides it shows what other
 settings would have made of the same data (exact for random exploration, the physics
-plant's default). --profile fixes one identified hand parameter (stiffness, or
+plant's default). Given several traces (vlr-drake reproduce keeps one per identification
+run in out/reproduce/traces/), it also prints the table's rows for them. --profile fixes one identified hand parameter (stiffness, or
 link_length:<finger>) at each of --values and prints each value's log evidence, the sum over
 the run of log p(measurement | the ones before), relative to the best: how strongly the
 measurements themselves favour each value, apart from the prior and the point estimate.""",
@@ -502,7 +522,8 @@ def main(argv: list[str] | None = None) -> int:
                         "(default: all of known_hand, stiffness, NH1, NH2, NH3, write, maze, stack)")
 
     p = _parser("replay", sub, "replay an identification's trace offline")
-    p.add_argument("trace", help="a trace written by vlr-drake identify --trace")
+    p.add_argument("trace", nargs="+", help="traces written by vlr-drake identify --trace (or by reproduce, in "
+                                            "its out/traces/)")
     p.add_argument("--filter", action="append", metavar="KEY=VALUE",
                    help="override a filter setting (vlr_drake.filter.FilterConfig), e.g. --filter particles=60000 "
                         "--filter sigma_rotation=0.02; repeatable")

@@ -59,10 +59,26 @@ def known_hand_objects(plant: str) -> tuple:
     return KNOWN_HAND_OBJECTS if plant == "physics" else (None,)
 
 
-def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None, obj=None):
+#: The paper's measure of one identification run, per experiment (the table's rows).
+IDENTIFICATION_MEASURES = {
+    "known_hand": lambda r: np.mean(r["proximal_joint_error_deg"]),
+    "stiffness": lambda r: r["stiffness_error_Nm_per_rad"],
+    "novel_fingers": lambda r: np.mean(list(r["link_length_error_mm"].values())),
+}
+
+
+def identification_row(experiment: str, hand: str) -> str:
+    """The table row of an identification run: its experiment, or the novel hand's name."""
+    return hand if experiment == "novel_fingers" else experiment
+
+
+def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None, obj=None,
+              traces: Path | None = None):
     opts = options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, seed=seed, plant=plant,
                                  particles=particles, max_iterations=iterations, progress=False, object=obj)
     r = run_identification(opts)
+    if traces is not None:  # the filter's inputs, for vlr-drake replay
+        r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}_seed{seed}.npz")
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
@@ -97,15 +113,17 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     plant = plant or (scenario.plant if scenario is not None else "physics")
     seeds = range(seed, seed + trials)
     sc = (scenario, scenario_path)
+    tr = out / "traces"  # one trace per identification run (vlr-drake replay)
     runs: dict[str, list] = {}
     # As the paper ran them: the known hand with each of its four objects (Fig. 4; trials
     # each), the stiffness with the toy block (Fig. 5); the novel hands name no object.
-    jobs = [("known_hand", lambda s: [_identify("known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o)
-                                      for o in known_hand_objects(plant)]),
+    jobs = [("known_hand", lambda s: [_identify("known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o,
+                                                traces=tr) for o in known_hand_objects(plant)]),
             ("stiffness", lambda s: [_identify("stiffness", "model_o", s, plant, particles, iterations, *sc,
-                                               obj=STIFFNESS_OBJECT)])]
+                                               obj=STIFFNESS_OBJECT, traces=tr)])]
     for nh in ("NH1", "NH2", "NH3"):
-        jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations, *sc)))
+        jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations, *sc,
+                                                    traces=tr)))
     # Tasks run with the identified model (self-identification first, then the filter keeps
     # updating during control), at up to 10,000 particles and 100 identification iterations.
     task_model = "true" if quick else "filter"
@@ -128,10 +146,10 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     bar.close()
 
     measures = {  # row key: (experiment, the paper's measure of one run)
-        "known_hand": ("known_hand", lambda r: np.mean(r["proximal_joint_error_deg"])),
+        "known_hand": ("known_hand", IDENTIFICATION_MEASURES["known_hand"]),
         "known_hand_iterations": ("known_hand", lambda r: r["iterations"]),
-        "stiffness": ("stiffness", lambda r: r["stiffness_error_Nm_per_rad"]),
-        **{nh: (nh, lambda r: np.mean(list(r["link_length_error_mm"].values()))) for nh in ("NH1", "NH2", "NH3")},
+        "stiffness": ("stiffness", IDENTIFICATION_MEASURES["stiffness"]),
+        **{nh: (nh, IDENTIFICATION_MEASURES["novel_fingers"]) for nh in ("NH1", "NH2", "NH3")},
         "write": ("write", lambda r: r["position_error_mm"]["mean"]),
         "maze": ("maze", lambda r: r["orientation_error_deg"]["mean"]),
         "stack_position": ("stack", lambda r: r["position_error_mm"]["mean"]),
@@ -149,7 +167,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     result = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
               "seed": seed, "experiments": [name for name, _ in jobs], "scenario": None if scenario is None else scenario.name,
               "scenario_path": None if scenario_path is None else str(scenario_path),
-              "rows": rows}
+              "traces": str(tr) if tr.is_dir() else None, "rows": rows}
     (out / "reproduce.md").write_text(format_table(result))
     (out / "reproduce.json").write_text(json.dumps({**result, "runs": runs}, indent=2, default=float))
     return result
