@@ -232,6 +232,22 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert "model_plant: 1 iterations" in capsys.readouterr().out
 
 
+def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: Path):
+    """The LeafSystem records what its filter was given (as a hardware run would); the
+    trace, saved and replayed without the diagram, gives the same estimate."""
+    from vlr_drake.builder import run
+    from vlr_drake.trace import IdentificationTrace, replay
+
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    r = run(s, iterations=4, trace=tmp_path / "diagram.npz")
+    trace = IdentificationTrace.load(r["trace"])
+    assert trace.steps == 4 and trace.truths is None and trace.meta["scenario"] == "model_plant"
+    out = replay(trace)
+    assert "errors" not in out
+    np.testing.assert_array_equal(out["estimates"][-1]["theta"].ravel(), r["theta_estimate"].ravel())
+    assert r["trace"] is not None and run(s, iterations=1)["trace"] is None
+
+
 def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
     """hardware.yaml with the bus on the emulator and a video file for the camera: the
     policy's commands reach the motors; without a tag in view the filter waits."""

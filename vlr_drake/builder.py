@@ -449,12 +449,13 @@ def write_diagrams(folder: str | Path | None = None, render: bool = True) -> lis
     return written
 
 
-def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None) -> dict:
+def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, trace: str | Path | None = None) -> dict:
     """Build ``scenario``'s diagram, :func:`initialize` it and simulate ``iterations`` filter
     iterations (to (iterations + 0.95) T: the filter starts at 0.9 T). Returns the filter's
     last estimate and the truth (``theta_estimate``, ``theta_true`` (N, K) [rad],
     ``interval_half_width`` [rad], ``converged``, ``iterations``, ``sim_time`` [s],
-    ``wall_s``). A hardware interface is closed (torque off) at the end."""
+    ``wall_s``; ``trace``: where the filter's trace was saved, for ``vlr-drake replay``, when
+    ``trace`` names a file). A hardware interface is closed (torque off) at the end."""
     import time
 
     if iterations < 0:
@@ -467,8 +468,13 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None) -> 
         simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
         ctx = simulator.get_context()
         d, h = built.diagram, built.hand
-        flt = built.filter.filter(built.filter.GetMyContextFromRoot(ctx))
+        sys_ctx = built.filter.GetMyContextFromRoot(ctx)
+        flt = built.filter.filter(sys_ctx)
+        recorded = built.filter.trace(sys_ctx) if trace is not None else None
+        if recorded is not None:
+            recorded.meta.update(scenario=scenario.name, plant=scenario.plant, seed=scenario.seed)
         return {
+            "trace": None if recorded is None else str(recorded.save(trace)),
             "scenario": scenario.name,
             "iterations": 0 if flt is None else int(flt.iteration),
             "theta_estimate": d.GetOutputPort("self_identification.theta_estimate")
@@ -499,9 +505,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", metavar="SCENARIO", default=None, help="run a scenario file")
     parser.add_argument("--iterations", type=int, default=10, help="filter iterations of --run")
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
+    parser.add_argument("--trace", default=None, metavar="PATH",
+                        help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
     args = parser.parse_args(argv)
     if args.run:
-        r = run(load_scenario(args.run, args.set), args.iterations)
+        r = run(load_scenario(args.run, args.set), args.iterations, trace=args.trace)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
@@ -510,6 +518,8 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
+        if r["trace"]:
+            print(f"wrote {r['trace']}")
         return 0
     if not args.write_diagrams:
         parser.print_help()

@@ -11,6 +11,11 @@ hardware). That is exact whenever the actions did not depend on the filter (rand
 exploration, the physics plant's and hardware's default); informative actions are replayed
 as they were chosen.
 
+``run_identification`` records one for every run (``result["_trace"]``), and the
+:class:`~vlr_drake.systems.self_identification.SelfIdentificationSystem` keeps one of the
+diagram's filter (``trace(context)``; ``python -m vlr_drake.builder --run hardware.yaml
+--trace run.npz`` saves a real hand's run, without truths).
+
 Replay also gives the filter's log evidence, sum_t log p(y_t | y_1..t-1) (Eq. 5's
 likelihood integrated over the hypotheses), and :func:`evidence_profile` fixes one
 identified hand parameter at a list of values and compares their evidence: how strongly

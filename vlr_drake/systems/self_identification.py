@@ -27,20 +27,23 @@ from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
 from vlr_drake.model_plant import ModelPlant
+from vlr_drake.trace import IdentificationTrace, TraceRecorder
 
 __all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
 
 
 class _FilterBox:
-    """Abstract-state payload: the filter object (which tracks the tendon command too)."""
+    """Abstract-state payload: the filter object (which tracks the tendon command too) and
+    the trace of what it was given."""
 
-    def __init__(self, flt: pf.SelfIdentificationFilter | None = None):
+    def __init__(self, flt: pf.SelfIdentificationFilter | None = None, recorder: TraceRecorder | None = None):
         self.filter = flt
+        self.recorder = recorder
 
     def __deepcopy__(self, memo):  # Drake clones abstract state; share nothing mutable
         import copy
 
-        return _FilterBox(copy.deepcopy(self.filter, memo))
+        return _FilterBox(copy.deepcopy(self.filter, memo), copy.deepcopy(self.recorder, memo))
 
 
 class SelfIdentificationSystem(LeafSystem):
@@ -116,9 +119,19 @@ class SelfIdentificationSystem(LeafSystem):
             flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(),
                            tendon_command=l_now)
             box.filter = flt
+            box.recorder = TraceRecorder(self._hand.spec, self._config, self._prior, self._seed,
+                                         meta={"plant": "diagram"})
+            box.recorder.start(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(), l_now)
             return
         dl = l_now - box.filter.tendon_command
         box.filter.step(dl, X.rotation().matrix(), X.translation(), valid, tendon_command=l_now)
+        box.recorder.step(dl, X.rotation().matrix(), X.translation(), valid, l_now)
+
+    def trace(self, context) -> IdentificationTrace | None:
+        """What the filter in ``context`` was given so far (no truth: the diagram's plant may
+        be hardware), for :func:`vlr_drake.trace.replay`; None before it started."""
+        recorder = context.get_abstract_state(self._box).get_value().recorder
+        return None if recorder is None else recorder.trace()
 
     def _current(self, context):
         return context.get_abstract_state(self._box).get_value().filter
