@@ -97,14 +97,18 @@ def log_evidence_increment(log_w: np.ndarray, log_lik: np.ndarray) -> float:
     array contribute nothing; -inf when no particle explains the measurement. Up to the
     likelihood's dropped constant, which is the same for every filter with the same noise
     model, so differences between runs over the same measurements compare their models."""
-    lw = np.asarray(log_w, float) + np.asarray(log_lik, float)
-    finite = np.isfinite(lw)
-    if not finite.any():
+    log_w = np.asarray(log_w, float)
+    joint = _logsumexp(log_w + np.asarray(log_lik, float))
+    return joint if joint == -np.inf else joint - _logsumexp(log_w)
+
+
+def _logsumexp(x: np.ndarray) -> float:
+    """log sum exp(x) over the finite entries (-inf when there are none)."""
+    x = x[np.isfinite(x)]
+    if x.size == 0:
         return -np.inf
-    w0 = np.asarray(log_w, float)
-    f0 = np.isfinite(w0)
-    m, m0 = lw[finite].max(), w0[f0].max()
-    return float(m + np.log(np.exp(lw[finite] - m).sum()) - m0 - np.log(np.exp(w0[f0] - m0).sum()))
+    m = x.max()
+    return float(m + np.log(np.exp(x - m).sum()))
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -210,9 +210,7 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     spec = trace.hand if hand is None else hand
     h = spec.validate().model()
     f = pf.SelfIdentificationFilter(h, config, prior, np.random.default_rng(trace.filter_seed))
-    k_center = L_center = None
-    f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, k_center, L_center,
-                 tendon_command=trace.tendon_command0)
+    f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, tendon_command=trace.tendon_command0)
     for i in tqdm(range(trace.steps), disable=not progress, desc="replay", unit="it", leave=False):
         valid = bool(trace.valid[i])
         f.step(trace.actions[i], trace.R[i] if valid else None, trace.t[i] if valid else None, valid,
