@@ -72,6 +72,9 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert r["speedup_per_particle"] > 1
     r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2", "--run-iterations", "3")
     assert BENCH_FILTER_FIELDS <= set(r)
+    assert {"move", "weigh", "estimate"} <= set(r["iteration_phases_s"])
+    slowest = r["slowest_iteration_phases_s"]
+    assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
     t = run["timing_s"]

@@ -275,15 +275,19 @@ def test_informative_exploration_falls_back_to_random_after_a_refusal():
 
 @pytest.mark.slow
 def test_informative_actions_converge_sooner_and_stay_honest():
-    """Model plant, known hand, 20,000 particles, at most 100 iterations, seeds 0-3: choosing
+    """Model plant, known hand, 20,000 particles, at most 100 iterations, seeds 0-7: choosing
     the most informative of 8 random actions converges in fewer iterations than random
     actions, with the truth inside the 95% intervals as often. Measured over seeds 0-23:
     31.5 against 56 iterations, 24 of 24 converged against 21-22, coverage 0.97 / 0.92
-    (joints / contacts) against 1.00 / 1.00 (vlr_drake.identify.ACTION_CHOICE)."""
+    (joints / contacts) against 1.00 / 1.00 (vlr_drake.identify.ACTION_CHOICE). Coverage
+    comes in clumps (a run that misses, misses several values), so a handful of seeds
+    scatters: over seeds 0-35 it was 0.97 / 0.94 (FilterConfig.newton_loose_after 8) and
+    0.96 / 0.92 (None), but seeds 0-3 alone gave 0.86 with 8, one run (seed 2) missing 5 of
+    its 9 values. Eight seeds keep one such run above the 0.9 bar."""
     its, inside = {}, {}
     for choice in ("random", "informative"):
         its[choice], inside[choice] = [], []
-        for seed in range(4):
+        for seed in range(8):
             r = run_identification(IdentifyOptions(experiment="known_hand", particles=20000, max_iterations=100,
                                                    seed=seed, progress=False, action_choice=choice))
             assert r["action_choice"] == choice
@@ -301,6 +305,7 @@ def test_lost_tag_moves_but_does_not_learn():
     p_O_before = f.particles.p_O.copy()
     rep = f.step(dl, None, None, valid=False)
     assert not rep.measured and rep.ess == 2000
+    assert set(rep.timing_s) == {"move", "estimate"}  # nothing weighed or resampled
     np.testing.assert_array_equal(f.particles.p_O, p_O_before)  # attachments untouched
     assert np.all(np.isfinite(f.particles.theta))
     assert np.all(f.particles.log_w == 0)
@@ -320,6 +325,7 @@ def test_swapped_object_triggers_reinitialisation():
     R_far = rotvec_to_matrix(np.array([0.0, np.deg2rad(30), 0.0]))[0] @ R
     rep = f.step(np.zeros(3), R_far, t + np.array([0.02, 0.0, 0.0]))
     assert rep.reinitialised and f.reinitialisations == 1
+    assert {"move", "weigh", "reinitialise", "estimate"} == set(rep.timing_s)
     assert f.particles.size == 2000 and np.all(np.isfinite(f.particles.theta))
     # it keeps working afterwards
     rep = f.step(np.zeros(3), R_far, t + np.array([0.02, 0.0, 0.0]))

@@ -271,6 +271,53 @@ def test_filter_tolerance_is_close_to_the_tight_one_and_cheaper(model_o_hand, te
     assert np.all(loose.residuals[both][exact, 1] < constraint)
 
 
+def test_loose_after_stops_the_linear_tail_within_the_physical_tolerances(model_o_hand):
+    """``loose_after``: a particle within motion.LOOSE_* after that many Newton steps is
+    accepted. Only the slow (linearly converging) particles change, by far less than the
+    camera resolves, and the move takes fewer steps; None is the plain solver."""
+    h = model_o_hand
+    rng = np.random.default_rng(8)
+    # grasps around the mirror-image one of test_symmetric_model_o_grasp_moves, where they are slow
+    th = np.array([[0.15, 0.4], [0.25, 0.35], [0.25, 0.35]]) + rng.normal(0.0, 0.02, (2000, 3, 2))
+    a = 0.028 + rng.normal(0.0, 0.002, (2000, 3))
+    eq = motion.equilibrium(h, th, a=a)
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, th, a))
+    dl = np.array([0.5e-3, 0.2e-3, -0.1e-3])
+    kw = dict(a=a, D2=D2, stretch=eq.stretch, max_substeps=4)
+    plain = motion.move(h, th, dl, **kw)
+    same = motion.move(h, th, dl, loose_after=motion.MAX_ITER, **kw)
+    np.testing.assert_array_equal(same.theta, plain.theta)
+    np.testing.assert_array_equal(same.iterations, plain.iterations)
+    early = motion.move(h, th, dl, loose_after=8, **kw)
+    slow = plain.ok & (plain.iterations > 8)
+    assert slow.sum() >= 10  # the sample has a linear tail to cut
+    assert early.iterations[slow].mean() < plain.iterations[slow].mean() - 2
+    fast = plain.ok & (plain.iterations <= 8)
+    np.testing.assert_array_equal(early.theta[fast], plain.theta[fast])  # untouched
+    both = plain.ok & early.ok
+    assert early.ok.sum() >= plain.ok.sum() - 3 and both.sum() >= plain.ok.sum() - 3
+    gap = np.abs(early.theta[both] - plain.theta[both]).max(axis=(1, 2))[slow[both]]
+    # two solutions within the physical tolerances (median 5e-6 rad, at most 3e-4 measured);
+    # the camera's rotation sigma is 0.026 rad
+    assert np.median(gap) < 2e-5 and gap.max() < 1e-3
+    accepted = early.ok & (early.iterations >= 8)
+    assert np.all(early.residuals[accepted, 0] < motion.LOOSE_TORQUE)
+    with pytest.raises(ValueError, match="newton_loose_after"):
+        from vlr_drake.filter import FilterConfig
+
+        FilterConfig(newton_loose_after=0).validate()
+
+
+def test_contact_distances_match_their_definition(model_o_hand):
+    rng = np.random.default_rng(2)
+    p = rng.normal(size=(5, model_o_hand.N, 3))
+    D2 = motion.contact_distances_sq(model_o_hand, p)
+    for c, (i, j) in enumerate(model_o_hand.constraint_pairs):
+        np.testing.assert_allclose(D2[:, c], np.sum((p[:, i] - p[:, j]) ** 2, axis=1), rtol=1e-14)
+    with pytest.raises(ValueError, match="contacts must have shape"):
+        motion.contact_distances_sq(model_o_hand, p[:, :2])
+
+
 def test_failed_particles_are_flagged_not_nan(model_o_hand):
     rng = np.random.default_rng(4)
     gs = grasps.sample_grasps(model_o_hand, rng, 20)

@@ -90,3 +90,20 @@ def test_blend_poses_interpolates_on_the_rotation_group(rng):
     want = R_a @ Rotation.from_rotvec(f * d).as_matrix()
     np.testing.assert_allclose(Rf, want, atol=1e-9)
     np.testing.assert_allclose(tf, (1 - f) * t_a + f * t_b, atol=1e-15)
+
+
+def test_in_frame_expresses_points_in_each_particles_frame(rng):
+    P = 50
+    R = _random_rotations(rng, P)
+    t = rng.normal(size=(P, 3))
+    p = rng.normal(size=(P, 4, 3))
+    want = np.einsum("pji,pnj->pni", R, p - t[:, None, :])  # R^T (p - t)
+    np.testing.assert_allclose(observation.in_frame(p, R, t), want, atol=1e-14)
+    # one frame for every particle
+    np.testing.assert_allclose(observation.in_frame(p, R[0], t[0]),
+                               np.einsum("ji,pnj->pni", R[0], p - t[0]), atol=1e-14)
+    # and back: R p^O + t
+    back = np.einsum("pij,pnj->pni", R, observation.in_frame(p, R, t)) + t[:, None, :]
+    np.testing.assert_allclose(back, p, atol=1e-14)
+    with pytest.raises(ValueError, match="do not match"):
+        observation.in_frame(p, R[:3], t)

@@ -93,6 +93,25 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
         evidence_profile(trace, "link_length:pinky", [0.05])
 
 
+def test_a_trace_from_before_a_setting_existed_replays_with_its_behaviour_then(tmp_path):
+    """A header without a later FilterConfig field (trace.LEGACY_SETTINGS) loads with the
+    value that reproduces the run it recorded, not with today's default."""
+    from vlr_drake.trace import LEGACY_SETTINGS
+
+    trace = _run("known_hand", iterations=3)["_trace"]
+    path = trace.save(tmp_path / "new.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+    assert header["filter"]["newton_loose_after"] == pf.FilterConfig().newton_loose_after
+    for name in LEGACY_SETTINGS["FilterConfig"]:
+        del header["filter"][name]
+    np.savez(tmp_path / "old.npz", header=np.array(json.dumps(header)), **arrays)
+    old = IdentificationTrace.load(tmp_path / "old.npz")
+    assert old.filter.newton_loose_after is None
+    assert IdentificationTrace.load(path).filter == trace.filter
+
+
 def test_config_overrides_parse_each_kind_and_name_bad_input():
     cfg = config_overrides(pf.FilterConfig(), ["particles=500", "sigma_rotation=0.01", "settle_prior=true",
                                                "likelihood=student_t", "stuck_probability=none"], "--filter")

@@ -112,7 +112,7 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     small.step(np.zeros(h.N), R, t)
     pf.interval95(np.arange(8.0)[:, None], np.arange(1.0, 9.0) / 36.0)  # weighted intervals
     pf.temper(-np.arange(8.0) ** 2, 4.0)  # tempering
-    times, resampled = [], []
+    times, resampled, phases = [], [], []
     for _ in range(iterations):
         dl = explore.next_action()
         if not plant.apply_action(dl):
@@ -121,15 +121,20 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
         R, t, v = plant.measure()
         n0 = f.resamples
         t0 = time.perf_counter()
-        f.step(dl, R, t, v)
+        report = f.step(dl, R, t, v)
         times.append(time.perf_counter() - t0)
         resampled.append(f.resamples > n0)
+        phases.append(report.timing_s)
     it_s = float(np.median(times))
     out = {
         "benchmark": "filter",
         "particles": particles,
         "iteration_s": it_s,
         "iteration_max_s": float(np.max(times)),
+        # per phase (StepReport.timing_s): the median over the iterations, and the slowest
+        # iteration's split
+        "iteration_phases_s": {k: float(np.median([p.get(k, 0.0) for p in phases])) for k in phases[0]},
+        "slowest_iteration_phases_s": phases[int(np.argmax(times))],
         "resampled_fraction": float(np.mean(resampled)),
         "particles_per_s": particles / it_s,
         "initialise_s": init_s,
@@ -153,6 +158,9 @@ def format_filter(r: dict) -> str:
             f"{r['iteration_s'] * 1e3:.0f} ms, max {r['iteration_max_s'] * 1e3:.0f} ms "
             f"({r['particles_per_s']:.0f} particles/s; resampled in {100 * r['resampled_fraction']:.0f}% of "
             f"iterations); initialisation {r['initialise_s']:.1f} s")
+    for label, split in (("median", r.get("iteration_phases_s")), ("slowest", r.get("slowest_iteration_phases_s"))):
+        if split:
+            text += f"\n  {label} iteration: " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in split.items())
     run = r.get("identification")
     if run:
         t = run["timing_s"]

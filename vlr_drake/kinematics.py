@@ -158,14 +158,13 @@ def _contacts_kernel(theta, L, a, pad, base, u, out):  # pragma: no cover - numb
             z = 0.0
             for k in range(K):
                 phi += theta[p, i, k]
+                s, c = sincos(phi)
                 if k < K - 1:
-                    ell = L[pl, i, k]
-                    psi = phi
-                else:
-                    ell = np.sqrt(a[p, i] ** 2 + pad[i] ** 2)
-                    psi = phi + np.arctan2(pad[i], a[p, i])
-                x += ell * np.sin(psi)
-                z += ell * np.cos(psi)
+                    x += L[pl, i, k] * s
+                    z += L[pl, i, k] * c
+                else:  # the pad's centre: a along the last link, pad across it
+                    x += a[p, i] * s + pad[i] * c
+                    z += a[p, i] * c - pad[i] * s
             for r in range(3):
                 out[p, i, r] = base[i, r] + x * u[i, r]
             out[p, i, 2] += z

@@ -20,6 +20,7 @@ __all__ = [
     "triad",
     "pom_pose",
     "attach",
+    "in_frame",
     "rotation_angle",
     "rotvec",
     "rotvec_to_matrix",
@@ -215,7 +216,36 @@ def attach(p_P, R_PO, t_PO) -> np.ndarray:
             f"the first three contacts are nearly collinear (triangle area {area.min():.3g} m^2 "
             f"< {MIN_TRIANGLE_AREA:g}): they do not define an object pose"
         )
-    return (p_P - t_PO[:, None, :]) @ R_PO  # R^T (p - t), particle by particle
+    return in_frame(p_P, R_PO, t_PO)
+
+
+def in_frame(p_P, R, t) -> np.ndarray:
+    """Points (P, N, 3) expressed in the frames (R (P or 1, 3, 3), t (P or 1, 3), each shared
+    when its leading axis is 1):
+    R^T (p - t), particle by particle (no checks on the contacts; see :func:`attach`)."""
+    p_P = np.ascontiguousarray(p_P, dtype=float)
+    R = np.ascontiguousarray(np.reshape(R, (-1, 3, 3)), dtype=float)
+    t = np.ascontiguousarray(np.reshape(t, (-1, 3)), dtype=float)
+    if p_P.ndim != 3 or p_P.shape[2] != 3 or R.shape[0] not in (1, p_P.shape[0]) or t.shape[0] not in (1, p_P.shape[0]):
+        raise ValueError(f"in_frame: points {p_P.shape}, rotations {R.shape} and translations {t.shape} do not match")
+    out = np.empty_like(p_P)
+    _in_frame_kernel(p_P, R, t, out)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _in_frame_kernel(p, R, t, out):  # pragma: no cover - numba
+    P, N = p.shape[0], p.shape[1]
+    for cc in prange((P + _CHUNK - 1) // _CHUNK):
+        for q in range(cc * _CHUNK, min((cc + 1) * _CHUNK, P)):
+            f = q if R.shape[0] > 1 else 0
+            g = q if t.shape[0] > 1 else 0
+            for i in range(N):
+                d0 = p[q, i, 0] - t[g, 0]
+                d1 = p[q, i, 1] - t[g, 1]
+                d2 = p[q, i, 2] - t[g, 2]
+                for c in range(3):
+                    out[q, i, c] = d0 * R[f, 0, c] + d1 * R[f, 1, c] + d2 * R[f, 2, c]
 
 
 def rotation_angle(R_a, R_b) -> np.ndarray:

@@ -48,6 +48,9 @@ TRACE_VERSION = 1
 PROFILE_PARAMETERS = ("stiffness", "link_length:<finger>")
 #: Ground-truth arrays a trace keeps per step (the plant's truth dicts).
 TRUTH_KEYS = ("theta", "a", "contacts", "stiffness", "link_lengths")
+#: Settings added after traces were first written, with the value that reproduces a trace
+#: written before them (its header lacks the field): the behaviour of those versions.
+LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None}}
 
 
 @dataclass
@@ -286,7 +289,8 @@ def _json_default(x):
 
 def _config_from_dict(cls, data: dict):
     """A FilterConfig / PriorConfig from its ``asdict``; JSON lists become the tuples the
-    defaults use, and unknown keys are named."""
+    defaults use, unknown keys are named, and a field the trace's version did not have
+    takes its behaviour then (:data:`LEGACY_SETTINGS`), else its default."""
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(known))
     if unknown:
@@ -300,6 +304,8 @@ def _config_from_dict(cls, data: dict):
         elif name == "stiffness_unknown":
             value = [tuple(int(x) for x in p) for p in value]
         kw[name] = value
+    for name, value in LEGACY_SETTINGS.get(cls.__name__, {}).items():
+        kw.setdefault(name, value)
     return cls(**kw)
 
 
