@@ -35,6 +35,33 @@ def test_systematic_resampling_matches_its_definition():
         pf.systematic_resample(np.array([0.5, 0.6]), rng)
 
 
+def test_hand_parameter_report_measures_how_far_the_data_narrowed_each_parameter():
+    from vlr_drake.identify import WEAKLY_IDENTIFIED, hand_parameter_report
+
+    h = model_o().model()
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], links_unknown=[2])
+    shape_k, shape_L = (h.N, h.K), (h.N, h.K - 1)
+
+    def est(k, k_lo, k_hi, L, L_lo, L_hi):
+        e = {"stiffness": np.full(shape_k, 0.3), "link_lengths": np.full(shape_L, 0.05)}
+        for key in ("stiffness", "link_lengths"):  # known entries: a point interval
+            e[f"{key}_lo"], e[f"{key}_hi"] = e[key].copy(), e[key].copy()
+        e["stiffness"][0, 1], e["stiffness_lo"][0, 1], e["stiffness_hi"][0, 1] = k, k_lo, k_hi
+        e["link_lengths"][2, 0], e["link_lengths_lo"][2, 0], e["link_lengths_hi"][2, 0] = L, L_lo, L_hi
+        return e
+
+    start = est(0.2, 0.06, 0.38, 0.05, 0.032, 0.072)
+    rep = hand_parameter_report(h, prior, est(0.18, 0.16, 0.24, 0.054, 0.036, 0.066), start)
+    k = rep["hand_parameters"][f"stiffness:{h.names[0]}/1"]
+    L = rep["hand_parameters"][f"link_length:{h.names[2]}"]
+    assert k["narrowed_to"] == pytest.approx(0.08 / 0.32) and L["narrowed_to"] == pytest.approx(0.030 / 0.040)
+    assert k["interval"] == pytest.approx([0.16, 0.24]) and k["prior_interval"] == pytest.approx([0.06, 0.38])
+    assert k["prior_range"] == list(prior.stiffness_range) and L["unit"] == "m" and k["unit"] == "N m/rad"
+    assert WEAKLY_IDENTIFIED < 0.75 and rep["weakly_identified"] == [f"link_length:{h.names[2]}"]
+    # nothing unknown: nothing to report
+    assert hand_parameter_report(h, pf.PriorConfig(), start, start) == {"hand_parameters": {}, "weakly_identified": []}
+
+
 def test_temper_hits_the_target_ess():
     rng = np.random.default_rng(1)
     log_lik = -0.5 * (rng.standard_normal(1000) * 30) ** 2

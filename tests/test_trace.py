@@ -46,6 +46,10 @@ def test_a_saved_trace_replays_the_run_exactly(tmp_path, experiment, hand):
     assert np.isnan(steps[~trace.valid]).all() and np.isfinite(steps[trace.valid]).all()
     for key in ("joint_error_deg_mean", "truth_inside_95_theta", "stiffness_error_Nm_per_rad", "link_length_error_mm"):
         assert out["errors"][key] == r[key]
+    assert out["hand_parameters"] == r["hand_parameters"] and out["weakly_identified"] == r["weakly_identified"]
+    if experiment == "novel_fingers":
+        assert set(r["link_length_inside_95"]) == set(r["link_length_error_mm"])
+        assert set(r["hand_parameters"]) == {f"link_length:{n}" for n in r["link_length_error_mm"]}
 
 
 def test_replay_with_other_settings_changes_the_result():

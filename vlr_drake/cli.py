@@ -158,12 +158,24 @@ def print_summary(result: dict) -> None:
             print(f"{n + ' ' + label + ' [deg]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
         e, lo, hi, t = (1e3 * x[i] for x in (est["a"], est["a_lo"], est["a_hi"], truth["a"]))
         print(f"{n + ' contact [mm]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
-    if result.get("stiffness_error_Nm_per_rad") is not None:
-        print(f"{'thumb distal k [N m/rad]':28s} {result['stiffness_estimate_Nm_per_rad']:10.4f} {'':>20s} "
-              f"{result['stiffness_true_Nm_per_rad']:10.4f} {result['stiffness_error_Nm_per_rad']:8.4f}")
-    if result.get("link_length_error_mm"):
-        for n, e in result["link_length_error_mm"].items():
-            print(f"{n + ' proximal length error [mm]':28s} {e:10.2f}")
+    for name, p in result.get("hand_parameters", {}).items():  # identified springs and links
+        kind, where = name.split(":", 1)
+        scale, unit, d = (1e3, "mm", 2) if p["unit"] == "m" else (1.0, p["unit"], 4)
+        e, lo, hi = scale * p["estimate"], scale * p["interval"][0], scale * p["interval"][1]
+        if kind == "stiffness":
+            finger, j = where.split("/")
+            fi = names.index(finger) if finger in names else 0
+            t = truth["stiffness"][fi, int(j)]
+            label = f"{where} k [{unit}]"
+        else:
+            fi = names.index(where) if where in names else 0
+            t = scale * truth["link_lengths"][fi, 0]
+            label = f"{where} link [{unit}]"
+        print(f"{label:28s} {e:10.{d}f} {f'[{lo:.{d}f}, {hi:.{d}f}]':>20s} {t:10.{d}f} {abs(e - t):8.{d}f}")
+    for name in result.get("weakly_identified", []):
+        p = result["hand_parameters"][name]
+        print(f"weakly identified: {name} (its 95% interval is {100 * p['narrowed_to']:.0f}% as wide as the "
+              f"prior's: the estimate leans on the prior)")
     print(f"mean joint error {result['joint_error_deg_mean']:.2f} deg; mean 95% half-width "
           f"{result['interval_half_width_deg_mean']:.2f} deg; truth inside 95%: "
           f"{100 * result['truth_inside_95_theta']:.0f}% of joints, {100 * result['truth_inside_95_contact']:.0f}% of contacts")
@@ -219,9 +231,14 @@ def replay_trace(args) -> dict:
         if values is None:
             r = replay(trace, config, progress=not args.no_progress)
             run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
-                   "reinitialisations": r["reinitialisations"], **(r.get("errors") or {})}
+                   "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
+                   "weakly_identified": r["weakly_identified"], **(r.get("errors") or {})}
             conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
             print(f"  log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
+            if r["weakly_identified"]:
+                print("  weakly identified: " + ", ".join(
+                    f"{n} (interval {100 * r['hand_parameters'][n]['narrowed_to']:.0f}% as wide as the prior's)"
+                    for n in r["weakly_identified"]))
             if r.get("errors"):
                 print(f"  {_errors_line(r['errors'])}")
                 experiment = meta.get("experiment")
@@ -260,7 +277,10 @@ def _errors_line(e: dict) -> str:
         text += (f", spring {e['stiffness_estimate_Nm_per_rad']:.4f} N m/rad (truth "
                  f"{e['stiffness_true_Nm_per_rad']:.4f})")
     if e.get("link_length_error_mm"):
-        text += ", link errors " + ", ".join(f"{k} {v:.2f} mm" for k, v in e["link_length_error_mm"].items())
+        inside = e.get("link_length_inside_95", {})
+        text += ", link errors " + ", ".join(
+            f"{k} {v:.2f} mm" + ("" if k not in inside else " (inside)" if inside[k] else " (outside its 95%)")
+            for k, v in e["link_length_error_mm"].items())
     return text
 
 

@@ -451,6 +451,35 @@ def _trace_meta(opts: IdentifyOptions) -> dict:
             "action_choice": opts.action_choice, "scenario": opts.scenario}
 
 
+#: An identified hand parameter whose 95% interval is still more than half as wide as the
+#: prior cloud's (the filter's initial hypotheses) is reported as weakly identified
+#: (``hand_parameter_report``): the measurements narrowed it by less than half, and where
+#: its estimate ends depends on the prior about as much as on the hand.
+WEAKLY_IDENTIFIED = 0.5
+
+
+def hand_parameter_report(hand, prior: pf.PriorConfig, est: dict, est0: dict) -> dict:
+    """The identified hand parameters (unknown stiffnesses and link lengths): estimate, 95%
+    interval, the prior cloud's 95% interval (``est0``: the filter's initial estimate), the
+    prior range, and ``narrowed_to``, the interval's width as a fraction of the prior cloud's;
+    with the names of those still weakly identified (``narrowed_to`` above
+    :data:`WEAKLY_IDENTIFIED`). Needs no truth, so it holds for a hardware run as well. Names:
+    ``stiffness:<finger>/<joint>`` and ``link_length:<finger>``; values in SI units."""
+    params = [(f"stiffness:{hand.names[fi]}/{j}", "stiffness", (fi, j), prior.stiffness_range, "N m/rad")
+              for fi, j in prior.stiffness_unknown]
+    params += [(f"link_length:{hand.names[fi]}", "link_lengths", (fi, 0), prior.link_range, "m")
+               for fi in prior.links_unknown]
+    out = {}
+    for name, key, at, (p_lo, p_hi), unit in params:
+        lo, hi, lo0, hi0 = (float(e[k][at]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
+                                                          (est0, f"{key}_lo"), (est0, f"{key}_hi")))
+        out[name] = {"estimate": float(est[key][at]), "interval": [lo, hi], "prior_interval": [lo0, hi0],
+                     "prior_range": [float(p_lo), float(p_hi)],
+                     "narrowed_to": (hi - lo) / (hi0 - lo0) if hi0 > lo0 else float("nan"), "unit": unit}
+    return {"hand_parameters": out,
+            "weakly_identified": [n for n, v in out.items() if not v["narrowed_to"] <= WEAKLY_IDENTIFIED]}
+
+
 def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict:
     """The result fields (DESIGN.md section 11) that compare an estimate with the truth:
     joint, contact, stiffness and link-length errors and whether the truth lies inside the
@@ -483,6 +512,9 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
         res["link_length_error_mm"] = {
             hand.names[fi]: float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))
             for fi in prior.links_unknown}
+        res["link_length_inside_95"] = {
+            hand.names[fi]: bool(est["link_lengths_lo"][fi, 0] <= truth["link_lengths"][fi, 0]
+                                 <= est["link_lengths_hi"][fi, 0]) for fi in prior.links_unknown}
     return res
 
 
@@ -506,6 +538,7 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f
         "action_choice": opts.action_choice,
     }
     res.update(estimate_errors(hand, prior, est, truth))
+    res.update(hand_parameter_report(hand, prior, est, f.estimates[0]))
     res["log_evidence"] = float(np.nansum([r.log_evidence for r in f.history]))
     return res
 

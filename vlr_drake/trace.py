@@ -201,12 +201,14 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
     the run's). Returns ``estimates`` (one per step and the initial one), ``history`` (the
     StepReports), ``log_evidence`` (their sum of ``log_evidence``, NaN steps skipped),
-    ``log_evidence_steps`` (T,) and, where the trace has truths, ``errors`` (the result
-    fields of DESIGN.md section 11 that compare the final estimate with the truth).
+    ``log_evidence_steps`` (T,), ``hand_parameters`` and ``weakly_identified`` (the
+    identified springs and links, :func:`vlr_drake.identify.hand_parameter_report`) and, where
+    the trace has truths, ``errors`` (the result fields of DESIGN.md section 11 that compare
+    the final estimate with the truth).
     """
     from tqdm.auto import tqdm
 
-    from vlr_drake.identify import estimate_errors
+    from vlr_drake.identify import estimate_errors, hand_parameter_report
 
     config = copy.deepcopy(trace.filter if config is None else config)
     prior = copy.deepcopy(trace.prior if prior is None else prior)
@@ -221,7 +223,8 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     steps = np.array([r.log_evidence for r in f.history])
     out = {"estimates": f.estimates, "history": f.history, "log_evidence_steps": steps,
            "log_evidence": float(np.nansum(steps)), "reinitialisations": f.reinitialisations,
-           "converged_at": next((r.iteration for r in f.history if r.converged), None)}
+           "converged_at": next((r.iteration for r in f.history if r.converged), None),
+           **hand_parameter_report(h, prior, f.estimates[-1], f.estimates[0])}
     if trace.truths is not None:
         truth = {k: v[-1] for k, v in trace.truths.items()}
         out["errors"] = estimate_errors(h, prior, f.estimates[-1], truth)
