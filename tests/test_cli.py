@@ -130,6 +130,15 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert known_hand_objects("model") == (None,)
     for row in data["rows"]:
         assert np.isfinite(row["ours_mean"]) and row["better"] == (row["ours_mean"] < row["paper_mean"])
+    # how honest each identification row is, counted from its runs
+    rows = {r["key"]: r for r in data["rows"]}
+    assert rows["write"]["truth_inside_95"] is None and rows["known_hand_iterations"]["truth_inside_95"] is None
+    nh3 = rows["NH3"]["truth_inside_95"]
+    run = data["runs"]["NH3"][0]
+    assert nh3["joints"] == run["truth_inside_95_theta"] and nh3["links"] == [sum(run["link_length_inside_95"].values()), 3]
+    assert nh3["weakly_identified"] == [len(run["weakly_identified"]), 3]
+    assert rows["stiffness"]["truth_inside_95"]["stiffness"] == [int(data["runs"]["stiffness"][0]["stiffness_inside_95"]), 1]
+    assert f"| joints {nh3['joints']:.2f}, contacts {nh3['contacts']:.2f}, link {nh3['links'][0]} of 3, weak" in table
 
 
 def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):

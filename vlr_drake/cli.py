@@ -437,7 +437,9 @@ each cup's goal pose beside it and saves stack.html.""",
     "reproduce": """The paper's table: the identification experiments (known hand, stiffness, NH1-NH3) and the
 tasks (writing, maze, stacking), --trials trials each (seeds --seed, --seed + 1, ...; on the
 physics plant the known hand's with each of the paper's four objects, the stiffness with the
-toy block), mean +- SD of the paper's measure beside the paper's, and whether ours is better.
+toy block), mean +- SD of the paper's measure beside the paper's, whether ours is better, and
+for the identification rows how often the truth lay inside the 95% intervals (joints,
+contacts, springs, links) and how many identified hand parameters stayed weakly identified.
 Prints the markdown table and writes reproduce.md and reproduce.json to --out. The default is
 the paper's setting, the physics plant with the rendered camera (5 trials: about 55 minutes
 on 2 cores, 26 of them the identification rows); --plant model runs the fast model plant (5

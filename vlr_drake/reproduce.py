@@ -19,7 +19,7 @@ import numpy as np
 from vlr_drake.identify import KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.scenario import options_from_scenario, task_settings
 
-__all__ = ["PAPER_ROWS", "EXPERIMENTS", "known_hand_objects", "reproduce", "format_table"]
+__all__ = ["PAPER_ROWS", "EXPERIMENTS", "known_hand_objects", "reproduce", "format_table", "honesty"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,36 @@ IDENTIFICATION_MEASURES = {
     "stiffness": lambda r: r["stiffness_error_Nm_per_rad"],
     "novel_fingers": lambda r: np.mean(list(r["link_length_error_mm"].values())),
 }
+
+
+def honesty(runs: list[dict]) -> dict:
+    """How often the truth lay inside the reported 95% intervals over identification runs
+    (result dicts): the mean share of joint angles and of contacts, the springs and links
+    inside as [count, of], and the identified hand parameters still weakly identified
+    (:func:`vlr_drake.identify.hand_parameter_report`) as [count, of]."""
+    out = {"joints": float(np.mean([r["truth_inside_95_theta"] for r in runs])),
+           "contacts": float(np.mean([r["truth_inside_95_contact"] for r in runs]))}
+    springs = [r["stiffness_inside_95"] for r in runs if "stiffness_inside_95" in r]
+    links = [v for r in runs for v in r.get("link_length_inside_95", {}).values()]
+    params = sum(len(r.get("hand_parameters", {})) for r in runs)
+    if springs:
+        out["stiffness"] = [int(sum(springs)), len(springs)]
+    if links:
+        out["links"] = [int(sum(links)), len(links)]
+    if params:
+        out["weakly_identified"] = [sum(len(r.get("weakly_identified", [])) for r in runs), params]
+    return out
+
+
+def format_honesty(h: dict | None) -> str:
+    """One table cell: "joints 0.93, contacts 0.90, link 5 of 5, weak 1 of 5"."""
+    if not h:
+        return ""
+    text = f"joints {h['joints']:.2f}, contacts {h['contacts']:.2f}"
+    for key, label in (("stiffness", "spring"), ("links", "link"), ("weakly_identified", "weak")):
+        if key in h:
+            text += f", {label} {h[key][0]} of {h[key][1]}"
+    return text
 
 
 def identification_row(experiment: str, hand: str) -> str:
@@ -161,9 +191,11 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
         if name not in runs:
             continue
         v = np.asarray([float(measure(r)) for r in runs[name]], float)
+        identification = name in ("known_hand", "stiffness", "NH1", "NH2", "NH3") and p.key != "known_hand_iterations"
         rows.append({"key": p.key, "experiment": p.label, "unit": p.unit, "paper_mean": p.mean, "paper_sd": p.sd,
                      "ours_mean": float(v.mean()), "ours_sd": float(v.std()), "trials": len(v),
-                     "better": bool(v.mean() < p.mean)})
+                     "better": bool(v.mean() < p.mean),
+                     "truth_inside_95": honesty(runs[name]) if identification else None})
     result = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
               "seed": seed, "experiments": [name for name, _ in jobs], "scenario": None if scenario is None else scenario.name,
               "scenario_path": None if scenario_path is None else str(scenario_path),
@@ -178,9 +210,10 @@ def format_table(result: dict) -> str:
     head = (f"Reproduction on the {result['plant']} plant, {result['trials']} trial(s) each"
             f"{objects if 'known_hand' in result.get('experiments', EXPERIMENTS) and result['plant'] == 'physics' else ''}"
             f"{' (quick: a smoke run, not a result)' if result['quick'] else ''}\n\n")
-    lines = ["| experiment | paper | ours | better |", "|---|---|---|---|"]
+    lines = ["| experiment | paper | ours | better | truth inside 95% |", "|---|---|---|---|---|"]
     for r in result["rows"]:
         fmt = ".4f" if r["unit"] == "N m/rad" else ".2f"
         lines.append(f"| {r['experiment']} [{r['unit']}] | {r['paper_mean']:{fmt}} +- {r['paper_sd']:{fmt}} | "
-                     f"{r['ours_mean']:{fmt}} +- {r['ours_sd']:{fmt}} | {'yes' if r['better'] else 'no'} |")
+                     f"{r['ours_mean']:{fmt}} +- {r['ours_sd']:{fmt}} | {'yes' if r['better'] else 'no'} | "
+                     f"{format_honesty(r.get('truth_inside_95'))} |")
     return head + "\n".join(lines) + "\n"
