@@ -97,6 +97,11 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     assert rel[0] < -3.0 and rel[-1] < -3.0
     assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
     assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
+    # the run's own report of how far the data narrowed its spring
+    spring = s["run_spring"]
+    (lo, hi), (lo0, hi0) = spring["interval"], spring["prior_interval"]
+    assert spring["narrowed_to"] == pytest.approx((hi - lo) / (hi0 - lo0)) and spring["narrowed_to"] < 1.0
+    assert (spring["narrowed_to"] > 0.5) == ("stiffness:thumb/1" in s["run_weakly_identified"])
 
 
 def test_05_custom_hand_is_identified_and_object_parses(tmp_path, monkeypatch):
