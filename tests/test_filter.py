@@ -58,8 +58,17 @@ def test_hand_parameter_report_measures_how_far_the_data_narrowed_each_parameter
     assert k["interval"] == pytest.approx([0.16, 0.24]) and k["prior_interval"] == pytest.approx([0.06, 0.38])
     assert k["prior_range"] == list(prior.stiffness_range) and L["unit"] == "m" and k["unit"] == "N m/rad"
     assert WEAKLY_IDENTIFIED < 0.75 and rep["weakly_identified"] == [f"link_length:{h.names[2]}"]
+    assert (k["finger"], k["joint"], L["finger"], L["joint"]) == (0, 1, 2, 0)
+    # a prior cloud of zero width (a fixed value): nothing to compare, not weakly identified
+    point = est(0.2, 0.2, 0.2, 0.05, 0.05, 0.05)
+    rep = hand_parameter_report(h, prior, point, point)
+    assert all(v["narrowed_to"] is None for v in rep["hand_parameters"].values()) and rep["weakly_identified"] == []
     # nothing unknown: nothing to report
     assert hand_parameter_report(h, pf.PriorConfig(), start, start) == {"hand_parameters": {}, "weakly_identified": []}
+    for bad in (0, True, 8.5, pf.motion.MAX_ITER + 1):
+        with pytest.raises(ValueError, match="newton_loose_after"):
+            pf.FilterConfig(newton_loose_after=bad).validate()
+    assert pf.FilterConfig(newton_loose_after=None).validate().newton_loose_after is None
 
 
 def test_temper_hits_the_target_ess():
@@ -69,6 +78,8 @@ def test_temper_hits_the_target_ess():
     beta = pf.temper(log_lik, 100.0)
     assert 0 < beta < 1
     assert pf.effective_sample_size(beta * log_lik) == pytest.approx(100.0, rel=0.02)
+    # the largest such beta
+    assert pf.effective_sample_size(beta * log_lik) >= 100.0 > pf.effective_sample_size(beta * 1.0001 * log_lik)
     assert pf.temper(np.zeros(50), 10.0) == 1.0
 
 
@@ -309,8 +320,11 @@ def test_informative_actions_converge_sooner_and_stay_honest():
     (joints / contacts) against 1.00 / 1.00 (vlr_drake.identify.ACTION_CHOICE). Coverage
     comes in clumps (a run that misses, misses several values), so a handful of seeds
     scatters: over seeds 0-35 it was 0.97 / 0.94 (FilterConfig.newton_loose_after 8) and
-    0.96 / 0.92 (None), but seeds 0-3 alone gave 0.86 with 8, one run (seed 2) missing 5 of
-    its 9 values. Eight seeds keep one such run above the 0.9 bar."""
+    0.96 / 0.92 (None), and the pooled coverage of 8 consecutive seeds was at least 0.92
+    (8) and 0.86 (None), of 4 seeds at least 0.86 and 0.83 (seeds 0-3 with 8: 0.86, one
+    run missing 5 of its 9 values). Hence 8 seeds and a bar of 0.85, which an honest filter
+    clears and one that is sure and wrong (0.2-0.7 of the joints inside on the physics plant
+    with a sharper likelihood, README) does not."""
     its, inside = {}, {}
     for choice in ("random", "informative"):
         its[choice], inside[choice] = [], []
@@ -322,7 +336,7 @@ def test_informative_actions_converge_sooner_and_stay_honest():
             inside[choice] += [r["truth_inside_95_theta"]] * 6 + [r["truth_inside_95_contact"]] * 3
             assert np.mean(r["proximal_joint_error_deg"]) < 1.5
     assert np.mean(its["informative"]) < 0.8 * np.mean(its["random"]), its
-    assert np.mean(inside["informative"]) >= 0.9, inside
+    assert np.mean(inside["informative"]) >= 0.85, inside
 
 
 def test_lost_tag_moves_but_does_not_learn():

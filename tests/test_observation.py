@@ -102,6 +102,11 @@ def test_in_frame_expresses_points_in_each_particles_frame(rng):
     # one frame for every particle
     np.testing.assert_allclose(observation.in_frame(p, R[0], t[0]),
                                np.einsum("ji,pnj->pni", R[0], p - t[0]), atol=1e-14)
+    # rotations per particle with one translation, and the reverse
+    np.testing.assert_allclose(observation.in_frame(p, R, t[0]),
+                               np.einsum("pji,pnj->pni", R, p - t[0]), atol=1e-14)
+    np.testing.assert_allclose(observation.in_frame(p, R[0], t),
+                               np.einsum("ji,pnj->pni", R[0], p - t[:, None, :]), atol=1e-14)
     # and back: R p^O + t
     back = np.einsum("pij,pnj->pni", R, observation.in_frame(p, R, t)) + t[:, None, :]
     np.testing.assert_allclose(back, p, atol=1e-14)

@@ -22,6 +22,8 @@ import nbformat
 import numpy as np
 import pytest
 
+from vlr_drake.identify import WEAKLY_IDENTIFIED
+
 TUTORIALS = Path(__file__).resolve().parents[1] / "tutorials"
 CELL_TIMEOUT_S = 240
 
@@ -101,7 +103,7 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     spring = s["run_spring"]
     (lo, hi), (lo0, hi0) = spring["interval"], spring["prior_interval"]
     assert spring["narrowed_to"] == pytest.approx((hi - lo) / (hi0 - lo0)) and spring["narrowed_to"] < 1.0
-    assert (spring["narrowed_to"] > 0.5) == ("stiffness:thumb/1" in s["run_weakly_identified"])
+    assert (spring["narrowed_to"] > WEAKLY_IDENTIFIED) == ("stiffness:thumb/1" in s["run_weakly_identified"])
 
 
 def test_05_custom_hand_is_identified_and_object_parses(tmp_path, monkeypatch):

@@ -160,17 +160,11 @@ def print_summary(result: dict) -> None:
         print(f"{n + ' contact [mm]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
     for name, p in result.get("hand_parameters", {}).items():  # identified springs and links
         kind, where = name.split(":", 1)
-        scale, unit, d = (1e3, "mm", 2) if p["unit"] == "m" else (1.0, p["unit"], 4)
+        key, scale, unit, d = (("link_lengths", 1e3, "mm", 2) if kind == "link_length"
+                               else ("stiffness", 1.0, p["unit"], 4))
         e, lo, hi = scale * p["estimate"], scale * p["interval"][0], scale * p["interval"][1]
-        if kind == "stiffness":
-            finger, j = where.split("/")
-            fi = names.index(finger) if finger in names else 0
-            t = truth["stiffness"][fi, int(j)]
-            label = f"{where} k [{unit}]"
-        else:
-            fi = names.index(where) if where in names else 0
-            t = scale * truth["link_lengths"][fi, 0]
-            label = f"{where} link [{unit}]"
+        t = scale * truth[key][p["finger"], p["joint"]]
+        label = f"{where} {'link' if kind == 'link_length' else 'k'} [{unit}]"
         print(f"{label:28s} {e:10.{d}f} {f'[{lo:.{d}f}, {hi:.{d}f}]':>20s} {t:10.{d}f} {abs(e - t):8.{d}f}")
     for name in result.get("weakly_identified", []):
         p = result["hand_parameters"][name]

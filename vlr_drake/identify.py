@@ -465,19 +465,26 @@ def hand_parameter_report(hand, prior: pf.PriorConfig, est: dict, est0: dict) ->
     with the names of those still weakly identified (``narrowed_to`` above
     :data:`WEAKLY_IDENTIFIED`). Needs no truth, so it holds for a hardware run as well. Names:
     ``stiffness:<finger>/<joint>`` and ``link_length:<finger>``; values in SI units."""
+    out = {}
+    for name, key, (fi, j), (p_lo, p_hi), unit in _identified_parameters(hand, prior):
+        lo, hi, lo0, hi0 = (float(e[k][fi, j]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
+                                                             (est0, f"{key}_lo"), (est0, f"{key}_hi")))
+        defined = np.isfinite([lo, hi, lo0, hi0]).all() and hi0 > lo0  # else None: nothing to compare
+        out[name] = {"finger": fi, "joint": j, "estimate": float(est[key][fi, j]), "interval": [lo, hi],
+                     "prior_interval": [lo0, hi0], "prior_range": [float(p_lo), float(p_hi)],
+                     "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": unit}
+    return {"hand_parameters": out,
+            "weakly_identified": [n for n, v in out.items()
+                                  if v["narrowed_to"] is not None and v["narrowed_to"] > WEAKLY_IDENTIFIED]}
+
+
+def _identified_parameters(hand, prior: pf.PriorConfig):
+    """(name, estimate key, (finger, joint index), prior range, unit) of every identified hand
+    parameter: the unknown springs, then the unknown proximal link lengths."""
     params = [(f"stiffness:{hand.names[fi]}/{j}", "stiffness", (fi, j), prior.stiffness_range, "N m/rad")
               for fi, j in prior.stiffness_unknown]
-    params += [(f"link_length:{hand.names[fi]}", "link_lengths", (fi, 0), prior.link_range, "m")
-               for fi in prior.links_unknown]
-    out = {}
-    for name, key, at, (p_lo, p_hi), unit in params:
-        lo, hi, lo0, hi0 = (float(e[k][at]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
-                                                          (est0, f"{key}_lo"), (est0, f"{key}_hi")))
-        out[name] = {"estimate": float(est[key][at]), "interval": [lo, hi], "prior_interval": [lo0, hi0],
-                     "prior_range": [float(p_lo), float(p_hi)],
-                     "narrowed_to": (hi - lo) / (hi0 - lo0) if hi0 > lo0 else float("nan"), "unit": unit}
-    return {"hand_parameters": out,
-            "weakly_identified": [n for n, v in out.items() if not v["narrowed_to"] <= WEAKLY_IDENTIFIED]}
+    return params + [(f"link_length:{hand.names[fi]}", "link_lengths", (fi, 0), prior.link_range, "m")
+                     for fi in prior.links_unknown]
 
 
 def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict:
@@ -508,6 +515,10 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
         res["stiffness_inside_95"] = bool(est["stiffness_lo"][fi, j] <= k_true <= est["stiffness_hi"][fi, j])
         res["stiffness_interval_Nm_per_rad"] = [float(est["stiffness_lo"][fi, j]), float(est["stiffness_hi"][fi, j])]
         res["stiffness_prior_Nm_per_rad"] = [float(x) for x in prior.stiffness_range]
+    # every identified hand parameter (names as hand_parameter_report's): truth inside its 95%?
+    res["hand_parameter_inside_95"] = {
+        name: bool(est[f"{key}_lo"][at] <= truth[key][at] <= est[f"{key}_hi"][at])
+        for name, key, at, _, _ in _identified_parameters(hand, prior)}
     if prior.links_unknown:
         res["link_length_error_mm"] = {
             hand.names[fi]: float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))

@@ -951,7 +951,8 @@ def move(
         max_iter, max_step: Newton iteration cap and joint step cap [rad].
         loose_after: after this many Newton steps a particle within the physical
             tolerances (``LOOSE_*``; angles within ~1e-5 rad of the solution) is accepted
-            rather than iterated on to ``tolerance``; None (default) waits for ``max_iter``.
+            rather than iterated on to ``tolerance``; None (default), or any value from
+            ``max_iter`` up, accepts it only at the cap.
             Only the particles near the Model O's symmetric grasps, where Newton converges
             linearly, get there; the filter stops them early (``FilterConfig.newton_loose_after``).
         max_substeps: a particle that fails with the whole action is retried with the
@@ -965,6 +966,9 @@ def move(
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if tolerance not in TOLERANCES:
         raise ValueError(f"Newton tolerance must be one of {tuple(TOLERANCES)}, got '{tolerance}'")
+    if loose_after is not None and (isinstance(loose_after, bool) or not isinstance(loose_after, (int, np.integer))
+                                    or loose_after < 1):
+        raise ValueError(f"'loose_after' must be None or an integer >= 1, got {loose_after!r}")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     dl = np.asarray(dl, float)
@@ -991,7 +995,7 @@ def move(
     _move_kernel(
         theta, s0, dl, a, L, k, D2, hand.pad, hand.base, hand.u, hand.moment_arms, hand.rest_angles,
         hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter),
-        int(max_iter if loose_after is None else loose_after), float(max_step),
+        int(max_iter if loose_after is None else min(loose_after, max_iter)), float(max_step),
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
     )
     return MoveResult(out_theta, s_out, T, lam, ok, iters, resid)

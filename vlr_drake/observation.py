@@ -220,9 +220,10 @@ def attach(p_P, R_PO, t_PO) -> np.ndarray:
 
 
 def in_frame(p_P, R, t) -> np.ndarray:
-    """Points (P, N, 3) expressed in the frames (R (P or 1, 3, 3), t (P or 1, 3), each shared
-    when its leading axis is 1):
-    R^T (p - t), particle by particle (no checks on the contacts; see :func:`attach`)."""
+    """Points p (P, N, 3) expressed in the frames (R, t): R^T (p - t), particle by particle.
+
+    R (P or 1, 3, 3) and t (P or 1, 3); a leading axis of 1 is shared by every particle. No
+    checks on the contacts (see :func:`attach`)."""
     p_P = np.ascontiguousarray(p_P, dtype=float)
     R = np.ascontiguousarray(np.reshape(R, (-1, 3, 3)), dtype=float)
     t = np.ascontiguousarray(np.reshape(t, (-1, 3)), dtype=float)

@@ -74,8 +74,9 @@ def honesty(runs: list[dict]) -> dict:
     (:func:`vlr_drake.identify.hand_parameter_report`) as [count, of]."""
     out = {"joints": float(np.mean([r["truth_inside_95_theta"] for r in runs])),
            "contacts": float(np.mean([r["truth_inside_95_contact"] for r in runs]))}
-    springs = [r["stiffness_inside_95"] for r in runs if "stiffness_inside_95" in r]
-    links = [v for r in runs for v in r.get("link_length_inside_95", {}).values()]
+    inside = [(n, v) for r in runs for n, v in r.get("hand_parameter_inside_95", {}).items()]
+    springs = [v for n, v in inside if n.startswith("stiffness:")]
+    links = [v for n, v in inside if n.startswith("link_length:")]
     params = sum(len(r.get("hand_parameters", {})) for r in runs)
     if springs:
         out["stiffness"] = [int(sum(springs)), len(springs)]

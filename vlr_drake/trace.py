@@ -48,8 +48,10 @@ TRACE_VERSION = 1
 PROFILE_PARAMETERS = ("stiffness", "link_length:<finger>")
 #: Ground-truth arrays a trace keeps per step (the plant's truth dicts).
 TRUTH_KEYS = ("theta", "a", "contacts", "stiffness", "link_lengths")
-#: Settings added after traces were first written, with the value that reproduces a trace
-#: written before them (its header lacks the field): the behaviour of those versions.
+#: Settings added after traces were first written, with the value that restores the
+#: behaviour of the code that wrote a trace lacking them. A replay is bit-exact only with the
+#: code that recorded the trace: later kernels may round differently (the 2026-11-24 ones do,
+#: by up to 1e-17 m in the contacts), and the filter's resampling can amplify that.
 LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None}}
 
 
