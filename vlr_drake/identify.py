@@ -523,9 +523,9 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
         res["link_length_error_mm"] = {
             hand.names[fi]: float(1e3 * abs(est["link_lengths"][fi, 0] - truth["link_lengths"][fi, 0]))
             for fi in prior.links_unknown}
-        res["link_length_inside_95"] = {
-            hand.names[fi]: bool(est["link_lengths_lo"][fi, 0] <= truth["link_lengths"][fi, 0]
-                                 <= est["link_lengths_hi"][fi, 0]) for fi in prior.links_unknown}
+        res["link_length_inside_95"] = {  # the same flags, by finger name
+            hand.names[fi]: res["hand_parameter_inside_95"][f"link_length:{hand.names[fi]}"]
+            for fi in prior.links_unknown}
     return res
 
 
