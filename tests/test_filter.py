@@ -97,6 +97,33 @@ def test_tempered_ess_matches_the_definition():
     assert pf._tempered_ess(np.full(5, -np.inf), np.zeros(5), 1.0) == 0.0
 
 
+def test_tempering_search_returns_the_bisections_beta():
+    """The Newton search places beta on the bisection's grid exactly where the bisection
+    does, and its slope kernel is the derivative of log ESS."""
+    rng = np.random.default_rng(4)
+    grid = 2.0**-40
+    for trial in range(60):
+        M = (200, 3000)[trial % 2]
+        log_w0 = np.zeros(M) if trial % 3 == 0 else rng.normal(0.0, 0.5, M)
+        log_lik = -0.5 * rng.chisquare(6, M) * (1.0, 30.0, 1e3)[trial % 3]
+        log_lik[rng.random(M) < 0.1] = -np.inf
+        log_w0[rng.random(M) < 0.05 * (trial % 2)] = -np.inf
+        target = rng.uniform(0.1, 0.8) * M
+        beta = pf._temper_increment(log_w0, log_lik, target)
+        assert beta == pf._temper_bisect(log_w0, log_lik, target)
+        if 1e-6 < beta < 1.0:  # the crossing, on the grid (1e-6: the smallest increment taken)
+            assert pf._tempered_ess(log_w0, log_lik, beta) >= target > pf._tempered_ess(log_w0, log_lik, beta + grid)
+            assert beta / grid == np.floor(beta / grid)
+    log_w0, log_lik = rng.normal(size=400), -0.5 * (3 * rng.standard_normal(400)) ** 2
+    for beta in (0.01, 0.3):
+        g, slope = pf._tempered_ess_slope(log_w0, log_lik, beta)
+        assert g == pytest.approx(np.log(pf._tempered_ess(log_w0, log_lik, beta)), rel=1e-12)
+        e = 1e-6
+        numeric = (np.log(pf._tempered_ess(log_w0, log_lik, beta + e))
+                   - np.log(pf._tempered_ess(log_w0, log_lik, beta - e))) / (2 * e)
+        assert slope == pytest.approx(numeric, rel=1e-5)
+
+
 def test_weighted_interval_matches_sorted_definition():
     rng = np.random.default_rng(2)
     x = rng.standard_normal((2000, 3))
