@@ -313,6 +313,32 @@ def test_loose_after_stops_the_linear_tail_within_the_physical_tolerances(model_
             motion.move(h, th, dl, loose_after=bad, **kw)
 
 
+def test_results_do_not_depend_on_how_the_particles_are_split(model_o_hand, monkeypatch):
+    """The move's parallel tasks take interleaved shares (motion._move_tasks); every lane
+    runs its own particle, so any split gives the same numbers bit for bit, also with more
+    tasks than particles; an empty set of particles moves to an empty result."""
+    h = model_o_hand
+    rng = np.random.default_rng(9)
+    th = np.array([[0.15, 0.4], [0.25, 0.35], [0.25, 0.35]]) + rng.normal(0.0, 0.03, (300, 3, 2))
+    a = 0.028 + rng.normal(0.0, 0.002, (300, 3))
+    eq = motion.equilibrium(h, th, a=a)
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, th, a))
+    kw = dict(a=a, D2=D2, stretch=eq.stretch, max_substeps=4, loose_after=8)
+    dl = np.array([1.0e-3, -0.5e-3, 0.3e-3])
+    runs = []
+    for tasks in (1, 2, 5, 300, 301):
+        monkeypatch.setattr(motion, "_move_tasks", lambda P, n=tasks: min(P, n))
+        runs.append(motion.move(h, th, dl, **kw))
+    assert 50 < runs[0].ok.sum() < 300 and (runs[0].iterations > 30).any()  # failures and retries among them
+    for r in runs[1:]:
+        for field in ("theta", "stretch", "tension", "multipliers", "ok", "iterations", "residuals"):
+            np.testing.assert_array_equal(getattr(r, field), getattr(runs[0], field))
+    monkeypatch.undo()
+    assert motion._move_tasks(0) == 0 and motion._move_tasks(1) == 1
+    empty = motion.move(h, th[:0], dl, a=a[:0], D2=D2[:0], stretch=eq.stretch[:0])
+    assert empty.theta.shape == (0, h.N, h.K) and empty.ok.shape == (0,)
+
+
 def test_contact_distances_match_their_definition(model_o_hand):
     rng = np.random.default_rng(2)
     p = rng.normal(size=(5, model_o_hand.N, 3))

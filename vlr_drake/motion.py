@@ -496,10 +496,10 @@ RUNNING, CONVERGED, FAILED, EMPTY = 0, 1, 2, 3
 @njit(cache=True)
 def _move_lanes(
     theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, loose_after, max_step, tol, max_substeps, start, stop,
+    ideal, max_iter, loose_after, max_step, tol, max_substeps, start, stop, stride,
     theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
-    """Newton on the KKT system of Eq. 9 for particles ``start:stop``, LANES at a time.
+    """Newton on the KKT system of Eq. 9 for particles ``start:stop:stride``, LANES at a time.
 
     Each lane runs its own particle's Newton iteration (its own iteration count, step cap
     and convergence test, those of a one-particle Newton method); a lane whose particle is
@@ -560,7 +560,7 @@ def _move_lanes(
                 for k2 in range(K):
                     Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
     nxt = _finish_lanes(
-        status, start, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+        status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
         kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
         nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
     )
@@ -652,7 +652,7 @@ def _move_lanes(
                 else:
                     itn[w] += 1
         nxt = _finish_lanes(
-            status, nxt, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+            status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
             kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
             nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
         )
@@ -660,7 +660,7 @@ def _move_lanes(
 
 @njit(cache=True)
 def _finish_lanes(
-    status, nxt, start, stop, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
+    status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
     kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
     nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
@@ -725,7 +725,7 @@ def _finish_lanes(
                 lam_out[p, c] = lam[c, w] if o else 0.0
         # the next particle into this lane
         q = nxt
-        nxt += 1
+        nxt += stride
         if q >= stop:
             pid[w] = -1
             if st != EMPTY:
@@ -763,17 +763,15 @@ def _finish_lanes(
 @njit(cache=True, parallel=True)
 def _move_kernel(
     theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-    ideal, max_iter, loose_after, max_step, tol, max_substeps, theta, lam, T, s_out, ok, iters, resid,
+    ideal, max_iter, loose_after, max_step, tol, max_substeps, theta, lam, T, s_out, ok, iters, resid, tasks,
 ):  # pragma: no cover - numba
+    """Every particle's move (:func:`_move_lanes`) in ``tasks`` parallel tasks, task t
+    taking particles t, t + tasks, t + 2 tasks, ... (see :func:`_move_tasks`)."""
     P = theta0.shape[0]
-    chunk = 2048
-    nchunks = (P + chunk - 1) // chunk
-    for cc in prange(nchunks):
-        start = np.int64(cc) * chunk
-        stop = min(start + chunk, P)
+    for t in prange(tasks):
         _move_lanes(
             theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
-            ideal, max_iter, loose_after, max_step, tol, max_substeps, start, stop,
+            ideal, max_iter, loose_after, max_step, tol, max_substeps, np.int64(t), P, tasks,
             theta, lam, T, s_out, ok, iters, resid,
         )
 
@@ -915,6 +913,24 @@ def _check_theta(hand: HandModel, theta) -> np.ndarray:
     return as_particles("theta", theta, theta.shape)
 
 
+def _move_tasks(P: int) -> int:
+    """Parallel tasks of a ``P``-particle move: one per thread, each taking every
+    ``tasks``-th particle.
+
+    A task's lanes go idle one by one at its end while its slowest particles finish (up
+    to 30 Newton steps, four times over with the continuation), and every cycle costs all
+    LANES lanes, so each task ends in a tail of mostly idle cycles: one task per thread
+    has one tail per thread. Interleaved rather than contiguous shares, because after
+    resampling a hypothesis' copies sit side by side, and a slow one's copies (a grasp
+    near the mirror-image ones) would load one thread. A 60,000-particle move inside the
+    filter (2 threads) took 75-95 ms over its first nine iterations (first: 98-137), against
+    85-131 ms in contiguous tasks of 2,048 particles, 100-145 ms in 30 interleaved tasks.
+    The results do not depend on the split (each lane runs its own particle)."""
+    import numba
+
+    return min(P, max(1, int(numba.get_num_threads())))  # 0 for no particles: nothing to run
+
+
 def move(
     hand: HandModel,
     theta,
@@ -997,6 +1013,7 @@ def move(
         hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter),
         int(max_iter if loose_after is None else min(loose_after, max_iter)), float(max_step),
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
+        _move_tasks(P),
     )
     return MoveResult(out_theta, s_out, T, lam, ok, iters, resid)
 
