@@ -75,6 +75,7 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert {"move", "weigh", "estimate"} <= set(r["iteration_phases_s"])
     slowest = r["slowest_iteration_phases_s"]
     assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
+    assert 0 < r["first_iteration_s"] <= r["iteration_max_s"]
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
     t = run["timing_s"]
