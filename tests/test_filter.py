@@ -97,31 +97,74 @@ def test_tempered_ess_matches_the_definition():
     assert pf._tempered_ess(np.full(5, -np.inf), np.zeros(5), 1.0) == 0.0
 
 
-def test_tempering_search_returns_the_bisections_beta():
+def test_tempering_search_returns_the_bisections_beta(monkeypatch):
     """The Newton search places beta on the bisection's grid exactly where the bisection
-    does, and its slope kernel is the derivative of log ESS."""
+    does (where the ESS decreases along the grid, as it does from uniform weights), with
+    far fewer ESS evaluations, down to the 1e-6 floor and for other grids; its slope kernel
+    is the derivative of log ESS."""
+    calls = {"ess": 0, "fallback": 0}
+    ess, bisect = pf._tempered_ess, pf._temper_bisect
+
+    def counted_ess(*args):
+        calls["ess"] += 1
+        return ess(*args)
+
+    def counted_bisect(*args):
+        calls["fallback"] += 1
+        return bisect(*args)
+
     rng = np.random.default_rng(4)
-    grid = 2.0**-40
-    for trial in range(60):
+    cases = []
+    for trial in range(40):
         M = (200, 3000)[trial % 2]
-        log_w0 = np.zeros(M) if trial % 3 == 0 else rng.normal(0.0, 0.5, M)
-        log_lik = -0.5 * rng.chisquare(6, M) * (1.0, 30.0, 1e3)[trial % 3]
+        log_w0 = np.zeros(M) if trial % 4 == 0 else rng.normal(0.0, 0.3, M)
+        log_lik = -0.5 * rng.chisquare(6, M) * 10.0 ** (trial % 8)  # beta from ~0.5 down past 1e-6
         log_lik[rng.random(M) < 0.1] = -np.inf
-        log_w0[rng.random(M) < 0.05 * (trial % 2)] = -np.inf
-        target = rng.uniform(0.1, 0.8) * M
-        beta = pf._temper_increment(log_w0, log_lik, target)
-        assert beta == pf._temper_bisect(log_w0, log_lik, target)
-        if 1e-6 < beta < 1.0:  # the crossing, on the grid (1e-6: the smallest increment taken)
-            assert pf._tempered_ess(log_w0, log_lik, beta) >= target > pf._tempered_ess(log_w0, log_lik, beta + grid)
+        cases.append((log_w0, log_lik, rng.uniform(0.1, 0.5) * M, (40, 40, 20, 52)[trial % 4]))
+    interior = 0
+    for log_w0, log_lik, target, iterations in cases:
+        want = bisect(log_w0, log_lik, target, iterations)
+        monkeypatch.setattr(pf, "_tempered_ess", counted_ess)
+        monkeypatch.setattr(pf, "_temper_bisect", counted_bisect)
+        calls.update(ess=0, fallback=0)
+        beta = pf._temper_increment(log_w0, log_lik, target, iterations)
+        monkeypatch.undo()
+        assert beta == want
+        assert calls["fallback"] == 0 and calls["ess"] <= 12  # the bisection takes iterations + 1
+        grid = 2.0**-iterations
+        if 1e-6 < beta < 1.0:  # the crossing, on the grid
+            interior += 1
+            assert ess(log_w0, log_lik, beta) >= target > ess(log_w0, log_lik, beta + grid)
             assert beta / grid == np.floor(beta / grid)
+    assert interior >= 20 and sum(bisect(*c) == 1e-6 for c in cases) >= 3
     log_w0, log_lik = rng.normal(size=400), -0.5 * (3 * rng.standard_normal(400)) ** 2
     for beta in (0.01, 0.3):
         g, slope = pf._tempered_ess_slope(log_w0, log_lik, beta)
-        assert g == pytest.approx(np.log(pf._tempered_ess(log_w0, log_lik, beta)), rel=1e-12)
+        assert g == pytest.approx(np.log(ess(log_w0, log_lik, beta)), rel=1e-12)
         e = 1e-6
-        numeric = (np.log(pf._tempered_ess(log_w0, log_lik, beta + e))
-                   - np.log(pf._tempered_ess(log_w0, log_lik, beta - e))) / (2 * e)
+        numeric = (np.log(ess(log_w0, log_lik, beta + e)) - np.log(ess(log_w0, log_lik, beta - e))) / (2 * e)
         assert slope == pytest.approx(numeric, rel=1e-5)
+    # weights below the target already (not a state the filter tempers from): the bisection's answer
+    low = np.r_[0.0, np.full(99, -20.0)]
+    assert pf._temper_increment(low, -np.arange(100.0), 50.0) == bisect(low, -np.arange(100.0), 50.0)
+
+
+def test_equal_weight_intervals_are_order_statistics():
+    """After resampling (equal weights) the interval ends are the order statistics
+    np.partition gives, ties and small clouds included."""
+    rng = np.random.default_rng(6)
+    for M in (1, 2, 3, 39, 40, 41, 1000, 4001):
+        for ties in (False, True):
+            x = rng.normal(size=(M, 2, 3))
+            if ties:
+                x = np.round(x, 1)
+            lo, hi = pf.interval95(x, np.full(M, 1.0 / M))
+            k = [int(np.ceil(q * M - 1e-9)) - 1 for q in (0.025, 0.975)]
+            part = np.partition(x.reshape(M, -1), k, axis=0)
+            np.testing.assert_array_equal(lo.ravel(), part[k[0]])
+            np.testing.assert_array_equal(hi.ravel(), part[k[1]])
+    with pytest.raises(ValueError, match="finite"):
+        pf.interval95(np.array([[0.0], [np.inf]]), np.full(2, 0.5))
 
 
 def test_weighted_interval_matches_sorted_definition():

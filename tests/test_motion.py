@@ -327,13 +327,28 @@ def test_results_do_not_depend_on_how_the_particles_are_split(model_o_hand, monk
     dl = np.array([1.0e-3, -0.5e-3, 0.3e-3])
     runs = []
     for tasks in (1, 2, 5, 300, 301):
-        monkeypatch.setattr(motion, "_move_tasks", lambda P, n=tasks: min(P, n))
+        monkeypatch.setattr(motion, "_move_tasks", lambda P, n=tasks: n)
         runs.append(motion.move(h, th, dl, **kw))
     assert 50 < runs[0].ok.sum() < 300 and (runs[0].iterations > 30).any()  # failures and retries among them
     for r in runs[1:]:
         for field in ("theta", "stretch", "tension", "multipliers", "ok", "iterations", "residuals"):
             np.testing.assert_array_equal(getattr(r, field), getattr(runs[0], field))
     monkeypatch.undo()
+    # a task writes exactly its share start::stride
+    L, k = motion._hand_params(h, 300, None, None)
+    D2c = np.ascontiguousarray(D2)
+    for start, stride in ((0, 3), (2, 3), (7, 50), (299, 2), (300, 1)):
+        out = [np.full_like(th, np.nan), np.full((300, h.num_constraints), np.nan), np.full((300, h.N), np.nan),
+               np.full((300, h.N), np.nan), np.zeros(300, dtype=bool), np.full(300, -1), np.full((300, 3), np.nan)]
+        motion._move_lanes(
+            th, eq.stretch, dl[None], a, L, k, D2c, h.pad, h.base, h.u, h.moment_arms, h.rest_angles, h.kappa,
+            h.constraint_pairs, False, motion.MAX_ITER, 8, motion.MAX_STEP, np.array(motion.TOLERANCES["tight"]), 4,
+            start, 300, stride, *out)
+        share = np.zeros(300, dtype=bool)
+        share[start::stride] = True
+        assert np.array_equal(out[5] >= 0, share)  # iterations written for the share only
+        assert np.isfinite(out[0][share]).all() and np.isnan(out[0][~share]).all()
+        np.testing.assert_array_equal(out[0][share], runs[0].theta[share])
     assert motion._move_tasks(0) == 0 and motion._move_tasks(1) == 1
     empty = motion.move(h, th[:0], dl, a=a[:0], D2=D2[:0], stretch=eq.stretch[:0])
     assert empty.theta.shape == (0, h.N, h.K) and empty.ok.shape == (0,)

@@ -507,6 +507,8 @@ def _move_lanes(
     busy. A particle that fails with the whole action is retried in the same lane with the
     action ramped in 4, 16, ... substeps up to ``max_substeps`` (quasi-static continuation).
     """
+    if start >= stop:  # no particle in this share (more tasks than particles)
+        return
     P, N, K = theta0.shape
     n = N * K
     m = pairs.shape[0]
