@@ -10,7 +10,7 @@ from vlr_drake import filter as pf
 from vlr_drake.cli import main
 from vlr_drake.identify import IdentifyOptions, run_identification
 from vlr_drake.scenario import config_overrides
-from vlr_drake.trace import IdentificationTrace, evidence_profile, replay
+from vlr_drake.trace import IdentificationTrace, evidence_profile, replay, statics_profile
 
 
 def _run(experiment, hand="model_o", particles=600, iterations=8, seed=1, **kw):
@@ -72,6 +72,28 @@ def test_evidence_profile_favours_the_true_spring_and_link():
     rel = [row["relative"] for row in rows]
     assert rel[1] == 0.0 and rel[0] < -3.0 and rel[2] < -3.0, rel
     assert rows[1]["errors"]["link_length_error_mm"] is None  # the profiled link is no longer identified
+
+
+def test_statics_profile_is_zero_at_the_truth_on_the_model_plant():
+    """On the model plant the truth is the VLR moved by Gamma under the motors' commands, so
+    its commanded equilibrium is the true state itself at the true spring or link, and
+    moves off it with the parameter; a hardware trace (no truths) is refused."""
+    r = _run("stiffness", iterations=10, seed=2)
+    k = r["stiffness_true_Nm_per_rad"]
+    rows = statics_profile(r["_trace"], "stiffness", [0.8 * k, k, 1.25 * k])
+    assert rows[1]["solved"] == 1.0 and all(row["solved"] > 0.5 for row in rows)
+    assert rows[1]["offset_deg"] < 1e-4 and rows[1]["motion_rms_deg"] < 1e-4
+    for row in (rows[0], rows[2]):
+        assert row["parameter_offset_deg"] > 0.2 and row["offset_deg"] > 100 * rows[1]["offset_deg"]
+    r = _run("novel_fingers", "NH1", iterations=6, seed=3)
+    L = r["_trace"].truths["link_lengths"][-1][0, 0]
+    rows = statics_profile(r["_trace"], "link_length:thumb_NF1", [L - 0.004, L, L + 0.004])
+    assert rows[1]["offset_deg"] < 1e-4
+    assert min(rows[0]["parameter_offset_deg"], rows[2]["parameter_offset_deg"]) > 0.2
+    with pytest.raises(ValueError, match="no plant truths"):
+        statics_profile(IdentificationTrace(**{**r["_trace"].__dict__, "truths": None}), "link_length:thumb_NF1", [L])
+    with pytest.raises(ValueError, match="statics profile: parameter must be one of"):
+        statics_profile(r["_trace"], "damping", [0.1])
 
 
 def test_bad_traces_and_profiles_are_named(tmp_path):
@@ -144,7 +166,13 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
                  "--no-progress"]) == 0
     r = json.loads(out.read_text())["runs"][0]
     assert [p["value"] for p in r["profile"]] == [0.1, 0.2] and max(p["relative"] for p in r["profile"]) == 0.0
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1,0.2", "--statics", "--json",
+                 str(out)]) == 0
+    r = json.loads(out.read_text())["runs"][0]
+    assert [p["value"] for p in r["statics"]] == [0.1, 0.2] and "offset_deg" in r["statics"][0]
     capsys.readouterr()
+    assert main(["replay", str(path), "--statics"]) == 2
+    assert "--statics needs --profile" in capsys.readouterr().err
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2
     assert "--profile needs --values" in capsys.readouterr().err
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2

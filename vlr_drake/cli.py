@@ -203,10 +203,12 @@ def replay_trace(args) -> dict:
     ``--profile``, each trace's evidence profile over ``--values``."""
     from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_row
     from vlr_drake.scenario import config_overrides
-    from vlr_drake.trace import IdentificationTrace, evidence_profile, replay
+    from vlr_drake.trace import IdentificationTrace, evidence_profile, replay, statics_profile
 
     if args.profile is None and args.values is not None:
         raise ValueError("--values needs --profile")
+    if args.statics and args.profile is None:
+        raise ValueError("--statics needs --profile and --values")
     values = None
     if args.profile is not None:
         if not args.values:
@@ -240,6 +242,16 @@ def replay_trace(args) -> dict:
                     row = identification_row(experiment, meta.get("hand"))
                     measured.setdefault(row, []).append(
                         (float(IDENTIFICATION_MEASURES[experiment](r["errors"])), r["errors"]["truth_inside_95_theta"]))
+        elif args.statics:
+            rows = statics_profile(trace, args.profile, values)
+            unit = "N m/rad" if args.profile == "stiffness" else "m"
+            print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
+                  "plant's true angles):")
+            for r in rows:
+                print(f"    {r['value']:.5g}: offset {r['offset_deg']:.2f} deg (that joint / finger "
+                      f"{r['parameter_offset_deg']:.2f}), motion rms {r['motion_rms_deg']:.3f} deg, "
+                      f"solved {100 * r['solved']:.0f}%")
+            run = {"trace": str(path), "parameter": args.profile, "statics": rows}
         else:
             rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
@@ -448,7 +460,11 @@ plant's default). Given several traces (vlr-drake reproduce keeps one per identi
 run in out/reproduce/traces/), it also prints the table's rows for them. --profile fixes one identified hand parameter (stiffness, or
 link_length:<finger>) at each of --values and prints each value's log evidence, the sum over
 the run of log p(measurement | the ones before), relative to the best: how strongly the
-measurements themselves favour each value, apart from the prior and the point estimate.""",
+measurements themselves favour each value, apart from the prior and the point estimate.
+With --statics it runs no filter: it says, from a simulation trace's plant truths, how far
+the VLR's equilibrium under the motors' commands sits from the plant's angles with the
+parameter at each value, and how well its motions follow the plant's (where the model's
+statics match the plant, and how much of the parameter the motions show).""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text
 beside it, and render .svg pictures when Graphviz's dot is installed.""",
     "bench": """Benchmarks that print their figures: motion (one batched move of all particles vs one
@@ -547,6 +563,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="fix this identified hand parameter at each of --values and compare the evidence: "
                         "stiffness [N m/rad] or link_length:<finger> [m]")
     p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter")
+    p.add_argument("--statics", action="store_true",
+                   help="with --profile: no replay; how the VLR's equilibrium under the motors' commands, with the "
+                        "parameter at each value, agrees with the plant's true angles along the trace (simulation "
+                        "traces)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

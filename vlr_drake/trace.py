@@ -37,9 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from vlr_drake import filter as pf
+from vlr_drake import motion
 from vlr_drake.hand import FingerSpec, HandSpec
 
-__all__ = ["IdentificationTrace", "TraceRecorder", "replay", "evidence_profile", "PROFILE_PARAMETERS"]
+__all__ = ["IdentificationTrace", "TraceRecorder", "replay", "evidence_profile", "statics_profile",
+           "PROFILE_PARAMETERS"]
 
 #: Format version written into every trace file.
 TRACE_VERSION = 1
@@ -233,6 +235,84 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     return out
 
 
+def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str):
+    """Checked ``values`` (V,) and the (finger, joint) of a profile's ``parameter`` (see
+    :func:`evidence_profile`; joint 0 for a link length); errors start with ``what``."""
+    values = np.atleast_1d(np.asarray(values, float))
+    if values.ndim != 1 or values.size == 0:
+        raise ValueError(f"{what}: 'values' must be a non-empty list of numbers")
+    if not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise ValueError(f"{what}: '{parameter}' values must be finite and positive, got {values.tolist()}")
+    prior, names = trace.prior, trace.hand.finger_names()
+    if parameter == "stiffness":
+        if not prior.stiffness_unknown:
+            raise ValueError(f"{what}: the trace's prior identifies no stiffness")
+        fi, j = (int(x) for x in prior.stiffness_unknown[0])
+        return values, fi, j
+    if parameter.startswith("link_length:"):
+        finger = parameter.split(":", 1)[1]
+        if finger not in names:
+            raise ValueError(f"{what}: the hand has no finger '{finger}' (fingers: {names})")
+        fi = names.index(finger)
+        if fi not in [int(x) for x in prior.links_unknown]:
+            unknown = [names[int(i)] for i in prior.links_unknown]
+            raise ValueError(f"{what}: finger '{finger}' has a known link length in this trace "
+                             f"(unknown: {unknown or 'none'})")
+        return values, fi, 0
+    raise ValueError(f"{what}: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
+
+
+def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[dict]:
+    """How the VLR with one hand parameter set to each of ``values`` agrees with the plant's
+    truth along the trace (simulation traces only; no filter is run).
+
+    At every step the VLR's equilibrium under the motors' commands (the tendon stretch
+    l - R theta, as the filter moves a hypothesis) is found from the plant's true angles,
+    holding the object's true contact distances, with the true hand but ``parameter``
+    (as in :func:`evidence_profile`) at the value. Per value: ``offset_deg``, the mean
+    |equilibrium - true angle| over the joints and steps; ``parameter_offset_deg``, the same
+    for the parameter's joint (a spring) or finger (a link); ``motion_rms_deg``, the rms
+    difference between the equilibria's motion from one step to the next and the plant's
+    joint motion (what the camera can see of the parameter, in joint space); ``solved``,
+    the fraction of steps with an equilibrium. Where the offsets are least the model's
+    statics match the plant; a flat ``motion_rms_deg`` means the actions' motions hardly
+    depend on the parameter, so the camera learns it slowly. The contacts stay where they
+    are on the last links (the truth's), so a link length is seen without the trade-off
+    against the contact positions that the filter's hypotheses can make.
+
+    Measured (stiffness traces of the physics table, seeds 0-4, the spring 0.7-2x): the
+    offsets are least at the true spring on four seeds and at 1.15x on the softest, while
+    the motions' rms changes by 0.05-0.15 deg between 1x and 2x (README, "What the
+    measurements themselves say").
+    """
+    values, fi, j = _profile_parameter(trace, parameter, values, "statics profile")
+    if trace.truths is None:
+        raise ValueError("statics profile: the trace has no plant truths (a hardware run)")
+    h = trace.hand.validate().model()
+    theta, a = trace.truths["theta"], trace.truths["a"]
+    D2 = motion.contact_distances_sq(h, trace.truths["contacts"])
+    commands = np.vstack([trace.tendon_command0[None], trace.tendon_commands])
+    stretch = commands - h.tendon_travel(theta)
+    rows = []
+    for v in values:
+        k, L = trace.truths["stiffness"].copy(), trace.truths["link_lengths"].copy()
+        if parameter == "stiffness":
+            k[:, fi, j] = v
+        else:
+            L[:, fi, 0] = v
+        r = motion.move(h, theta, np.zeros(h.N), a=a, D2=D2, stretch=stretch, stiffness=k, link_lengths=L,
+                        tendon=trace.filter.tendon, max_substeps=4)
+        off = np.rad2deg(np.abs(r.theta - theta))[r.ok]
+        mine = off[:, fi, j] if parameter == "stiffness" else off[:, fi, :]
+        both = r.ok[1:] & r.ok[:-1]
+        miss = np.diff(r.theta, axis=0)[both] - np.diff(theta, axis=0)[both]
+        rows.append({"value": float(v), "solved": float(r.ok.mean()),
+                     "offset_deg": float(off.mean()) if off.size else np.nan,
+                     "parameter_offset_deg": float(mine.mean()) if mine.size else np.nan,
+                     "motion_rms_deg": float(np.rad2deg(np.sqrt(np.mean(miss**2)))) if both.any() else np.nan})
+    return rows
+
+
 def evidence_profile(trace: IdentificationTrace, parameter: str, values, config: pf.FilterConfig | None = None,
                      progress: bool = False) -> list[dict]:
     """Replay the trace once per value with one identified hand parameter fixed there.
@@ -244,28 +324,8 @@ def evidence_profile(trace: IdentificationTrace, parameter: str, values, config:
     ``value``, ``log_evidence`` and ``relative`` (minus the largest: log Bayes factors),
     ``errors`` (where the trace has truths) and ``replay`` (the full :func:`replay` output).
     """
-    values = np.atleast_1d(np.asarray(values, float))
-    if values.ndim != 1 or values.size == 0:
-        raise ValueError("evidence profile: 'values' must be a non-empty list of numbers")
-    if not np.all(np.isfinite(values)) or np.any(values <= 0):
-        raise ValueError(f"evidence profile: '{parameter}' values must be finite and positive, got {values.tolist()}")
+    values, fi, j = _profile_parameter(trace, parameter, values, "evidence profile")
     base_prior = trace.prior
-    names = trace.hand.finger_names()
-    if parameter == "stiffness":
-        if not base_prior.stiffness_unknown:
-            raise ValueError("evidence profile: the trace's prior identifies no stiffness")
-        fi, j = (int(x) for x in base_prior.stiffness_unknown[0])
-    elif parameter.startswith("link_length:"):
-        finger = parameter.split(":", 1)[1]
-        if finger not in names:
-            raise ValueError(f"evidence profile: the hand has no finger '{finger}' (fingers: {names})")
-        fi = names.index(finger)
-        if fi not in [int(x) for x in base_prior.links_unknown]:
-            unknown = [names[int(i)] for i in base_prior.links_unknown]
-            raise ValueError(f"evidence profile: finger '{finger}' has a known link length in this trace "
-                             f"(unknown: {unknown or 'none'})")
-    else:
-        raise ValueError(f"evidence profile: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
     rows = []
     for v in values:
         spec, prior = copy.deepcopy(trace.hand), copy.deepcopy(base_prior)
