@@ -522,6 +522,37 @@ def test_failed_moves_are_discarded_or_held(monkeypatch):
         pf.FilterConfig(stuck_probability=1.5).validate()
 
 
+def test_held_hypotheses_move_elastically_from_their_own_equilibrium():
+    """held_motion "elastic": a hypothesis whose move under the commanded tendon state
+    fails is moved by the action from the stretch of its own equilibrium (what friction
+    would hold), exactly as motion.move does from there; "still" keeps it where it was."""
+    from vlr_drake import kinematics
+
+    h, plant, f = _filter_and_plant(7, particles=300, stuck_probability=1.0, held_motion="elastic")
+    ps = f.particles
+    ps.stretch = f._commanded_stretch(ps.theta)
+    D2 = pf.motion.contact_distances_sq(h, ps.p_O)
+    dl = np.array([0.4e-3, -0.3e-3, 0.2e-3])
+    res = pf.motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch)
+    res.ok[::3] = False  # as if these found no equilibrium under the commanded state
+    res.theta[::3] = ps.theta[::3]
+    out = f._move_held(res, dl, D2)
+    eq = pf.motion.equilibrium(h, ps.theta[::3], a=ps.a[::3])
+    want = pf.motion.move(h, eq.theta, dl, a=ps.a[::3], D2=D2[::3], stretch=eq.stretch,
+                          max_substeps=f.config.max_substeps, loose_after=f.config.newton_loose_after)
+    assert 40 < want.ok.sum() < 100  # most have an equilibrium from their own state, not all
+    np.testing.assert_array_equal(out.ok[::3], want.ok & eq.ok)
+    np.testing.assert_array_equal(out.theta[::3][want.ok], want.theta[want.ok])
+    np.testing.assert_array_equal(out.theta[::3][~want.ok], ps.theta[::3][~want.ok])  # still held
+    np.testing.assert_array_equal(out.theta[res.ok], res.theta[res.ok])  # the solved ones untouched
+    assert not np.allclose(kinematics.contacts(h, out.theta[::3][want.ok], ps.a[::3][want.ok]),
+                           kinematics.contacts(h, ps.theta[::3][want.ok], ps.a[::3][want.ok]))
+    rep = f.step(dl, *plant.measure()[:2])  # and in a filter iteration
+    assert np.isfinite(rep.log_evidence)
+    with pytest.raises(ValueError, match="held_motion"):
+        pf.FilterConfig(held_motion="sliding").validate()
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

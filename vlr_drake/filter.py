@@ -37,6 +37,7 @@ away, or every solve failed), the filter re-initialises around its last estimate
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -484,6 +485,8 @@ class PriorConfig:
 
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
 STIFFNESS_PRIORS = ("log_uniform", "uniform")
+#: What a held hypothesis predicts (FilterConfig.held_motion).
+HELD_MOTIONS = ("still", "elastic")
 
 #: Sources of an elastic tendon's stretch (FilterConfig.tendon_reference).
 TENDON_REFERENCES = ("commanded", "implied")
@@ -549,6 +552,21 @@ class FilterConfig:
     # likelihood of that; 0 discards it. None: 0 here; an identification run takes its
     # plant's and experiment's default (vlr_drake.identify.STUCK_PROBABILITY).
     stuck_probability: float | None = None
+    # What a held hypothesis (stuck_probability > 0) predicts: "still", the POM does not
+    # move; or "elastic", friction holds it where it is, so its tendons carry the stretch of
+    # its own equilibrium there (motion.equilibrium) instead of the commanded one, and the
+    # action moves it from that state by Gamma (held still where even that finds none).
+    # Measured on NH1 (physics, 20,000 particles, replays of seeds 0-14): on seed 11 the
+    # plant's state has a commanded equilibrium in only 41% of the steps at the true link
+    # (95% at +5 mm; vlr-drake replay --statics), the held hypotheses near the truth
+    # predicted no motion while the apple moved, and the cloud converged 15 mm long with a
+    # third of its joints inside, although fixed-length replays favour the true length by
+    # 115 (log evidence). "elastic" took the link errors from 3.90 mm (mean of 15; 15.0 at
+    # most) to 2.06 (3.9 at most), but the joints from 0.88 inside their intervals to 0.47
+    # (mean joint error 3.5 deg): a hypothesis held at any angles no longer has the
+    # commanded statics to tell its angles apart. With stuck_probability 0.3 as well (six
+    # seeds) the links were worse again and the joints no better. So "still" stays.
+    held_motion: str = "still"
     # Start every prior draw at rest under the motors' command (tendon_reference "commanded"):
     # each drawn grasp is moved by Gamma with a zero action before it is attached to the
     # measured POM pose, and draws with no physical equilibrium there are drawn again.
@@ -623,6 +641,8 @@ class FilterConfig:
             raise ValueError(f"filter: 'likelihood_dof' must be positive, got {self.likelihood_dof}")
         if self.stuck_probability is not None and not 0 <= self.stuck_probability <= 1:
             raise ValueError(f"filter: 'stuck_probability' must be in [0, 1], got {self.stuck_probability}")
+        if self.held_motion not in HELD_MOTIONS:
+            raise ValueError(f"filter: 'held_motion' must be one of {HELD_MOTIONS}, got '{self.held_motion}'")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
         if self.newton_tolerance not in motion.TOLERANCES:
@@ -942,6 +962,8 @@ class SelfIdentificationFilter:
         res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
                           stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps,
                           tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after)
+        if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
+            res = self._move_held(res, dl, D2)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
         R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = self._feasible(res, pose_ok)
@@ -986,6 +1008,30 @@ class SelfIdentificationFilter:
         self.particles = new
         lap("resample")
         return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
+
+    def _move_held(self, res: motion.MoveResult, dl, D2) -> motion.MoveResult:
+        """``held_motion = "elastic"``: each hypothesis whose move under the commanded tendon
+        state found no equilibrium is held by friction where it is, with the tendon stretch
+        of its own equilibrium there, and moved by the action ``dl`` from that state. Those
+        solved replace the failures in ``res`` (marked solved); the rest stay held still."""
+        cfg, h, ps = self.config, self.hand, self.particles
+        bad = np.flatnonzero(~res.ok)
+
+        def pick(x):
+            return x[bad] if x.shape[0] > 1 else x
+
+        eq = motion.equilibrium(h, ps.theta[bad], a=ps.a[bad], link_lengths=pick(ps.link_lengths),
+                                stiffness=pick(ps.stiffness))
+        moved = motion.move(h, eq.theta, dl, a=ps.a[bad], D2=D2[bad], stretch=eq.stretch,
+                            link_lengths=pick(ps.link_lengths), stiffness=pick(ps.stiffness), tendon=cfg.tendon,
+                            max_substeps=cfg.max_substeps, tolerance=cfg.newton_tolerance,
+                            loose_after=cfg.newton_loose_after)
+        good = eq.ok & moved.ok
+        idx = bad[good]
+        out = motion.MoveResult(*(np.array(getattr(res, f.name)) for f in dataclasses.fields(res)))
+        for f in dataclasses.fields(res):
+            getattr(out, f.name)[idx] = getattr(moved, f.name)[good]
+        return out
 
     def _log_likelihood(self, dp, ang, R_pred, t_pred, R_prev, t_prev):
         """Log-likelihood of the measured POM pose (up to a constant; Gaussian, or Student-t
