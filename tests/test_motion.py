@@ -271,17 +271,20 @@ def test_filter_tolerance_is_close_to_the_tight_one_and_cheaper(model_o_hand, te
     assert np.all(loose.residuals[both][exact, 1] < constraint)
 
 
+def _near_mirror_image_grasps(h, rng, count, spread):
+    """Grasps around the mirror-image one of test_symmetric_model_o_grasp_moves (where
+    Newton is slow), their equilibria and contact distances: (theta, a, eq, D2)."""
+    th = np.array([[0.15, 0.4], [0.25, 0.35], [0.25, 0.35]]) + rng.normal(0.0, spread, (count, 3, 2))
+    a = 0.028 + rng.normal(0.0, 0.002, (count, 3))
+    return th, a, motion.equilibrium(h, th, a=a), motion.contact_distances_sq(h, kinematics.contacts(h, th, a))
+
+
 def test_loose_after_stops_the_linear_tail_within_the_physical_tolerances(model_o_hand):
     """``loose_after``: a particle within motion.LOOSE_* after that many Newton steps is
     accepted. Only the slow (linearly converging) particles change, by far less than the
     camera resolves, and the move takes fewer steps; None is the plain solver."""
     h = model_o_hand
-    rng = np.random.default_rng(8)
-    # grasps around the mirror-image one of test_symmetric_model_o_grasp_moves, where they are slow
-    th = np.array([[0.15, 0.4], [0.25, 0.35], [0.25, 0.35]]) + rng.normal(0.0, 0.02, (2000, 3, 2))
-    a = 0.028 + rng.normal(0.0, 0.002, (2000, 3))
-    eq = motion.equilibrium(h, th, a=a)
-    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, th, a))
+    th, a, eq, D2 = _near_mirror_image_grasps(h, np.random.default_rng(8), 2000, 0.02)
     dl = np.array([0.5e-3, 0.2e-3, -0.1e-3])
     kw = dict(a=a, D2=D2, stretch=eq.stretch, max_substeps=4)
     plain = motion.move(h, th, dl, **kw)
@@ -318,11 +321,7 @@ def test_results_do_not_depend_on_how_the_particles_are_split(model_o_hand, monk
     runs its own particle, so any split gives the same numbers bit for bit, also with more
     tasks than particles; an empty set of particles moves to an empty result."""
     h = model_o_hand
-    rng = np.random.default_rng(9)
-    th = np.array([[0.15, 0.4], [0.25, 0.35], [0.25, 0.35]]) + rng.normal(0.0, 0.03, (300, 3, 2))
-    a = 0.028 + rng.normal(0.0, 0.002, (300, 3))
-    eq = motion.equilibrium(h, th, a=a)
-    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, th, a))
+    th, a, eq, D2 = _near_mirror_image_grasps(h, np.random.default_rng(9), 300, 0.03)
     kw = dict(a=a, D2=D2, stretch=eq.stretch, max_substeps=4, loose_after=8)
     dl = np.array([1.0e-3, -0.5e-3, 0.3e-3])
     runs = []

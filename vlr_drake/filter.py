@@ -178,7 +178,9 @@ def _tempered_ess_slope(log_w0, log_lik, beta):  # pragma: no cover - numba
     """log ESS(beta) and its derivative d log ESS / d beta for the log weights
     log_w0 + beta log_lik (non-finite ones weigh nothing): with e_i = exp(v_i - max v),
     ESS = (sum e)^2 / sum e^2 and d log ESS / d beta = 2 (sum l e / sum e - sum l e^2 / sum e^2).
-    Used by :func:`_temper_increment`'s Newton search; the decisions use :func:`_tempered_ess`."""
+    Used by :func:`_temper_increment`'s Newton search; the decisions use :func:`_tempered_ess`.
+    The maximum's pass is written out as in :func:`_tempered_ess` on purpose: taken from a
+    helper kernel called before the parallel loop, it gave wrong sums under numba 0.68.1."""
     M = log_w0.shape[0]
     nb = 16
     size = (M + nb - 1) // nb
