@@ -567,7 +567,10 @@ class FilterConfig:
     # most) to 2.06 (3.9 at most), but the joints from 0.88 inside their intervals to 0.47
     # (mean joint error 3.5 deg): a hypothesis held at any angles no longer has the
     # commanded statics to tell its angles apart. With stuck_probability 0.3 as well (six
-    # seeds) the links were worse again and the joints no better. So "still" stays.
+    # seeds) the links were worse again and the joints no better. Giving a held hypothesis
+    # the cloud's average likelihood (measured, not built) removed NH1's collapses (3.22 mm,
+    # joints inside 0.90) but doubled its joint error (3.86 deg against 1.67) and broke NH2
+    # and NH3 (7.05 and 9.24 mm against 3.09 and 3.75). So "still" stays.
     held_motion: str = "still"
     # Start every prior draw at rest under the motors' command (tendon_reference "commanded"):
     # each drawn grasp is moved by Gamma with a zero action before it is attached to the
