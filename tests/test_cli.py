@@ -122,7 +122,12 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert data["scenario"] == "model_plant" and data["plant"] == "model" and data["seed"] == 0
     assert all(r["scenario"] == "model_plant" for r in data["runs"]["write"] + data["runs"]["known_hand"])
     assert "| proximal joint error, known hand [deg] | 1.78 +- 0.92 |" in table
-    assert len(data["rows"]) == 10 and data["quick"]
+    assert len(data["rows"]) == 13 and data["quick"]
+    # each novel hand counts twice, as the paper reported it: its links and its joints
+    nh2 = {r["key"]: r for r in data["rows"]}["NH2_joints"]
+    assert nh2["ours_mean"] == pytest.approx(np.mean(data["runs"]["NH2"][0]["proximal_joint_error_deg"]), rel=1e-12)
+    assert (nh2["paper_mean"], nh2["paper_sd"], nh2["unit"]) == (3.04, 1.49, "deg")
+    assert "| NH2 proximal joint error [deg] | 3.04 +- 1.49 |" in table
     # as the paper ran them: the stiffness with the toy block; the known hand with each of its four
     # objects on the physics plant, once per trial on the model plant (whose truth has no object)
     assert [r["object"] for r in data["runs"]["stiffness"]] == ["toy_block"]
@@ -148,7 +153,7 @@ def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):
                  "--experiments", "stiffness, NH1"]) == 0
     data = json.loads((out / "reproduce.json").read_text())
     assert data["experiments"] == ["stiffness", "NH1"] and sorted(data["runs"]) == ["NH1", "stiffness"]
-    assert [r["key"] for r in data["rows"]] == ["stiffness", "NH1"]
+    assert [r["key"] for r in data["rows"]] == ["stiffness", "NH1", "NH1_joints"]
     assert "NH1 link length error" in (out / "reproduce.md").read_text()
     assert "known hand" not in (out / "reproduce.md").read_text().split("\n", 2)[2]
     # every identification run left its trace; replaying them gives the table's rows again

@@ -201,7 +201,7 @@ def replay_trace(args) -> dict:
     """``vlr-drake replay``: each trace's run again with ``--filter`` overrides, and for
     several traces the table's rows (mean +- SD of the paper's measures); or, with
     ``--profile``, each trace's evidence profile over ``--values``."""
-    from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_row
+    from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_rows
     from vlr_drake.scenario import config_overrides
     from vlr_drake.trace import IdentificationTrace, evidence_profile, replay, statics_profile
 
@@ -239,9 +239,9 @@ def replay_trace(args) -> dict:
                 print(f"  {_errors_line(r['errors'])}")
                 experiment = meta.get("experiment")
                 if experiment in IDENTIFICATION_MEASURES:
-                    row = identification_row(experiment, meta.get("hand"))
-                    measured.setdefault(row, []).append(
-                        (float(IDENTIFICATION_MEASURES[experiment](r["errors"])), r["errors"]["truth_inside_95_theta"]))
+                    for row, measure in identification_rows(experiment, meta.get("hand")):
+                        measured.setdefault(row, []).append(
+                            (float(measure(r["errors"])), r["errors"]["truth_inside_95_theta"]))
         elif args.statics:
             rows = statics_profile(trace, args.profile, values)
             unit = "N m/rad" if args.profile == "stiffness" else "m"

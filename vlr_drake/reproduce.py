@@ -45,6 +45,11 @@ PAPER_ROWS = [
     PaperRow("NH1", "NH1 link length error", 2.4, 2.1, "mm"),
     PaperRow("NH2", "NH2 link length error", 2.9, 1.7, "mm"),
     PaperRow("NH3", "NH3 link length error", 3.4, 2.3, "mm"),
+    # the novel hands' joint configuration, measured by the paper with tags on the fingertips;
+    # here the proximal joints, as for the known hand
+    PaperRow("NH1_joints", "NH1 proximal joint error", 2.58, 1.20, "deg"),
+    PaperRow("NH2_joints", "NH2 proximal joint error", 3.04, 1.49, "deg"),
+    PaperRow("NH3_joints", "NH3 proximal joint error", 3.21, 1.26, "deg"),
     PaperRow("write", "handwriting position error", 0.42, 0.34, "mm"),
     PaperRow("maze", "marble maze orientation error", 1.20, 1.38, "deg"),
     PaperRow("stack_position", "cup stacking position error", 2.1, 0.92, "mm"),
@@ -98,9 +103,13 @@ def format_honesty(h: dict | None) -> str:
     return text
 
 
-def identification_row(experiment: str, hand: str) -> str:
-    """The table row of an identification run: its experiment, or the novel hand's name."""
-    return hand if experiment == "novel_fingers" else experiment
+def identification_rows(experiment: str, hand: str) -> list[tuple[str, object]]:
+    """The table rows an identification run counts in, as (row key, measure of its result
+    or errors dict): its experiment's, or for a novel hand the hand's link row and its
+    joint row."""
+    if experiment == "novel_fingers":
+        return [(hand, IDENTIFICATION_MEASURES["novel_fingers"]), (f"{hand}_joints", IDENTIFICATION_MEASURES["known_hand"])]
+    return [(experiment, IDENTIFICATION_MEASURES[experiment])]
 
 
 def _identify(experiment, hand, seed, plant, particles, iterations, scenario=None, scenario_path=None, obj=None,
@@ -180,7 +189,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
         "known_hand": ("known_hand", IDENTIFICATION_MEASURES["known_hand"]),
         "known_hand_iterations": ("known_hand", lambda r: r["iterations"]),
         "stiffness": ("stiffness", IDENTIFICATION_MEASURES["stiffness"]),
-        **{nh: (nh, IDENTIFICATION_MEASURES["novel_fingers"]) for nh in ("NH1", "NH2", "NH3")},
+        **{key: (nh, measure) for nh in ("NH1", "NH2", "NH3") for key, measure in identification_rows("novel_fingers", nh)},
         "write": ("write", lambda r: r["position_error_mm"]["mean"]),
         "maze": ("maze", lambda r: r["orientation_error_deg"]["mean"]),
         "stack_position": ("stack", lambda r: r["position_error_mm"]["mean"]),
