@@ -572,6 +572,16 @@ def test_bad_configuration_is_named():
         IdentifyOptions(plant="physics", nominal_grasp="guessed").validate()
 
 
+def test_each_experiment_holds_its_papers_object_unless_told():
+    """The stiffness experiment holds the toy block, as the paper's Fig. 5 did (and as
+    reproduce runs it); the others the apple; a given object is kept."""
+    from vlr_drake.reproduce import STIFFNESS_OBJECT
+
+    assert IdentifyOptions(experiment="stiffness").validate().object == "toy_block" == STIFFNESS_OBJECT
+    assert IdentifyOptions(experiment="known_hand").validate().object == "apple"
+    assert IdentifyOptions(experiment="stiffness", object="apple").validate().object == "apple"
+
+
 @pytest.mark.parametrize("kind", ["uniform", "log_uniform"])
 def test_unknown_stiffness_prior_draws(kind):
     """The unknown stiffness is drawn in its range, uniformly or log-uniformly (the median

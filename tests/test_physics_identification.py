@@ -37,7 +37,7 @@ def test_short_physics_run_lowers_the_error_from_its_prior(obj, seed):
 @pytest.mark.slow
 def test_squeezes_identify_the_thumb_spring_on_the_physics_plant():
     """The thumb's distal spring unknown (prior 0.05-0.40 N m/rad), physics plant, rendered
-    camera, 3000 particles, 40 iterations. With the default squeeze exploration (+-1.5 mm
+    camera, the apple, 3000 particles, 40 iterations. With the default squeeze exploration (+-1.5 mm
     common-mode pulls in a 3 mm window on top of the 0.5 mm actions) the error is well
     under half of the plain exploration's on the same grasp, and seed 0's 95% interval
     holds the truth. Measured: seed 0 0.059, interval 0.156-0.387 around 0.189 (plain
@@ -46,8 +46,8 @@ def test_squeezes_identify_the_thumb_spring_on_the_physics_plant():
     0-4: 0.004, 0.086, 0.011, 0.004, 0.050, 4 of 5 truths inside (seed 1's interval starts
     at 0.179 against 0.172; plain seeds 0-1: 0.125, 0.133, both outside)."""
     def run(seed, **kw):
-        return run_identification(IdentifyOptions(experiment="stiffness", plant="physics", particles=3000,
-                                                  max_iterations=40, seed=seed, progress=False, **kw))
+        return run_identification(IdentifyOptions(experiment="stiffness", plant="physics", object="apple",
+                                                  particles=3000, max_iterations=40, seed=seed, progress=False, **kw))
 
     squeezed = [run(0), run(2)]
     plain = run(0, squeeze_range=0.0, squeeze_window=0.0)

@@ -44,6 +44,9 @@ __all__ = ["EXPERIMENTS", "IdentifyOptions", "run_identification", "Exploration"
 EXPERIMENTS = ("known_hand", "stiffness", "novel_fingers")
 #: Objects of the known-hand experiment (the paper's Fig. 4).
 KNOWN_HAND_OBJECTS = ("apple", "wine_glass", "gelatin_box", "flat_screwdriver")
+#: The object each experiment holds unless told otherwise: the paper's stiffness experiment
+#: held a toy block (its Fig. 5), the others default to the apple.
+DEFAULT_OBJECT = {"known_hand": "apple", "stiffness": "toy_block", "novel_fingers": "apple"}
 #: Range of the unknown thumb distal stiffness drawn for the truth and searched by the prior.
 #: (Above ~0.25 N m/rad the truth-grasp sampler finds no stable fingertip grasp.)
 STIFFNESS_RANGE = (0.10, 0.24)
@@ -112,8 +115,9 @@ class IdentifyOptions:
     experiment: str = "known_hand"
     # "model" (fast, exact truth) or "physics" (MultibodyPlant + rendered camera).
     plant: str = "model"
-    # Object preset (physics plant); also names the trial on the model plant.
-    object: str = "apple"
+    # Object preset (physics plant); also names the trial on the model plant. None: the
+    # experiment's (DEFAULT_OBJECT).
+    object: str | None = None
     # Hand preset: "model_o", or "NH1" | "NH2" | "NH3" (novel fingers).
     hand: str = "model_o"
     # A hand written out in full (a scenario's hand_spec); replaces the preset ``hand``.
@@ -189,6 +193,8 @@ class IdentifyOptions:
         if self.hand_spec is None and self.hand != "model_o" and self.hand not in NOVEL_HANDS:
             raise ValueError(f"unknown hand '{self.hand}': use model_o, {', '.join(NOVEL_HANDS)}, "
                              f"or a scenario with a hand_spec")
+        if self.object is None:
+            self.object = DEFAULT_OBJECT[self.experiment]
         if self.object_spec is None and self.object not in preset_names():
             raise ValueError(f"unknown object '{self.object}': use one of {', '.join(preset_names())}, "
                              f"or a scenario with an object_spec")
