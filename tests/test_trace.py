@@ -109,6 +109,12 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not an identification trace"):
         IdentificationTrace.load(tmp_path / "other.npz")
+    (tmp_path / "notes.txt").write_text("not numpy")
+    with pytest.raises(ValueError, match="not an identification trace .not a .npz archive"):
+        IdentificationTrace.load(tmp_path / "notes.txt")
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(ValueError, match="a single array"):
+        IdentificationTrace.load(tmp_path / "one.npy")
     with pytest.raises(ValueError, match="parameter must be one of"):
         evidence_profile(trace, "damping", [0.1])
     with pytest.raises(ValueError, match="finite and positive"):

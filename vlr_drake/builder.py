@@ -472,7 +472,10 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         flt = built.filter.filter(sys_ctx)
         recorded = built.filter.trace(sys_ctx) if trace is not None else None
         if recorded is not None:
-            recorded.meta.update(scenario=scenario.name, plant=scenario.plant, seed=scenario.seed)
+            recorded.meta.update(
+                scenario=scenario.name, plant=scenario.plant, seed=scenario.seed, experiment=scenario.experiment(),
+                hand=scenario.hand_spec.name if scenario.hand_spec is not None else scenario.hand,
+                object=scenario.object_spec.name if scenario.object_spec is not None else scenario.object)
         return {
             "trace": None if recorded is None else str(recorded.save(trace)),
             "scenario": scenario.name,
@@ -498,7 +501,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder", description=" ".join(
+        __doc__.split("\n\n")[0].replace(":class:`~vlr_drake.scenario.Scenario`", "scenario").split()))
     parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<name>.dot (and .svg)")
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
@@ -530,4 +534,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from vlr_drake.entry import run
+
+    sys.exit(run("python -m vlr_drake.builder", main))

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.entry import USER_ERRORS, report
+
 
 def _json_default(o):
     if isinstance(o, np.generic):
@@ -247,8 +249,9 @@ def replay_trace(args) -> dict:
             unit = "N m/rad" if args.profile == "stiffness" else "m"
             print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
                   "plant's true angles):")
+            own = "the spring's joint" if args.profile == "stiffness" else "the link's finger"
             for r in rows:
-                print(f"    {r['value']:.5g}: offset {r['offset_deg']:.2f} deg (that joint / finger "
+                print(f"    {r['value']:.5g}: offset {r['offset_deg']:.2f} deg ({own} "
                       f"{r['parameter_offset_deg']:.2f}), motion rms {r['motion_rms_deg']:.3f} deg, "
                       f"solved {100 * r['solved']:.0f}%")
             run = {"trace": str(path), "parameter": args.profile, "statics": rows}
@@ -474,7 +477,7 @@ and filtering).""",
 }
 
 
-def _common(p: argparse.ArgumentParser, particles: int, iterations: int) -> None:
+def _common(p: argparse.ArgumentParser, particles: int, iterations: int, out: str = "out") -> None:
     p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
     p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: the scenario's, else 0)")
     p.add_argument("--particles", type=int, default=None,
@@ -482,7 +485,7 @@ def _common(p: argparse.ArgumentParser, particles: int, iterations: int) -> None
     p.add_argument("--iterations", type=int, default=iterations,
                    help=f"iteration budget of the identification (default {iterations})")
     p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
-    p.add_argument("--out", default="out", help="output folder for plots, recordings and results (default ./out)")
+    p.add_argument("--out", default=out, help=f"output folder for plots, recordings and results (default ./{out})")
     p.add_argument("--plant", choices=["model", "physics"], default=None,
                    help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant with the "
                         "rendered camera (default: the scenario's, else physics)")
@@ -526,7 +529,8 @@ def main(argv: list[str] | None = None) -> int:
                            help="probability that a hypothesis with no equilibrium after an action is held "
                                 "where it was by friction (0 discards it; default: 1 for novel fingers on the "
                                 "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
-        p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else apple)")
+        p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
+                                                        "toy_block for stiffness as in the paper, apple otherwise)")
         p.add_argument("--hand", default=None,
                        help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
                             "else model_o)")
@@ -545,8 +549,7 @@ def main(argv: list[str] | None = None) -> int:
                            help="rotational weight of Eq. 12, on rotations in rad against positions in mm (paper: 9.5)")
 
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
-    _common(p, particles=20_000, iterations=100)
-    p.set_defaults(out="out/reproduce")
+    _common(p, particles=20_000, iterations=100, out="out/reproduce")
     p.add_argument("--trials", type=int, default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,
@@ -555,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("replay", sub, "replay an identification's trace offline")
     p.add_argument("trace", nargs="+", help="traces written by vlr-drake identify --trace (or by reproduce, in "
-                                            "its out/traces/)")
+                                            "traces/ of its --out, by default out/reproduce/traces/)")
     p.add_argument("--filter", action="append", metavar="KEY=VALUE",
                    help="override a filter setting (vlr_drake.filter.FilterConfig), e.g. --filter particles=60000 "
                         "--filter sigma_rotation=0.02; repeatable")
@@ -618,9 +621,8 @@ def main(argv: list[str] | None = None) -> int:
             print(format_table(r))
             print(f"wrote {args.out}/reproduce.md and reproduce.json")
             write_json(r, args.json)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"vlr-drake {args.command}: error: {' '.join(str(e).split())}", file=sys.stderr)
-        return 2
+    except USER_ERRORS as e:
+        return report(f"vlr-drake {args.command}", e)
     return 0
 
 

@@ -127,7 +127,14 @@ class IdentificationTrace:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"trace file not found: {path}")
-        with np.load(path, allow_pickle=False) as z:
+        try:
+            z = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as e:  # not a NumPy file (numpy's message speaks of pickles)
+            raise ValueError(f"{path}: not an identification trace (not a .npz archive written by "
+                             f"vlr-drake identify --trace)") from e
+        if not hasattr(z, "files"):  # a bare .npy array
+            raise ValueError(f"{path}: not an identification trace (a single array, not a .npz archive)")
+        with z:
             if "header" not in z.files:
                 raise ValueError(f"{path}: not an identification trace (no header)")
             header = json.loads(str(z["header"]))

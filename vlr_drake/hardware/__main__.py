@@ -93,4 +93,6 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vlr_drake.entry import run
+
+    raise SystemExit(run("python -m vlr_drake.hardware", main, hardware=True))

@@ -245,7 +245,8 @@ def run_agreement(
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.agreement", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--object", default="apple", help="object preset (default apple)")
     ap.add_argument("--actions", type=int, default=40, help="number of actions (default 40)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random actions (default 0)")
@@ -288,8 +289,12 @@ def main(argv: list[str] | None = None) -> dict:
         print("carried model's joint angles minus the plant's after the last action [deg]:")
         for name, row in zip(spec.finger_names(), last, strict=True):
             print(f"  {name:14s} " + " ".join(f"{x:7.2f}" for x in row))
-    print(f"median one-step error {r['one_step_error_mm_median']} mm / {r['one_step_error_deg_median']} deg, "
-          f"predicted/true motion {r['motion_ratio_median']}, carried model off by up to {r['carried_error_mm_max']} mm, "
+    def num(x):
+        return "n/a" if x is None else f"{x:.3f}"
+
+    print(f"median one-step error {num(r['one_step_error_mm_median'])} mm / {num(r['one_step_error_deg_median'])} deg, "
+          f"predicted/true motion {num(r['motion_ratio_median'])}, carried model off by up to "
+          f"{num(r['carried_error_mm_max'])} mm, "
           f"{r['actions_with_other_contacts']} actions with other bodies touching the object")
     if r["settled_one_step_error_mm_median"] is not None:
         print(f"commanded equilibrium (gravity {r['gravity']:g} m/s^2): angles off the plant's by "
@@ -308,4 +313,6 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from vlr_drake.entry import run
+
+    raise SystemExit(run("python -m vlr_drake.physics.agreement", main))

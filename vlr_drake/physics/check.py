@@ -180,7 +180,8 @@ def run_check(
 
 
 def main(argv: list[str] | None = None) -> list[CheckResult]:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.check", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS), help="object presets")
     ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
     ap.add_argument("--actions", type=int, default=50)
@@ -232,4 +233,6 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
 
 
 if __name__ == "__main__":
-    main()
+    from vlr_drake.entry import run
+
+    raise SystemExit(run("python -m vlr_drake.physics.check", main))

@@ -1,0 +1,42 @@
+"""Command-line entry points: what a user's mistake looks like.
+
+Every command (``vlr-drake ...`` and the ``python -m vlr_drake....`` tools) ends a run that
+failed on its input (a bad scenario field, an unknown object, a missing file, a device that
+is not there) with one line on stderr naming what is wrong and exit status 2, not a
+traceback. Errors that are bugs still show their traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+#: Exceptions that report a problem with the input or the setting, not with the code:
+#: bad values and missing files, and the hardware's own errors (a port or camera that
+#: cannot be opened).
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError)
+
+
+def _hardware_errors() -> tuple[type[BaseException], ...]:
+    from vlr_drake.hardware.camera import CameraError
+    from vlr_drake.hardware.dynamixel import DynamixelError
+
+    return (CameraError, DynamixelError)
+
+
+def report(prog: str, error: BaseException) -> int:
+    """Print ``prog: error: message`` (on one line) to stderr; returns the exit status 2."""
+    print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
+    return 2
+
+
+def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
+    """Run ``main()``; 0 when it returns (whatever it returns, unless an int status), 2
+    after :func:`report` when it raises one of :data:`USER_ERRORS` (with ``hardware``,
+    also the hardware's errors)."""
+    errors = USER_ERRORS + (_hardware_errors() if hardware else ())
+    try:
+        status = main()
+    except errors as e:
+        return report(prog, e)
+    return status if isinstance(status, int) else 0
