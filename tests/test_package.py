@@ -28,3 +28,20 @@ def test_the_package_exports_what_it_lists():
     from vlr_drake import HandModel, model_o
 
     assert isinstance(model_o().model(), HandModel)
+
+
+def test_openmp_threads_wait_passively_unless_the_user_says_otherwise():
+    """Importing the package asks OpenMP for passive waiting (idle threads would otherwise
+    spin at every barrier of the filter's short kernels and take a shared core from the
+    working one), and keeps a user's own setting."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import os, vlr_drake; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"
