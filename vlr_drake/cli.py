@@ -153,13 +153,16 @@ def print_summary(result: dict) -> None:
     print(f"\n{result['experiment']} on the {result['plant']} plant, seed {result['seed']}, "
           f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
           f"after {result['iterations']} iterations")
-    print(f"{'quantity':28s} {'estimate':>10s} {'95% interval':>20s} {'truth':>10s} {'error':>8s}")
+    # the label column fits the longest name (novel fingers: "finger_left_NF2 proximal [deg]")
+    w = max([28] + [len(n) + len(" proximal [deg]") for n in names]
+            + [len(name.split(":", 1)[1]) + len(" link [mm]") for name in result.get("hand_parameters", {})])
+    print(f"{'quantity':{w}s} {'estimate':>10s} {'95% interval':>20s} {'truth':>10s} {'error':>8s}")
     for i, n in enumerate(names):
         for j, label in enumerate(["proximal", "distal"][: est["theta"].shape[1]] + [f"joint{j}" for j in range(2, est["theta"].shape[1])]):
             e, lo, hi, t = (np.rad2deg(x[i, j]) for x in (est["theta"], est["theta_lo"], est["theta_hi"], truth["theta"]))
-            print(f"{n + ' ' + label + ' [deg]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
+            print(f"{n + ' ' + label + ' [deg]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
         e, lo, hi, t = (1e3 * x[i] for x in (est["a"], est["a_lo"], est["a_hi"], truth["a"]))
-        print(f"{n + ' contact [mm]':28s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
+        print(f"{n + ' contact [mm]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
     for name, p in result.get("hand_parameters", {}).items():  # identified springs and links
         kind, where = name.split(":", 1)
         key, scale, unit, d = (("link_lengths", 1e3, "mm", 2) if kind == "link_length"
@@ -167,7 +170,7 @@ def print_summary(result: dict) -> None:
         e, lo, hi = scale * p["estimate"], scale * p["interval"][0], scale * p["interval"][1]
         t = scale * truth[key][p["finger"], p["joint"]]
         label = f"{where} {'link' if kind == 'link_length' else 'k'} [{unit}]"
-        print(f"{label:28s} {e:10.{d}f} {f'[{lo:.{d}f}, {hi:.{d}f}]':>20s} {t:10.{d}f} {abs(e - t):8.{d}f}")
+        print(f"{label:{w}s} {e:10.{d}f} {f'[{lo:.{d}f}, {hi:.{d}f}]':>20s} {t:10.{d}f} {abs(e - t):8.{d}f}")
     for name in result.get("weakly_identified", []):
         p = result["hand_parameters"][name]
         print(f"weakly identified: {name} (its 95% interval is {100 * p['narrowed_to']:.0f}% as wide as the "
