@@ -323,3 +323,11 @@ def test_module_tools_name_a_bad_input_in_one_line(tmp_path, module, argv, says)
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2, out.stderr
     assert len(lines) == 1 and lines[0].startswith(f"python -m {module}: error: ") and says in lines[0], out.stderr
+
+
+def test_module_docstrings_read_as_plain_help():
+    """The tools' help texts show reST roles as Sphinx renders them and drop literals' quotes."""
+    from vlr_drake.entry import plain
+
+    text = plain("a :class:`~vlr_drake.scenario.Scenario` in, :meth:`PhysicsHand.grasp`, ``actions`` of them")
+    assert text == "a Scenario in, PhysicsHand.grasp, actions of them"

@@ -44,6 +44,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
+from vlr_drake.entry import plain
+from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp
 from vlr_drake.model_plant import ModelPlant
@@ -502,7 +504,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder", description=" ".join(
-        __doc__.split("\n\n")[0].replace(":class:`~vlr_drake.scenario.Scenario`", "scenario").split()))
+        plain(__doc__.split("\n\n")[0]).split()))
     parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<name>.dot (and .svg)")
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
@@ -534,6 +536,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from vlr_drake.entry import run
 
-    sys.exit(run("python -m vlr_drake.builder", main))
+    sys.exit(run_command("python -m vlr_drake.builder", main))

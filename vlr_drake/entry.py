@@ -8,6 +8,7 @@ traceback. Errors that are bugs still show their traceback.
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable
 
@@ -22,6 +23,15 @@ def _hardware_errors() -> tuple[type[BaseException], ...]:
     from vlr_drake.hardware.dynamixel import DynamixelError
 
     return (CameraError, DynamixelError)
+
+
+def plain(doc: str) -> str:
+    """A module docstring as a command's help text: reST roles and literals as plain words
+    as Sphinx shows them (``:class:`~a.b.C``` -> ``C``, ``:meth:`C.f``` -> ``C.f``, double
+    backquotes dropped)."""
+    doc = re.sub(r":\w+:`~(?:[\w.]*\.)?([^`]+)`", r"\1", doc)  # ~a.b.C -> C, as Sphinx shows it
+    doc = re.sub(r":\w+:`([^`]+)`", r"\1", doc)
+    return doc.replace("``", "")
 
 
 def report(prog: str, error: BaseException) -> int:

@@ -56,6 +56,7 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
+from vlr_drake.entry import plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, model_o
 from vlr_drake.identify import EXPLORATION
@@ -245,7 +246,7 @@ def run_agreement(
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.agreement", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.agreement", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--object", default="apple", help="object preset (default apple)")
     ap.add_argument("--actions", type=int, default=40, help="number of actions (default 40)")
@@ -313,6 +314,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    from vlr_drake.entry import run
-
     raise SystemExit(run("python -m vlr_drake.physics.agreement", main))

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.entry import plain, run
 from vlr_drake.hand import hand_by_name
 from vlr_drake.objects import PAPER_OBJECTS, ObjectSpec, preset
 from vlr_drake.perception.camera import CameraConfig
@@ -180,7 +181,7 @@ def run_check(
 
 
 def main(argv: list[str] | None = None) -> list[CheckResult]:
-    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.check", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.check", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS), help="object presets")
     ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
@@ -233,6 +234,4 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
 
 
 if __name__ == "__main__":
-    from vlr_drake.entry import run
-
     raise SystemExit(run("python -m vlr_drake.physics.check", main))
