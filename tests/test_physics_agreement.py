@@ -36,6 +36,21 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
         np.mean([np.abs(row["commanded_offset_deg"]) for row in r["actions"]]))
     assert r["gravity"] == pytest.approx(9.81) and r["commanded_failures"] == 0
     assert first["settled_one_step_error_mm"] < 0.4 * first["true_motion_mm"]
+    # the statics budget: the plant's joint torques close at rest (a sign or a Jacobian wrong
+    # would leave tens of mN m), the pads' friction moments on the apple flex the fingers and
+    # the links' weight straightens them (palm down), and with every load Eq. 9 lacks added
+    # the VLR's commanded equilibrium lands on the plant's angles (measured 0.02-0.08 deg
+    # against 1.0-1.9 on four objects)
+    b = r["statics_budget"]
+    assert b["residual_mNm_max"] < 1.0
+    loads = b["loads_mNm_mean"]
+    assert np.min(loads["pad_moment"]) > 2.0 and np.max(loads["link_weight"]) < 0.0
+    assert np.allclose(loads["other_contacts"], 0.0)
+    with_loads = b["commanded_offset_deg_mean_with"]
+    assert with_loads["none"] == pytest.approx(r["commanded_offset_deg_mean"])
+    assert with_loads["all"] < 0.15 * with_loads["none"] and b["failures_with"]["all"] == 0
+    assert with_loads["pad_moment"] < with_loads["none"] and with_loads["link_weight"] < with_loads["none"]
+    np.testing.assert_allclose(first["commanded_offset_with_deg"]["none"], first["commanded_offset_deg"])
 
 
 def test_commanded_equilibrium_holds_a_model_equilibrium_and_follows_the_command():
@@ -77,3 +92,51 @@ def test_bad_direction_is_named():
         run_agreement(direction=[1.0, 0.0])
     with pytest.raises(ValueError, match="'actions' must be >= 1"):
         run_agreement(actions=0)
+
+
+def test_statics_budget_parts_and_bad_input():
+    """The barycentric split of a point over the contacts, the commanded offsets' groups, and
+    the errors that name a wrong load or a contact model the budget cannot read."""
+    from types import SimpleNamespace
+
+    from vlr_drake import kinematics, motion
+    from vlr_drake.identify import _truth_grasp
+    from vlr_drake.physics.statics import (
+        LOADS,
+        UNMODELLED,
+        JointLoads,
+        barycentric_weights,
+        commanded_offsets,
+        plant_loads,
+    )
+
+    c = np.array([[0.0, 0.0, 0.1], [0.06, 0.0, 0.1], [0.0, 0.04, 0.1]])
+    point = np.array([0.02, 0.01, 0.1])
+    w = barycentric_weights(c, point)
+    assert w.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(w @ c, point, atol=1e-15)
+    w_off = barycentric_weights(c, point + [0.0, 0.0, 0.03])  # off the contacts' plane: projected
+    np.testing.assert_allclose(w_off, w, atol=1e-12)
+
+    spec = model_o()
+    h = spec.model()
+    theta, a = _truth_grasp(h, np.random.default_rng(3))
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta[None], a[None]))[0]
+    l_cmd = motion.equilibrium(h, theta[None], a=a[None]).stretch[0] + h.tendon_travel(theta)
+    zero = JointLoads(*(np.zeros((h.N, h.K)) for _ in LOADS))
+    off = commanded_offsets(spec, theta, a, l_cmd, zero, D2=D2)
+    assert set(off) == {"none", *UNMODELLED, "all"}
+    for v in off.values():  # no load: the grasp is its own commanded equilibrium
+        np.testing.assert_allclose(v, 0.0, atol=1e-6)
+    # a flexing torque on the thumb's joints moves the equilibrium; the other groups do not see it
+    thumb = np.zeros((h.N, h.K))
+    thumb[0] = 5e-3
+    loaded = JointLoads(*(thumb if name == "pad_moment" else np.zeros((h.N, h.K)) for name in LOADS))
+    off = commanded_offsets(spec, theta, a, l_cmd, loaded, D2=D2,
+                            groups={"moment": ("pad_moment",), "weight": ("link_weight",)})
+    assert np.max(np.abs(np.rad2deg(off["moment"]))) > 0.1
+    np.testing.assert_allclose(off["weight"], 0.0, atol=1e-6)
+    with pytest.raises(ValueError, match="unknown loads \\['tendon'\\]"):
+        commanded_offsets(spec, theta, a, l_cmd, zero, groups={"x": ("tendon",)})
+    with pytest.raises(ValueError, match="needs the physics plant's point contact, got contact_model 'hydroelastic'"):
+        plant_loads(SimpleNamespace(physics=SimpleNamespace(contact_model="hydroelastic")), None)

@@ -20,7 +20,12 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   plant's (``commanded_offset_deg``) are how far the best hypothesis sits from the truth
   even with a perfect camera, and the motion between the commanded equilibria before and
   after an action, applied to the true pose, is that hypothesis' one-step prediction
-  (``settled_one_step_error_mm`` / ``_deg``, settling excluded).
+  (``settled_one_step_error_mm`` / ``_deg``, settling excluded);
+- the statics budget (:mod:`vlr_drake.physics.statics`, point contact): the plant's joint
+  torques by load (tendon, spring, link weight, pad contacts and their moments about the
+  pads' centres, the object's weight, other bodies' contacts) and the commanded offset with
+  each load Eq. 9 lacks added (``loads_mNm``, ``commanded_offset_with_deg``;
+  ``statics_budget`` over the actions).
 
 The one-step and carried models start from the tendon stretch that holds the plant's angles
 in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
@@ -39,7 +44,10 @@ The commanded equilibrium's angles are off the plant's by 1.1-1.9 deg on average
 actions, seed 0: toy block 1.11, apple 1.41, wine glass 1.94, gelatin box 1.31; the flat
 screwdriver, a power grasp, has none). Without gravity in the plant (``--physics
 gravity=0``) that is 0.39, 1.39, 0.20 and 0.10 deg: the objects' weight, which Eq. 9 does
-not have, is most of it everywhere but on the apple.
+not have, is most of it everywhere but on the apple. The statics budget splits it (40
+actions): with the pads' friction moments, the links' weight and the object's weight
+added, 0.03-0.08 deg remain on all four objects; on the apple the pad moments (10 mN m at
+the thumb) and the links' weight matter most.
 
 ``--physics KEY=VALUE`` overrides a setting of the physics plant
 (:class:`vlr_drake.systems.physics_plant.PhysicsConfig`), e.g. ``gravity=0`` (no object
@@ -60,6 +68,7 @@ from vlr_drake.entry import plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, model_o
 from vlr_drake.identify import EXPLORATION
+from vlr_drake.physics.statics import LOADS, commanded_offsets, plant_loads
 from vlr_drake.systems.physics_plant import PhysicsConfig
 
 __all__ = ["run_agreement", "physics_overrides", "main"]
@@ -178,12 +187,18 @@ def run_agreement(
     carried_ok = True
     rows = []
     timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
+    budget = adapter.physics.contact_model == "point"  # plant_loads needs point contact
     for _ in range(actions):
         dl = step * direction if direction is not None else explore.next_action()
         one = _ModelState(h, truth["theta"], truth["a"], R, t)  # restarted at the truth
         one_ok = one.move(dl)
         carried_ok = carried_ok and carried.move(dl)
         offset, settled = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
+        loads = with_loads = None
+        if budget:  # the statics budget of the state the commanded equilibrium starts from
+            loads = plant_loads(adapter.ph, adapter.root)
+            D2 = motion.contact_distances_sq(h, kinematics.contacts(h, truth["theta"][None], truth["a"][None]))[0]
+            with_loads = commanded_offsets(spec, truth["theta"], truth["a"], adapter.tendon_command(), loads, D2=D2)
         adapter.act(dl, timing)
         explore.commit(dl)
         R1, t1 = _pose(adapter)
@@ -195,7 +210,12 @@ def run_agreement(
                "carried_error_mm": None, "carried_error_deg": None,
                "one_step_joint_error_deg": None, "carried_joint_error_deg": None,
                "commanded_offset_deg": None if offset is None else np.rad2deg(offset).tolist(),
-               "settled_one_step_error_mm": None, "settled_one_step_error_deg": None}
+               "settled_one_step_error_mm": None, "settled_one_step_error_deg": None,
+               # the statics budget (vlr_drake.physics.statics): joint torques by load [mN m],
+               # and the commanded offset with each unmodelled load added [deg]
+               "loads_mNm": None if loads is None else loads.as_dict(1e3),
+               "commanded_offset_with_deg": None if with_loads is None else {
+                   k: None if v is None else np.rad2deg(v).tolist() for k, v in with_loads.items()}}
         if settled is not None:
             dp, ang = observation.pose_error(settled[0][None], settled[1][None], R1[None], t1[None])
             row.update(settled_one_step_error_mm=float(dp[0] * 1e3), settled_one_step_error_deg=float(np.rad2deg(ang[0])))
@@ -241,8 +261,24 @@ def run_agreement(
                                              if settled else None),
         "settled_one_step_error_deg_median": (float(np.median([r["settled_one_step_error_deg"] for r in settled]))
                                               if settled else None),
+        "statics_budget": _budget_summary(rows) if budget else None,
         "wall_s": time.perf_counter() - t_start,
     }
+
+
+def _budget_summary(rows: list[dict]) -> dict:
+    """Over the actions: each load's mean joint torque (N, K) [mN m], the largest |residual|
+    [mN m], and per group of unmodelled loads the mean |commanded offset| [deg] and its
+    failures (vlr_drake.physics.statics)."""
+    groups = rows[0]["commanded_offset_with_deg"].keys()
+    out = {"loads_mNm_mean": {k: np.mean([r["loads_mNm"][k] for r in rows], axis=0).tolist() for k in LOADS},
+           "residual_mNm_max": float(np.max([np.abs(r["loads_mNm"]["residual"]) for r in rows])),
+           "commanded_offset_deg_mean_with": {}, "failures_with": {}}
+    for g in groups:
+        got = [np.abs(r["commanded_offset_with_deg"][g]) for r in rows if r["commanded_offset_with_deg"][g] is not None]
+        out["commanded_offset_deg_mean_with"][g] = float(np.mean(got)) if got else None
+        out["failures_with"][g] = len(rows) - len(got)
+    return out
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -307,6 +343,15 @@ def main(argv: list[str] | None = None) -> dict:
     else:
         print(f"commanded equilibrium: the VLR found none before and after the action under the plant's tendon "
               f"state in {len(r['actions'])} actions")
+    b = r["statics_budget"]
+    if b is not None:
+        print("statics budget: the plant's joint torques by load, mean over the actions [mN m] (Eq. 9 lacks "
+              "pad_moment, link_weight, object_weight and other_contacts)")
+        for load, v in b["loads_mNm_mean"].items():
+            print(f"  {load:15s} " + "  ".join("/".join(f"{x:7.2f}" for x in row) for row in v))
+        print("  commanded equilibrium's mean |offset| with the unmodelled loads added [deg]: "
+              + ", ".join(f"{g} {num(x)}" for g, x in b["commanded_offset_deg_mean_with"].items())
+              + f"; largest |residual| {b['residual_mNm_max']:.2f} mN m")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(r, fh, indent=1)
