@@ -570,6 +570,10 @@ def test_bad_configuration_is_named():
         pf.FilterConfig(newton_tolerance="sloppy").validate()
     with pytest.raises(ValueError, match="nominal_grasp"):
         IdentifyOptions(plant="physics", nominal_grasp="guessed").validate()
+    with pytest.raises(ValueError, match="'gravity_palm' must be 3 finite numbers"):
+        pf.FilterConfig(gravity_palm=(0.0, 9.81)).validate()
+    with pytest.raises(ValueError, match="link_weight needs the physics plant"):
+        IdentifyOptions(plant="model", link_weight=True).validate()
 
 
 def test_each_experiment_holds_its_papers_object_unless_told():
@@ -621,6 +625,40 @@ def test_settled_prior_is_at_rest_under_the_command():
             assert res.ok.all() and jump.max() < 1e-3
         else:
             assert np.median(jump) > 1.0
+
+
+def test_link_weight_reaches_every_model_call_of_the_filter(monkeypatch):
+    """With ``gravity_palm`` every move and equilibrium of the filter (prior, settling,
+    the step's move, roughening) carries each hypothesis' link weight at its own angles;
+    without it none does, and the weight moves the settled hypotheses."""
+    calls = []
+    for name in ("move", "equilibrium"):
+        real = getattr(pf.motion, name)
+
+        def spy(*args, _real=real, _name=name, **kw):
+            calls.append((_name, kw.get("external_torque")))
+            return _real(*args, **kw)
+
+        monkeypatch.setattr(pf.motion, name, spy)
+    g = (0.0, 0.0, 9.81)  # the physics plant's palm-down mounting
+    h = model_o().model()
+    theta, a = _truth_grasp(h, np.random.default_rng(0))
+    l = h.tendon_travel(theta[None])[0] + 0.004
+    settled = {}
+    for gravity in ((0.0, 0.0, 0.0), g):
+        calls.clear()
+        cfg = pf.FilterConfig(particles=500, gravity_palm=gravity, resample_fraction=1.0, settle_prior=True)
+        f = pf.SelfIdentificationFilter(h, cfg, pf.PriorConfig(), np.random.default_rng(1))
+        f.initialise(theta, a, np.eye(3), np.array([0.0, 0.0, 0.1]), tendon_command=l)
+        settled[gravity] = f.particles.theta.copy()
+        f.step(np.full(h.N, 0.2e-3), np.eye(3), np.array([0.0, 0.0, 0.1]))
+        assert {n for n, _ in calls} == {"move", "equilibrium"}
+        for name, tau in calls:
+            assert (tau is None) == (gravity == (0.0, 0.0, 0.0)), name
+    # the same draws (same seed), settled under the weight or not
+    assert np.max(np.abs(settled[g] - settled[(0.0, 0.0, 0.0)])) > 1e-3
+    tau = h.link_weight_torque(f.particles.theta, g)
+    assert tau.shape == f.particles.theta.shape and np.all(np.isfinite(tau))
 
 
 @pytest.mark.slow

@@ -340,7 +340,7 @@ def test_results_do_not_depend_on_how_the_particles_are_split(model_o_hand, monk
         out = [np.full_like(th, np.nan), np.full((300, h.num_constraints), np.nan), np.full((300, h.N), np.nan),
                np.full((300, h.N), np.nan), np.zeros(300, dtype=bool), np.full(300, -1), np.full((300, 3), np.nan)]
         motion._move_lanes(
-            th, eq.stretch, dl[None], a, L, k, D2c, h.pad, h.base, h.u, h.moment_arms, h.rest_angles, h.kappa,
+            th, eq.stretch, dl[None], a, L, k, D2c, h.pad, h.base, h.u, h.moment_arms, h.rest_angles[None], h.kappa,
             h.constraint_pairs, False, motion.MAX_ITER, 8, motion.MAX_STEP, np.array(motion.TOLERANCES["tight"]), 4,
             start, 300, stride, *out)
         share = np.zeros(300, dtype=bool)
@@ -417,3 +417,35 @@ def test_lane_elimination_solves_symmetric_systems_and_flags_small_pivots(rng):
     good = ~bad
     np.testing.assert_allclose(b_l.T[good], np.linalg.solve(A[good], b[good][..., None])[..., 0], atol=1e-12)
     assert np.all(np.isfinite(b_l))
+
+
+@pytest.mark.parametrize("hand_name", ["model_o_hand", "hand_4x3"])
+def test_external_torque_agrees_with_the_mathematical_program(request, hand_name):
+    """Constant joint torques (motion.move's ``external_torque``, e.g. the links' weight),
+    different for every particle: the batched solver and the MathematicalProgram (the
+    potential -tau . theta added to Eq. 9) agree, the equilibrium's stationarity holds with
+    them, and zero torques give the same bits as none."""
+    hand = request.getfixturevalue(hand_name)
+    rng = np.random.default_rng(11)
+    count = 24
+    gs = grasps.sample_grasps(hand, rng, count, proximal_range=(0.0, 0.45), distal_range=(0.2, 1.0),
+                              contact_range=(0.018, 0.036), stable=True)
+    tau = rng.uniform(-6e-3, 6e-3, (count, hand.N, hand.K))  # the Model O's links weigh ~1-6 mN m
+    dl = rng.uniform(-1e-3, 1e-3, (count, hand.N))
+    res = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, external_torque=tau)
+    plain = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch)
+    zero = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch,
+                       external_torque=np.zeros((1, hand.N, hand.K)))
+    np.testing.assert_array_equal(zero.theta, plain.theta)
+    ok = np.flatnonzero(res.ok & plain.ok & (np.abs(res.theta - gs.theta).max(axis=(1, 2)) < 0.25))
+    assert ok.size >= count // 2
+    assert np.max(np.abs(res.theta[ok] - plain.theta[ok])) > 1e-3  # the torques move the fingers
+    for p in ok[:8]:
+        r = ref.solve_move(hand, gs.theta[p], dl[p], a=gs.a[p], D2=gs.D2[p], stretch=gs.stretch[p],
+                           external_torque=tau[p])
+        np.testing.assert_allclose(r.theta, res.theta[p], atol=1e-6, err_msg=f"case {p}")
+    # stationarity at the moved angles: k (theta - theta0) - tau - R^T T + G^T lambda = 0
+    eq = motion.equilibrium(hand, res.theta[ok], a=gs.a[ok], external_torque=tau[ok], settle=False)
+    np.testing.assert_allclose(eq.tension, res.tension[ok], rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="external_torque"):
+        motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, external_torque=tau[:, :, :1])

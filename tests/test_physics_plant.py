@@ -188,6 +188,33 @@ def test_gravity_setting_reaches_the_plant(g):
     np.testing.assert_allclose(ph.plant.gravity_field().gravity_vector(), [0.0, 0.0, -g])
 
 
+@pytest.mark.parametrize("rpy", [[180.0, 0.0, 0.0], [90.0, 30.0, -60.0]])
+def test_link_weight_matches_the_plants_gravity_forces(rpy):
+    """HandModel.link_weight_torque, with gravity in the palm frame from the plant's mounting
+    (PhysicsConfig.gravity_in_palm), gives the plant's generalized gravity forces on the
+    finger joints: the same link masses (FingerSpec.link_density) and centres of mass, one
+    definition each. A novel hand's per-particle link lengths change the masses as well."""
+    for spec in (model_o(), hand_by_name("NH1")):
+        physics = PhysicsConfig(palm_rpy_deg=rpy)
+        _, ph, _ = build_physics_hand(spec, preset("apple"), physics, None, None)
+        plant = ph.plant
+        ctx = plant.CreateDefaultContext()
+        hand = ph.hand
+        theta = np.random.default_rng(0).uniform(-0.1, 1.2, (hand.N, hand.K))
+        q = plant.GetPositions(ctx)
+        q[ph.position_indices] = theta.ravel()
+        plant.SetPositions(ctx, q)
+        want = plant.CalcGravityGeneralizedForces(ctx)[ph.velocity_indices].reshape(hand.N, hand.K)
+        got = hand.link_weight_torque(theta[None], physics.gravity_in_palm())[0]
+        np.testing.assert_allclose(got, want, atol=1e-12)
+        assert np.max(np.abs(want)) > 1e-3  # mN m: comparable to the springs' torques
+        # per-particle link lengths: the first particle's are the hand's
+        L = np.stack([hand.link_lengths, hand.link_lengths + 0.01])
+        both = hand.link_weight_torque(np.stack([theta, theta]), physics.gravity_in_palm(), L)
+        np.testing.assert_allclose(both[0], want, atol=1e-12)
+        assert not np.allclose(both[1], want)
+
+
 def test_meshcat_recording_saves_html(tmp_path):
     from pydrake.geometry import Meshcat
 

@@ -121,6 +121,8 @@ def _identify_options(args):
         opts.scenario = None  # described by the flags alone
     if getattr(args, "stuck_probability", None) is not None:
         opts.filter.stuck_probability = args.stuck_probability
+    if getattr(args, "link_weight", None) is not None:
+        opts.link_weight = args.link_weight
     return opts
 
 
@@ -532,6 +534,10 @@ def main(argv: list[str] | None = None) -> int:
                            help="probability that a hypothesis with no equilibrium after an action is held "
                                 "where it was by friction (0 discards it; default: 1 for novel fingers on the "
                                 "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
+            p.add_argument("--link-weight", action=argparse.BooleanOptionalAction, default=None,
+                           help="the filter's model carries the weight of the fingers' links, gravity from the "
+                                "physics plant's mounting (default: on for the physics plant, off for the model "
+                                "plant, whose truth is Eq. 9; the paper's Eq. 9 has none)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         p.add_argument("--hand", default=None,

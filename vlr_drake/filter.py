@@ -627,6 +627,12 @@ class FilterConfig:
     convergence_measure: str = "half_width"
     # Re-initialise when the best particle is further than this many sigmas (Mahalanobis).
     divergence_sigmas: float = 12.0
+    # Gravity in the palm frame P [m/s^2], for the weight of the fingers' links: each
+    # hypothesis' moves and equilibria carry the links' weight at its angles as joint
+    # torques (HandModel.link_weight_torque; motion.move's external_torque), which Eq. 9
+    # does not have. Zero (the default): Eq. 9 as the paper. The physics plant sets it from
+    # its mounting (identify's link_weight); a hardware scenario gives its hand's.
+    gravity_palm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def validate(self) -> FilterConfig:
         if self.particles < 10:
@@ -665,6 +671,9 @@ class FilterConfig:
             raise ValueError("filter: 'anchor_fraction' must be in [0, 1]")
         if self.convergence_measure not in ("half_width", "full_width"):
             raise ValueError("filter: 'convergence_measure' must be 'half_width' or 'full_width'")
+        g = np.asarray(self.gravity_palm, float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got {list(self.gravity_palm)}")
         return self
 
 
@@ -790,7 +799,8 @@ class SelfIdentificationFilter:
         a = np.clip(a, *pr.contact_limits)
         stiff = self._draw_stiffness(n, stiffness_center, scale)
         links = self._draw_links(n, link_center, scale)
-        eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff)
+        eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff,
+                                external_torque=self._link_weight(theta, links))
         good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & h.within_joint_limits(eq.theta)
         theta, stretch = eq.theta, eq.stretch
         if self.config.settle_prior and self._uses_command() and good.any():  # only the physical draws
@@ -846,7 +856,8 @@ class SelfIdentificationFilter:
         res = motion.move(h, theta, np.zeros(h.N), a=a, D2=D2, stretch=self._commanded_stretch(theta),
                           link_lengths=link_lengths, stiffness=stiffness, tendon=self.config.tendon,
                           max_substeps=self.config.max_substeps, tolerance=self.config.newton_tolerance,
-                          loose_after=self.config.newton_loose_after)
+                          loose_after=self.config.newton_loose_after,
+                          external_torque=self._link_weight(theta, link_lengths))
         ok = res.ok & np.all(res.tension >= self.prior.min_tension, axis=1) & h.within_joint_limits(res.theta)
         return res.theta, self._commanded_stretch(res.theta), ok
 
@@ -879,6 +890,13 @@ class SelfIdentificationFilter:
                 half = 0.5 * scale * (hi - lo)
                 L[:, fi, 0] = np.clip(center[fi, 0] + half * self.rng.uniform(-1, 1, n), lo, hi)
         return L
+
+    def _link_weight(self, theta, link_lengths):
+        """The links' weight at each hypothesis' angles (P, N, K) [N m], or None without
+        gravity (``FilterConfig.gravity_palm``)."""
+        if not np.any(self.config.gravity_palm):
+            return None
+        return self.hand.link_weight_torque(theta, self.config.gravity_palm, link_lengths)
 
     def _uses_command(self) -> bool:
         return self.config.tendon == "elastic" and self.config.tendon_reference == "commanded"
@@ -928,7 +946,8 @@ class SelfIdentificationFilter:
         theta, a, L, p_O = tile(sub.theta), tile(sub.a), tile(sub.link_lengths), tile(sub.p_O)
         res = motion.move(h, theta, np.repeat(actions, S, axis=0), a=a, D2=motion.contact_distances_sq(h, p_O),
                           stretch=tile(stretch), link_lengths=L, stiffness=tile(sub.stiffness), tendon=cfg.tendon,
-                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after)
+                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
+                          external_torque=self._link_weight(theta, L))
         R0, t0, ok0 = observation.pom_pose(p_O, kinematics.contacts(h, theta, a, L))
         R1, t1, ok1 = observation.pom_pose(p_O, kinematics.contacts(h, res.theta, a, L))
         solved = (res.ok & ok0 & ok1).reshape(C, S)
@@ -966,7 +985,8 @@ class SelfIdentificationFilter:
             R_prev = t_prev = None
         res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
                           stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps,
-                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after)
+                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
+                          external_torque=self._link_weight(ps.theta, ps.link_lengths))
         if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
             res = self._move_held(res, dl, D2)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
@@ -1026,11 +1046,13 @@ class SelfIdentificationFilter:
             return x[bad] if x.shape[0] > 1 else x
 
         eq = motion.equilibrium(h, ps.theta[bad], a=ps.a[bad], link_lengths=pick(ps.link_lengths),
-                                stiffness=pick(ps.stiffness))
+                                stiffness=pick(ps.stiffness),
+                                external_torque=self._link_weight(ps.theta[bad], pick(ps.link_lengths)))
         moved = motion.move(h, eq.theta, dl, a=ps.a[bad], D2=D2[bad], stretch=eq.stretch,
                             link_lengths=pick(ps.link_lengths), stiffness=pick(ps.stiffness), tendon=cfg.tendon,
                             max_substeps=cfg.max_substeps, tolerance=cfg.newton_tolerance,
-                            loose_after=cfg.newton_loose_after)
+                            loose_after=cfg.newton_loose_after,
+                            external_torque=self._link_weight(eq.theta, pick(ps.link_lengths)))
         good = eq.ok & moved.ok
         idx = bad[good]
         out = motion.MoveResult(*(np.array(getattr(res, f.name)) for f in dataclasses.fields(res)))
@@ -1113,10 +1135,12 @@ class SelfIdentificationFilter:
         if self._uses_command():
             if not self.hand.statically_determinate:  # settle the angles to an equilibrium
                 ps.theta = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths,
-                                              stiffness=ps.stiffness).theta
+                                              stiffness=ps.stiffness,
+                                              external_torque=self._link_weight(ps.theta, ps.link_lengths)).theta
             ps.stretch = self._commanded_stretch(ps.theta)
         else:
-            eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+            eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness,
+                                    external_torque=self._link_weight(ps.theta, ps.link_lengths))
             ps.theta, ps.stretch = eq.theta, eq.stretch
 
     def _reinitialise(self, R_meas, t_meas) -> None:

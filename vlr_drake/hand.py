@@ -35,6 +35,7 @@ __all__ = [
     "FingerSpec",
     "HandSpec",
     "HandModel",
+    "link_mass",
     "model_o",
     "novel_finger",
     "NOVEL_FINGER_NAMES",
@@ -42,6 +43,12 @@ __all__ = [
     "hand_by_name",
     "generic_hand",
 ]
+
+
+def link_mass(density, radius, length):
+    """Mass [kg] of a link: a solid cylinder of ``radius`` as long as the capsule of
+    ``length`` between its joints (``length + 2 radius``; a slight overestimate). Broadcasts."""
+    return density * np.pi * np.square(radius) * (np.asarray(length) + 2.0 * np.asarray(radius))
 
 
 @dataclass
@@ -86,6 +93,10 @@ class FingerSpec:
     tendon_range: list[float] = field(default_factory=lambda: [0.0, 0.045])
     # Radius of the capsule links (visual and collision) [m].
     link_radius: float = 0.009
+    # Density of the links [kg/m^3]: each is a solid cylinder of link_radius as long as its
+    # capsule (link_mass), its centre of mass halfway along it. The physics plant's
+    # inertias and the VLR's link weight (HandModel.link_weight_torque) both use it.
+    link_density: float = 1100.0
     # Fingertip friction coefficient (static = dynamic) [-].
     friction: float = 1.0
 
@@ -157,7 +168,7 @@ class HandSpec:
                 v = np.asarray(getattr(f, fname))
                 if np.any(v <= 0):
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
-            for fname in ["distal_length", "tendon_stiffness", "link_radius"]:
+            for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
                 if not getattr(f, fname) > 0:
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {getattr(f, fname)}")
             if f.pad_offset < 0:
@@ -208,7 +219,8 @@ class HandModel:
     Attributes (N fingers, K joints):
         base (N, 3), u (N, 3), z (3,), link_lengths (N, K-1), distal_length (N,),
         pad (N,), moment_arms (N, K), stiffness (N, K), rest_angles (N, K),
-        joint_lower (N, K), joint_upper (N, K), kappa (N,), tendon_range (N, 2).
+        joint_lower (N, K), joint_upper (N, K), kappa (N,), tendon_range (N, 2),
+        link_radius (N,), link_density (N,).
     """
 
     def __init__(self, spec: HandSpec):
@@ -233,6 +245,8 @@ class HandModel:
         self.joint_upper = np.array([x.joint_upper for x in f], float)
         self.kappa = np.array([x.tendon_stiffness for x in f], float)
         self.tendon_range = np.array([x.tendon_range for x in f], float)
+        self.link_radius = np.array([x.link_radius for x in f], float)
+        self.link_density = np.array([x.link_density for x in f], float)
         for name in list(vars(self)):
             v = getattr(self, name)
             if isinstance(v, np.ndarray):
@@ -261,6 +275,37 @@ class HandModel:
         for k in range(1, self.K):  # the order of numpy's sum over this short axis: same round-off
             out += theta[..., k] * self.moment_arms[:, k]
         return out
+
+    def link_weight_torque(self, theta, gravity, link_lengths=None) -> np.ndarray:
+        """The links' weight as joint torques (P, N, K) [N m] at angles ``theta`` (P, N, K),
+        for ``gravity`` (3,) in the palm frame [m/s^2] and the physical link lengths (P or 1,
+        N, K-1) (default: the hand's; the masses follow them, :func:`link_mass`).
+
+        Link l of finger i, of mass m_l with its centre of mass halfway along it, and the
+        links beyond it, whose masses its length L_l carries, have the first moment
+        mu_l = m_l L_l / 2 + L_l sum_{k > l} m_k along e(phi_l), so the potential is
+        V = -sum_l mu_l (g_u sin phi_l + g_z cos phi_l) (g_u = g . u_i, g_z = g . z; the
+        component across the finger's plane does no work), and the torque on joint j is
+
+            tau_j = -dV/dtheta_j = sum_{l >= j} mu_l (g_u cos phi_l - g_z sin phi_l).
+
+        Eq. 9 has no such term (the paper neglects it); :func:`vlr_drake.motion.move` takes
+        it as ``external_torque``.
+        """
+        theta = np.asarray(theta, float)
+        if theta.ndim != 3 or theta.shape[1:] != (self.N, self.K):
+            raise ValueError(f"'theta' must have shape (P, {self.N}, {self.K}), got {theta.shape}")
+        g = np.asarray(gravity, float).reshape(3)
+        L = self.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
+        lengths = np.concatenate([np.broadcast_to(L, (L.shape[0], self.N, self.K - 1)),
+                                  np.broadcast_to(self.distal_length[None, :, None], (L.shape[0], self.N, 1))], axis=2)
+        m = link_mass(self.link_density[None, :, None], self.link_radius[None, :, None], lengths)
+        beyond = np.cumsum(m[..., ::-1], axis=-1)[..., ::-1] - m  # sum_{k > l} m_k
+        mu = lengths * (0.5 * m + beyond)
+        phi = np.cumsum(theta, axis=-1)
+        g_u, g_z = self.u @ g, float(g @ self.z)
+        per_link = mu * (g_u[None, :, None] * np.cos(phi) - g_z * np.sin(phi))
+        return np.cumsum(per_link[..., ::-1], axis=-1)[..., ::-1]
 
     @cached_property
     def R(self) -> np.ndarray:

@@ -91,6 +91,22 @@ ACTION_CHOICE = {"model": "informative", "physics": "random"}
 #: 0.93 / 0.92 against 0.99 / 1.00, 40 iterations against 30).
 STUCK_PROBABILITY = {("physics", "novel_fingers"): 1.0}
 ACTION_CHOICES = ("random", "informative")
+#: Whether the filter's model carries the fingers' links' weight, per plant
+#: (IdentifyOptions.link_weight; FilterConfig.gravity_palm). The model plant's truth is
+#: Eq. 9, which has none. On the physics plant the links weigh 1-6 mN m at the joints,
+#: against springs of 80-160 mN m/rad and torques of 1-60 mN m: python -m
+#: vlr_drake.physics.agreement's statics budget puts the VLR's commanded equilibrium 1.0-1.9
+#: deg off the plant's angles, 0.4-1.3 with the links' weight (and 0.03-0.08 with the pads'
+#: friction moments and the object's weight as well, which the VLR does not know).
+LINK_WEIGHT = {"model": False, "physics": True}
+
+
+def filter_gravity(physics=None) -> tuple[float, float, float]:
+    """FilterConfig.gravity_palm for a filter on ``physics`` (a PhysicsConfig: gravity in
+    its palm frame) or, with None, without the links' weight."""
+    if physics is None:
+        return (0.0, 0.0, 0.0)
+    return tuple(float(x) for x in physics.gravity_in_palm())
 
 
 def default_stuck_probability(plant: str, experiment: str) -> float:
@@ -169,6 +185,9 @@ class IdentifyOptions:
     # (N lists of K-1) [m]; None: the hand's own (or, for stiffness, a drawn thumb spring).
     true_stiffness: list | None = None
     true_link_lengths: list | None = None
+    # Give the filter the weight of the fingers' links (FilterConfig.gravity_palm, from the
+    # physics plant's mounting; Eq. 9 has no weight). None: the plant's default (LINK_WEIGHT).
+    link_weight: bool | None = None
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
     # The filter's prior; None: the experiment's. The experiment adds its unknowns (thumb
     # distal spring, replaced fingers' links) when this prior names none.
@@ -204,6 +223,11 @@ class IdentifyOptions:
                              f"(python -m vlr_drake.builder --run SCENARIO) or on the model plant (--plant model)")
         if self.max_iterations < 1:
             raise ValueError("max_iterations must be >= 1")
+        if self.link_weight is None:
+            self.link_weight = LINK_WEIGHT[self.plant]
+        if self.link_weight and self.plant != "physics":
+            raise ValueError("link_weight needs the physics plant: the model plant's truth is Eq. 9, without the "
+                             "links' weight")
         if self.nominal_grasp not in ("placed", "settled"):
             raise ValueError(f"nominal_grasp must be 'placed' or 'settled', got '{self.nominal_grasp}'")
         span, window = EXPLORATION[self.plant]
@@ -393,6 +417,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         from vlr_drake.physics_identify import PhysicsAdapter
 
         plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera)
+    opts.filter.gravity_palm = filter_gravity(plant.physics if opts.link_weight else None)
     theta_c, a_c, R0, t0 = plant.start(prior)
     if opts.plant == "physics" and opts.nominal_grasp == "settled":
         theta_c = grasps.settle_under_command(filt_hand, theta_c, a_c, plant.tendon_command())
@@ -553,6 +578,7 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f
         "lost_measurements": int(lost),
         "actions_refused": int(getattr(plant, "refused", 0)),
         "action_choice": opts.action_choice,
+        "link_weight": bool(np.any(opts.filter.gravity_palm)),
     }
     res.update(estimate_errors(hand, prior, est, truth))
     res.update(hand_parameter_report(hand, prior, est, f.estimates[0]))

@@ -32,7 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.hand import NOVEL_FINGER_NAMES, NOVEL_HANDS, FingerSpec, HandSpec, hand_by_name, novel_finger
+from vlr_drake.hand import (
+    NOVEL_FINGER_NAMES,
+    NOVEL_HANDS,
+    FingerSpec,
+    HandSpec,
+    hand_by_name,
+    link_mass,
+    novel_finger,
+)
 
 __all__ = [
     "PACKAGE_NAME",
@@ -62,8 +70,6 @@ PAD_FRACTION = 0.6
 #: Hydroelastic modulus of the finger pads and links (soft rubber), used only with the
 #: hydroelastic contact model [Pa].
 PAD_HYDROELASTIC_MODULUS = 1.0e6
-#: Density used for the links' inertia (ABS-like plastic) [kg/m^3].
-LINK_DENSITY = 1100.0
 #: Palm mass (welded in the plant; only for a well-formed model) [kg].
 PALM_MASS = 0.3
 
@@ -139,11 +145,13 @@ def _rpy(R: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
-def _capsule_inertia(radius: float, length: float) -> tuple[float, float, float, float]:
-    """Mass and principal inertias (ixx = iyy across, izz along) of a solid cylinder of
-    the capsule's radius and total length (a slight overestimate; only for stable links)."""
+def _capsule_inertia(f: FingerSpec, length: float) -> tuple[float, float, float, float]:
+    """Mass (:func:`~vlr_drake.hand.link_mass`, ``f.link_density``) and principal inertias
+    (ixx = iyy across, izz along) of a solid cylinder of the capsule's radius and total
+    length (a slight overestimate)."""
+    radius = f.link_radius
     total = length + 2 * radius
-    m = LINK_DENSITY * math.pi * radius**2 * total
+    m = float(link_mass(f.link_density, radius, length))
     ixx = m * (3 * radius**2 + total**2) / 12.0
     izz = 0.5 * m * radius**2
     return m, ixx, ixx, izz
@@ -164,7 +172,7 @@ def _finger_links(
     for k in range(1, K + 1):
         L = lengths[k - 1]
         p = p_MF + R_MF @ np.array([0.0, 0.0, z_along])
-        m, ixx, iyy, izz = _capsule_inertia(f.link_radius, L)
+        m, ixx, iyy, izz = _capsule_inertia(f, L)
         lname = link_name(f.name, k)
         last = k == K
         out += [

@@ -292,7 +292,7 @@ def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, l
         for k in range(K):
             q = i * K + k
             for w in range(W):
-                f0[q, w] = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+                f0[q, w] = kst[i, k, w] * (th[i, k, w] - rest[i, k, w])
             if not ideal:
                 for w in range(W):
                     f0[q, w] -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
@@ -377,7 +377,7 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
         for k in range(K):
             q = i * K + k
             for w in range(W):
-                v = kst[i, k, w] * (th[i, k, w] - rest[i, k])
+                v = kst[i, k, w] * (th[i, k, w] - rest[i, k, w])
                 if ideal:
                     v += rarm[i, k] * mu[i, w]
                 else:
@@ -495,7 +495,7 @@ RUNNING, CONVERGED, FAILED, EMPTY = 0, 1, 2, 3
 
 @njit(cache=True)
 def _move_lanes(
-    theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest, kappa, pairs,
+    theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest_all, kappa, pairs,
     ideal, max_iter, loose_after, max_step, tol, max_substeps, start, stop, stride,
     theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
@@ -534,6 +534,7 @@ def _move_lanes(
     a = np.empty((N, W))
     L = np.empty((N, K - 1, W))
     kst = np.empty((N, K, W))
+    rest = np.empty((N, K, W))
     D2 = np.empty((m, W))
     sqD = np.empty((m, W))
     lam = np.zeros((m, W))
@@ -562,8 +563,8 @@ def _move_lanes(
                 for k2 in range(K):
                     Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
     nxt = _finish_lanes(
-        status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-        kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+        status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
+        D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
         nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
     )
     while True:
@@ -654,16 +655,16 @@ def _move_lanes(
                 else:
                     itn[w] += 1
         nxt = _finish_lanes(
-            status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-            kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+            status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
+            D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
             nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
         )
 
 
 @njit(cache=True)
 def _finish_lanes(
-    status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, D2_all,
-    kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
+    status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
+    D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
     nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
     """The lanes whose Newton solve ended (``status`` CONVERGED or FAILED) go on with the
@@ -742,6 +743,7 @@ def _finish_lanes(
         fresh[w] = True
         pl = q if L_all.shape[0] > 1 else 0
         pk = q if kst_all.shape[0] > 1 else 0
+        pr = q if rest_all.shape[0] > 1 else 0
         pd = q if dl.shape[0] > 1 else 0
         for i in range(N):
             s0[i, w] = s0_all[q, i]
@@ -754,6 +756,7 @@ def _finish_lanes(
                 th0[i, k, w] = theta0[q, i, k]
                 thP[i, k, w] = theta0[q, i, k]
                 kst[i, k, w] = kst_all[pk, i, k]
+                rest[i, k, w] = rest_all[pr, i, k]
             for k in range(K - 1):
                 L[i, k, w] = L_all[pl, i, k]
         for c in range(m):
@@ -810,10 +813,11 @@ def _equilibrium_lanes(theta, a, L, kst, pad, base, u, rarm, rest, pairs, start,
         for w in range(nw):
             p = b0 + w
             pk = p if kst.shape[0] > 1 else 0
+            pr = p if rest.shape[0] > 1 else 0
             for i in range(N):
                 for k in range(K):
                     q = i * K + k
-                    f0[q] = kst[pk, i, k] * (theta[p, i, k] - rest[i, k])
+                    f0[q] = kst[pk, i, k] * (theta[p, i, k] - rest[pr, i, k])
                     B[q, i] = -rarm[i, k]
                     for c in range(m):
                         B[q, N + c] = G[c, q, w]
@@ -908,6 +912,17 @@ def _hand_params(hand: HandModel, P: int, link_lengths, stiffness):
     return L, k
 
 
+def _rest_angles(hand: HandModel, P: int, k: np.ndarray, external_torque) -> np.ndarray:
+    """The springs' rest angles (1 or P, N, K) that carry a constant ``external_torque``
+    (P or 1, N, K) [N m] at every joint: k (theta - theta0) - tau = k (theta - (theta0 + tau / k))."""
+    if external_torque is None:
+        return hand.rest_angles[None]
+    tau = as_particles("external_torque", external_torque, (P, hand.N, hand.K), allow_shared=True)
+    if not np.all(np.isfinite(tau)):
+        raise ValueError("'external_torque' must be finite")
+    return np.ascontiguousarray(hand.rest_angles[None] + tau / k)
+
+
 def _check_theta(hand: HandModel, theta) -> np.ndarray:
     theta = np.asarray(theta, float)
     if theta.ndim != 3 or theta.shape[1:] != (hand.N, hand.K):
@@ -950,6 +965,7 @@ def move(
     max_step: float = MAX_STEP,
     max_substeps: int = 0,
     tolerance: str = "tight",
+    external_torque=None,
 ) -> MoveResult:
     """Gamma (Eq. 4/9): move every particle by the tendon action ``dl``.
 
@@ -979,6 +995,10 @@ def move(
             them for 40% more time). Particles that fail keep their angles and ``ok = False``.
         tolerance: a key of :data:`TOLERANCES`: "tight" (default; the controller's
             finite differences need it) or "filter".
+        external_torque: (P or 1, N, K) joint torques [N m] besides the tendons, springs
+            and contacts (e.g. the links' weight, :meth:`~vlr_drake.hand.HandModel.link_weight_torque`),
+            held constant through the move: the stationarity condition becomes
+            ``k (theta - theta0) - tau - R^T kappa s' + G^T lambda = 0``. Default: none (Eq. 9).
     """
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
@@ -1003,6 +1023,7 @@ def move(
         stretch = np.zeros((P, hand.N))
     s0 = as_particles("stretch", stretch, (P, hand.N))
     L, k = _hand_params(hand, P, link_lengths, stiffness)
+    rest = _rest_angles(hand, P, k, external_torque)
     out_theta = np.empty_like(theta)
     lam = np.zeros((P, hand.num_constraints))
     T = np.empty((P, hand.N))
@@ -1011,7 +1032,7 @@ def move(
     iters = np.zeros(P, dtype=np.int64)
     resid = np.zeros((P, 3))
     _move_kernel(
-        theta, s0, dl, a, L, k, D2, hand.pad, hand.base, hand.u, hand.moment_arms, hand.rest_angles,
+        theta, s0, dl, a, L, k, D2, hand.pad, hand.base, hand.u, hand.moment_arms, rest,
         hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter),
         int(max_iter if loose_after is None else min(loose_after, max_iter)), float(max_step),
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
@@ -1021,7 +1042,7 @@ def move(
 
 
 def equilibrium(
-    hand: HandModel, theta, *, a, link_lengths=None, stiffness=None, settle: bool | None = None
+    hand: HandModel, theta, *, a, link_lengths=None, stiffness=None, settle: bool | None = None, external_torque=None
 ) -> Equilibrium:
     """Tendon stretch and tension that hold the grasp at ``theta`` (DESIGN.md section 4b).
 
@@ -1030,17 +1051,19 @@ def equilibrium(
     configuration is an equilibrium for exactly one tendon state. For hands with more
     joints (N*K > N + m) the least-squares tension is used and, with ``settle`` (default for
     such hands), the elastic model with a zero action moves the angles to the nearest true
-    equilibrium, which is returned as ``theta``.
+    equilibrium, which is returned as ``theta``. ``external_torque`` (P or 1, N, K) [N m]:
+    further joint torques, as in :func:`move` (``k (theta - theta0) - tau - R^T T + G^T lambda = 0``).
     """
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     a = as_particles("a", a, (P, hand.N))
     L, k = _hand_params(hand, P, link_lengths, stiffness)
+    rest = _rest_angles(hand, P, k, external_torque)
     T = np.empty((P, hand.N))
     lam = np.empty((P, hand.num_constraints))
     resid = np.empty(P)
     _equilibrium_kernel(
-        theta, a, L, k, hand.pad, hand.base, hand.u, hand.moment_arms, hand.rest_angles,
+        theta, a, L, k, hand.pad, hand.base, hand.u, hand.moment_arms, rest,
         hand.constraint_pairs, T, lam, resid,
     )
     ok = np.isfinite(resid)
@@ -1052,6 +1075,6 @@ def equilibrium(
     p = contacts(hand, theta, a, L)
     res = move(
         hand, theta, np.zeros(hand.N), a=a, D2=contact_distances_sq(hand, p), stretch=stretch,
-        link_lengths=L, stiffness=k, tendon="elastic",
+        link_lengths=L, stiffness=k, tendon="elastic", external_torque=external_torque,
     )
     return Equilibrium(res.theta, res.stretch, res.tension, res.multipliers, ok & res.ok)

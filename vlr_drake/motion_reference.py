@@ -3,11 +3,13 @@
 The same problem as :func:`vlr_drake.motion.move`, written as an optimisation and handed to
 IPOPT or SNOPT (both ship with the drake wheel), warm-started from the current angles:
 
-    elastic:  min_theta  sum 0.5 k (theta - theta0)^2 + sum_i 0.5 kappa_i s_i'^2
+    elastic:  min_theta  sum 0.5 k (theta - theta0)^2 - tau . theta + sum_i 0.5 kappa_i s_i'^2
               s.t.       0.5 (|p_i - p_j|^2 - D_ij^2) = 0              (Eq. 8)
               with       s_i' = s_i + dl_i - R_i (theta - theta_prev)
-    ideal:    min_theta  sum 0.5 k (theta - theta0)^2
+    ideal:    min_theta  sum 0.5 k (theta - theta0)^2 - tau . theta
               s.t.       Eq. 8 and R (theta - theta_prev) = dl          (Eq. 7)
+
+(tau: constant external joint torques, ``external_torque``; zero in Eq. 9.)
 
 It is slow (milliseconds) and used where one answer is needed with certainty: the tests
 that hold the batched Newton solver to it, the benchmark, and checks in the controller.
@@ -84,9 +86,11 @@ def solve_move(
     solver: str = "ipopt",
     tolerance: float = 1e-12,
     local_range: float = 0.3,
+    external_torque=None,
 ) -> ReferenceResult:
     """Solve Eq. 9 for one configuration (no particle axis): theta (N, K), dl (N,), a (N,),
-    D2 (m,), stretch (N,). Raises :class:`MotionSolveError` if the solver fails."""
+    D2 (m,), stretch (N,), external_torque (N, K) [N m] or None. Raises
+    :class:`MotionSolveError` if the solver fails."""
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if solver not in SOLVERS:
@@ -115,6 +119,9 @@ def solve_move(
     # relative optimality tolerances bite at the 1e-8 rad level.
     cs = COST_SCALE
     prog.AddQuadraticCost(cs * np.diag(kf), -cs * kf * rest, 0.5 * cs * float(kf @ rest**2), x, is_convex=True)
+    if external_torque is not None:  # the potential of constant joint torques: -tau . theta
+        tau = np.asarray(external_torque, float).reshape(N * K)
+        prog.AddLinearCost(-cs * tau, 0.0, x)
     if tendon == "elastic":
         # 0.5 kappa (s0 + dl - R (x - theta0))^2 = 0.5 x^T Q x + b^T x + c
         c0 = s0 + dl + R @ theta0.ravel()  # s' = c0 - R x
@@ -167,5 +174,7 @@ def solve_move(
     else:
         # The tension is the multiplier of the tendon equation; recover it from the
         # stationarity conditions at the solution (exact there).
-        T = equilibrium(hand, th[None], a=a[None], link_lengths=L[None], stiffness=k[None], settle=False).tension[0]
+        tau = None if external_torque is None else np.asarray(external_torque, float).reshape(1, N, K)
+        T = equilibrium(hand, th[None], a=a[None], link_lengths=L[None], stiffness=k[None], settle=False,
+                        external_torque=tau).tension[0]
     return ReferenceResult(th, T, solver, elapsed)

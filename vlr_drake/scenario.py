@@ -307,6 +307,11 @@ class Scenario:
     observer: TagObserverConfig = field(default_factory=TagObserverConfig)
     # The particle filter (particles, likelihood noise, resampling, convergence).
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
+    # Whether the filter's model carries the weight of the fingers' links: None, the plant's
+    # default (vlr_drake.identify.LINK_WEIGHT: on for "physics", with gravity from the
+    # physics section's mounting; off for "model", whose truth is Eq. 9). A hardware hand
+    # gives its gravity in the palm frame as filter.gravity_palm instead.
+    link_weight: bool | None = None
     # The filter's prior around the nominal grasp.
     prior: PriorSettings = field(default_factory=PriorSettings)
     # The filter's action (the tendon pulls it moves its hypotheses by): "measured" (the
@@ -383,6 +388,9 @@ class Scenario:
         self.exploration.validate()
         self.model_plant.validate(N, K)
         self.grasp.validate(N, K)
+        if self.link_weight and self.plant != "physics":
+            raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
+                             "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
         if self.plant == "hardware":
             if self.hardware is None:
                 raise ValueError("'hardware': plant 'hardware' needs a hardware section")
@@ -590,6 +598,7 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         object_spec=copy.deepcopy(s.object_spec),
         filter=copy.deepcopy(s.filter),
         prior=s.prior.to_prior(),
+        link_weight=s.link_weight,
         squeeze_range=s.exploration.squeeze,
         squeeze_window=s.exploration.squeeze_window,
     )

@@ -231,6 +231,11 @@ class PhysicsConfig:
     def X_WP(self) -> RigidTransform:
         return RigidTransform(RollPitchYaw(np.deg2rad(self.palm_rpy_deg)), np.asarray(self.palm_xyz, float))
 
+    def gravity_in_palm(self) -> np.ndarray:
+        """The gravity vector (3,) in the palm frame P [m/s^2] (the world's is (0, 0, -gravity)):
+        what a filter needs for the links' weight (``FilterConfig.gravity_palm``)."""
+        return self.X_WP().rotation().inverse() @ np.array([0.0, 0.0, -self.gravity])
+
     @property
     def action_period(self) -> float:
         """Simulated time of one action [s]: ramp (plus two ramp updates) and the fixed
