@@ -8,6 +8,7 @@ from vlr_drake import filter as pf
 from vlr_drake.hand import model_o
 from vlr_drake.identify import IdentifyOptions, _truth_grasp, run_identification
 from vlr_drake.model_plant import ModelPlant
+from vlr_drake.systems.physics_plant import PhysicsConfig
 
 
 def test_effective_sample_size_definition():
@@ -574,6 +575,31 @@ def test_bad_configuration_is_named():
         pf.FilterConfig(gravity_palm=(0.0, 9.81)).validate()
     with pytest.raises(ValueError, match="link_weight needs the physics plant"):
         IdentifyOptions(plant="model", link_weight=True).validate()
+
+
+def test_link_weight_defaults_per_plant_and_experiment():
+    """The physics plant's experiments carry the links' weight, the model plant's do not (its
+    truth is Eq. 9); a given value is kept, and the builder resolves a scenario the same way."""
+    from vlr_drake.builder import build_diagram
+    from vlr_drake.scenario import Scenario
+
+    def resolved(**kw):
+        return IdentifyOptions(**kw).validate().link_weight
+
+    assert resolved(plant="physics", experiment="known_hand") and resolved(plant="physics", experiment="stiffness")
+    assert resolved(plant="physics", experiment="novel_fingers", hand="NH2")
+    assert not resolved(plant="model", experiment="known_hand")
+    assert not resolved(plant="physics", experiment="known_hand", link_weight=False)
+    g = PhysicsConfig(palm_rpy_deg=[90.0, 0.0, 0.0]).gravity_in_palm()
+    np.testing.assert_allclose(g, [0.0, -9.81, 0.0], atol=1e-12)  # palm facing sideways
+    np.testing.assert_allclose(PhysicsConfig().gravity_in_palm(), [0.0, 0.0, 9.81], atol=1e-12)  # palm down
+    s = Scenario(plant="model", link_weight=True)
+    with pytest.raises(ValueError, match="'link_weight': only the physics plant"):
+        s.validate()
+    built = build_diagram(Scenario(plant="model", filter=pf.FilterConfig(particles=100, gravity_palm=(0.0, 0.0, 1.0))))
+    assert built.filter._config.gravity_palm == [0.0, 0.0, 0.0]  # the model plant's truth has no link weight
+    physics = build_diagram(Scenario(plant="physics", filter=pf.FilterConfig(particles=100)))
+    np.testing.assert_allclose(physics.filter._config.gravity_palm, [0.0, 0.0, 9.81], atol=1e-12)
 
 
 def test_each_experiment_holds_its_papers_object_unless_told():

@@ -156,6 +156,12 @@ def test_config_overrides_parse_each_kind_and_name_bad_input():
         config_overrides(pf.FilterConfig(), ["particles=many"], "--filter")
     with pytest.raises(ValueError, match="likelihood must be one of|likelihood"):
         config_overrides(pf.FilterConfig(), ["likelihood=cauchy"], "--filter")
+    # a fixed-length vector: the links' weight, gravity in the palm frame
+    assert config_overrides(pf.FilterConfig(), ["gravity_palm=0,0,9.81"], "--filter").gravity_palm == [0.0, 0.0, 9.81]
+    with pytest.raises(ValueError, match="'gravity_palm' takes 3 comma-separated numbers, got 2"):
+        config_overrides(pf.FilterConfig(), ["gravity_palm=0,9.81"], "--filter")
+    with pytest.raises(ValueError, match="'down' is not 3 comma-separated numbers"):
+        config_overrides(pf.FilterConfig(), ["gravity_palm=down"], "--filter")
 
 
 def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, capsys):

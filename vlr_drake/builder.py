@@ -299,9 +299,9 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
                                squeeze_window=squeeze_window)
     config = s.filter
     if s.plant != "hardware":  # the links' weight (hardware: the filter section's gravity_palm)
-        from vlr_drake.identify import LINK_WEIGHT, filter_gravity
+        from vlr_drake.identify import default_link_weight, filter_gravity
 
-        weight = LINK_WEIGHT[s.plant] if s.link_weight is None else s.link_weight
+        weight = default_link_weight(s.plant, s.experiment()) if s.link_weight is None else s.link_weight
         config = replace(config, gravity_palm=filter_gravity(s.physics if weight else None))
     if config.stuck_probability is None:  # the plant's and experiment's default
         from vlr_drake.identify import default_stuck_probability

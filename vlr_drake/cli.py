@@ -537,7 +537,8 @@ def main(argv: list[str] | None = None) -> int:
             p.add_argument("--link-weight", action=argparse.BooleanOptionalAction, default=None,
                            help="the filter's model carries the weight of the fingers' links, gravity from the "
                                 "physics plant's mounting (default: on for the physics plant, off for the model "
-                                "plant, whose truth is Eq. 9; the paper's Eq. 9 has none)")
+                                "plant, whose truth is Eq. 9; the paper's Eq. 9 has none; "
+                                "vlr_drake.identify.LINK_WEIGHT)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         p.add_argument("--hand", default=None,

@@ -632,7 +632,7 @@ class FilterConfig:
     # torques (HandModel.link_weight_torque; motion.move's external_torque), which Eq. 9
     # does not have. Zero (the default): Eq. 9 as the paper. The physics plant sets it from
     # its mounting (identify's link_weight); a hardware scenario gives its hand's.
-    gravity_palm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gravity_palm: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def validate(self) -> FilterConfig:
         if self.particles < 10:

@@ -307,10 +307,11 @@ class Scenario:
     observer: TagObserverConfig = field(default_factory=TagObserverConfig)
     # The particle filter (particles, likelihood noise, resampling, convergence).
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
-    # Whether the filter's model carries the weight of the fingers' links: None, the plant's
-    # default (vlr_drake.identify.LINK_WEIGHT: on for "physics", with gravity from the
-    # physics section's mounting; off for "model", whose truth is Eq. 9). A hardware hand
-    # gives its gravity in the palm frame as filter.gravity_palm instead.
+    # Whether the filter's model carries the weight of the fingers' links, with gravity from
+    # the physics section's mounting (physics plant only). None: the default of the plant and
+    # experiment (vlr_drake.identify.LINK_WEIGHT: on for the physics plant; off for the model
+    # plant, whose truth is Eq. 9). A hardware hand gives its gravity in the palm frame as
+    # filter.gravity_palm instead.
     link_weight: bool | None = None
     # The filter's prior around the nominal grasp.
     prior: PriorSettings = field(default_factory=PriorSettings)
@@ -645,11 +646,12 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
 def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float, int, bool, str)):
     """A copy of the dataclass ``config`` with ``KEY=VALUE`` overrides of its scalar fields
     (those whose type is one of ``kinds``, optionally ``| None``; "none" sets such a field
-    to None), validated when the class has ``validate()``. A bad key or value is named with
-    the command-line ``flag`` it came from."""
+    to None) and of its vectors of floats (``KEY=X,Y,Z``, as many as it has), validated when the
+    class has ``validate()``. A bad key or value is named with the command-line ``flag`` it
+    came from."""
     cls = type(config)
     hints = typing.get_type_hints(cls)
-    scalar = {}
+    scalar, vector = {}, {}
     for f in dataclasses.fields(cls):
         t, args = hints[f.name], typing.get_args(hints[f.name])
         optional = type(None) in args and len(args) == 2
@@ -657,11 +659,22 @@ def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float,
             t = next(a for a in args if a is not type(None))
         if t in kinds:
             scalar[f.name] = (t, optional)
+        elif float in kinds and typing.get_origin(t) in (tuple, list) and args and all(a is float for a in args):
+            vector[f.name] = len(getattr(config, f.name))  # a tuple's or list's length as it is
     out = copy.deepcopy(config)
     for item in items:
         key, sep, value = item.partition("=")
+        if sep and key in vector:
+            try:
+                v = tuple(float(x) for x in value.split(","))
+            except ValueError:
+                raise ValueError(f"{flag} '{item}': '{value}' is not {vector[key]} comma-separated numbers") from None
+            if len(v) != vector[key]:
+                raise ValueError(f"{flag} '{item}': '{key}' takes {vector[key]} comma-separated numbers, got {len(v)}")
+            setattr(out, key, list(v) if isinstance(getattr(config, key), list) else v)
+            continue
         if not sep or key not in scalar:
-            raise ValueError(f"{flag} '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted(scalar))}")
+            raise ValueError(f"{flag} '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted({*scalar, *vector}))}")
         t, optional = scalar[key]
         if optional and value.lower() == "none":
             v = None

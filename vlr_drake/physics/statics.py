@@ -43,7 +43,10 @@ With all of them the VLR's statics match the plant's to a twentieth of a degree,
 finds the equilibrium in every action (2 of 40 have none without them on the apple, wine
 glass and gelatin box): the kinematics, the tendons and the springs of Eq. 9 are right,
 and what it lacks is these loads. On the flat screwdriver (a power grasp) the proximal
-links carry 37 mN m and the VLR has no equilibrium with or without them.
+links carry 37 mN m and the VLR has no equilibrium with or without them. Of the four, the
+filter can know the links' weight, and carries it on the physics plant
+(``FilterConfig.gravity_palm``, :data:`vlr_drake.identify.LINK_WEIGHT`); the others need
+the object's mass and centre of mass and the contact normals.
 """
 
 from __future__ import annotations
