@@ -536,9 +536,9 @@ def main(argv: list[str] | None = None) -> int:
                                 "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
             p.add_argument("--link-weight", action=argparse.BooleanOptionalAction, default=None,
                            help="the filter's model carries the weight of the fingers' links, gravity from the "
-                                "physics plant's mounting (default: on for the physics plant, off for the model "
-                                "plant, whose truth is Eq. 9; the paper's Eq. 9 has none; "
-                                "vlr_drake.identify.LINK_WEIGHT)")
+                                "physics plant's mounting (default: on for the physics plant's known hand and novel "
+                                "fingers, off for its stiffness and for the model plant; the paper's Eq. 9 has "
+                                "none; vlr_drake.identify.LINK_WEIGHT)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         p.add_argument("--hand", default=None,

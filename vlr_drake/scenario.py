@@ -309,9 +309,9 @@ class Scenario:
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
     # Whether the filter's model carries the weight of the fingers' links, with gravity from
     # the physics section's mounting (physics plant only). None: the default of the plant and
-    # experiment (vlr_drake.identify.LINK_WEIGHT: on for the physics plant; off for the model
-    # plant, whose truth is Eq. 9). A hardware hand gives its gravity in the palm frame as
-    # filter.gravity_palm instead.
+    # experiment (vlr_drake.identify.LINK_WEIGHT: on for the physics plant's known hand and
+    # novel fingers; off for its stiffness and for the model plant, whose truth is Eq. 9). A
+    # hardware hand gives its gravity in the palm frame as filter.gravity_palm instead.
     link_weight: bool | None = None
     # The filter's prior around the nominal grasp.
     prior: PriorSettings = field(default_factory=PriorSettings)
