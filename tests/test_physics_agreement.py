@@ -118,13 +118,12 @@ def test_statics_budget_parts_and_bad_input():
     w_off = barycentric_weights(c, point + [0.0, 0.0, 0.03])  # off the contacts' plane: projected
     np.testing.assert_allclose(w_off, w, atol=1e-12)
 
-    spec = model_o()
-    h = spec.model()
+    h = model_o().model()
     theta, a = _truth_grasp(h, np.random.default_rng(3))
     D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta[None], a[None]))[0]
     l_cmd = motion.equilibrium(h, theta[None], a=a[None]).stretch[0] + h.tendon_travel(theta)
     zero = JointLoads(*(np.zeros((h.N, h.K)) for _ in LOADS))
-    off = commanded_offsets(spec, theta, a, l_cmd, zero, D2=D2)
+    off = commanded_offsets(h, theta, a, l_cmd, zero, D2=D2)
     assert set(off) == {"none", *UNMODELLED, "all"}
     for v in off.values():  # no load: the grasp is its own commanded equilibrium
         np.testing.assert_allclose(v, 0.0, atol=1e-6)
@@ -132,11 +131,11 @@ def test_statics_budget_parts_and_bad_input():
     thumb = np.zeros((h.N, h.K))
     thumb[0] = 5e-3
     loaded = JointLoads(*(thumb if name == "pad_moment" else np.zeros((h.N, h.K)) for name in LOADS))
-    off = commanded_offsets(spec, theta, a, l_cmd, loaded, D2=D2,
+    off = commanded_offsets(h, theta, a, l_cmd, loaded, D2=D2,
                             groups={"moment": ("pad_moment",), "weight": ("link_weight",)})
     assert np.max(np.abs(np.rad2deg(off["moment"]))) > 0.1
     np.testing.assert_allclose(off["weight"], 0.0, atol=1e-6)
     with pytest.raises(ValueError, match="unknown loads \\['tendon'\\]"):
-        commanded_offsets(spec, theta, a, l_cmd, zero, groups={"x": ("tendon",)})
+        commanded_offsets(h, theta, a, l_cmd, zero, groups={"x": ("tendon",)})
     with pytest.raises(ValueError, match="needs the physics plant's point contact, got contact_model 'hydroelastic'"):
         plant_loads(SimpleNamespace(physics=SimpleNamespace(contact_model="hydroelastic")), None)

@@ -146,13 +146,15 @@ def sample_grasps(
     return GraspSample(*cat)
 
 
-def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None, D2=None):
+def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None, D2=None,
+                          external_torque=None):
     """The model's equilibrium (N, K) under the absolute tendon commands ``tendon_command``
     (N,), reached from ``theta`` (N, K) with the contacts ``a`` (N,) held at their mutual
     distances (``D2`` (m,), squared; default: those at ``theta``): Eq. 9 with a zero action
     and the elastic tendon's stretch ``s = l - R theta``, as the filter moves a hypothesis
     (``FilterConfig.tendon_reference = "commanded"``). Returns (angles, ok); the angles are
-    ``theta`` where Newton, with continuation, finds no equilibrium."""
+    ``theta`` where Newton, with continuation, finds no equilibrium. ``external_torque``
+    (N, K) [N m]: further joint torques (:func:`vlr_drake.motion.move`)."""
     theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
     a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
     L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
@@ -160,7 +162,8 @@ def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_length
         D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
     stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
     res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
-                      link_lengths=L, stiffness=stiffness, max_substeps=64)
+                      link_lengths=L, stiffness=stiffness, max_substeps=64,
+                      external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)))
     ok = bool(res.ok[0])
     return (res.theta[0] if ok else theta[0]).copy(), ok
 

@@ -198,7 +198,7 @@ def run_agreement(
         if budget:  # the statics budget of the state the commanded equilibrium starts from
             loads = plant_loads(adapter.ph, adapter.root)
             D2 = motion.contact_distances_sq(h, kinematics.contacts(h, truth["theta"][None], truth["a"][None]))[0]
-            with_loads = commanded_offsets(spec, truth["theta"], truth["a"], adapter.tendon_command(), loads, D2=D2)
+            with_loads = commanded_offsets(h, truth["theta"], truth["a"], adapter.tendon_command(), loads, D2=D2)
         adapter.act(dl, timing)
         explore.commit(dl)
         R1, t1 = _pose(adapter)

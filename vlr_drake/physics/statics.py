@@ -25,9 +25,8 @@ positive flexing):
 
 :func:`commanded_offsets` then says how much of the VLR's offset from the plant each load
 explains: the VLR's commanded equilibrium (:func:`vlr_drake.grasps.commanded_equilibrium`)
-from the plant's state, with the load added as an external joint torque. A torque tau held
-at the truth's value is the spring's rest angle moved by tau / k, so the VLR needs no new
-term to take it.
+from the plant's state, with the load, as measured there, added as a constant external
+joint torque (:func:`vlr_drake.motion.move`'s ``external_torque``).
 
 Measured (``python -m vlr_drake.physics.agreement --object OBJECT --actions 40``, seed 0;
 mean |offset| of the commanded equilibrium from the plant's angles over the joints and
@@ -51,14 +50,13 @@ the object's mass and centre of mass and the contact normals.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, fields
 
 import numpy as np
 
 from vlr_drake import kinematics
 from vlr_drake.grasps import commanded_equilibrium
-from vlr_drake.hand import HandSpec
+from vlr_drake.hand import HandModel
 
 __all__ = ["JointLoads", "LOADS", "UNMODELLED", "plant_loads", "barycentric_weights", "commanded_offsets"]
 
@@ -157,16 +155,7 @@ def plant_loads(ph, root_context) -> JointLoads:
     return JointLoads(tendon, spring, link_weight, pad_contact, pad_moment, object_weight, other, residual)
 
 
-def _with_external_torque(spec: HandSpec, tau: np.ndarray) -> HandSpec:
-    """A copy of ``spec`` whose springs' rest angles are moved by tau / k: at the angles
-    where tau was measured, its springs push as the original's plus tau."""
-    out = copy.deepcopy(spec)
-    for f, t in zip(out.fingers, tau, strict=True):
-        f.rest_angles = [float(r + x / k) for r, x, k in zip(f.rest_angles, t, f.stiffness, strict=True)]
-    return out.validate()
-
-
-def commanded_offsets(spec: HandSpec, theta, a, tendon_command, loads: JointLoads, D2=None,
+def commanded_offsets(hand: HandModel, theta, a, tendon_command, loads: JointLoads, D2=None,
                       groups: dict[str, tuple[str, ...]] | None = None) -> dict[str, np.ndarray | None]:
     """The VLR's commanded equilibrium minus the plant's angles ``theta`` (N, K) [rad], with
     each group of unmodelled loads added as an external joint torque (module docstring).
@@ -180,7 +169,7 @@ def commanded_offsets(spec: HandSpec, theta, a, tendon_command, loads: JointLoad
         unknown = sorted(set(names) - set(UNMODELLED))
         if unknown:
             raise ValueError(f"statics budget: unknown loads {unknown}; the unmodelled loads are {list(UNMODELLED)}")
-        h = (_with_external_torque(spec, loads.unmodelled(names)) if names else spec).model()
-        th, ok = commanded_equilibrium(h, theta, a, tendon_command, D2=D2)
+        tau = loads.unmodelled(names) if names else None
+        th, ok = commanded_equilibrium(hand, theta, a, tendon_command, D2=D2, external_torque=tau)
         out[name] = th - theta if ok else None
     return out
