@@ -65,3 +65,30 @@ def test_sincos_matches_numpy_to_a_few_ulp():
     np.testing.assert_allclose(c, np.cos(x), rtol=0, atol=2.3e-16)
     big = np.abs(np.sin(x)) > 1e-3
     assert np.max(np.abs(s - np.sin(x))[big] / np.spacing(np.abs(np.sin(x[big])))) <= 2
+
+
+@pytest.mark.parametrize("hand_name", ["model_o_hand", "hand_4x3"])
+def test_contact_force_torque_is_the_virtual_work_of_the_forces(request, hand_name, rng):
+    """tau = J^T f: the joint torques of forces at the contacts are the derivatives of the
+    forces' work f . p(theta) (central differences), per particle and with link lengths of
+    their own; a force across a finger's plane does no work, and one force shared by every
+    particle (leading axis 1) gives the same torques as the force repeated."""
+    hand = request.getfixturevalue(hand_name)
+    N, K, P = hand.N, hand.K, 6
+    theta = rng.uniform(-0.3, 1.2, (P, N, K))
+    a = rng.uniform(0.01, 0.04, (P, N))
+    L = hand.link_lengths[None] * rng.uniform(0.8, 1.2, (P, N, K - 1))
+    f = rng.normal(size=(P, N, 3))
+    tau = kinematics.contact_force_torque(hand, theta, a, f, L)
+    h = 1e-6
+    for k in range(K):
+        step = np.zeros((N, K))
+        step[:, k] = h
+        work = [np.einsum("pnc,pnc->pn", f, kinematics.contacts(hand, theta + s, a, L)) for s in (step, -step)]
+        np.testing.assert_allclose(tau[..., k], (work[0] - work[1]) / (2 * h), atol=1e-9)
+    across = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)  # each finger's joint axis
+    np.testing.assert_allclose(kinematics.contact_force_torque(hand, theta, a, across[None], L), 0.0, atol=1e-15)
+    shared = kinematics.contact_force_torque(hand, theta, a, f[:1], L)
+    np.testing.assert_allclose(shared, kinematics.contact_force_torque(hand, theta, a, np.repeat(f[:1], P, 0), L))
+    with pytest.raises(ValueError, match="'force' must have shape"):
+        kinematics.contact_force_torque(hand, theta, a, f[:, :, :2], L)

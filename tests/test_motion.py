@@ -341,7 +341,8 @@ def test_results_do_not_depend_on_how_the_particles_are_split(model_o_hand, monk
                np.full((300, h.N), np.nan), np.zeros(300, dtype=bool), np.full(300, -1), np.full((300, 3), np.nan)]
         motion._move_lanes(
             th, eq.stretch, dl[None], a, L, k, D2c, h.pad, h.base, h.u, h.moment_arms, h.rest_angles[None], h.kappa,
-            h.constraint_pairs, False, motion.MAX_ITER, 8, motion.MAX_STEP, np.array(motion.TOLERANCES["tight"]), 4,
+            h.constraint_pairs, np.zeros((1, h.N, h.K)), np.zeros((1, h.N, 3)), np.zeros((h.N, 2)), False,
+            False, motion.MAX_ITER, 8, motion.MAX_STEP, np.array(motion.TOLERANCES["tight"]), 4,
             start, 300, stride, *out)
         share = np.zeros(300, dtype=bool)
         share[start::stride] = True
@@ -449,3 +450,43 @@ def test_external_torque_agrees_with_the_mathematical_program(request, hand_name
     np.testing.assert_allclose(eq.tension, res.tension[ok], rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="external_torque"):
         motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, external_torque=tau[:, :, :1])
+
+
+@pytest.mark.parametrize("hand_name", ["model_o_hand", "hand_4x3"])
+def test_gravity_loads_agree_with_the_mathematical_program(request, hand_name):
+    """The links' weight and an object's weight carried at the contacts (motion.move's
+    ``gravity`` and ``object_load``), different loads for every particle, follow the angles
+    through the move: the batched solver and the MathematicalProgram (their potential added to
+    Eq. 9) agree, the equilibrium's stationarity holds with the loads at the moved angles,
+    and the same loads held constant at the start (``external_torque``) end elsewhere."""
+    hand = request.getfixturevalue(hand_name)
+    rng = np.random.default_rng(12)
+    count = 24
+    gs = grasps.sample_grasps(hand, rng, count, proximal_range=(0.0, 0.45), distal_range=(0.2, 1.0),
+                              contact_range=(0.018, 0.036), stable=True)
+    g = np.array([2.0, -1.5, 9.81])
+    g *= 9.81 / np.linalg.norm(g)
+    load = rng.uniform(0.0, 0.06, (count, hand.N))  # up to 180 g over the Model O's contacts
+    dl = rng.uniform(-1e-3, 1e-3, (count, hand.N))
+    res = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, gravity=g, object_load=load)
+    held = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch,
+                       external_torque=motion.gravity_torque(hand, gs.theta, a=gs.a, gravity=g, object_load=load))
+    ok = np.flatnonzero(res.ok & held.ok & (np.abs(res.theta - gs.theta).max(axis=(1, 2)) < 0.25))
+    assert ok.size >= count // 2
+    assert np.max(np.abs(res.theta[ok] - held.theta[ok])) > 1e-4  # the loads' stiffness matters
+    for p in ok[:8]:
+        r = ref.solve_move(hand, gs.theta[p], dl[p], a=gs.a[p], D2=gs.D2[p], stretch=gs.stretch[p],
+                           gravity=g, object_load=load[p])
+        np.testing.assert_allclose(r.theta, res.theta[p], atol=1e-6, err_msg=f"case {p}")
+    # stationarity at the moved angles with the loads there
+    eq = motion.equilibrium(hand, res.theta[ok], a=gs.a[ok], gravity=g, object_load=load[ok], settle=False)
+    np.testing.assert_allclose(eq.tension, res.tension[ok], rtol=1e-4, atol=1e-6)
+    # the links' weight alone, shared by all particles: as the hand's link_weight_torque
+    links = motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, gravity=g)
+    p = np.flatnonzero(links.ok)[0]
+    r = ref.solve_move(hand, gs.theta[p], dl[p], a=gs.a[p], D2=gs.D2[p], stretch=gs.stretch[p], gravity=g)
+    np.testing.assert_allclose(r.theta, links.theta[p], atol=1e-6)
+    with pytest.raises(ValueError, match="'object_load' needs 'gravity'"):
+        motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, object_load=load)
+    with pytest.raises(ValueError, match="'object_load' must have shape"):
+        motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, gravity=g, object_load=load[:, :2])

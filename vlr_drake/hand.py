@@ -290,22 +290,37 @@ class HandModel:
             tau_j = -dV/dtheta_j = sum_{l >= j} mu_l (g_u cos phi_l - g_z sin phi_l).
 
         Eq. 9 has no such term (the paper neglects it); :func:`vlr_drake.motion.move` takes
-        it as ``external_torque``.
+        it as ``external_torque`` held through a move, or with ``gravity`` as a load that
+        follows the angles (its potential V in the energy, dtau/dtheta in Newton's matrix).
         """
         theta = np.asarray(theta, float)
         if theta.ndim != 3 or theta.shape[1:] != (self.N, self.K):
             raise ValueError(f"'theta' must have shape (P, {self.N}, {self.K}), got {theta.shape}")
-        g = np.asarray(gravity, float).reshape(3)
+        mu = self.link_moments(link_lengths)
+        phi = np.cumsum(theta, axis=-1)
+        g_u, g_z = self.gravity_in_finger_planes(gravity).T
+        per_link = mu * (g_u[None, :, None] * np.cos(phi) - g_z[None, :, None] * np.sin(phi))
+        return np.cumsum(per_link[..., ::-1], axis=-1)[..., ::-1]
+
+    def link_moments(self, link_lengths=None) -> np.ndarray:
+        """The links' first moments mu_l = m_l L_l / 2 + L_l sum_{k > l} m_k [kg m], (P or 1,
+        N, K), for the physical link lengths (P or 1, N, K-1) (default: the hand's): link l's
+        own mass at its middle and the mass of the links beyond it at its end
+        (:meth:`link_weight_torque`)."""
         L = self.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
         lengths = np.concatenate([np.broadcast_to(L, (L.shape[0], self.N, self.K - 1)),
                                   np.broadcast_to(self.distal_length[None, :, None], (L.shape[0], self.N, 1))], axis=2)
         m = link_mass(self.link_density[None, :, None], self.link_radius[None, :, None], lengths)
         beyond = np.cumsum(m[..., ::-1], axis=-1)[..., ::-1] - m  # sum_{k > l} m_k
-        mu = lengths * (0.5 * m + beyond)
-        phi = np.cumsum(theta, axis=-1)
-        g_u, g_z = self.u @ g, float(g @ self.z)
-        per_link = mu * (g_u[None, :, None] * np.cos(phi) - g_z * np.sin(phi))
-        return np.cumsum(per_link[..., ::-1], axis=-1)[..., ::-1]
+        return lengths * (0.5 * m + beyond)
+
+    def gravity_in_finger_planes(self, gravity) -> np.ndarray:
+        """(N, 2) components (g . u_i, g . z) of ``gravity`` (3,) [m/s^2] in the palm frame,
+        in each finger's plane: the part that does work on the finger's joints."""
+        g = np.asarray(gravity, float).reshape(3)
+        if not np.all(np.isfinite(g)):
+            raise ValueError(f"'gravity' must be 3 finite numbers [m/s^2], got {g.tolist()}")
+        return np.ascontiguousarray(np.stack([self.u @ g, np.full(self.N, float(g @ self.z))], axis=1))
 
     @cached_property
     def R(self) -> np.ndarray:

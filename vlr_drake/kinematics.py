@@ -33,6 +33,7 @@ __all__ = [
     "virtual_links",
     "as_particles",
     "finger_contact_derivatives",
+    "contact_force_torque",
 ]
 
 
@@ -221,6 +222,25 @@ def joint_positions(hand: HandModel, theta, link_lengths=None) -> np.ndarray:
     q[:, :, 1:, :] = hand.base[None, :, None, :] + cx[..., None] * hand.u[None, :, None, :]
     q[:, :, 1:, 2] += cz
     return q
+
+
+def contact_force_torque(hand: HandModel, theta, a, force, link_lengths=None) -> np.ndarray:
+    """Joint torques (P, N, K) [N m] of forces ``force`` (P or 1, N, 3) [N] in the palm frame
+    applied at the contacts (the pads' centres, :func:`contacts`): tau_ij = (dp_i/dtheta_ij) . f_i.
+
+    In finger i's plane the contact sits at (x_j, z_j) = ((p_i - q_ij) . u_i, (p_i - q_ij) . z)
+    from joint j, and dp_i/dtheta_j = z_j u_i - x_j z (module docstring), so
+
+        tau_ij = z_j (f_i . u_i) - x_j (f_i . z),
+
+    positive flexing. The force's component across the finger's plane does no work.
+    """
+    P = _particle_count(theta, hand)
+    f = as_particles("force", force, (P, hand.N, 3), allow_shared=True)
+    r = contacts(hand, theta, a, link_lengths)[:, :, None, :] - joint_positions(hand, theta, link_lengths)
+    x = np.einsum("pnkc,nc->pnk", r, hand.u)
+    f_u = np.einsum("pnc,nc->pn", f, hand.u)
+    return r[..., 2] * f_u[..., None] - x * f[:, :, 2][..., None]
 
 
 def virtual_links(hand: HandModel, theta, a, link_lengths=None) -> dict[str, np.ndarray]:

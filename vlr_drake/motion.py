@@ -41,7 +41,13 @@ import numpy as np
 from numba import njit, prange
 
 from vlr_drake.hand import HandModel
-from vlr_drake.kinematics import as_particles, contacts, finger_contact_derivatives
+from vlr_drake.kinematics import (
+    as_particles,
+    contact_force_torque,
+    contacts,
+    finger_contact_derivatives,
+    sincos,
+)
 
 __all__ = [
     "TENDON_MODELS",
@@ -53,6 +59,7 @@ __all__ = [
     "equilibrium",
     "check_action",
     "contact_distances_sq",
+    "gravity_torque",
 ]
 
 TENDON_MODELS = ("elastic", "ideal")
@@ -214,6 +221,51 @@ def _constraint_jacobian(Pc, Jc, pairs, D2, g, G):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _load_lanes(th, Jc, Hc, mu, gw, fc, tau, dtau, phi, acc_c, acc_s):  # pragma: no cover - numba
+    """Joint torques ``tau`` (N, K, W) of the gravity loads of every lane, and their
+    derivatives ``dtau`` (N, K, K, W) (symmetric: the loads have a potential V, tau = -dV/dtheta):
+
+    - the links' weight, with first moments ``mu`` (N, K, W) and gravity's in-plane
+      components ``gw`` (N, 2) (:meth:`HandModel.link_weight_torque`): with
+      c_l = mu_l (g_u cos phi_l - g_z sin phi_l), tau_j = sum_{l >= j} c_l and
+      dtau_j/dtheta_k = -sum_{l >= max(j, k)} mu_l (g_u sin phi_l + g_z cos phi_l);
+    - forces ``fc`` (N, 3, W) [N] at the contacts: tau_j = J_j . f, dtau_j/dtheta_k = H_jk . f
+      (``Jc``, ``Hc``: the contacts' first and second derivatives).
+
+    ``phi``, ``acc_c``, ``acc_s`` (W,) are scratch."""
+    N, K, W = th.shape
+    for i in range(N):
+        gu = gw[i, 0]
+        gz = gw[i, 1]
+        for w in range(W):
+            phi[w] = 0.0
+            acc_c[w] = 0.0
+            acc_s[w] = 0.0
+        for k in range(K):
+            for w in range(W):
+                phi[w] += th[i, k, w]
+        for l in range(K - 1, -1, -1):  # suffix sums over the links l, l+1, ..., K-1
+            for w in range(W):
+                sn, cs = sincos(phi[w])
+                acc_c[w] += mu[i, l, w] * (gu * cs - gz * sn)
+                acc_s[w] -= mu[i, l, w] * (gu * sn + gz * cs)
+                phi[w] -= th[i, l, w]
+                tau[i, l, w] = acc_c[w]
+            for j in range(l + 1):  # max(j, k) == l
+                for w in range(W):
+                    dtau[i, j, l, w] = acc_s[w]
+                    dtau[i, l, j, w] = acc_s[w]
+        for k in range(K):
+            for r in range(3):
+                for w in range(W):
+                    tau[i, k, w] += Jc[i, r, k, w] * fc[i, r, w]
+            for k2 in range(K):
+                for r in range(3):
+                    for w in range(W):
+                        dtau[i, k, k2, w] += Hc[i, r, k, k2, w] * fc[i, r, w]
+
+
+@njit(cache=True)
 def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
     """Least squares min |A x + f0| (A: equations x unknowns) by the normal equations, with a
     1e-12-relative ridge that picks the minimum-norm x where A loses rank (multipliers that
@@ -272,9 +324,10 @@ def _lu_lanes(A, b, n1, tiny1, tiny2, bad):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0, M, rhs, scale, bad):  # pragma: no cover
+def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0, M, rhs, scale, bad,
+                         tau, loaded):  # pragma: no cover
     """Multipliers of the lanes starting a solve (``fresh``, then cleared): least squares
-    of the stationarity rows at their starting angles, min |B x + f0| with B = [G^T, R^T]
+    of the stationarity rows at their starting angles (with the gravity loads ``tau`` where ``loaded``), min |B x + f0| with B = [G^T, R^T]
     (ideal tendon) or G^T, by the normal equations with a 1e-12-relative ridge that picks
     the minimum-norm multipliers where B loses rank (as :func:`_ridge_solve`, vectorised
     over all lanes); a singular lane starts from zero multipliers."""
@@ -293,6 +346,9 @@ def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, l
             q = i * K + k
             for w in range(W):
                 f0[q, w] = kst[i, k, w] * (th[i, k, w] - rest[i, k, w])
+            if loaded:
+                for w in range(W):
+                    f0[q, w] -= tau[i, k, w]
             if not ideal:
                 for w in range(W):
                     f0[q, w] -= rarm[i, k] * kappa[i] * (s0[i, w] + dls[i, w])
@@ -354,8 +410,9 @@ def _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, l
 
 
 @njit(cache=True)
-def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d):  # pragma: no cover
-    """The KKT residuals F (dim, W) of every lane, the tendon stretch s' (N, W) and the
+def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d,
+                     tau, loaded):  # pragma: no cover
+    """The KKT residuals F (dim, W) of every lane (with the gravity loads ``tau`` where ``loaded``), the tendon stretch s' (N, W) and the
     largest residuals ``res`` (3, W): torque [N m], constraint [m^2], tendon [m] (ideal);
     ``res_d`` (W,) the constraint residual as a distance error [m]."""
     N, K, W = th.shape
@@ -383,6 +440,9 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
                 else:
                     v -= rarm[i, k] * kappa[i] * sp[i, w]
                 F[q, w] = v
+            if loaded:
+                for w in range(W):
+                    F[q, w] -= tau[i, k, w]
             for c in range(m):
                 for w in range(W):
                     F[q, w] += G[c, q, w] * lam[c, w]
@@ -405,8 +465,9 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
 
 
 @njit(cache=True)
-def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale):  # pragma: no cover
-    """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane; ``hscale`` and ``gscale`` (W,) receive
+def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale, dtau, loaded):  # pragma: no cover
+    """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane (with
+    the gravity loads' -dtau/dtheta where ``loaded``); ``hscale`` and ``gscale`` (W,) receive
     each lane's largest Hessian diagonal and constraint-gradient entries. Hten (n, n) is
     the elastic tendons' part, the same for every lane."""
     N = Pc.shape[0]
@@ -431,6 +492,10 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
                     q2 = i * K + k2
                     for w in range(W):
                         A[q, q2, w] += Hten[q, q2]
+            if loaded:
+                for k2 in range(k, K):
+                    for w in range(W):
+                        A[q, i * K + k2, w] -= dtau[i, k, k2, w]
     for c in range(m):
         i = pairs[c, 0]
         j = pairs[c, 1]
@@ -496,6 +561,7 @@ RUNNING, CONVERGED, FAILED, EMPTY = 0, 1, 2, 3
 @njit(cache=True)
 def _move_lanes(
     theta0, s0_all, dl, a_all, L_all, kst_all, D2_all, pad, base, u, rarm, rest_all, kappa, pairs,
+    mu_all, fc_all, gw, loaded,
     ideal, max_iter, loose_after, max_step, tol, max_substeps, start, stop, stride,
     theta, lam_out, T_out, s_out, ok_out, iters, resid,
 ):  # pragma: no cover - numba
@@ -506,6 +572,9 @@ def _move_lanes(
     done, converged or failed, writes it out and takes the next one, so the lanes stay
     busy. A particle that fails with the whole action is retried in the same lane with the
     action ramped in 4, 16, ... substeps up to ``max_substeps`` (quasi-static continuation).
+    With ``loaded``, the gravity loads of :func:`_load_lanes` (links' first moments
+    ``mu_all`` (P or 1, N, K), contact forces ``fc_all`` (P or 1, N, 3), gravity ``gw`` (N, 2))
+    join the stationarity conditions and the KKT matrix, at the current angles.
     """
     if start >= stop:  # no particle in this share (more tasks than particles)
         return
@@ -535,6 +604,11 @@ def _move_lanes(
     L = np.empty((N, K - 1, W))
     kst = np.empty((N, K, W))
     rest = np.empty((N, K, W))
+    lmu = np.zeros((N, K, W))  # the gravity loads: links' first moments, contact forces,
+    lfc = np.zeros((N, 3, W))  # their torques and derivatives, scratch
+    tau = np.zeros((N, K, W))
+    dtau = np.zeros((N, K, K, W))
+    sc1, sc2, sc3 = np.empty(W), np.empty(W), np.empty(W)
     D2 = np.empty((m, W))
     sqD = np.empty((m, W))
     lam = np.zeros((m, W))
@@ -565,7 +639,7 @@ def _move_lanes(
     nxt = _finish_lanes(
         status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
         D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
     )
     while True:
         busy = False
@@ -575,8 +649,12 @@ def _move_lanes(
             break
         _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
         _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
-        _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0l, Ml, rhsl, scl, bad)
-        _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d)
+        if loaded:
+            _load_lanes(th, Jc, Hc, lmu, gw, lfc, tau, dtau, sc1, sc2, sc3)
+        _initial_multipliers(fresh, th, s0, dls, kst, rarm, rest, kappa, G, ideal, lam, mu, f0l, Ml, rhsl, scl, bad,
+                             tau, loaded)
+        _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sqD, ideal, sp, F, res, res_d,
+                         tau, loaded)
         # each lane's decision, as in a one-particle Newton method
         any_step = False
         for w in range(W):
@@ -607,7 +685,7 @@ def _move_lanes(
                 step[w] = True
                 any_step = True
         if any_step:
-            _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale)
+            _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale, dtau, loaded)
             for q in range(dim):
                 for w in range(W):
                     F[q, w] = -F[q, w]
@@ -621,7 +699,7 @@ def _move_lanes(
             for w in range(W):
                 any_bad = any_bad or (bad[w] and step[w])
             if any_bad:  # rare: the matrices again, for the lanes that need pivoting
-                _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A2, hscale, gscale)
+                _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A2, hscale, gscale, dtau, loaded)
             for w in range(W):
                 if not step[w]:
                     continue
@@ -657,7 +735,7 @@ def _move_lanes(
         nxt = _finish_lanes(
             status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
             D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-            nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+            nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
         )
 
 
@@ -665,7 +743,7 @@ def _move_lanes(
 def _finish_lanes(
     status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
     D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid,
+    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
 ):  # pragma: no cover - numba
     """The lanes whose Newton solve ended (``status`` CONVERGED or FAILED) go on with the
     next substep, retry with more substeps, or write their particle out; those and the
@@ -759,6 +837,14 @@ def _finish_lanes(
                 rest[i, k, w] = rest_all[pr, i, k]
             for k in range(K - 1):
                 L[i, k, w] = L_all[pl, i, k]
+        if loaded:
+            pm = q if mu_all.shape[0] > 1 else 0
+            pf = q if fc_all.shape[0] > 1 else 0
+            for i in range(N):
+                for k in range(K):
+                    lmu[i, k, w] = mu_all[pm, i, k]
+                for r in range(3):
+                    lfc[i, r, w] = fc_all[pf, i, r]
         for c in range(m):
             D2[c, w] = D2_all[q, c]
             sqD[c, w] = np.sqrt(D2_all[q, c])
@@ -767,7 +853,7 @@ def _finish_lanes(
 
 @njit(cache=True, parallel=True)
 def _move_kernel(
-    theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
+    theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs, mu_all, fc_all, gw, loaded,
     ideal, max_iter, loose_after, max_step, tol, max_substeps, theta, lam, T, s_out, ok, iters, resid, tasks,
 ):  # pragma: no cover - numba
     """Every particle's move (:func:`_move_lanes`) in ``tasks`` parallel tasks, task t
@@ -775,7 +861,7 @@ def _move_kernel(
     P = theta0.shape[0]
     for t in prange(tasks):
         _move_lanes(
-            theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs,
+            theta0, s0, dl, a, L, kst, D2, pad, base, u, rarm, rest, kappa, pairs, mu_all, fc_all, gw, loaded,
             ideal, max_iter, loose_after, max_step, tol, max_substeps, np.int64(t), P, tasks,
             theta, lam, T, s_out, ok, iters, resid,
         )
@@ -923,6 +1009,40 @@ def _rest_angles(hand: HandModel, P: int, k: np.ndarray, external_torque) -> np.
     return np.ascontiguousarray(hand.rest_angles[None] + tau / k)
 
 
+def _gravity_loads(hand: HandModel, P: int, L: np.ndarray, gravity, object_load):
+    """The kernel's gravity loads (links' first moments (P or 1, N, K), contact forces (P or
+    1, N, 3) [N], gravity in the finger planes (N, 2), loaded) for :func:`move`'s
+    ``gravity`` and ``object_load``."""
+    if gravity is None:
+        if object_load is not None:
+            raise ValueError("'object_load' needs 'gravity' (the gravity in the palm frame [m/s^2])")
+        return np.zeros((1, hand.N, hand.K)), np.zeros((1, hand.N, 3)), np.zeros((hand.N, 2)), False
+    gw = hand.gravity_in_finger_planes(gravity)
+    g = np.asarray(gravity, float).reshape(3)
+    mu = np.ascontiguousarray(hand.link_moments(L))
+    if object_load is None:
+        return mu, np.zeros((1, hand.N, 3)), gw, True
+    load = as_particles("object_load", object_load, (P, hand.N), allow_shared=True)
+    if np.any(load < 0):
+        raise ValueError("'object_load' must be >= 0 [kg]")
+    return mu, np.ascontiguousarray(load[..., None] * g), gw, True
+
+
+def gravity_torque(hand: HandModel, theta, *, a, gravity, object_load=None, link_lengths=None) -> np.ndarray:
+    """The joint torques (P, N, K) [N m] of :func:`move`'s gravity loads at ``theta``: the
+    links' weight (:meth:`HandModel.link_weight_torque`) and, with ``object_load`` (P or 1,
+    N) [kg], the weight ``object_load_i * gravity`` carried at contact i
+    (:func:`~vlr_drake.kinematics.contact_force_torque`)."""
+    theta = _check_theta(hand, theta)
+    P = theta.shape[0]
+    L, _ = _hand_params(hand, P, link_lengths, None)
+    mu, fc, _, _ = _gravity_loads(hand, P, L, gravity, object_load)
+    tau = hand.link_weight_torque(theta, gravity, L)
+    if object_load is not None:
+        tau = tau + contact_force_torque(hand, theta, a, fc, L)
+    return tau
+
+
 def _check_theta(hand: HandModel, theta) -> np.ndarray:
     theta = np.asarray(theta, float)
     if theta.ndim != 3 or theta.shape[1:] != (hand.N, hand.K):
@@ -966,6 +1086,8 @@ def move(
     max_substeps: int = 0,
     tolerance: str = "tight",
     external_torque=None,
+    gravity=None,
+    object_load=None,
 ) -> MoveResult:
     """Gamma (Eq. 4/9): move every particle by the tendon action ``dl``.
 
@@ -999,6 +1121,16 @@ def move(
             and contacts (e.g. the links' weight, :meth:`~vlr_drake.hand.HandModel.link_weight_torque`),
             held constant through the move: the stationarity condition becomes
             ``k (theta - theta0) - tau - R^T kappa s' + G^T lambda = 0``. Default: none (Eq. 9).
+        gravity: (3,) gravity in the palm frame [m/s^2], or None (Eq. 9, which neglects it):
+            the links' weight (:meth:`~vlr_drake.hand.HandModel.link_weight_torque`, masses
+            from the link lengths) joins the stationarity conditions as a load that follows
+            the angles, with its derivative in the Newton matrix: the energy gains the
+            links' potential V(theta).
+        object_load: (P or 1, N) [kg], with ``gravity``: the object's weight carried at each
+            contact, ``object_load_i * gravity`` applied at the contact (the pad's centre),
+            likewise following the angles (the energy gains -sum_i f_i . p_i(theta)). A
+            torque held constant instead (``external_torque`` evaluated before the move)
+            misses the loads' stiffness, which for the object's weight is half the springs'.
     """
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
@@ -1024,6 +1156,7 @@ def move(
     s0 = as_particles("stretch", stretch, (P, hand.N))
     L, k = _hand_params(hand, P, link_lengths, stiffness)
     rest = _rest_angles(hand, P, k, external_torque)
+    mu_all, fc_all, gw, loaded = _gravity_loads(hand, P, L, gravity, object_load)
     out_theta = np.empty_like(theta)
     lam = np.zeros((P, hand.num_constraints))
     T = np.empty((P, hand.N))
@@ -1033,7 +1166,7 @@ def move(
     resid = np.zeros((P, 3))
     _move_kernel(
         theta, s0, dl, a, L, k, D2, hand.pad, hand.base, hand.u, hand.moment_arms, rest,
-        hand.kappa, hand.constraint_pairs, tendon == "ideal", int(max_iter),
+        hand.kappa, hand.constraint_pairs, mu_all, fc_all, gw, loaded, tendon == "ideal", int(max_iter),
         int(max_iter if loose_after is None else min(loose_after, max_iter)), float(max_step),
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
         _move_tasks(P),
@@ -1042,7 +1175,8 @@ def move(
 
 
 def equilibrium(
-    hand: HandModel, theta, *, a, link_lengths=None, stiffness=None, settle: bool | None = None, external_torque=None
+    hand: HandModel, theta, *, a, link_lengths=None, stiffness=None, settle: bool | None = None, external_torque=None,
+    gravity=None, object_load=None,
 ) -> Equilibrium:
     """Tendon stretch and tension that hold the grasp at ``theta`` (DESIGN.md section 4b).
 
@@ -1053,12 +1187,21 @@ def equilibrium(
     such hands), the elastic model with a zero action moves the angles to the nearest true
     equilibrium, which is returned as ``theta``. ``external_torque`` (P or 1, N, K) [N m]:
     further joint torques, as in :func:`move` (``k (theta - theta0) - tau - R^T T + G^T lambda = 0``).
+    ``gravity`` and ``object_load``: the gravity loads of :func:`move`, at ``theta``
+    (:func:`gravity_torque`), and through the settling move.
     """
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     a = as_particles("a", a, (P, hand.N))
     L, k = _hand_params(hand, P, link_lengths, stiffness)
-    rest = _rest_angles(hand, P, k, external_torque)
+    tau = external_torque
+    if gravity is not None:
+        tau = gravity_torque(hand, theta, a=a, gravity=gravity, object_load=object_load, link_lengths=L)
+        if external_torque is not None:
+            tau = tau + external_torque
+    elif object_load is not None:
+        raise ValueError("'object_load' needs 'gravity' (the gravity in the palm frame [m/s^2])")
+    rest = _rest_angles(hand, P, k, tau)
     T = np.empty((P, hand.N))
     lam = np.empty((P, hand.num_constraints))
     resid = np.empty(P)
@@ -1075,6 +1218,7 @@ def equilibrium(
     p = contacts(hand, theta, a, L)
     res = move(
         hand, theta, np.zeros(hand.N), a=a, D2=contact_distances_sq(hand, p), stretch=stretch,
-        link_lengths=L, stiffness=k, tendon="elastic", external_torque=external_torque,
+        link_lengths=L, stiffness=k, tendon="elastic", external_torque=external_torque, gravity=gravity,
+        object_load=object_load,
     )
     return Equilibrium(res.theta, res.stretch, res.tension, res.multipliers, ok & res.ok)

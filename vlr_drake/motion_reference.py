@@ -87,10 +87,14 @@ def solve_move(
     tolerance: float = 1e-12,
     local_range: float = 0.3,
     external_torque=None,
+    gravity=None,
+    object_load=None,
 ) -> ReferenceResult:
     """Solve Eq. 9 for one configuration (no particle axis): theta (N, K), dl (N,), a (N,),
-    D2 (m,), stretch (N,), external_torque (N, K) [N m] or None. Raises
-    :class:`MotionSolveError` if the solver fails."""
+    D2 (m,), stretch (N,), external_torque (N, K) [N m] or None; ``gravity`` (3,) [m/s^2]
+    and ``object_load`` (N,) [kg]: the gravity loads of :func:`vlr_drake.motion.move`, as
+    their potential (the links' -sum_l mu_l (g_u sin phi_l + g_z cos phi_l) per finger, the
+    contacts' -sum_i m_i g . p_i). Raises :class:`MotionSolveError` if the solver fails."""
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if solver not in SOLVERS:
@@ -131,6 +135,23 @@ def solve_move(
     else:
         prog.AddLinearEqualityConstraint(R, R @ theta0.ravel() + dl, x)
     pts = _contact_expressions(hand, x, a, L)
+    if gravity is not None:  # the gravity loads' potential
+        from pydrake.symbolic import cos, sin
+
+        mu = hand.link_moments(L[None])[0]
+        gw = hand.gravity_in_finger_planes(gravity)
+        V = 0.0
+        for i in range(N):
+            phi = 0.0
+            for kk in range(K):
+                phi = phi + x[i * K + kk]
+                V = V - mu[i, kk] * (gw[i, 0] * sin(phi) + gw[i, 1] * cos(phi))
+        if object_load is not None:
+            g = np.asarray(gravity, float).reshape(3)
+            load = np.asarray(object_load, float).reshape(N)
+            for i in range(N):
+                V = V - load[i] * sum(g[r] * pts[i][r] for r in range(3))
+        prog.AddCost(cs * V)
     for c, (i, j) in enumerate(hand.constraint_pairs):
         d = [pts[i][r] - pts[j][r] for r in range(3)]
         expr = CONSTRAINT_SCALE * (0.5 * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 0.5 * D2[c])
@@ -175,6 +196,7 @@ def solve_move(
         # The tension is the multiplier of the tendon equation; recover it from the
         # stationarity conditions at the solution (exact there).
         tau = None if external_torque is None else np.asarray(external_torque, float).reshape(1, N, K)
+        load = None if object_load is None else np.asarray(object_load, float).reshape(1, N)
         T = equilibrium(hand, th[None], a=a[None], link_lengths=L[None], stiffness=k[None], settle=False,
-                        external_torque=tau).tension[0]
+                        external_torque=tau, gravity=gravity, object_load=load).tension[0]
     return ReferenceResult(th, T, solver, elapsed)
