@@ -123,6 +123,8 @@ def _identify_options(args):
         opts.filter.stuck_probability = args.stuck_probability
     if getattr(args, "link_weight", None) is not None:
         opts.link_weight = args.link_weight
+    if getattr(args, "object_weight", False):
+        opts.object_weight = True
     return opts
 
 
@@ -228,11 +230,12 @@ def replay_trace(args) -> dict:
     runs, measured = [], {}
     for path, trace in traces:
         config = config_overrides(trace.filter, args.filter or [], "--filter")
+        prior = config_overrides(trace.prior, args.prior or [], "--prior")
         meta = trace.meta
         print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
               f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
         if values is None:
-            r = replay(trace, config, progress=not args.no_progress)
+            r = replay(trace, config, prior, progress=not args.no_progress)
             run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
                    "weakly_identified": r["weakly_identified"], **(r.get("errors") or {})}
@@ -295,6 +298,9 @@ def _errors_line(e: dict) -> str:
         text += ", link errors " + ", ".join(
             f"{k} {v:.2f} mm" + ("" if k not in inside else " (inside)" if inside[k] else " (outside its 95%)")
             for k, v in e["link_length_error_mm"].items())
+    if e.get("object_mass_error_kg") is not None:
+        text += (f", object mass {1e3 * e['object_mass_estimate_kg']:.0f} g (truth {1e3 * e['object_mass_true_kg']:.0f}"
+                 f", {'inside' if e['object_mass_inside_95'] else 'outside'} its 95%)")
     return text
 
 
@@ -536,9 +542,11 @@ def main(argv: list[str] | None = None) -> int:
                                 "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
             p.add_argument("--link-weight", action=argparse.BooleanOptionalAction, default=None,
                            help="the filter's model carries the weight of the fingers' links, gravity from the "
-                                "physics plant's mounting (default: on for the physics plant's known hand and novel "
-                                "fingers, off for its stiffness and for the model plant; the paper's Eq. 9 has "
-                                "none; vlr_drake.identify.LINK_WEIGHT)")
+                                "physics plant's mounting (default: on for the physics plant, off for the model "
+                                "plant; the paper's Eq. 9 has none; vlr_drake.identify.LINK_WEIGHT)")
+            p.add_argument("--object-weight", action="store_true",
+                           help="identify the object's weight as well (its mass and how the contacts share it), "
+                                "carried with the links' weight; off by default (vlr_drake.identify.LINK_WEIGHT)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         p.add_argument("--hand", default=None,
@@ -572,6 +580,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--filter", action="append", metavar="KEY=VALUE",
                    help="override a filter setting (vlr_drake.filter.FilterConfig), e.g. --filter particles=60000 "
                         "--filter sigma_rotation=0.02; repeatable")
+    p.add_argument("--prior", action="append", metavar="KEY=VALUE",
+                   help="override a prior setting (vlr_drake.filter.PriorConfig), e.g. --prior "
+                        "object_mass_unknown=true (with --filter gravity_loads=following); repeatable")
     p.add_argument("--profile", default=None, metavar="PARAMETER",
                    help="fix this identified hand parameter at each of --values and compare the evidence: "
                         "stiffness [N m/rad] or link_length:<finger> [m]")

@@ -35,8 +35,14 @@ class ModelPlant:
     def __init__(self, hand: HandModel, theta, a, R_PO, t_PO, rng: np.random.Generator, *,
                  stiffness=None, link_lengths=None, sigma_position: float = 0.2e-3,
                  sigma_rotation: float = np.deg2rad(0.5), dropout: float = 0.0, tendon: str = "elastic",
-                 contact_drift: float = 0.0):
+                 contact_drift: float = 0.0, gravity=None, object_load=None):
+        """``gravity`` (3,) [m/s^2] in the palm frame and ``object_load`` (N,) [kg]: the
+        truth carries the links' weight and an object's weight at its contacts (motion.move's
+        gravity loads); default: none (Eq. 9, the paper's model)."""
         self.hand = hand
+        self.loads = {} if gravity is None else {
+            "gravity": np.asarray(gravity, float).reshape(3),
+            "object_load": None if object_load is None else np.asarray(object_load, float).reshape(1, hand.N)}
         self.rng = rng
         self.stiffness = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
         self.link_lengths = (hand.link_lengths.copy() if link_lengths is None
@@ -48,7 +54,7 @@ class ModelPlant:
         theta = np.asarray(theta, float).reshape(hand.N, hand.K)
         a = np.asarray(a, float).reshape(hand.N)
         eq = motion.equilibrium(hand, theta[None], a=a[None], link_lengths=self.link_lengths[None],
-                                stiffness=self.stiffness[None])
+                                stiffness=self.stiffness[None], **self.loads)
         if not eq.ok[0] or np.any(eq.tension[0] < 0):
             raise ValueError(f"model plant: the initial grasp is not physical (tensions {eq.tension[0]} N)")
         theta = eq.theta[0]
@@ -74,7 +80,7 @@ class ModelPlant:
         D2 = motion.contact_distances_sq(h, self.p_O[None])
         res = motion.move(h, rep(s.theta), dls, a=rep(s.a), D2=np.repeat(D2, S, axis=0), stretch=rep(s.stretch),
                           link_lengths=rep(self.link_lengths), stiffness=rep(self.stiffness), tendon=self.tendon,
-                          l_now=l_now, max_substeps=64)
+                          l_now=l_now, max_substeps=64, **self.loads)
         return res, res.ok & h.within_joint_limits(res.theta) & res.tension_feasible()
 
     def possible_actions(self, dls) -> np.ndarray:
@@ -107,7 +113,7 @@ class ModelPlant:
             s.a = s.a + self.contact_drift * self.rng.standard_normal(h.N)
             self.p_O = observation.attach(self.contacts()[None], s.R_PO[None], s.t_PO[None])[0]
             eq = motion.equilibrium(h, s.theta[None], a=s.a[None], link_lengths=self.link_lengths[None],
-                                    stiffness=self.stiffness[None])
+                                    stiffness=self.stiffness[None], **self.loads)
             # the joints stay and the tendon state that holds them changes: reported as the
             # command, so that l = R theta + stretch stays true (a filter reads it)
             s.tendon_command = s.tendon_command + eq.stretch[0] - s.stretch

@@ -95,5 +95,15 @@ class PhysicsAdapter:
         theta = np.asarray(self.ph.output(self.root, "theta_true"), float).reshape(h.N, h.K)
         a = np.asarray(self.ph.output(self.root, "contact_along_link_true"), float).copy()
         contacts = kinematics.contacts(h, theta[None], a[None])[0]
+        # the object's weight as the VLR carries it (PriorConfig.object_mass_unknown): its
+        # mass, split over the contacts by its centre of mass's barycentric weights
+        from vlr_drake.physics.statics import barycentric_weights
+
+        plant, pctx = self.ph.plant, self.ph.plant_context(self.root)
+        body = self.ph.object_body
+        X_PW = plant.EvalBodyPoseInWorld(pctx, self.ph.palm_body).inverse()
+        com_P = X_PW @ (plant.EvalBodyPoseInWorld(pctx, body) @ body.default_com())
+        mass = float(body.default_mass())
         return {"theta": theta, "a": a, "contacts": contacts, "stiffness": h.stiffness.copy(),
-                "link_lengths": h.link_lengths.copy()}
+                "link_lengths": h.link_lengths.copy(), "object_mass": mass,
+                "object_load": mass * barycentric_weights(contacts, com_P)}

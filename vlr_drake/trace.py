@@ -50,6 +50,9 @@ TRACE_VERSION = 1
 PROFILE_PARAMETERS = ("stiffness", "link_length:<finger>")
 #: Ground-truth arrays a trace keeps per step (the plant's truth dicts).
 TRUTH_KEYS = ("theta", "a", "contacts", "stiffness", "link_lengths")
+#: Truths a plant may add (the physics plant's object: its mass [kg] and its weight's share
+#: at each contact [kg]); kept where every step has them.
+OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load")
 #: Settings added after traces were first written, with the value that restores the
 #: behaviour of the code that wrote a trace lacking them. A replay is bit-exact only with the
 #: code that recorded the trace: later kernels may round differently (the 2026-11-24 ones do,
@@ -99,7 +102,7 @@ class IdentificationTrace:
             missing = [k for k in TRUTH_KEYS if k not in self.truths]
             if missing:
                 raise ValueError(f"trace: truths lack {missing}")
-            for k in TRUTH_KEYS:
+            for k in self.truths:
                 if self.truths[k].shape[0] != T + 1:
                     raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
                                      f"got {self.truths[k].shape[0]}")
@@ -142,7 +145,8 @@ class IdentificationTrace:
                 raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
             arrays = {k: z[k] for k in z.files if k != "header"}
         try:
-            truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS} if header["has_truths"] else None)
+            truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS if f"truth_{k}" in arrays}
+                      if header["has_truths"] else None)
             trace = cls(
                 hand=_hand_from_dict(header["hand"]),
                 filter=_config_from_dict(pf.FilterConfig, header["filter"]),
@@ -183,7 +187,8 @@ class TraceRecorder:
 
     def _add_truth(self, truth):
         if truth is not None:
-            self._truths.append({k: np.array(truth[k], float) for k in TRUTH_KEYS})
+            self._truths.append({k: np.array(truth[k], float) for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS
+                                 if k in truth})
 
     def trace(self) -> IdentificationTrace:
         if self._start is None:
@@ -192,7 +197,8 @@ class TraceRecorder:
         steps = self._steps
         truths = None
         if self._truths and len(self._truths) == len(steps) + 1:
-            truths = {k: np.stack([tr[k] for tr in self._truths]) for k in TRUTH_KEYS}
+            truths = {k: np.stack([tr[k] for tr in self._truths]) for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS
+                      if all(k in tr for tr in self._truths)}
         return IdentificationTrace(
             **self._fixed, **self._start,
             actions=np.array([s[0] for s in steps]).reshape(len(steps), N),

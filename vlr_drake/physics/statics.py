@@ -44,8 +44,10 @@ glass and gelatin box): the kinematics, the tendons and the springs of Eq. 9 are
 and what it lacks is these loads. On the flat screwdriver (a power grasp) the proximal
 links carry 37 mN m and the VLR has no equilibrium with or without them. Of the four, the
 filter can know the links' weight, and carries it on the physics plant
-(``FilterConfig.gravity_palm``, :data:`vlr_drake.identify.LINK_WEIGHT`); the others need
-the object's mass and centre of mass and the contact normals.
+(``FilterConfig.gravity_palm``, :data:`vlr_drake.identify.LINK_WEIGHT`); it can identify
+the object's weight, a mass split by the barycentric weights above
+(``PriorConfig.object_mass_unknown``, off by default); the pads' moments need the contact
+normals.
 """
 
 from __future__ import annotations
