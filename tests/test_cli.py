@@ -66,6 +66,35 @@ def test_identify_defaults_to_the_physics_plant(tmp_path):
     assert r["plant"] == "physics" and r["timing_s"]["render"] > 0 and r["timing_s"]["detect"] > 0
 
 
+def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
+    """--object-weight identifies the object's mass with the links' weight, both following the
+    angles: the result has the mass against the plant's truth (the preset's mass, split over
+    the contacts by its centre of mass), the summary prints it, and the trace keeps the truth."""
+    from vlr_drake.objects import preset
+    from vlr_drake.trace import IdentificationTrace
+
+    trace = tmp_path / "run.npz"
+    r = _run(tmp_path, "identify", "known_hand", "--plant", "physics", "--object", "gelatin_box", "--particles", "500",
+             "--iterations", "2", "--object-weight", "--no-progress", "--out", str(tmp_path / "out"),
+             "--trace", str(trace))
+    assert r["object_weight"] and r["link_weight"]
+    assert r["object_mass_true_kg"] == pytest.approx(preset("gelatin_box").mass)
+    assert sum(r["object_load_true_kg"]) == pytest.approx(r["object_mass_true_kg"])
+    lo, hi = r["object_mass_interval_kg"]
+    assert 0.0 <= lo <= r["object_mass_estimate_kg"] <= hi <= 0.25
+    assert r["object_mass_error_kg"] == pytest.approx(abs(r["object_mass_estimate_kg"] - r["object_mass_true_kg"]))
+    assert "object mass [g]" in capsys.readouterr().out
+    saved = IdentificationTrace.load(trace)
+    assert saved.truths["object_mass"].shape == (saved.steps + 1,) and saved.filter.gravity_loads == "following"
+    assert saved.prior.object_mass_unknown
+    assert main(["replay", str(trace), "--no-progress"]) == 0  # the run again, the mass with it
+    assert "object mass" in capsys.readouterr().out
+    assert main(["replay", str(trace), "--no-progress", "--prior", "object_mass_unknown=false"]) == 0
+    assert "object mass" not in capsys.readouterr().out
+    assert main(["replay", str(trace), "--no-progress", "--prior", "object_mass_range=heavy"]) == 2
+    assert "--prior 'object_mass_range=heavy'" in capsys.readouterr().err
+
+
 def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
     assert BENCH_MOTION_FIELDS <= set(r) and r["particles"] == 2000

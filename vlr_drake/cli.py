@@ -175,6 +175,10 @@ def print_summary(result: dict) -> None:
         t = scale * truth[key][p["finger"], p["joint"]]
         label = f"{where} {'link' if kind == 'link_length' else 'k'} [{unit}]"
         print(f"{label:{w}s} {e:10.{d}f} {f'[{lo:.{d}f}, {hi:.{d}f}]':>20s} {t:10.{d}f} {abs(e - t):8.{d}f}")
+    if result.get("object_mass_estimate_kg") is not None:  # identified object's weight
+        e, (lo, hi), t = (1e3 * result["object_mass_estimate_kg"], (1e3 * x for x in result["object_mass_interval_kg"]),
+                          1e3 * result["object_mass_true_kg"])
+        print(f"{'object mass [g]':{w}s} {e:10.1f} {f'[{lo:.1f}, {hi:.1f}]':>20s} {t:10.1f} {abs(e - t):8.1f}")
     for name in result.get("weakly_identified", []):
         p = result["hand_parameters"][name]
         print(f"weakly identified: {name} (its 95% interval is {100 * p['narrowed_to']:.0f}% as wide as the "
