@@ -484,8 +484,9 @@ class PriorConfig:
     # uniformly on the simplex (sum w_i = 1): the barycentric weights of the object's centre
     # of mass over the contacts, which stay put in the object as it turns. Each hypothesis
     # carries its contacts' loads m w_i (``ParticleSet.object_load``), and the weight m w_i g
-    # at its contacts reaches its joints as an external torque (the VLR's contact forces
-    # cancel on the object, so Eq. 9 treats it as weightless).
+    # at its contacts loads its joints in every move (FilterConfig.gravity_loads must be
+    # "following"; the VLR's contact forces cancel on the object, so Eq. 9 treats it as
+    # weightless).
     object_mass_unknown: bool = False
     object_mass_range: tuple[float, float] = (0.0, 0.25)
     # Contact positions must stay on the pad: [min, max] along the last link [m].

@@ -1013,19 +1013,24 @@ def _gravity_loads(hand: HandModel, P: int, L: np.ndarray, gravity, object_load)
     """The kernel's gravity loads (links' first moments (P or 1, N, K), contact forces (P or
     1, N, 3) [N], gravity in the finger planes (N, 2), loaded) for :func:`move`'s
     ``gravity`` and ``object_load``."""
+    fc = _contact_forces(hand, P, gravity, object_load)
     if gravity is None:
-        if object_load is not None:
-            raise ValueError("'object_load' needs 'gravity' (the gravity in the palm frame [m/s^2])")
-        return np.zeros((1, hand.N, hand.K)), np.zeros((1, hand.N, 3)), np.zeros((hand.N, 2)), False
+        return np.zeros((1, hand.N, hand.K)), fc, np.zeros((hand.N, 2)), False
     gw = hand.gravity_in_finger_planes(gravity)
-    g = np.asarray(gravity, float).reshape(3)
-    mu = np.ascontiguousarray(hand.link_moments(L))
+    return np.ascontiguousarray(hand.link_moments(L)), fc, gw, True
+
+
+def _contact_forces(hand: HandModel, P: int, gravity, object_load) -> np.ndarray:
+    """The weight ``object_load_i * gravity`` carried at each contact, (P or 1, N, 3) [N]
+    (zeros without an object load)."""
     if object_load is None:
-        return mu, np.zeros((1, hand.N, 3)), gw, True
+        return np.zeros((1, hand.N, 3))
+    if gravity is None:
+        raise ValueError("'object_load' needs 'gravity' (the gravity in the palm frame [m/s^2])")
     load = as_particles("object_load", object_load, (P, hand.N), allow_shared=True)
     if np.any(load < 0):
         raise ValueError("'object_load' must be >= 0 [kg]")
-    return mu, np.ascontiguousarray(load[..., None] * g), gw, True
+    return np.ascontiguousarray(load[..., None] * np.asarray(gravity, float).reshape(3))
 
 
 def gravity_torque(hand: HandModel, theta, *, a, gravity, object_load=None, link_lengths=None) -> np.ndarray:
@@ -1036,7 +1041,7 @@ def gravity_torque(hand: HandModel, theta, *, a, gravity, object_load=None, link
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     L, _ = _hand_params(hand, P, link_lengths, None)
-    mu, fc, _, _ = _gravity_loads(hand, P, L, gravity, object_load)
+    fc = _contact_forces(hand, P, gravity, object_load)
     tau = hand.link_weight_torque(theta, gravity, L)
     if object_load is not None:
         tau = tau + contact_force_torque(hand, theta, a, fc, L)
