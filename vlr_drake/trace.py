@@ -295,7 +295,7 @@ def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[
 
     Measured (stiffness traces of the physics table, seeds 0-4, the spring 0.7-2x): the
     offsets are least at the true spring on four seeds and at 1.15x on the softest, while
-    the motions' rms changes by 0.05-0.15 deg between 1x and 2x (README, "What the
+    the motions' rms changes by 0.05-0.15 deg between 1x and 2x (docs/results.md, "What the
     measurements themselves say").
     """
     values, fi, j = _profile_parameter(trace, parameter, values, "statics profile")

@@ -158,7 +158,7 @@ class PhysicsConfig:
     thumb_factor: float = 1.7
     # Settle test: window length [s], cap on the settle time after the ramp [s] ...
     # (A stricter test, 1e-4 m/s and 2e-3 rad/s for up to 3 s, brings the plant nearer rest
-    # and triples the physics time, but it did not identify better: README, "What is not
+    # and triples the physics time, but it did not identify better: docs/results.md, "What is not
     # there yet".)
     settle_window: float = 0.01
     settle_max: float = 0.5
