@@ -35,11 +35,15 @@ def test_identify_quick(tmp_path, experiment, extra):
     assert IDENTIFY_FIELDS <= set(r)
     assert r["experiment"] == experiment and r["plant"] == "model" and r["particles"] == 1500
     assert set(r["timing_s"]) >= {"physics", "render", "detect", "filter", "total"}
-    assert len(r["proximal_joint_error_deg"]) == 3
+    assert len(r["proximal_joint_error_deg"]) == 3 and np.all(np.isfinite(r["proximal_joint_error_deg"]))
+    assert np.all(np.isfinite(r["contact_error_mm"])) and 0.0 <= r["truth_inside_95_theta"] <= 1.0
     if experiment == "stiffness":
-        assert r["stiffness_error_Nm_per_rad"] is not None
+        k, lo_hi = r["stiffness_estimate_Nm_per_rad"], r["stiffness_interval_Nm_per_rad"]
+        assert r["stiffness_error_Nm_per_rad"] == pytest.approx(abs(k - r["stiffness_true_Nm_per_rad"]))
+        assert lo_hi[0] <= k <= lo_hi[1]
     if experiment == "novel_fingers":
         assert set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}
+        assert all(np.isfinite(v) and v >= 0 for v in r["link_length_error_mm"].values())
     assert r["stuck_probability"] == 0.0  # the model plant's default: its truth always has an equilibrium
     assert list((tmp_path / "out").glob("*_convergence.png"))
 
@@ -125,8 +129,9 @@ def test_bad_input_is_reported(tmp_path, capsys):
     assert "teapot" in capsys.readouterr().err
     assert main(["identify", "novel_fingers", "--hand", "NH7", "--no-progress", "--out", str(tmp_path)]) == 2
     assert "NH1, NH2 or NH3" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as e:
         main(["identify", "nonsense"])
+    assert e.value.code == 2  # argparse's usage error
 
 
 def test_identify_with_meshcat_saves_a_recording(tmp_path):

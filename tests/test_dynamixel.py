@@ -244,7 +244,7 @@ def test_hardware_error_is_named(emulator):
 def test_silent_bus_does_not_hang(emulator):
     with make_motors(emulator) as motors:
         emulator.silent = True
-        with pytest.raises(DynamixelError):
+        with pytest.raises(DynamixelError, match=r"sync read of present position .*no status packet"):
             motors.read()
         assert not motors.is_open
 

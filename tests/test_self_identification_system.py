@@ -82,13 +82,14 @@ def test_identification_loop_under_the_simulator():
     sim.AdvanceTo(15.5)
     f = d.filter.filter(d.filter.GetMyContextFromRoot(ctx))
     assert f.iteration == 14  # one filter iteration per action period
-    assert width.Eval(ctx).mean() < w0  # it learns
-    # the command the plant applied is the policy's (unless the model refused an action)
+    assert width.Eval(ctx).mean() < 0.6 * w0  # it learns (0.40 of the first width in this run)
+    # the plant holds the policy's command: a refused action (3 of 14 here, where the model
+    # has no equilibrium) leaves the plant where it was, and the next period's command, an
+    # absolute pull, takes it there (this run's last action was made)
     plant = d.plant._p(d.plant.GetMyContextFromRoot(ctx))
-    if plant.failures == 0:
-        np.testing.assert_allclose(d.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx),
-                                   plant.state.tendon_command)
-    assert plant.failures <= 3
+    assert 0 < plant.failures <= 3
+    np.testing.assert_allclose(d.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx),
+                               plant.state.tendon_command)
     assert np.all(np.isfinite(theta_est.Eval(ctx))) and np.all(np.isfinite(theta_true.Eval(ctx)))
 
 

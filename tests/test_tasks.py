@@ -132,7 +132,7 @@ def test_write_with_the_filter_model():
     # the filter kept updating during control: every control action was also evidence
     assert r["model"] == "filter" and r["filter_iterations"] > 30 + r["waypoints"]
     # an identified (imperfect) model with camera feedback still follows the letter
-    assert r["position_error_mm"]["mean"] < 0.4 * r["letter_height_mm"]
+    assert r["success"] and r["position_error_mm"]["mean"] < 0.6  # mm, on a 1.6 mm letter (measured 0.41)
 
 
 @pytest.mark.slow
