@@ -310,6 +310,64 @@ def test_bad_scenario_or_object_exits_2_with_one_line(tmp_path, capsys, argv, me
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["identify", "--particles", "0"], "argument --particles: must be >= 10, got 0"),
+    (["reproduce", "--plant", "model", "--particles", "0"], "argument --particles: must be >= 10, got 0"),
+    (["identify", "--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+    (["identify", "--iterations", "many"], "argument --iterations: 'many' is not an integer"),
+    (["reproduce", "--plant", "model", "--trials", "0"], "argument --trials: must be >= 1, got 0"),
+    (["write", "AB", "--iterations", "-1"], "argument --iterations: must be >= 0, got -1"),
+    (["bench", "motion", "--particles", "5"], "argument --particles: must be >= 10, got 5"),
+])
+def test_bad_counts_are_refused_before_anything_runs(capsys, argv, message):
+    """A count out of range is argparse's usage error (exit 2), named; before, --particles 0
+    in reproduce silently meant 20,000."""
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_impossible_prior_and_nan_setting_exit_2_with_one_line(tmp_path, capsys):
+    """A prior with too few physical grasps (a 0.001-0.002 N m/rad spring) and a NaN
+    likelihood width are the user's settings: one line, exit 2, no traceback."""
+    low = _scenario_file(tmp_path, "plant: model\nprior:\n  stiffness_unknown: [[0, 1]]\n"
+                                   "  stiffness_range: [0.001, 0.002]\n")
+    argv = ["identify", "--scenario", str(low), "--particles", "300", "--iterations", "2", "--no-progress",
+            "--out", str(tmp_path)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "prior: only" in err and "physical grasps" in err and err.count("\n") == 1
+    nan = tmp_path / "nan.yaml"
+    nan.write_text("name: nan\nplant: model\nfilter:\n  sigma_position: .nan\n")
+    assert main(["identify", "--scenario", str(nan), "--no-progress", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "'sigma_position' must be a positive finite number, got nan" in err and err.count("\n") == 1
+
+
+def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
+    """50 mm actions: the model plant refuses all three, no filter iteration runs; the
+    result is still written and says so, and the missing convergence plot is named."""
+    path = _scenario_file(tmp_path, "plant: model\nexploration:\n  span: 0.05\n  window: 0.05\n")
+    out = tmp_path / "out"
+    assert main(["identify", "--scenario", str(path), "--particles", "300", "--iterations", "3", "--no-progress",
+                 "--out", str(out)]) == 0
+    r = json.loads((out / "identify_known_hand_seed0.json").read_text())
+    assert r["actions_refused"] == 3 and not r["converged"]
+    assert "no convergence plot: no filter iteration ran (3 actions refused)" in capsys.readouterr().out
+
+
+def test_json_has_no_nan_or_infinity(tmp_path):
+    """JSON has no NaN or Infinity: a non-finite float is written as null."""
+    from vlr_drake.cli import write_json
+
+    path = tmp_path / "r.json"
+    write_json({"log_evidence": float("-inf"), "x": [1.0, np.nan], "y": {"z": np.float64(np.inf)}, "n": 3,
+                "_private": 1}, str(path))
+    text = path.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"log_evidence": None, "x": [1.0, None], "y": {"z": None}, "n": 3}
+
+
 def test_bad_value_in_a_scenario_file_exits_2(tmp_path, capsys):
     path = _scenario_file(tmp_path, "plant: model\nobject: teapot\n")
     assert main(["identify", "--scenario", str(path), "--no-progress", "--out", str(tmp_path)]) == 2

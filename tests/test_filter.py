@@ -445,6 +445,49 @@ def test_lost_tag_moves_but_does_not_learn():
     assert np.all(f.particles.log_w == 0)
 
 
+def test_a_bad_measurement_is_refused_and_changes_nothing():
+    """A NaN pose (a lost tag must say valid=False), a matrix that is no rotation or a wrong
+    shape is a named error raised before anything moves; the filter then steps on."""
+    h, plant, f = _filter_and_plant(6, particles=1000)
+    dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])
+    assert plant.apply_action(dl)
+    R, t, _ = plant.measure()
+    theta, p_O, it = f.particles.theta.copy(), f.particles.p_O.copy(), f.iteration
+    for R_bad, t_bad, message in [(np.full((3, 3), np.nan), t, "not finite .*valid=False for a lost tag"),
+                                  (R, t + np.nan, "not finite"),
+                                  (5 * np.eye(3), t, "not a rotation matrix"),
+                                  (R, t[:2], r"'measured position' must have shape \(3,\)")]:
+        with pytest.raises(ValueError, match=message):
+            f.step(dl, R_bad, t_bad)
+        np.testing.assert_array_equal(f.particles.theta, theta)
+        np.testing.assert_array_equal(f.particles.p_O, p_O)
+        assert f.iteration == it
+    with pytest.raises(ValueError, match="'dl' must have shape"):
+        f.step(np.zeros(4), R, t)
+    assert f.step(dl, R, t).measured and np.all(np.isfinite(f.particles.theta))
+    with pytest.raises(ValueError, match="initial POM pose is not finite"):
+        f.initialise(plant.state.theta, plant.state.a, R, np.array([np.nan, 0.0, 0.08]),
+                     tendon_command=plant.state.tendon_command)
+
+
+def test_a_prior_without_physical_grasps_is_a_prior_error():
+    """PriorError (a ValueError: the user's setting) names the count of physical draws."""
+    h, plant, _ = _filter_and_plant(3, particles=300)
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], stiffness_range=(0.001, 0.002))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=300), prior, np.random.default_rng(0))
+    R, t, _ = plant.measure()
+    with pytest.raises(pf.PriorError, match=r"prior: only \d+ of 300 draws are physical grasps"):
+        f.initialise(plant.state.theta, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
+
+
+@pytest.mark.parametrize("field, value", [("sigma_position", np.nan), ("sigma_rotation", np.inf),
+                                          ("motion_error", np.nan), ("convergence_deg", -5.0),
+                                          ("divergence_sigmas", 0.0)])
+def test_filter_settings_must_be_finite(field, value):
+    with pytest.raises(ValueError, match=f"'{field}' must be a .*finite number"):
+        pf.FilterConfig(**{field: value}).validate()
+
+
 def test_swapped_object_triggers_reinitialisation():
     h, plant, f = _filter_and_plant(5, particles=2000)
     for _ in range(3):

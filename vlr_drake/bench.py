@@ -41,7 +41,7 @@ def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", 
     solve_times = {}
     for solver in ref.SOLVERS:
         ts = []
-        for p in range(reference_solves):
+        for p in range(min(reference_solves, particles)):
             t0 = time.perf_counter()
             try:
                 ref.solve_move(h, theta[p], dl, a=a[p], D2=D2[p], stretch=s[p], tendon=tendon, solver=solver)

@@ -546,4 +546,4 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
 
-    sys.exit(run_command("python -m vlr_drake.builder", main))
+    sys.exit(run_command("python -m vlr_drake.builder", main, hardware=True))

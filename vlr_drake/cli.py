@@ -43,12 +43,27 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
+def _finite(x):
+    """``x`` with every NaN or infinite float (numpy's too) as None: JSON has no NaN or
+    Infinity, and a strict reader refuses them (a run whose every hypothesis failed has a
+    log evidence of -inf; it is written as null)."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _finite(x.tolist())
+    if isinstance(x, (float, np.floating)):
+        return float(x) if np.isfinite(x) else None
+    return x
+
+
 def write_json(result: dict, path: str | None) -> None:
     if not path:
         return
     clean = {k: v for k, v in result.items() if not k.startswith("_")}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text(json.dumps(clean, indent=2, default=_json_default))
+    Path(path).write_text(json.dumps(_finite(clean), indent=2, default=_json_default, allow_nan=False))
     print(f"wrote {path}")
 
 
@@ -205,8 +220,8 @@ def identify(args) -> dict:
     if getattr(args, "trace", None):
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
+    write_json(result, args.json or str(out / f"{stem}.json"))  # first: the result is kept whatever the plots do
     _plots(result, out)
-    write_json(result, args.json or str(out / f"{stem}.json"))
     return result
 
 
@@ -341,8 +356,11 @@ def _plots(result: dict, out: Path) -> None:
     written = [
         plots.plot_joint_angles(est, truths, names, f"{stem}_proximal.png", joints="proximal"),
         plots.plot_contacts(est, truths, names, f"{stem}_contacts.png"),
-        plots.plot_convergence(result["_history"], f"{stem}_convergence.png"),
     ]
+    if result["_history"]:
+        written.append(plots.plot_convergence(result["_history"], f"{stem}_convergence.png"))
+    else:  # the plant refused every action: no filter iteration to plot
+        print(f"no convergence plot: no filter iteration ran ({result.get('actions_refused', 0)} actions refused)")
     if result.get("stiffness_error_Nm_per_rad") is not None:
         written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=[(0, 1)]))
     if result.get("link_length_error_mm"):
@@ -409,7 +427,7 @@ def demo(args) -> None:
 
     # the writing identifies its own grasp: 10,000 particles and 100 iterations (fewer when
     # the demo was asked for fewer)
-    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=min(10_000, args.particles or 10_000),
+    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=min(10_000, 10_000 if args.particles is None else args.particles),
                        identify_iterations=min(100, args.iterations), out=args.out, progress=not args.no_progress,
                        scenario=args.loaded.name if args.loaded else None, meshcat=_meshcat(args))
     pos = result["position_error_mm"]
@@ -492,12 +510,34 @@ and filtering).""",
 }
 
 
-def _common(p: argparse.ArgumentParser, particles: int, iterations: int, out: str = "out") -> None:
+def _count(least: int):
+    """An argparse type: an integer >= ``least`` (argparse names the flag in its error)."""
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if n < least:
+            raise argparse.ArgumentTypeError(f"must be >= {least}, got {n}")
+        return n
+
+    parse.__name__ = f"integer >= {least}"
+    return parse
+
+
+#: Fewest particles a filter runs with (FilterConfig.validate says the same).
+MIN_PARTICLES = 10
+
+
+def _common(p: argparse.ArgumentParser, particles: int, iterations: int, out: str = "out",
+            least_iterations: int = 1) -> None:
     p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
-    p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: the scenario's, else 0)")
-    p.add_argument("--particles", type=int, default=None,
+    p.add_argument("--seed", type=_count(0), default=None,
+                   help="seed of every random draw (default: the scenario's, else 0)")
+    p.add_argument("--particles", type=_count(MIN_PARTICLES), default=None,
                    help=f"number of particles (default: the scenario's filter.particles, else {particles})")
-    p.add_argument("--iterations", type=int, default=iterations,
+    p.add_argument("--iterations", type=_count(least_iterations), default=iterations,
                    help=f"iteration budget of the identification (default {iterations})")
     p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
     p.add_argument("--out", default=out, help=f"output folder for plots, recordings and results (default ./{out})")
@@ -520,7 +560,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = _parser("selfcheck", sub, "move the default hand with both solvers and compare")
-    p.add_argument("--seed", type=int, default=0, help="seed of the grasp and the actions (default 0)")
+    p.add_argument("--seed", type=_count(0), default=0, help="seed of the grasp and the actions (default 0)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     for name, help_text in [("identify", "run a self-identification experiment"),
@@ -561,7 +601,7 @@ def main(argv: list[str] | None = None) -> int:
                             ("maze", "play a marble maze (orientation control)"),
                             ("stack", "stack cups (SE(3) control with the rotational weight alpha)")]:
         p = _parser(name, sub, help_text)
-        _common(p, particles=3000, iterations=40)
+        _common(p, particles=3000, iterations=40, least_iterations=0)
         p.add_argument("--model", choices=["true", "filter"], default="filter",
                        help="the controller's model: the plant's hidden truth, or self-identified first")
         if name == "write":
@@ -572,7 +612,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
     _common(p, particles=20_000, iterations=100, out="out/reproduce")
-    p.add_argument("--trials", type=int, default=5, help="trials per row (default 5)")
+    p.add_argument("--trials", type=_count(1), default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,
                    help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
@@ -605,12 +645,12 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("bench", sub, "benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
-    p.add_argument("--particles", type=int, default=60_000, help="number of particles (default 60,000)")
-    p.add_argument("--iterations", type=int, default=10, help="filter iterations timed (default 10)")
-    p.add_argument("--run-iterations", type=int, default=30,
+    p.add_argument("--particles", type=_count(MIN_PARTICLES), default=60_000, help="number of particles (default 60,000)")
+    p.add_argument("--iterations", type=_count(1), default=10, help="filter iterations timed (default 10)")
+    p.add_argument("--run-iterations", type=_count(0), default=30,
                    help="filter: iterations of the known-hand identification on the physics plant whose wall "
                         "time is split into physics, rendering, detection and filtering (default 30; 0: none)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--seed", type=_count(0), default=0, help="seed of every random draw (default 0)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     args = parser.parse_args(argv)
@@ -637,7 +677,8 @@ def main(argv: list[str] | None = None) -> int:
             from vlr_drake.reproduce import format_table, reproduce
 
             r = reproduce(trials=args.trials, plant=args.plant,
-                          particles=args.particles or (args.loaded.filter.particles if args.loaded else 20_000),
+                          particles=(args.particles if args.particles is not None
+                                     else args.loaded.filter.particles if args.loaded else 20_000),
                           iterations=args.iterations, quick=args.quick, out=args.out,
                           progress=not args.no_progress, seed=args.seed, scenario=args.loaded,
                           scenario_path=args.scenario_path, meshcat=_meshcat(args),

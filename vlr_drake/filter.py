@@ -49,6 +49,7 @@ from vlr_drake.hand import HandModel
 from vlr_drake.kinematics import as_particles
 
 __all__ = [
+    "PriorError",
     "FilterConfig",
     "TENDON_REFERENCES",
     "PriorConfig",
@@ -62,6 +63,35 @@ __all__ = [
     "information_gain",
     "log_evidence_increment",
 ]
+
+
+class PriorError(ValueError):
+    """The prior (its ranges around the nominal grasp) holds too few physical grasps to draw
+    the particles from: a setting to change, not a failure of the run."""
+
+
+def _shaped(name: str, x, shape: tuple) -> np.ndarray:
+    """``x`` as a finite float array of ``shape`` (any array of that many numbers, e.g. a
+    flat one), or a ValueError that names it."""
+    arr = np.asarray(x, float)
+    if arr.size != int(np.prod(shape)):
+        raise ValueError(f"filter: '{name}' must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"filter: '{name}' contains NaN or infinite values: {arr.tolist()}")
+    return arr.reshape(shape)
+
+
+def _pose(name: str, R, t) -> tuple[np.ndarray, np.ndarray]:
+    """A measured or nominal POM pose as a (3, 3) rotation and a (3,) position, checked:
+    finite (a lost tag is ``valid=False``, not NaN), and R a rotation to 1e-6."""
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    if R.size == 9 and t.size == 3 and not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise ValueError(f"filter: the {name} POM pose is not finite (t {t.ravel().tolist()}); "
+                         "pass valid=False for a lost tag")
+    R, t = _shaped(f"{name} rotation", R, (3, 3)), _shaped(f"{name} position", t, (3,))
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise ValueError(f"filter: the {name} rotation is not a rotation matrix: {np.round(R, 6).tolist()}")
+    return R, t
 
 
 # --------------------------------------------------------------------------------------
@@ -662,10 +692,14 @@ class FilterConfig:
     def validate(self) -> FilterConfig:
         if self.particles < 10:
             raise ValueError(f"filter: 'particles' must be >= 10, got {self.particles}")
-        if self.sigma_position <= 0 or self.sigma_rotation <= 0:
-            raise ValueError("filter: 'sigma_position' and 'sigma_rotation' must be positive")
-        if not self.motion_error >= 0:
-            raise ValueError(f"filter: 'motion_error' must be >= 0, got {self.motion_error}")
+        for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"filter: '{name}' must be a positive finite number, got {v}")
+        for name in ("motion_error", "convergence_deg"):  # convergence_deg 0: never converged (a benchmark)
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"filter: '{name}' must be a finite number >= 0, got {v}")
         if self.tendon not in motion.TENDON_MODELS:
             raise ValueError(f"filter: 'tendon' must be one of {motion.TENDON_MODELS}, got '{self.tendon}'")
         if self.tendon_reference not in TENDON_REFERENCES:
@@ -817,8 +851,9 @@ class SelfIdentificationFilter:
             raise ValueError(
                 "filter: tendon_reference 'commanded' needs the absolute tendon command: pass "
                 "tendon_command=(N,) [m] to initialise() (or set tendon_reference='implied')")
-        theta_center = np.asarray(theta_center, float).reshape(h.N, h.K)
-        a_center = np.asarray(a_center, float).reshape(h.N)
+        theta_center = _shaped("theta_center", theta_center, (h.N, h.K))
+        a_center = _shaped("a_center", a_center, (h.N,))
+        R_PO, t_PO = _pose("initial", R_PO, t_PO)
         centers = (stiffness_center, link_center, mass_center)
         theta, a, stiff, links, load, stretch = self._grasps(theta_center, a_center, scale, centers)
         if self._uses_command():
@@ -879,7 +914,7 @@ class SelfIdentificationFilter:
             if total >= M:
                 break
         if total < M:
-            raise RuntimeError(
+            raise PriorError(
                 f"prior: only {total} of {M} draws are physical grasps (positive tension, joints within "
                 "limits); check the nominal grasp and the prior ranges"
             )
@@ -1042,7 +1077,9 @@ class SelfIdentificationFilter:
         if self.particles is None:
             raise RuntimeError("filter: call initialise() before step()")
         cfg, h, ps = self.config, self.hand, self.particles
-        dl = np.asarray(dl, float).reshape(h.N)
+        dl = _shaped("dl", dl, (h.N,))
+        if valid and R_meas is not None:  # checked before anything moves: a bad one changes nothing
+            R_meas, t_meas = _pose("measured", R_meas, t_meas)
         lap = _Laps()
         self.iteration += 1
         if tendon_command is not None:  # the motors' reading after the action
@@ -1069,8 +1106,6 @@ class SelfIdentificationFilter:
         lap("move")
         if not valid or R_meas is None:
             return self._report(False, float(ps.size), 1.0, res, feasible, False, np.nan, lap=lap)
-        R_meas = np.asarray(R_meas, float).reshape(3, 3)
-        t_meas = np.asarray(t_meas, float).reshape(3)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
         if cfg.stuck_probability:  # held by friction where it was (motion.move kept its angles)

@@ -144,6 +144,8 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
     if quick:
         trials, particles, iterations = 1, 1000, 8
+    if trials < 1:
+        raise ValueError(f"reproduce: 'trials' must be >= 1, got {trials}")
     chosen = EXPERIMENTS if experiments is None else tuple(experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:
