@@ -303,6 +303,7 @@ def test_write_with_meshcat_saves_a_recording(tmp_path):
     (["maze", "--scenario", "novel_NH1"], "Model O hand"),
     (["identify", "known_hand", "--scenario", "stiffness"], "identifies stiffness"),
     (["identify", "--scenario", "hardware"], "plant 'hardware'"),
+    (["stack", "--plant", "model", "--model", "true", "--alpha", "nan"], "'alpha' must be a positive finite number"),
 ])
 def test_bad_scenario_or_object_exits_2_with_one_line(tmp_path, capsys, argv, message):
     assert main([*argv, "--no-progress", "--out", str(tmp_path)]) == 2
@@ -354,6 +355,15 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
     r = json.loads((out / "identify_known_hand_seed0.json").read_text())
     assert r["actions_refused"] == 3 and not r["converged"]
     assert "no convergence plot: no filter iteration ran (3 actions refused)" in capsys.readouterr().out
+
+
+def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["identify", "--plant", "model", "--out", str(afile), "--no-progress"]) == 2
+    assert f"--out: '{afile}' is a file, not a folder" in capsys.readouterr().err
+    assert main(["identify", "--plant", "model", "--json", str(tmp_path), "--no-progress"]) == 2
+    assert f"--json: '{tmp_path}' is a folder" in capsys.readouterr().err
 
 
 def test_json_has_no_nan_or_infinity(tmp_path):

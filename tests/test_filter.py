@@ -337,6 +337,36 @@ def test_roughening_keeps_mean_and_covariance():
     np.testing.assert_allclose(W @ np.cov(after, rowvar=False) @ W.T, np.eye(len(corr)), atol=0.05)
 
 
+def test_roughening_falls_back_to_the_symmetric_square_root(monkeypatch):
+    """A collapsed cloud's covariance is rank-deficient and its Cholesky factor may not
+    exist (10 particles, 10 unknowns: 'Matrix is not positive definite' ended such a run).
+    The fallback, the symmetric square root, keeps the covariance as the factor does."""
+    h, plant, f = _filter_and_plant(3, particles=4000)
+
+    def refuse(_):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(pf.np.linalg, "cholesky", refuse)
+    before = f._unknowns(f.particles)
+    f._roughen(f.particles)
+    after = f._unknowns(f.particles)
+    W = np.linalg.inv(np.linalg.eigh(np.cov(before, rowvar=False))[1].T)  # any basis: compare variances in it
+    Cb, Ca = (W.T @ np.cov(x, rowvar=False) @ W for x in (before, after))
+    np.testing.assert_allclose(np.diag(Ca), np.diag(Cb), rtol=0.1)
+    monkeypatch.undo()
+    # and a run with as few particles as unknowns goes through
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)])
+    g = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=10), prior, np.random.default_rng(1))
+    R, t, _ = plant.measure()
+    g.initialise(plant.state.theta, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
+    for _ in range(4):
+        dl = np.array([0.2e-3, -0.1e-3, 0.1e-3])
+        if plant.apply_action(dl):
+            R, t, _ = plant.measure()
+            g.step(dl, R, t, tendon_command=plant.state.tendon_command)
+    assert np.all(np.isfinite(g.particles.theta)) and np.all(np.isfinite(g.particles.stiffness))
+
+
 def test_information_gain_matches_its_definition():
     """0.5 log det(I + Cov) over the valid predictions; too few valid ones score -inf."""
     rng = np.random.default_rng(3)

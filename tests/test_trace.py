@@ -115,6 +115,23 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
     np.save(tmp_path / "one.npy", np.zeros(3))
     with pytest.raises(ValueError, match="a single array"):
         IdentificationTrace.load(tmp_path / "one.npy")
+    actions = trace.actions.copy()
+    actions[1, 0] = np.nan
+    with pytest.raises(ValueError, match=r"'actions' must be finite numbers \(step 2\)"):
+        IdentificationTrace(**{**trace.__dict__, "actions": actions}).validate()
+    # a header that is not JSON, or JSON but not an object; a bad setting in it names the file
+    path = trace.save(tmp_path / "good.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+    for name, text in [("text.npz", "not json"), ("list.npz", "[1, 2]")]:
+        np.savez(tmp_path / name, header=np.array(text), **arrays)
+        with pytest.raises(ValueError, match=f"{name}: not an identification trace .its header is not a JSON object"):
+            IdentificationTrace.load(tmp_path / name)
+    header["filter"]["particles"] = 3
+    np.savez(tmp_path / "few.npz", header=np.array(json.dumps(header)), **arrays)
+    with pytest.raises(ValueError, match="few.npz: .*'particles' must be >= 10"):
+        IdentificationTrace.load(tmp_path / "few.npz")
     with pytest.raises(ValueError, match="parameter must be one of"):
         evidence_profile(trace, "damping", [0.1])
     with pytest.raises(ValueError, match="finite and positive"):

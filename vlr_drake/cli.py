@@ -106,6 +106,16 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
 
 
 # ------------------------------------------------------------------------------ scenario
+def _check_outputs(args) -> None:
+    """Refuse an output path that cannot be written before the run, not after it."""
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"--out: '{out}' is a file, not a folder")
+    path = getattr(args, "json", None)
+    if path and Path(path).is_dir():
+        raise ValueError(f"--json: '{path}' is a folder; give a file, e.g. {Path(path) / 'result.json'}")
+
+
 def _load_scenario(args) -> None:
     """Resolve ``--scenario`` (a file or an example's name) into ``args.loaded`` (the
     Scenario or None) and ``args.scenario_path``; the seed: ``--seed``, else the scenario's,
@@ -655,6 +665,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args = parser.parse_args(argv)
     try:
+        _check_outputs(args)
         _load_scenario(args)
         if args.command == "selfcheck":
             write_json(selfcheck(args.seed), args.json)

@@ -227,8 +227,8 @@ def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.n
 def _row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: float) -> np.ndarray:
     if rows not in ROWS:
         raise ValueError(f"'rows' must be one of {ROWS}, got '{rows}'")
-    if alpha <= 0:
-        raise ValueError(f"'alpha' must be positive, got {alpha}")
+    if not (np.isfinite(alpha) and alpha > 0):
+        raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
     w = np.concatenate([np.full(3, 1.0 / position_unit), np.full(3, alpha / rotation_unit)])
     if rows == "position":
         w[3:] = 0.0

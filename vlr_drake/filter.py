@@ -1245,7 +1245,11 @@ class SelfIdentificationFilter:
         x = self._unknowns(ps)
         mean = x.mean(axis=0)
         cov = np.cov(x, rowvar=False) + 1e-18 * np.eye(x.shape[1])
-        Lc = np.linalg.cholesky(cov)
+        try:
+            Lc = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:  # a collapsed cloud (few particles, many copies): rank-deficient
+            lam, V = np.linalg.eigh(cov)  # the symmetric square root, same covariance where it is PSD
+            Lc = V * np.sqrt(np.clip(lam, 0.0, None))
         jitter = self.rng.standard_normal(x.shape) @ (hh * Lc.T)
         x *= shrink  # in place: x is the fresh matrix of _unknowns
         x += (1.0 - shrink) * mean

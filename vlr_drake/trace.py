@@ -95,6 +95,13 @@ class IdentificationTrace:
             got = np.shape(getattr(self, name))
             if got != shape:
                 raise ValueError(f"trace: '{name}' must have shape {shape}, got {got}")
+        for name in ("theta_center", "a_center", "R0", "t0", "tendon_command0", "actions", "tendon_commands"):
+            arr = np.asarray(getattr(self, name))
+            if arr.dtype.kind not in "fiu" or not np.all(np.isfinite(arr)):
+                where = ""
+                if arr.dtype.kind in "fiu" and arr.ndim == 2 and name in ("actions", "tendon_commands"):
+                    where = f" (step {int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0]) + 1})"
+                raise ValueError(f"trace: '{name}' must be finite numbers{where}")
         bad = self.valid & ~(np.isfinite(self.R).all(axis=(1, 2)) & np.isfinite(self.t).all(axis=1))
         if bad.any():
             raise ValueError(f"trace: step {int(np.flatnonzero(bad)[0]) + 1} is marked valid but its POM pose is not finite")
@@ -140,7 +147,12 @@ class IdentificationTrace:
         with z:
             if "header" not in z.files:
                 raise ValueError(f"{path}: not an identification trace (no header)")
-            header = json.loads(str(z["header"]))
+            try:
+                header = json.loads(str(z["header"]))
+            except ValueError:
+                header = None
+            if not isinstance(header, dict):
+                raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
             if header.get("version") != TRACE_VERSION:
                 raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
             arrays = {k: z[k] for k in z.files if k != "header"}
@@ -158,7 +170,13 @@ class IdentificationTrace:
             )
         except KeyError as e:
             raise ValueError(f"{path}: trace lacks {e}") from None
-        return trace.validate()
+        except (ValueError, TypeError) as e:  # a setting or an array that is not what it should be
+            raise ValueError(f"{path}: {e}") from None
+        try:
+            trace.filter.validate()
+            return trace.validate()
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
 
 
 class TraceRecorder:

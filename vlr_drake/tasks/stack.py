@@ -132,6 +132,8 @@ def run_stack(
     """
     if plant not in ("model", "physics"):
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+    if not (np.isfinite(alpha) and alpha > 0):
+        raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
     from tqdm.auto import tqdm
 
     rng = np.random.default_rng(seed)
