@@ -232,6 +232,19 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert "model_plant: 1 iterations" in capsys.readouterr().out
 
 
+def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):
+    """The custom box with its tag on the face away from the palm camera: no measurement,
+    so the filter never starts; the run says why instead of printing infinite intervals."""
+    from vlr_drake.builder import run
+
+    text = (DIAGRAMS_DIR / "custom_hand_and_object.yaml").read_text()
+    assert 'tag_face: "-z"' in text
+    path = tmp_path / "tag_away.yaml"
+    path.write_text(text.replace('tag_face: "-z"', 'tag_face: "+z"'))
+    with pytest.raises(ValueError, match="never started in 2 action periods: no POM measurement arrived"):
+        run(load_scenario(path, "filter: {particles: 300}"), iterations=2)
+
+
 def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: Path):
     """The LeafSystem records what its filter was given (as a hardware run would); the
     trace, saved and replayed without the diagram, gives the same estimate."""

@@ -481,6 +481,11 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         d, h = built.diagram, built.hand
         sys_ctx = built.filter.GetMyContextFromRoot(ctx)
         flt = built.filter.filter(sys_ctx)
+        if flt is None and iterations > 0:  # the filter starts at the first POM measurement
+            raise ValueError(
+                f"scenario '{scenario.name}': the self-identification never started in {iterations} action "
+                f"periods: no POM measurement arrived (the camera never detected the tag; check the object's "
+                f"tag_face and tag_size, and the camera)")
         recorded = built.filter.trace(sys_ctx) if trace is not None else None
         if recorded is not None:
             recorded.meta.update(
