@@ -510,6 +510,13 @@ def test_a_prior_without_physical_grasps_is_a_prior_error():
         f.initialise(plant.state.theta, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
 
 
+def test_prior_half_widths_must_be_positive():
+    h = model_o().model()
+    with pytest.raises(ValueError, match=r"prior: the half-widths must be positive and finite, got \{'proximal_half_width': -0.1\}"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(proximal_half_width=-0.1),
+                                    np.random.default_rng(0))
+
+
 @pytest.mark.parametrize("field, value", [("sigma_position", np.nan), ("sigma_rotation", np.inf),
                                           ("motion_error", np.nan), ("convergence_deg", -5.0),
                                           ("divergence_sigmas", 0.0)])

@@ -812,6 +812,10 @@ class SelfIdentificationFilter:
         self.resamples = 0
         self.tendon_command: np.ndarray | None = None  # absolute tendon pull l (N,) [m]
         N, K = hand.N, hand.K
+        widths = {n: getattr(prior, n) for n in ("proximal_half_width", "distal_half_width", "contact_half_width")}
+        bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
+        if bad:
+            raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
         for fi, j in prior.stiffness_unknown:
             if not (0 <= fi < N and 0 <= j < K):
                 raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
