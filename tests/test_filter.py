@@ -716,6 +716,39 @@ def test_link_weight_defaults_per_plant_and_experiment():
     assert physics.filter._config.gravity_loads == "held"
 
 
+def test_likelihood_width_scales_both_sigmas_and_has_per_experiment_defaults():
+    """likelihood_width w is the likelihood with sigmas w sigma_p and w sigma_r (None: 1);
+    identification runs and scenario diagrams take LIKELIHOOD_WIDTH's defaults (1.5 for the
+    physics known hand and stiffness, 1 for the novel fingers and the model plant)."""
+    from vlr_drake.builder import build_diagram
+    from vlr_drake.identify import default_likelihood_width
+    from vlr_drake.scenario import Scenario
+
+    hand = model_o().model()
+    R = np.repeat(np.eye(3)[None], 3, axis=0)
+    t = np.zeros((3, 3))
+    dp, ang = np.array([0.0, 2e-4, 5e-4]), np.array([0.02, 0.0, 0.01])
+
+    def ll(**kw):
+        f = pf.SelfIdentificationFilter(hand, pf.FilterConfig(**kw), pf.PriorConfig(), np.random.default_rng(0))
+        return f._log_likelihood(dp, ang, R, t, R, t)
+
+    base, wide = pf.FilterConfig(), pf.FilterConfig(likelihood_width=2.0)
+    assert wide.sigmas() == (2 * base.sigma_position, 2 * base.sigma_rotation) and base.sigmas() == (
+        base.sigma_position, base.sigma_rotation)
+    np.testing.assert_allclose(ll(likelihood_width=2.0)[0], ll(sigma_position=2 * base.sigma_position,
+                                                                sigma_rotation=2 * base.sigma_rotation)[0])
+    np.testing.assert_allclose(ll(likelihood_width=None)[1], ll(likelihood_width=1.0)[1])
+    with pytest.raises(ValueError, match="'likelihood_width' must be None or a positive finite number, got 0"):
+        pf.FilterConfig(likelihood_width=0.0).validate()
+    assert default_likelihood_width("physics", "known_hand") == default_likelihood_width("hardware", "stiffness") == 1.5
+    assert default_likelihood_width("physics", "novel_fingers") == default_likelihood_width("model", "known_hand") == 1.0
+    physics = build_diagram(Scenario(plant="physics", filter=pf.FilterConfig(particles=100)))
+    assert physics.filter._config.likelihood_width == 1.5  # the default scenario: the known hand
+    model = build_diagram(Scenario(plant="model", filter=pf.FilterConfig(particles=100, likelihood_width=1.2)))
+    assert model.filter._config.likelihood_width == 1.2  # a given value is kept
+
+
 def test_each_experiment_holds_its_papers_object_unless_told():
     """The stiffness experiment holds the toy block, as the paper's Fig. 5 did (and as
     reproduce runs it); the others the apple; a given object is kept."""

@@ -311,6 +311,10 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         from vlr_drake.identify import default_stuck_probability
 
         config = replace(config, stuck_probability=default_stuck_probability(s.plant, s.experiment()))
+    if config.likelihood_width is None:  # likewise
+        from vlr_drake.identify import default_likelihood_width
+
+        config = replace(config, likelihood_width=default_likelihood_width(s.plant, s.experiment()))
     flt = SelfIdentificationSystem(h, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()

@@ -549,6 +549,12 @@ class FilterConfig:
     sigma_position: float = 0.3e-3
     # Rotation noise of the POM measurement plus model error, sigma_r [rad].
     sigma_rotation: float = np.deg2rad(1.5)
+    # The likelihood's width: both sigmas above are multiplied by this factor (sigmas()).
+    # Wider, the filter learns less from each measurement and its intervals allow more of the
+    # model's mismatch to the plant. None: 1 here; an identification run takes its plant's
+    # and experiment's default (vlr_drake.identify.LIKELIHOOD_WIDTH: 1.5 for the known hand
+    # and the stiffness on the physics plant, measured there).
+    likelihood_width: float | None = None
     # Shape of the likelihood of each 3-D error (position, rotation): "gaussian" (default)
     # or "student_t", a multivariate t with ``likelihood_dof`` degrees of freedom whose
     # scale makes it agree with the Gaussian near zero error (scale^2 = sigma^2 (nu + 3) /
@@ -711,6 +717,9 @@ class FilterConfig:
             raise ValueError(f"filter: 'likelihood_dof' must be positive, got {self.likelihood_dof}")
         if self.stuck_probability is not None and not 0 <= self.stuck_probability <= 1:
             raise ValueError(f"filter: 'stuck_probability' must be in [0, 1], got {self.stuck_probability}")
+        w = self.likelihood_width
+        if w is not None and not (np.isfinite(w) and w > 0):
+            raise ValueError(f"filter: 'likelihood_width' must be None or a positive finite number, got {w}")
         if self.gravity_loads is not None and self.gravity_loads not in GRAVITY_LOADS:
             raise ValueError(f"filter: 'gravity_loads' must be one of {GRAVITY_LOADS}, got '{self.gravity_loads}'")
         if self.held_motion not in HELD_MOTIONS:
@@ -736,6 +745,11 @@ class FilterConfig:
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got {list(self.gravity_palm)}")
         return self
+
+    def sigmas(self) -> tuple[float, float]:
+        """(sigma_p [m], sigma_r [rad]) of the likelihood: the sigmas times ``likelihood_width``."""
+        width = 1.0 if self.likelihood_width is None else float(self.likelihood_width)
+        return self.sigma_position * width, self.sigma_rotation * width
 
 
 # --------------------------------------------------------------------------------------
@@ -1065,7 +1079,8 @@ class SelfIdentificationFilter:
         solved = (res.ok & ok0 & ok1).reshape(C, S)
         live = self._feasible(res, ok0 & ok1).reshape(C, S)
         turn = observation.rotvec(np.einsum("pji,pjk->pik", R0, R1))
-        y = np.concatenate([(t1 - t0) / cfg.sigma_position, turn / cfg.sigma_rotation], axis=1)
+        sp, sr = cfg.sigmas()
+        y = np.concatenate([(t1 - t0) / sp, turn / sr], axis=1)
         score = information_gain(y.reshape(C, S, 6), live, min_valid=0.0)
         return np.where(solved.mean(axis=1) >= min_valid, score, -np.inf)
 
@@ -1181,7 +1196,8 @@ class SelfIdentificationFilter:
         (-3 log sigma per 3-D error) keeps particles that predict large motions from being
         favoured for their wider spread."""
         cfg = self.config
-        sp2, sr2 = cfg.sigma_position**2, cfg.sigma_rotation**2  # per particle with motion_error
+        sp, sr = cfg.sigmas()
+        sp2, sr2 = sp**2, sr**2  # per particle with motion_error
         if cfg.motion_error > 0:
             move_t = np.linalg.norm(t_pred - t_prev, axis=1)
             move_r = observation.rotation_angle(R_pred, R_prev)

@@ -123,6 +123,19 @@ ACTION_CHOICES = ("random", "informative")
 #: weight, following (GRAVITY_LOADS), and the others keep it held. Why held does better on
 #: the novel hands, where the two moves differ by ~5% of the motion, is not understood.
 LINK_WEIGHT = {("physics", "known_hand"): True, ("physics", "novel_fingers"): True, ("physics", "stiffness"): True}
+#: FilterConfig.likelihood_width per (plant, experiment) where it is None; 1 elsewhere
+#: ("physics" stands for hardware too). Replays of the physics traces (20,000 particles,
+#: seeds 0-4 x 4 objects for the known hand, seeds 0-14 for the others; 2026-11-25), the
+#: sigmas 1x / 1.25x / 1.5x (2x: NH1 4.13 mm, spring 0.0448):
+#:   known hand, proximal [deg]   1.32 +- 1.38 / 1.15 +- 0.88 / 1.07 +- 0.71, joints inside 0.93 / 0.95 / 0.97
+#:   spring [N m/rad]             0.0214 / 0.0231 / 0.0258, springs inside 12 / 14 / 15 of 15,
+#:                                joints inside 0.70 / 0.87 / 0.94, mean joint error 1.84 / 1.47 / 1.26 deg
+#:   NH1 / NH2 / NH3 links [mm]   2.54 / 2.25 / 2.76;  2.52 / 2.78 / 3.82;  1.99 / 2.90 / 4.28
+#: Wider, the known hand is nearer and more honest and the stiffness runs honest (the model's
+#: mismatch, which the squeezes load, is what their narrow intervals missed), at a spring
+#: 0.004 N m/rad further off; the novel hands' links, which need all that the camera tells,
+#: come out longer (NH3 past the paper's 3.4 mm), so the novel fingers keep 1.
+LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.5}
 #: FilterConfig.gravity_loads per (plant, experiment) where it is None: "held" elsewhere.
 #: The object's weight (IdentifyOptions.object_weight) always follows.
 GRAVITY_LOADS = {("physics", "stiffness"): "following"}
@@ -146,6 +159,12 @@ def filter_gravity(physics=None) -> list[float]:
     if physics is None:
         return [0.0, 0.0, 0.0]
     return [float(x) for x in physics.gravity_in_palm()]
+
+
+def default_likelihood_width(plant: str, experiment: str) -> float:
+    """FilterConfig.likelihood_width of ``experiment`` on ``plant`` ("model"; "physics" or
+    "hardware"): its entry in LIKELIHOOD_WIDTH, else 1."""
+    return LIKELIHOOD_WIDTH.get(("model" if plant == "model" else "physics", experiment), 1.0)
 
 
 def default_stuck_probability(plant: str, experiment: str) -> float:
@@ -468,6 +487,8 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     opts.filter.particles = opts.particles
     if opts.filter.stuck_probability is None:
         opts.filter.stuck_probability = default_stuck_probability(opts.plant, opts.experiment)
+    if opts.filter.likelihood_width is None:
+        opts.filter.likelihood_width = default_likelihood_width(opts.plant, opts.experiment)
     rng = np.random.default_rng(opts.seed)
     true_spec, filt_spec, prior = _hands(opts, rng)
     true_hand, filt_hand = true_spec.model(), filt_spec.model()
@@ -641,6 +662,7 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f
         "seed": opts.seed,
         "particles": opts.filter.particles,
         "stuck_probability": opts.filter.stuck_probability,
+        "likelihood_width": opts.filter.likelihood_width,
         "plant": opts.plant,
         "converged": converged_at is not None,
         "iterations": int(converged_at if converged_at is not None else last_it),
