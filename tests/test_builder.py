@@ -245,6 +245,20 @@ def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):
         run(load_scenario(path, "filter: {particles: 300}"), iterations=2)
 
 
+def test_an_object_out_of_reach_is_one_line_and_exit_2(tmp_path: Path, capsys):
+    """A placement the pads cannot reach (PlacementError, a ValueError) ends the command
+    with one line naming the finger and the setting, not a traceback."""
+    from vlr_drake.builder import main
+    from vlr_drake.entry import run as run_command
+
+    text = (DIAGRAMS_DIR / "custom_hand_and_object.yaml").read_text()
+    path = tmp_path / "far.yaml"
+    path.write_text(text.replace("placement_xyz: [0.0, 0.0, 0.07]", "placement_xyz: [0.0, 0.0, 0.5]"))
+    assert run_command("python -m vlr_drake.builder", lambda: main(["--run", str(path), "--iterations", "1"])) == 2
+    err = capsys.readouterr().err
+    assert "pad never reaches object 'tagged_block'; move the object's placement_xyz" in err and err.count("\n") == 1
+
+
 def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: Path):
     """The LeafSystem records what its filter was given (as a hardware run would); the
     trace, saved and replayed without the diagram, gives the same estimate."""

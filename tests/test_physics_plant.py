@@ -14,7 +14,12 @@ from vlr_drake.objects import PAPER_OBJECTS, preset
 from vlr_drake.perception.apriltag import dictionary, tag_corners
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.physics.check import exploration_step, run_check
-from vlr_drake.systems.physics_plant import ImageDownsampler, PhysicsConfig, build_physics_hand
+from vlr_drake.systems.physics_plant import (
+    ImageDownsampler,
+    PhysicsConfig,
+    PlacementError,
+    build_physics_hand,
+)
 
 OUTPUTS = {
     "theta_true": 6,
@@ -381,8 +386,9 @@ def test_placement_checks_and_auto_placement():
     # Out of the pads' reach: the grasp moves it along the palm normal until they reach it.
     high = copy_spec(preset("apple"), placement_xyz=[0.0, 0.0, 0.125])
     _, ph, sim = build_physics_hand(model_o(), high, PhysicsConfig(auto_place_range=0.0))
-    with pytest.raises(RuntimeError, match="never reaches"):
+    with pytest.raises(RuntimeError, match="never reaches") as e:
         ph.place(sim.get_mutable_context())
+    assert isinstance(e.value, PlacementError) and isinstance(e.value, ValueError)  # a command says it in one line
     _, ph, sim = build_physics_hand(model_o(), high, PhysicsConfig(auto_place_range=0.03))
     g = ph.grasp(sim)
     assert 0.095 <= ph.placement_X_PB.translation()[2] < 0.125

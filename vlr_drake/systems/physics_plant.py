@@ -101,6 +101,7 @@ from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.systems.tendons import TendonForces
 
 __all__ = [
+    "PlacementError",
     "PhysicsConfig",
     "PhysicsHand",
     "GraspResult",
@@ -116,6 +117,12 @@ __all__ = [
 RENDERER_NAME = "vtk"
 #: Automatic placement goes this much further than the first shift at which the pads reach [m].
 AUTO_PLACE_MARGIN = 0.01
+
+
+class PlacementError(ValueError, RuntimeError):
+    """The object's placement (a setting: ``placement_xyz``, the hand, the pretension) gives
+    no grasp. A ValueError, so that a command reports it in one line; a RuntimeError, as
+    before, for callers that catch that."""
 
 
 @dataclass
@@ -613,7 +620,7 @@ class PhysicsHand:
             grid = np.linspace(0.0, s_max, steps)
             d0 = distance(i, 0.0)
             if d0 <= 0:
-                raise RuntimeError(
+                raise PlacementError(
                     f"finger '{self.hand.names[i]}': pad already penetrates the object when straight; "
                     "move the object's placement_xyz"
                 )
@@ -623,7 +630,7 @@ class PhysicsHand:
                     hi = s
                     break
             if hi is None:
-                raise RuntimeError(
+                raise PlacementError(
                     f"finger '{self.hand.names[i]}': pad never reaches object '{self.obj.name}'; "
                     "move the object's placement_xyz"
                 )
@@ -645,7 +652,7 @@ class PhysicsHand:
             a, b = int(pair.id_A.get_value()), int(pair.id_B.get_value())
             if (a in objs) != (b in objs) and not ({a, b} & pads) and pair.distance < -1e-3:
                 other = pair.id_B if a in objs else pair.id_A
-                raise RuntimeError(
+                raise PlacementError(
                     f"object '{self.obj.name}' penetrates '{sg.model_inspector().GetName(other)}' by "
                     f"{-1e3 * pair.distance:.1f} mm at its placement; move the object's placement_xyz"
                 )
@@ -765,12 +772,12 @@ class PhysicsHand:
                     theta0 = deeper if deeper is not None else attempt(dz)
                 break
         else:
-            raise RuntimeError(
+            raise PlacementError(
                 f"{error} (also tried +-{self.physics.auto_place_range} m along the palm normal)"
             )
         l = self.hand.R @ theta0 + self.pretensions(root_context) / self.hand.kappa
         if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
-            raise RuntimeError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
+            raise PlacementError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
         l = self.tendons.clamp(l)
         self.tendons.set_applied(self.tendons.GetMyMutableContextFromRoot(root_context), l)
         return theta0, l
