@@ -145,6 +145,7 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: -1}\n", "tag_id"),
         ("plant: model\nobject_spec: {name: o, shape: blob}\n", "shape"),
         ("plant: simulated\n", "plant"),
+        ("plant: model\nseed: -3\n", "'seed' must be an integer >= 0, got -3"),
         ("filter_action: guessed\n", "filter_action"),
         ("hand: model_x\n", "hand"),
         ("object: pear\n", "object"),

@@ -359,6 +359,8 @@ class Scenario:
 
     def validate(self) -> "Scenario":
         """Check every section; raises ``ValueError`` naming the section and field."""
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"'seed' must be an integer >= 0, got {self.seed!r}")
         if self.plant not in PLANTS:
             raise ValueError(f"'plant' must be one of {list(PLANTS)}, got '{self.plant}'")
         if self.filter_action not in FILTER_ACTIONS:
