@@ -510,6 +510,18 @@ def test_a_prior_without_physical_grasps_is_a_prior_error():
         f.initialise(plant.state.theta, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
 
 
+def test_bad_gravity_and_rng_are_named():
+    h = model_o().model()
+    theta = np.repeat(h.rest_angles[None] + 0.3, 2, axis=0)
+    with pytest.raises(ValueError, match=r"'gravity' must be 3 finite numbers \[m/s\^2\], got \[0.0, 9.81\]"):
+        a = np.full((2, h.N), 0.02)
+        D2 = pf.motion.contact_distances_sq(h, pf.kinematics.contacts(h, theta, a))
+        pf.motion.move(h, theta, np.zeros(h.N), a=a, D2=D2, stretch=np.full((2, h.N), 1e-3),
+                       gravity=np.array([0.0, 9.81]))
+    with pytest.raises(TypeError, match="'rng' must be a numpy.random.Generator"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(), 3)
+
+
 def test_prior_half_widths_must_be_positive():
     h = model_o().model()
     with pytest.raises(ValueError, match=r"prior: the half-widths must be positive and finite, got \{'proximal_half_width': -0.1\}"):

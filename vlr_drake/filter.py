@@ -817,6 +817,9 @@ class SelfIdentificationFilter:
         self.hand = hand
         self.config = config.validate()
         self.prior = prior
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"filter: 'rng' must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                            f"got {type(rng).__name__}")
         self.rng = rng
         self.particles: ParticleSet | None = None
         self.iteration = 0

@@ -317,9 +317,10 @@ class HandModel:
     def gravity_in_finger_planes(self, gravity) -> np.ndarray:
         """(N, 2) components (g . u_i, g . z) of ``gravity`` (3,) [m/s^2] in the palm frame,
         in each finger's plane: the part that does work on the finger's joints."""
-        g = np.asarray(gravity, float).reshape(3)
-        if not np.all(np.isfinite(g)):
+        g = np.asarray(gravity, float)
+        if g.size != 3 or not np.all(np.isfinite(g)):
             raise ValueError(f"'gravity' must be 3 finite numbers [m/s^2], got {g.tolist()}")
+        g = g.reshape(3)
         return np.ascontiguousarray(np.stack([self.u @ g, np.full(self.N, float(g @ self.z))], axis=1))
 
     @cached_property

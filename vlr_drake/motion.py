@@ -1013,10 +1013,10 @@ def _gravity_loads(hand: HandModel, P: int, L: np.ndarray, gravity, object_load)
     """The kernel's gravity loads (links' first moments (P or 1, N, K), contact forces (P or
     1, N, 3) [N], gravity in the finger planes (N, 2), loaded) for :func:`move`'s
     ``gravity`` and ``object_load``."""
+    gw = None if gravity is None else hand.gravity_in_finger_planes(gravity)  # checks gravity first
     fc = _contact_forces(hand, P, gravity, object_load)
-    if gravity is None:
+    if gw is None:
         return np.zeros((1, hand.N, hand.K)), fc, np.zeros((hand.N, 2)), False
-    gw = hand.gravity_in_finger_planes(gravity)
     return np.ascontiguousarray(hand.link_moments(L)), fc, gw, True
 
 
