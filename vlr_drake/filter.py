@@ -713,8 +713,6 @@ class FilterConfig:
                 f"filter: 'tendon_reference' must be one of {TENDON_REFERENCES}, got '{self.tendon_reference}'")
         if self.likelihood not in LIKELIHOODS:
             raise ValueError(f"filter: 'likelihood' must be one of {LIKELIHOODS}, got '{self.likelihood}'")
-        if not self.likelihood_dof > 0:
-            raise ValueError(f"filter: 'likelihood_dof' must be positive, got {self.likelihood_dof}")
         if self.stuck_probability is not None and not 0 <= self.stuck_probability <= 1:
             raise ValueError(f"filter: 'stuck_probability' must be in [0, 1], got {self.stuck_probability}")
         w = self.likelihood_width
