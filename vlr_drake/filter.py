@@ -76,9 +76,7 @@ def _shaped(name: str, x, shape: tuple) -> np.ndarray:
     arr = np.asarray(x, float)
     if arr.size != int(np.prod(shape)):
         raise ValueError(f"filter: '{name}' must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"filter: '{name}' contains NaN or infinite values: {arr.tolist()}")
-    return arr.reshape(shape)
+    return as_particles(name, arr.reshape(shape), shape)  # its finiteness check and message
 
 
 def _pose(name: str, R, t) -> tuple[np.ndarray, np.ndarray]:
