@@ -537,6 +537,47 @@ def test_filter_settings_must_be_finite(field, value):
         pf.FilterConfig(**{field: value}).validate()
 
 
+def test_contacts_stay_on_each_fingers_own_pad():
+    """Left out, the contact limits are each finger's last link: NH3's finger_right (NF3)
+    has a 40 mm distal link, the others 48 mm. A wide contact box drawn and roughened
+    around the pads' ends keeps every contact on its own finger's pad."""
+    from vlr_drake.hand import hand_by_name
+
+    h = hand_by_name("NH3").model()
+    assert list(h.distal_length) == [0.048, 0.048, 0.040]
+    lo, hi = pf.PriorConfig().contact_bounds(h)
+    np.testing.assert_array_equal(lo, pf.CONTACT_MIN)
+    np.testing.assert_array_equal(hi, h.distal_length)
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=2000), pf.PriorConfig(contact_half_width=0.02),
+                                    np.random.default_rng(2))
+    R, t, _ = plant.measure()
+    f.initialise(th, np.full(h.N, 0.038), R, t, tendon_command=plant.state.tendon_command)
+    reach = [f.particles.a.max(axis=0)]
+    for dl in ([0.3e-3, -0.2e-3, 0.2e-3], [-0.2e-3, 0.3e-3, -0.1e-3]):
+        assert plant.apply_action(np.array(dl))
+        f.step(np.array(dl), *plant.measure()[:2])
+        reach.append(f.particles.a.max(axis=0))
+    reach = np.array(reach)
+    assert np.all(reach <= h.distal_length + 1e-15) and np.all(f.particles.a >= pf.CONTACT_MIN)
+    assert reach[0, 2] > 0.039 and reach[0, 0] > 0.041  # the box reached past 40 mm where it may
+
+
+def test_contact_limits_past_a_finger_are_named():
+    from vlr_drake.hand import hand_by_name
+
+    h = hand_by_name("NH3").model()
+    with pytest.raises(ValueError, match=r"prior: 'contact_limits' max 45.0 mm reaches past the last link of "
+                                         r"'finger_right_NF3' \(40.0 mm\)"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(contact_limits=(0.005, 0.045)),
+                                    np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"'contact_limits' must be \[min, max\] \[m\] with 0 <= min < max"):
+        pf.PriorConfig(contact_limits=(0.03, 0.01)).contact_bounds(h)
+    lo, hi = pf.PriorConfig(contact_limits=(0.01, 0.035)).contact_bounds(h)
+    assert np.all(lo == 0.01) and np.all(hi == 0.035)
+
+
 def test_swapped_object_triggers_reinitialisation():
     h, plant, f = _filter_and_plant(5, particles=2000)
     for _ in range(3):

@@ -117,7 +117,18 @@ def test_prior_settings_convert_to_the_filters_tuples():
     p = PriorSettings(stiffness_unknown=[[0, 1]], stiffness_range=[0.1, 0.3], links_unknown=[2]).to_prior()
     assert isinstance(p, pf.PriorConfig)
     assert p.stiffness_unknown == [(0, 1)] and p.stiffness_range == (0.1, 0.3) and p.links_unknown == [2]
-    assert p.link_range == pf.PriorConfig().link_range and p.contact_limits == pf.PriorConfig().contact_limits
+    assert p.link_range == pf.PriorConfig().link_range and p.contact_limits is None is pf.PriorConfig().contact_limits
+    assert PriorSettings(contact_limits=[0.004, 0.03]).to_prior().contact_limits == (0.004, 0.03)
+
+
+def test_contact_limits_past_a_finger_name_the_finger(tmp_path):
+    path = tmp_path / "nh3.yaml"
+    path.write_text("hand: NH3\nprior:\n  contact_limits: [0.005, 0.048]\n")
+    with pytest.raises(ValueError, match=r"nh3.yaml: prior: 'contact_limits' max 48.0 mm reaches past the last "
+                                         r"link of 'finger_right_NF3' \(40.0 mm\)"):
+        load_scenario(path)
+    path.write_text("hand: NH3\nprior:\n  contact_limits: [0.005, 0.040]\n")
+    assert load_scenario(path).prior.contact_limits == [0.005, 0.040]
 
 
 def test_package_dataclasses_load_with_yaml_load_typed():
@@ -205,3 +216,18 @@ def test_missing_scenario_file(tmp_path: Path):
 def test_scenario_defaults_validate():
     s = Scenario().validate()
     assert s.hand_spec_resolved() == model_o()
+
+
+def test_a_field_given_twice_is_named(tmp_path):
+    """YAML loaders keep the last of two equal keys silently; a scenario names the field."""
+    path = tmp_path / "twice.yaml"
+    path.write_text("plant: model\nfilter:\n  particles: 5000\n  sigma_position: 0.0003\n  particles: 8000\n")
+    with pytest.raises(ValueError, match=r"twice.yaml \(file\): field 'filter.particles' is given twice "
+                                         r"\(lines 3 and 5\)"):
+        load_scenario(path)
+    with pytest.raises(ValueError, match=r"\(override text\): field 'seed' is given twice \(lines 1 and 2\)"):
+        load_scenario(DIAGRAMS_DIR / "default.yaml", overrides="seed: 1\nseed: 2\n")
+    with pytest.raises(ValueError, match=r"field 'hand_spec.fingers\[1\].name' is given twice"):
+        load_scenario(DIAGRAMS_DIR / "default.yaml",
+                      overrides="hand_spec:\n  fingers:\n    - {name: a}\n    - {name: b, name: c}\n")
+    assert load_scenario(DIAGRAMS_DIR / "default.yaml", overrides="seed: 3\nfilter: {particles: 5000}\n").seed == 3

@@ -65,6 +65,10 @@ __all__ = [
 ]
 
 
+#: Nearest a contact may lie to the distal joint along the last link [m] (PriorConfig.contact_limits).
+CONTACT_MIN = 0.005
+
+
 class PriorError(ValueError):
     """The prior (its ranges around the nominal grasp) holds too few physical grasps to draw
     the particles from: a setting to change, not a failure of the run."""
@@ -517,10 +521,32 @@ class PriorConfig:
     # weightless).
     object_mass_unknown: bool = False
     object_mass_range: tuple[float, float] = (0.0, 0.25)
-    # Contact positions must stay on the pad: [min, max] along the last link [m].
-    contact_limits: tuple[float, float] = (0.005, 0.048)
+    # Contact positions must stay on the pad: [min, max] along the last link [m], the same
+    # for every finger and within each finger's last link. None: from CONTACT_MIN to each
+    # finger's own last-link length (HandModel.distal_length), so a shorter novel distal
+    # link (NF3's 40 mm) keeps its contacts on it.
+    contact_limits: tuple[float, float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+
+    def contact_bounds(self, hand: HandModel) -> tuple[np.ndarray, np.ndarray]:
+        """Each finger's contact range along its last link [m]: (lower (N,), upper (N,)).
+
+        Raises ``ValueError`` naming the finger when ``contact_limits`` is not an
+        increasing pair of finite distances or reaches past a finger's last link.
+        """
+        L = np.asarray(hand.distal_length, float)
+        if self.contact_limits is None:
+            return np.full(hand.N, CONTACT_MIN), L.copy()
+        lim = np.asarray(self.contact_limits, float)
+        if lim.shape != (2,) or not (np.isfinite(lim).all() and 0 <= lim[0] < lim[1]):
+            raise ValueError(f"prior: 'contact_limits' must be [min, max] [m] with 0 <= min < max, "
+                             f"got {self.contact_limits}")
+        past = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True) if lim[1] > length + 1e-12]
+        if past:
+            raise ValueError(f"prior: 'contact_limits' max {lim[1] * 1e3:.1f} mm reaches past the last link of "
+                             f"{', '.join(past)}; lower it, or leave it out to use each finger's own length")
+        return np.full(hand.N, lim[0]), np.full(hand.N, lim[1])
 
 
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
@@ -829,6 +855,7 @@ class SelfIdentificationFilter:
         bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
         if bad:
             raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
+        self._contact_bounds = prior.contact_bounds(hand)
         for fi, j in prior.stiffness_unknown:
             if not (0 <= fi < N and 0 <= j < K):
                 raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
@@ -892,7 +919,7 @@ class SelfIdentificationFilter:
         theta[..., 0] = theta_center[:, 0] + scale * pr.proximal_half_width * self.rng.uniform(-1, 1, (n, h.N))
         theta[..., 1:] = theta_center[:, 1:] + scale * pr.distal_half_width * self.rng.uniform(-1, 1, (n, h.N, h.K - 1))
         a = a_center + scale * pr.contact_half_width * self.rng.uniform(-1, 1, (n, h.N))
-        a = np.clip(a, *pr.contact_limits)
+        a = np.clip(a, *self._contact_bounds)
         stiffness_center, link_center, mass_center = centers
         stiff = self._draw_stiffness(n, stiffness_center, scale)
         links = self._draw_links(n, link_center, scale)
@@ -1225,7 +1252,7 @@ class SelfIdentificationFilter:
         h, pr = self.hand, self.prior
         n = h.N * h.K
         ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
-        ps.a = np.clip(x[:, n : n + h.N], *pr.contact_limits)
+        ps.a = np.clip(x[:, n : n + h.N], *self._contact_bounds)
         c = n + h.N
         if pr.stiffness_unknown:
             k = ps.stiffness.copy()

@@ -122,8 +122,9 @@ class PriorSettings:
     links_unknown: list[int] = field(default_factory=list)
     # ... searched in [min, max] [m].
     link_range: list[float] = field(default_factory=lambda: [0.030, 0.075])
-    # Contact positions must stay on the pad: [min, max] along the last link [m].
-    contact_limits: list[float] = field(default_factory=lambda: [0.005, 0.048])
+    # Contact positions must stay on the pad: [min, max] along the last link [m], within
+    # every finger's last link. Left out: from 5 mm to each finger's own last-link length.
+    contact_limits: list[float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
 
@@ -137,7 +138,8 @@ class PriorSettings:
             stiffness_prior=self.stiffness_prior,
             links_unknown=[int(i) for i in self.links_unknown],
             link_range=(float(self.link_range[0]), float(self.link_range[1])),
-            contact_limits=(float(self.contact_limits[0]), float(self.contact_limits[1])),
+            contact_limits=None if self.contact_limits is None
+            else (float(self.contact_limits[0]), float(self.contact_limits[1])),
             min_tension=self.min_tension,
         )
 
@@ -147,6 +149,8 @@ class PriorSettings:
                 raise ValueError(f"prior: '{name}' must be positive, got {getattr(self, name)}")
         for name in ("stiffness_range", "link_range", "contact_limits"):
             v = getattr(self, name)
+            if v is None:
+                continue
             if len(v) != 2 or not v[0] < v[1]:
                 raise ValueError(f"prior: '{name}' must be [min, max] with min < max, got {v}")
         if self.stiffness_prior not in pf.STIFFNESS_PRIORS:
@@ -388,6 +392,7 @@ class Scenario:
         _with_section("observer", obs.validate)
         N, K = hand.num_fingers, hand.num_joints_per_finger
         self.prior.validate(N, K)
+        _with_section("prior", lambda: self.prior.to_prior().contact_bounds(hand.model()))
         self.exploration.validate()
         self.model_plant.validate(N, K)
         self.grasp.validate(N, K)
@@ -425,6 +430,9 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     for source, kwargs in [("file", dict(filename=str(path))), ("override text", dict(data=overrides))]:
         if source == "override text" and not overrides:
             continue
+        duplicate = _duplicate_key(path.read_text() if source == "file" else overrides)
+        if duplicate:
+            raise ValueError(f"{path} ({source}): {duplicate}")
         try:
             scenario = yaml_load_typed(schema=Scenario, defaults=scenario, **kwargs)
         except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError ...
@@ -452,6 +460,41 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
     return scenario
+
+
+def _duplicate_key(text: str) -> str:
+    """"field 'a.b' is given twice (lines 3 and 9)" for the first key that a mapping of the
+    YAML ``text`` repeats ("" if none, or if the text does not parse: the loader says why).
+    YAML loaders keep the last value silently, so a setting written twice would be lost."""
+    import yaml
+
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return ""
+
+    def walk(node, prefix):
+        if isinstance(node, yaml.MappingNode):
+            seen = {}
+            for key, value in node.value:
+                if not isinstance(key, yaml.ScalarNode):  # a complex key: the loader refuses it
+                    continue
+                name = f"{prefix}{key.value}"
+                if key.value in seen:
+                    return (f"field '{name}' is given twice (lines {seen[key.value] + 1} and "
+                            f"{key.start_mark.line + 1})")
+                seen[key.value] = key.start_mark.line
+                found = walk(value, f"{name}.")
+                if found:
+                    return found
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                found = walk(item, f"{prefix[:-1]}[{i}].")
+                if found:
+                    return found
+        return ""
+
+    return walk(root, "") if root is not None else ""
 
 
 def _dataclass_of(t) -> type | None:
