@@ -159,6 +159,13 @@ def test_a_trace_from_before_a_setting_existed_replays_with_its_behaviour_then(t
     old = IdentificationTrace.load(tmp_path / "old.npz")
     assert old.filter.newton_loose_after is None
     assert IdentificationTrace.load(path).filter == trace.filter
+    # contact limits: the Model O's pad, which old traces wrote for every finger, is today's
+    # default (each finger's own link); other limits load as given
+    assert header["prior"]["contact_limits"] is None
+    for written, loaded in [([0.005, 0.048], None), ([0.006, 0.04], (0.006, 0.04))]:
+        header["prior"]["contact_limits"] = written
+        np.savez(tmp_path / "old.npz", header=np.array(json.dumps(header)), **arrays)
+        assert IdentificationTrace.load(tmp_path / "old.npz").prior.contact_limits == loaded
 
 
 def test_config_overrides_parse_each_kind_and_name_bad_input():

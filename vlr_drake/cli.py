@@ -454,9 +454,10 @@ _DESCRIPTIONS = {
     "selfcheck": """Build the default hand (Model O), draw one stable fingertip grasp, move it through a few
 random tendon actions with the batched Newton solver of the motion function (Eq. 9) and with
 MathematicalProgram (IPOPT and SNOPT), and print how far apart the joint angles are.""",
-    "identify": """Run one self-identification experiment of the paper (Algorithm 1): grasp, then random
-exploratory tendon actions, each followed by a camera measurement of the POM and a particle
-filter iteration, until the 95% intervals of the joint angles are narrow (converged) or the
+    "identify": """Run one self-identification experiment of the paper (Algorithm 1): grasp, then exploratory
+tendon actions (random on the physics plant, as the paper's; informative on the model
+plant), each followed by a camera measurement of the POM and a particle filter iteration,
+until the 95% intervals of the joint angles are narrow (converged) or the
 iteration budget is spent. Prints a table of estimated vs true joint angles, contacts (and
 stiffness or link lengths), writes convergence plots and the JSON result (DESIGN.md section
 11) to --out. The experiment follows from the scenario's prior when not given:
@@ -600,12 +601,13 @@ def main(argv: list[str] | None = None) -> int:
                                 "plant; the paper's Eq. 9 has none; vlr_drake.identify.LINK_WEIGHT)")
             p.add_argument("--object-weight", action="store_true",
                            help="identify the object's weight as well (its mass and how the contacts share it), "
-                                "carried with the links' weight; off by default (vlr_drake.identify.LINK_WEIGHT)")
+                                "carried with the links' weight; off by default (IdentifyOptions.object_weight)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
-        p.add_argument("--hand", default=None,
-                       help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
-                            "else model_o)")
+        if name == "identify":  # the demo's hand is the Model O
+            p.add_argument("--hand", default=None,
+                           help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
+                                "else model_o)")
 
     for name, help_text in [("write", "write a word with the POM (position control)"),
                             ("maze", "play a marble maze (orientation control)"),

@@ -19,9 +19,11 @@ One iteration (one action dl and one camera measurement of the POM):
    a particle whose solve failed is instead held where it was (friction, which the VLR
    lacks) and weighs p times the likelihood of its unmoved POM pose,
 4. temper: if the effective sample size (ESS) would fall below ``ess_fraction * M``, the
-   log-likelihood is scaled by beta in (0, 1], found by bisection, so that the ESS stays
-   there (weight collapse locks a filter into wrong modes),
-5. resample (systematic, every iteration that had a valid measurement),
+   log-likelihood is scaled by beta in (0, 1], found by a safeguarded Newton search on log
+   ESS (``_temper_increment``), so that the ESS stays there (weight collapse locks a filter
+   into wrong modes),
+5. resample (systematic) after a valid measurement that left the ESS below
+   ``resample_fraction * M`` (0.5; the weights carry over otherwise),
 6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h std eps, a = sqrt(1 - h^2),
    which keeps the cloud's mean and variance), recompute each tendon state, and
 7. re-anchor the attachment a fraction ``anchor_fraction`` of the way from the particle's own
@@ -701,8 +703,9 @@ class FilterConfig:
     divergence_sigmas: float = 12.0
     # Gravity in the palm frame P [m/s^2], for the weight of the fingers' links (and of the
     # object, with PriorConfig.object_mass_unknown): each hypothesis' moves and equilibria
-    # carry the links' weight as a load that follows its angles (motion.move's gravity;
-    # HandModel.link_weight_torque), which Eq. 9 does not have. Zero (the default): Eq. 9
+    # carry the links' weight (motion.move's gravity; HandModel.link_weight_torque), held at
+    # the angles before each move or following them, as ``gravity_loads`` says; Eq. 9 does
+    # not have it. Zero (the default): Eq. 9
     # as the paper. The physics plant sets it from its mounting (identify's link_weight); a
     # hardware scenario gives its hand's.
     gravity_palm: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])

@@ -104,7 +104,8 @@ ACTION_CHOICES = ("random", "informative")
 #: (toy block 0.37 against 0.95 deg, inside 1.00 against 0.73). Seeds 0-14 (identify's 120
 #: iterations): the novel hands' links NH1 2.54 +- 1.73 against 3.93 +- 3.64 mm, NH2 2.25 +-
 #: 1.01 against 3.16 +- 1.09, NH3 2.76 +- 0.89 against 3.40 +- 1.13, joints inside 0.74 /
-#: 1.00 / 1.00 against 0.78 / 1.00 / 1.00. The stiffness experiment keeps Eq. 9: with the
+#: 1.00 / 1.00 against 0.78 / 1.00 / 1.00. The stiffness experiment kept Eq. 9 at first (it
+#: carries the weight since, following; below): with the
 #: weight its spring came out 0.0295 +- 0.0260 against 0.0326 +- 0.0300 N m/rad but less
 #: honestly (11 of 15 runs converged against 4, springs inside 9 against 11, joints inside
 #: 0.64 against 0.72): the squeezes load the pads' moments and the block's weight, which the

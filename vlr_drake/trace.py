@@ -58,6 +58,11 @@ OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load")
 #: code that recorded the trace: later kernels may round differently (the 2026-11-24 ones do,
 #: by up to 1e-17 m in the contacts), and the filter's resampling can amplify that.
 LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None}}
+#: PriorConfig.contact_limits as traces before 2026-11-25 recorded it: the default then, the
+#: Model O's 48 mm pad written for every finger. Such a trace replays with the default now,
+#: each finger's own last link: the same bounds on the Model O, NH1 and NH2; on NH3 the
+#: 40 mm NF3 pad no longer lets its contacts reach 48 mm.
+LEGACY_CONTACT_LIMITS = [0.005, 0.048]
 
 
 @dataclass
@@ -399,6 +404,8 @@ def _config_from_dict(cls, data: dict):
             value = tuple(value)
         elif name == "stiffness_unknown":
             value = [tuple(int(x) for x in p) for p in value]
+        elif name == "contact_limits" and value is not None:
+            value = None if list(value) == LEGACY_CONTACT_LIMITS else tuple(value)
         kw[name] = value
     for name, value in LEGACY_SETTINGS.get(cls.__name__, {}).items():
         kw.setdefault(name, value)
