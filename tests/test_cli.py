@@ -109,6 +109,7 @@ def test_bench_motion_and_filter_quick(tmp_path):
     slowest = r["slowest_iteration_phases_s"]
     assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
     assert 0 < r["first_iteration_s"] <= r["iteration_max_s"]
+    assert r["first_iteration_without_first_continuation_s"] > 0
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
     t = run["timing_s"]

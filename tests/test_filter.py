@@ -578,6 +578,48 @@ def test_contact_limits_past_a_finger_are_named():
     assert np.all(lo == 0.01) and np.all(hi == 0.035)
 
 
+def test_the_first_move_after_initialisation_takes_its_own_continuation(monkeypatch):
+    """first_move_substeps applies to the move that carries the prior's draws (the first
+    after initialise and after a re-initialisation), max_substeps to every other."""
+    calls, in_step = [], []
+    move, step = pf.motion.move, pf.SelfIdentificationFilter.step
+
+    def spy_move(*args, **kwargs):  # the filter's moves only (the model plant moves too)
+        if in_step:
+            calls.append(kwargs.get("max_substeps"))
+        return move(*args, **kwargs)
+
+    def spy_step(self, *args, **kwargs):
+        in_step.append(True)
+        try:
+            return step(self, *args, **kwargs)
+        finally:
+            in_step.pop()
+
+    monkeypatch.setattr(pf.motion, "move", spy_move)
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", spy_step)
+    h, plant, f = _filter_and_plant(3, particles=500, first_move_substeps=0, max_substeps=4)
+    dl = np.array([0.2e-3, -0.1e-3, 0.1e-3])
+    for _ in range(2):
+        assert plant.apply_action(dl)
+        f.step(dl, *plant.measure()[:2])
+    R, t, _ = plant.measure()
+    f._reinitialise(R, t)
+    f.step(np.zeros(3), R, t, valid=False)  # a lost tag's step still moves the draws
+    f.step(np.zeros(3), R, t)
+    assert calls == [0, 4, 0, 4]
+    calls.clear()
+    h, plant, f = _filter_and_plant(3, particles=500, first_move_substeps=None, max_substeps=4)
+    f.step(np.zeros(3), *plant.measure()[:2])
+    assert calls == [4]
+
+
+@pytest.mark.parametrize("value", [-1, 1.5, True])
+def test_first_move_substeps_must_be_a_count(value):
+    with pytest.raises(ValueError, match=r"'first_move_substeps' must be None or an integer >= 0"):
+        pf.FilterConfig(first_move_substeps=value).validate()
+
+
 def test_swapped_object_triggers_reinitialisation():
     h, plant, f = _filter_and_plant(5, particles=2000)
     for _ in range(3):

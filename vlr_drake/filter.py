@@ -621,6 +621,19 @@ class FilterConfig:
     # 16) and cheaper: a particle with no equilibrium costs up to 7 + 4 x 7 Newton steps
     # instead of 147 (60,000 particles: 0.43 s per iteration instead of 0.48).
     max_substeps: int = 4
+    # ``max_substeps`` of the first move after (re)initialisation, which carries each prior
+    # draw from its own equilibrium to the one under the motors' command; None (default):
+    # ``max_substeps``, as every other move. 0 makes the first iteration fast: the
+    # continuation's retries cost that move a quarter of its time (model plant, 60,000
+    # particles: first iteration 156-170 ms with 0, 188-200 ms with None), and the draws
+    # they rescue (0.07-0.7% of them, seeds 0-3) are far from the commanded equilibrium the
+    # plant is at, so the first measurement gives them 0.00001-0.35% of the weight. But
+    # replays of the physics traces (2026-11-25) with 0 gave the same known hand (1.08
+    # against 1.07 deg) and spring (0.0255 against 0.0258 N m/rad) and worse novel hands
+    # (NH1 3.13 against 2.54 mm, NH3 3.10 against 2.71; NH2 2.19 against 2.25), whose
+    # failed draws are held rather than rescued (stuck_probability), so it is not the
+    # default.
+    first_move_substeps: int | None = None
     # Probability that a hypothesis whose move finds no equilibrium (even with the
     # continuation) is held where it was by friction, which the VLR does not model (the
     # physics plant and a real hand have it). Such a hypothesis keeps its joint angles,
@@ -751,6 +764,11 @@ class FilterConfig:
             raise ValueError(f"filter: 'held_motion' must be one of {HELD_MOTIONS}, got '{self.held_motion}'")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
+        if self.first_move_substeps is not None and (
+                isinstance(self.first_move_substeps, bool) or not isinstance(self.first_move_substeps, (int, np.integer))
+                or self.first_move_substeps < 0):
+            raise ValueError(f"filter: 'first_move_substeps' must be None or an integer >= 0, "
+                             f"got {self.first_move_substeps!r}")
         if self.newton_tolerance not in motion.TOLERANCES:
             raise ValueError(f"filter: 'newton_tolerance' must be one of {tuple(motion.TOLERANCES)}, "
                              f"got '{self.newton_tolerance}'")
@@ -847,6 +865,7 @@ class SelfIdentificationFilter:
                             f"got {type(rng).__name__}")
         self.rng = rng
         self.particles: ParticleSet | None = None
+        self._first_move = False
         self.iteration = 0
         self.history: list[StepReport] = []
         self.estimates: list[dict] = []
@@ -908,6 +927,7 @@ class SelfIdentificationFilter:
         p = kinematics.contacts(h, theta, a, links)
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
         self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load)
+        self._first_move = True  # the next move carries the prior's draws (first_move_substeps)
         self._theta_center, self._a_center = theta_center, a_center
         self.estimates.append(self.estimate())
         return self.particles
@@ -1141,8 +1161,12 @@ class SelfIdentificationFilter:
             R_prev, t_prev, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
         else:
             R_prev = t_prev = None
+        substeps = cfg.max_substeps
+        if self._first_move and cfg.first_move_substeps is not None:  # the prior's draws settle
+            substeps = cfg.first_move_substeps
+        self._first_move = False
         res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
-                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=cfg.max_substeps,
+                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=substeps,
                           tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
                           **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
         if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
