@@ -99,6 +99,13 @@ def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
     assert "--prior 'object_mass_range=heavy'" in capsys.readouterr().err
 
 
+def test_demo_has_no_hand_option(capsys):
+    """The demo is the Model O's: a --hand it would ignore is refused."""
+    with pytest.raises(SystemExit) as e:
+        main(["demo", "--hand", "NH1"])
+    assert e.value.code == 2 and "unrecognized arguments: --hand NH1" in capsys.readouterr().err
+
+
 def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
     assert BENCH_MOTION_FIELDS <= set(r) and r["particles"] == 2000
@@ -110,6 +117,7 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
     assert 0 < r["first_iteration_s"] <= r["iteration_max_s"]
     assert r["first_iteration_without_first_continuation_s"] > 0
+    assert r["first_move_substeps_compared"] == [None, 0]  # the default, then without the continuation
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
     t = run["timing_s"]

@@ -231,3 +231,7 @@ def test_a_field_given_twice_is_named(tmp_path):
         load_scenario(DIAGRAMS_DIR / "default.yaml",
                       overrides="hand_spec:\n  fingers:\n    - {name: a}\n    - {name: b, name: c}\n")
     assert load_scenario(DIAGRAMS_DIR / "default.yaml", overrides="seed: 3\nfilter: {particles: 5000}\n").seed == 3
+    # an alias repeats a node, or holds itself: read once, and the loader names what is wrong
+    path.write_text("filter: &x {particles: 500, extra: *x}\n")
+    with pytest.raises(ValueError, match=r"unknown field 'filter.extra'"):
+        load_scenario(path)

@@ -159,13 +159,45 @@ def test_a_trace_from_before_a_setting_existed_replays_with_its_behaviour_then(t
     old = IdentificationTrace.load(tmp_path / "old.npz")
     assert old.filter.newton_loose_after is None
     assert IdentificationTrace.load(path).filter == trace.filter
-    # contact limits: the Model O's pad, which old traces wrote for every finger, is today's
-    # default (each finger's own link); other limits load as given
+    # contact limits: the Model O's pad, which old traces wrote for every finger, loads as
+    # written where it fits every finger (the Model O here), other limits too
     assert header["prior"]["contact_limits"] is None
-    for written, loaded in [([0.005, 0.048], None), ([0.006, 0.04], (0.006, 0.04))]:
+    for written in ([0.005, 0.048], [0.006, 0.04]):
         header["prior"]["contact_limits"] = written
         np.savez(tmp_path / "old.npz", header=np.array(json.dumps(header)), **arrays)
-        assert IdentificationTrace.load(tmp_path / "old.npz").prior.contact_limits == loaded
+        assert IdentificationTrace.load(tmp_path / "old.npz").prior.contact_limits == tuple(written)
+
+
+def test_an_old_nh3_trace_keeps_its_contacts_on_the_nf3_pad(tmp_path):
+    """Before 2026-11-25 the default contact limits, the Model O's 48 mm pad, were written
+    for every finger; on NH3 they reach past NF3's 40 mm link, so such a trace loads with
+    today's default (each finger's own link). Limits written by a user that reach past a
+    link are a named error."""
+    trace = _run("novel_fingers", "NH3", iterations=2)["_trace"]
+    path = trace.save(tmp_path / "nh3.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+    header["prior"]["contact_limits"] = [0.005, 0.048]
+    np.savez(tmp_path / "old.npz", header=np.array(json.dumps(header)), **arrays)
+    assert IdentificationTrace.load(tmp_path / "old.npz").prior.contact_limits is None
+    header["prior"]["contact_limits"] = [0.005, 0.045]
+    np.savez(tmp_path / "bad.npz", header=np.array(json.dumps(header)), **arrays)
+    with pytest.raises(ValueError, match=r"bad.npz: prior: 'contact_limits' max 45.0 mm reaches past"):
+        IdentificationTrace.load(tmp_path / "bad.npz")
+
+
+def test_config_overrides_set_optional_vectors():
+    """An optional pair (PriorConfig.contact_limits, None by default) takes two numbers or
+    none; a list (FilterConfig.gravity_palm) as many numbers as it has."""
+    prior = config_overrides(pf.PriorConfig(), ["contact_limits=0.005,0.04"], "--prior")
+    assert prior.contact_limits == (0.005, 0.04)
+    assert config_overrides(prior, ["contact_limits=none"], "--prior").contact_limits is None
+    with pytest.raises(ValueError, match=r"--prior 'contact_limits=0.005': 'contact_limits' takes 2 comma-separated"):
+        config_overrides(pf.PriorConfig(), ["contact_limits=0.005"], "--prior")
+    with pytest.raises(ValueError, match=r"'link_range=none': 'none' is not 2 comma-separated numbers"):
+        config_overrides(pf.PriorConfig(), ["link_range=none"], "--prior")
+    assert config_overrides(pf.FilterConfig(), ["gravity_palm=0,0,9.81"], "--filter").gravity_palm == [0.0, 0.0, 9.81]
 
 
 def test_config_overrides_parse_each_kind_and_name_bad_input():

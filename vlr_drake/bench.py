@@ -108,10 +108,9 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
         init_s = time.perf_counter() - t0
         explore = Exploration(plant.state.tendon_command, h.tendon_range, 1.5e-3, 4e-3,
                               np.random.default_rng(seed + 3))
-        return plant, f, explore, init_s
+        return plant, f, explore, init_s, (R, t)
 
-    plant, f, explore, init_s = setup()
-    R, t, _ = plant.measure()
+    plant, f, explore, init_s, (R, t) = setup()
     # warm-up (compilation) on a tiny filter
     # (resampling every step and a tight ESS target, so that every kernel of an iteration is
     # compiled or loaded from numba's cache before the timed ones)
@@ -138,14 +137,15 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     it_s = float(np.median(times))
     # the first iteration again, without the continuation in the move that settles the
     # prior's draws (FilterConfig.first_move_substeps; not the default, see there)
-    plant, fast, explore, _ = setup(first_move_substeps=0)
+    plant, fast, explore, _, _ = setup(first_move_substeps=0)
     first_fast_s = float("nan")
     for _ in range(iterations):
         dl = explore.next_action()
         if plant.apply_action(dl):
             explore.commit(dl)
+            R, t, v = plant.measure()
             t0 = time.perf_counter()
-            fast.step(dl, *plant.measure())
+            fast.step(dl, R, t, v)
             first_fast_s = time.perf_counter() - t0
             break
     out = {
@@ -156,6 +156,7 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
         # the first iteration moves the whole prior: the widest cloud, the most failed moves
         "first_iteration_s": float(times[0]),
         "first_iteration_without_first_continuation_s": first_fast_s,
+        "first_move_substeps_compared": [f.config.first_move_substeps, fast.config.first_move_substeps],
         # per phase (StepReport.timing_s): the median over the iterations, and the slowest
         # iteration's split
         "iteration_phases_s": {k: float(np.median([p.get(k, 0.0) for p in phases]))
@@ -187,7 +188,7 @@ def format_filter(r: dict) -> str:
             f"iterations); initialisation {r['initialise_s']:.1f} s")
     fast = r.get("first_iteration_without_first_continuation_s")
     if fast is not None and np.isfinite(fast):
-        text += (f"\n  first iteration without the first move's continuation (--filter first_move_substeps=0): "
+        text += (f"\n  first iteration without the first move's continuation (FilterConfig.first_move_substeps=0): "
                  f"{fast * 1e3:.0f} ms")
     for label, split in (("median", r.get("iteration_phases_s")), ("slowest", r.get("slowest_iteration_phases_s"))):
         if split:

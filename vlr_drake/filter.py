@@ -539,12 +539,19 @@ class PriorConfig:
         """
         L = np.asarray(hand.distal_length, float)
         if self.contact_limits is None:
+            short = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True)
+                     if not length > CONTACT_MIN]
+            if short:
+                raise ValueError(f"prior: the last link of {', '.join(short)} is no longer than the contacts' "
+                                 f"least distance from the distal joint ({CONTACT_MIN * 1e3:.1f} mm); give "
+                                 "'contact_limits'")
             return np.full(hand.N, CONTACT_MIN), L.copy()
         lim = np.asarray(self.contact_limits, float)
         if lim.shape != (2,) or not (np.isfinite(lim).all() and 0 <= lim[0] < lim[1]):
             raise ValueError(f"prior: 'contact_limits' must be [min, max] [m] with 0 <= min < max, "
                              f"got {self.contact_limits}")
-        past = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True) if lim[1] > length + 1e-12]
+        past = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True)
+                if lim[1] > length + 1e-12]
         if past:
             raise ValueError(f"prior: 'contact_limits' max {lim[1] * 1e3:.1f} mm reaches past the last link of "
                              f"{', '.join(past)}; lower it, or leave it out to use each finger's own length")
@@ -625,7 +632,7 @@ class FilterConfig:
     # draw from its own equilibrium to the one under the motors' command; None (default):
     # ``max_substeps``, as every other move. 0 makes the first iteration fast: the
     # continuation's retries cost that move a quarter of its time (model plant, 60,000
-    # particles: first iteration 156-170 ms with 0, 188-200 ms with None), and the draws
+    # particles: first iteration 157-162 ms with 0, 190-201 ms with None), and the draws
     # they rescue (0.07-0.7% of them, seeds 0-3) are far from the commanded equilibrium the
     # plant is at, so the first measurement gives them 0.00001-0.35% of the weight. But
     # replays of the physics traces (2026-11-25) with 0 gave the same known hand (1.08
@@ -1170,7 +1177,7 @@ class SelfIdentificationFilter:
                           tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
                           **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
         if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
-            res = self._move_held(res, dl, D2)
+            res = self._move_held(res, dl, D2, substeps)
         p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
         R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = self._feasible(res, pose_ok)
@@ -1214,11 +1221,13 @@ class SelfIdentificationFilter:
         lap("resample")
         return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
 
-    def _move_held(self, res: motion.MoveResult, dl, D2) -> motion.MoveResult:
+    def _move_held(self, res: motion.MoveResult, dl, D2, substeps: int) -> motion.MoveResult:
         """``held_motion = "elastic"``: each hypothesis whose move under the commanded tendon
         state found no equilibrium is held by friction where it is, with the tendon stretch
         of its own equilibrium there, and moved by the action ``dl`` from that state. Those
-        solved replace the failures in ``res`` (marked solved); the rest stay held still."""
+        solved replace the failures in ``res`` (marked solved); the rest stay held still.
+        ``substeps``: the continuation of this move (``max_substeps``, or
+        ``first_move_substeps`` for the prior's draws)."""
         cfg, h, ps = self.config, self.hand, self.particles
         bad = np.flatnonzero(~res.ok)
 
@@ -1231,7 +1240,7 @@ class SelfIdentificationFilter:
                                 **self._loads(ps.theta[bad], ps.a[bad], pick(ps.link_lengths), load))
         moved = motion.move(h, eq.theta, dl, a=ps.a[bad], D2=D2[bad], stretch=eq.stretch,
                             link_lengths=pick(ps.link_lengths), stiffness=pick(ps.stiffness), tendon=cfg.tendon,
-                            max_substeps=cfg.max_substeps, tolerance=cfg.newton_tolerance,
+                            max_substeps=substeps, tolerance=cfg.newton_tolerance,
                             loose_after=cfg.newton_loose_after,
                             **self._loads(eq.theta, ps.a[bad], pick(ps.link_lengths), load))
         good = eq.ok & moved.ok

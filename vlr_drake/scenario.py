@@ -473,7 +473,12 @@ def _duplicate_key(text: str) -> str:
     except yaml.YAMLError:
         return ""
 
+    seen_nodes = set()  # an alias repeats a node (and may contain itself): each is read once
+
     def walk(node, prefix):
+        if id(node) in seen_nodes:
+            return ""
+        seen_nodes.add(id(node))
         if isinstance(node, yaml.MappingNode):
             seen = {}
             for key, value in node.value:
@@ -702,21 +707,30 @@ def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float,
         optional = type(None) in args and len(args) == 2
         if optional:
             t = next(a for a in args if a is not type(None))
+        targs = typing.get_args(t)
         if t in kinds:
             scalar[f.name] = (t, optional)
-        elif float in kinds and typing.get_origin(t) in (tuple, list) and args and all(a is float for a in args):
-            vector[f.name] = len(getattr(config, f.name))  # a tuple's or list's length as it is
+        elif float in kinds and typing.get_origin(t) in (tuple, list) and targs and all(a is float for a in targs):
+            # as many numbers as a tuple type has, else as the value has now
+            current = getattr(config, f.name)
+            n = len(targs) if typing.get_origin(t) is tuple else (None if current is None else len(current))
+            vector[f.name] = (n, optional, typing.get_origin(t))
     out = copy.deepcopy(config)
     for item in items:
         key, sep, value = item.partition("=")
         if sep and key in vector:
+            n, optional, kind = vector[key]
+            if optional and value.lower() == "none":
+                setattr(out, key, None)
+                continue
+            count = "" if n is None else f"{n} "
             try:
                 v = tuple(float(x) for x in value.split(","))
             except ValueError:
-                raise ValueError(f"{flag} '{item}': '{value}' is not {vector[key]} comma-separated numbers") from None
-            if len(v) != vector[key]:
-                raise ValueError(f"{flag} '{item}': '{key}' takes {vector[key]} comma-separated numbers, got {len(v)}")
-            setattr(out, key, list(v) if isinstance(getattr(config, key), list) else v)
+                raise ValueError(f"{flag} '{item}': '{value}' is not {count}comma-separated numbers") from None
+            if n is not None and len(v) != n:
+                raise ValueError(f"{flag} '{item}': '{key}' takes {n} comma-separated numbers, got {len(v)}")
+            setattr(out, key, list(v) if kind is list else v)
             continue
         if not sep or key not in scalar:
             raise ValueError(f"{flag} '{item}': expected KEY=VALUE with KEY one of {', '.join(sorted({*scalar, *vector}))}")

@@ -59,9 +59,9 @@ OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load")
 #: by up to 1e-17 m in the contacts), and the filter's resampling can amplify that.
 LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None}}
 #: PriorConfig.contact_limits as traces before 2026-11-25 recorded it: the default then, the
-#: Model O's 48 mm pad written for every finger. Such a trace replays with the default now,
-#: each finger's own last link: the same bounds on the Model O, NH1 and NH2; on NH3 the
-#: 40 mm NF3 pad no longer lets its contacts reach 48 mm.
+#: Model O's 48 mm pad written for every finger. Where it reaches past a finger's last link
+#: (NH3's 40 mm NF3, which it let contacts leave by 8 mm), the trace loads with today's
+#: default, each finger's own link; elsewhere (the Model O, NH1, NH2) as it was.
 LEGACY_CONTACT_LIMITS = [0.005, 0.048]
 
 
@@ -177,8 +177,15 @@ class IdentificationTrace:
             raise ValueError(f"{path}: trace lacks {e}") from None
         except (ValueError, TypeError) as e:  # a setting or an array that is not what it should be
             raise ValueError(f"{path}: {e}") from None
+        limits = trace.prior.contact_limits
+        if limits is not None and list(limits) == LEGACY_CONTACT_LIMITS:
+            try:
+                trace.prior.contact_bounds(trace.hand.model())
+            except ValueError:  # the old default, past a shorter finger's pad
+                trace.prior.contact_limits = None
         try:
             trace.filter.validate()
+            trace.prior.contact_bounds(trace.hand.model())
             return trace.validate()
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
@@ -405,7 +412,7 @@ def _config_from_dict(cls, data: dict):
         elif name == "stiffness_unknown":
             value = [tuple(int(x) for x in p) for p in value]
         elif name == "contact_limits" and value is not None:
-            value = None if list(value) == LEGACY_CONTACT_LIMITS else tuple(value)
+            value = tuple(value)
         kw[name] = value
     for name, value in LEGACY_SETTINGS.get(cls.__name__, {}).items():
         kw.setdefault(name, value)
