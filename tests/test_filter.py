@@ -529,6 +529,15 @@ def test_prior_half_widths_must_be_positive():
                                     np.random.default_rng(0))
 
 
+def test_a_resampling_threshold_the_tempering_never_reaches_is_refused():
+    with pytest.raises(ValueError, match=r"'resample_fraction' \(0.25\) must be above 'ess_fraction' \(0.3\)"):
+        pf.FilterConfig(resample_fraction=0.25).validate()
+    with pytest.raises(ValueError, match=r"'resample_fraction' must be in \[0, 1\], got 1.5"):
+        pf.FilterConfig(resample_fraction=1.5).validate()
+    pf.FilterConfig(resample_fraction=0.0).validate()  # never, on purpose
+    pf.FilterConfig(resample_fraction=0.31).validate()
+
+
 @pytest.mark.parametrize("field, value", [("sigma_position", np.nan), ("sigma_rotation", np.inf),
                                           ("motion_error", np.nan), ("convergence_deg", -5.0),
                                           ("divergence_sigmas", 0.0)])

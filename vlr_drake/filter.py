@@ -787,6 +787,15 @@ class FilterConfig:
             raise ValueError("filter: 'roughening' must be in (0, 1)")
         if not 0 < self.ess_fraction <= 1:
             raise ValueError("filter: 'ess_fraction' must be in (0, 1]")
+        if not 0 <= self.resample_fraction <= 1:
+            raise ValueError(f"filter: 'resample_fraction' must be in [0, 1], got {self.resample_fraction}")
+        if 0 < self.resample_fraction <= self.ess_fraction:
+            # measured on the physics traces: with resample_fraction 0.25 the filter almost
+            # never resampled, and the links came out 4.5-8.9 mm off against 2.3-2.7
+            # (docs/results.md; a model-plant run: 1 resampling in 25 iterations)
+            raise ValueError(f"filter: 'resample_fraction' ({self.resample_fraction}) must be above 'ess_fraction' "
+                             f"({self.ess_fraction}): the tempering holds the ESS at about ess_fraction x M or above, so "
+                             "the filter would almost never resample and roughen (0: never, on purpose)")
         if not 0 <= self.anchor_fraction <= 1:
             raise ValueError("filter: 'anchor_fraction' must be in [0, 1]")
         if self.convergence_measure not in ("half_width", "full_width"):
