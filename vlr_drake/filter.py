@@ -725,9 +725,8 @@ class FilterConfig:
     # object, with PriorConfig.object_mass_unknown): each hypothesis' moves and equilibria
     # carry the links' weight (motion.move's gravity; HandModel.link_weight_torque), held at
     # the angles before each move or following them, as ``gravity_loads`` says; Eq. 9 does
-    # not have it. Zero (the default): Eq. 9
-    # as the paper. The physics plant sets it from its mounting (identify's link_weight); a
-    # hardware scenario gives its hand's.
+    # not have it. Zero (the default): Eq. 9 as the paper. The physics plant sets it from
+    # its mounting (identify's link_weight); a hardware scenario gives its hand's.
     gravity_palm: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     # How a move carries those loads: "held" (default), as joint torques evaluated at each
     # hypothesis' angles before the move and held through it (motion.move's
