@@ -747,7 +747,7 @@ def test_held_hypotheses_move_elastically_from_their_own_equilibrium():
     res = pf.motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch)
     res.ok[::3] = False  # as if these found no equilibrium under the commanded state
     res.theta[::3] = ps.theta[::3]
-    out = f._move_held(res, dl, D2)
+    out = f._move_held(res, dl, D2, f.config.max_substeps)
     eq = pf.motion.equilibrium(h, ps.theta[::3], a=ps.a[::3])
     want = pf.motion.move(h, eq.theta, dl, a=ps.a[::3], D2=D2[::3], stretch=eq.stretch,
                           max_substeps=f.config.max_substeps, loose_after=f.config.newton_loose_after)
