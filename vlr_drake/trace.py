@@ -177,15 +177,15 @@ class IdentificationTrace:
             raise ValueError(f"{path}: trace lacks {e}") from None
         except (ValueError, TypeError) as e:  # a setting or an array that is not what it should be
             raise ValueError(f"{path}: {e}") from None
-        limits = trace.prior.contact_limits
+        limits, hand = trace.prior.contact_limits, trace.hand.model()
         if limits is not None and list(limits) == LEGACY_CONTACT_LIMITS:
             try:
-                trace.prior.contact_bounds(trace.hand.model())
+                trace.prior.contact_bounds(hand)
             except ValueError:  # the old default, past a shorter finger's pad
                 trace.prior.contact_limits = None
         try:
             trace.filter.validate()
-            trace.prior.contact_bounds(trace.hand.model())
+            trace.prior.contact_bounds(hand)
             return trace.validate()
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
