@@ -422,3 +422,79 @@ def test_an_unphysical_mean_estimate_falls_back_to_the_nearest_hypothesis(grasp)
     m = fn(np.zeros(h.N), R, t, True)
     assert m.physical and any(np.allclose(m.theta, c["theta"], atol=1e-9) for c in f.nearest_hypotheses(8))
     control.jacobian(m)
+
+
+# ------------------------------------------------------------------ bad input and failures
+
+
+def _nan_pose():
+    X = RigidTransform()
+    X.set_translation([np.nan, 0.0, 0.0])
+    return X
+
+
+def _controller_context(grasp, pl, goal, measured, valid=1.0):
+    ctrl = JacobianController(grasp.hand, pl.state.tendon_command, 0.1)
+    ctx = ctrl.CreateDefaultContext()
+    ctrl.X_PO_goal_input_port().FixValue(ctx, goal)
+    ctrl.X_PO_measured_input_port().FixValue(ctx, measured)
+    ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta, "a": pl.state.a})
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [valid])
+    return ctrl, ctx
+
+
+def test_controller_system_refuses_a_non_finite_goal_instead_of_commanding_nan(grasp):
+    """A NaN goal pose used to pass through control_step and limit_action (np.clip keeps
+    NaN) into the tendon_command output."""
+    pl = fresh(grasp)
+    ctrl, ctx = _controller_context(grasp, pl, _nan_pose(), _X(pl.state.R_PO, pl.state.t_PO))
+    with pytest.raises(ValueError, match="X_PO_goal"):
+        ctrl.ExecuteForcedEvents(ctx)
+    assert np.all(np.isfinite(ctrl.tendon_command_output_port().Eval(ctx)))
+
+
+def test_controller_system_refuses_a_non_finite_measurement_marked_valid(grasp):
+    """A lost tag is X_PO_valid 0 (the command is held); a NaN pose marked valid is a
+    broken sensor, refused as the filter refuses it (it used to give pose_error NaN)."""
+    pl = fresh(grasp)
+    goal = _X(pl.state.R_PO, pl.state.t_PO + 1e-3)
+    ctrl, ctx = _controller_context(grasp, pl, goal, _nan_pose(), valid=0.0)
+    ctrl.ExecuteForcedEvents(ctx)  # invalid: held, no error
+    np.testing.assert_array_equal(ctrl.tendon_command_output_port().Eval(ctx), pl.state.tendon_command)
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    with pytest.raises(ValueError, match="X_PO_measured"):
+        ctrl.ExecuteForcedEvents(ctx)
+
+
+def test_controller_system_refuses_a_non_finite_initial_command(grasp):
+    with pytest.raises(ValueError, match="l_initial"):
+        JacobianController(grasp.hand, np.full(grasp.hand.N, np.nan), 0.1)
+
+
+def test_control_step_and_limit_action_refuse_non_finite_values(grasp):
+    J = np.vstack([np.eye(3), np.eye(3)])
+    with pytest.raises(ValueError, match="error6"):
+        control.control_step(J, np.full(6, np.nan))
+    with pytest.raises(ValueError, match="'J'"):
+        control.control_step(np.full((6, 3), np.nan), np.ones(6))
+    l0 = grasp.plant.state.tendon_command
+    with pytest.raises(ValueError, match="'dl'"):
+        control.limit_action(grasp.hand, l0, np.full(3, np.nan))  # np.clip keeps NaN
+    with pytest.raises(ValueError, match="l_now"):
+        control.limit_action(grasp.hand, np.full(3, np.nan), np.zeros(3))
+
+
+def test_servo_refuses_a_non_finite_goal_before_moving(grasp):
+    """It used to run the NaN error through the controller into the plant, whose solver
+    then complained about a NaN 'dl'."""
+    pl = RecordingPlant(fresh(grasp))
+    with pytest.raises(ValueError, match="t_goal"):
+        control.servo_to(np.eye(3), pl.state.t_PO + np.nan, pl, control.true_model_fn(pl.plant), max_steps=3)
+    assert pl.commands == []
+
+
+def test_control_model_refuses_a_non_finite_anchor(grasp):
+    """A NaN measured pose used to give a ControlModel whose contacts p_O were all NaN."""
+    est = {"theta": grasp.plant.state.theta, "a": grasp.plant.state.a}
+    with pytest.raises(ValueError, match="R_PO"):
+        control.ControlModel.from_estimate(grasp.hand, est, np.full((3, 3), np.nan), np.zeros(3))

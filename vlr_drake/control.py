@@ -128,6 +128,8 @@ def _shaped(name: str, x, shape: tuple) -> np.ndarray:
     x = np.asarray(x, float)
     if x.shape != shape:
         raise ValueError(f"'{name}' must have shape {shape}, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"'{name}' must be finite, got {x.tolist()}")
     return x
 
 
@@ -268,6 +270,9 @@ def control_step(
         raise ValueError(f"'J' must have shape (6, N), got {J.shape}")
     if e.shape != (6,):
         raise ValueError(f"'error6' must have 6 entries, got {e.shape}")
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
+        bad = "error6" if np.all(np.isfinite(J)) else "J"
+        raise ValueError(f"'{bad}' must be finite, got {(e if bad == 'error6' else J).tolist()}")
     if mode not in MODES:
         raise ValueError(f"'mode' must be one of {MODES}, got '{mode}'")
     if gain <= 0 or clip <= 0 or damping < 0:
@@ -304,7 +309,11 @@ def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
     always within it), per tendon clamp."""
     lim = tendon_limits(hand, limits)
     l_now = np.asarray(l_now, float).reshape(hand.N)
-    l_new = np.clip(l_now + np.asarray(dl, float).reshape(hand.N), lim[:, 0], lim[:, 1])
+    dl = np.asarray(dl, float).reshape(hand.N)
+    for name, x in (("l_now", l_now), ("dl", dl)):
+        if not np.all(np.isfinite(x)):  # np.clip keeps NaN: it would leave the range
+            raise ValueError(f"'{name}' must be finite, got {x.tolist()}")
+    l_new = np.clip(l_now + dl, lim[:, 0], lim[:, 1])
     return l_new - l_now
 
 

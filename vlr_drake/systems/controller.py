@@ -72,6 +72,8 @@ class JacobianController(LeafSystem):
         l_initial = np.asarray(l_initial, float).reshape(-1)
         if l_initial.shape != (hand.N,):
             raise ValueError(f"'l_initial' must have {hand.N} entries, got {l_initial.shape}")
+        if not np.all(np.isfinite(l_initial)):
+            raise ValueError(f"'l_initial' must be finite, got {l_initial.tolist()}")
         control.control_step(
             np.zeros((6, hand.N)),
             np.zeros(6),
@@ -149,6 +151,9 @@ class JacobianController(LeafSystem):
         X = self._X_PO.Eval(context)
         G = self._goal.Eval(context)
         R, t = X.rotation().matrix(), X.translation()
+        for name, pose in (("X_PO_goal", G), ("X_PO_measured", X)):
+            if not np.all(np.isfinite(pose.GetAsMatrix34())):  # a lost tag is X_PO_valid 0, not NaN
+                raise ValueError(f"controller: input '{name}' is not finite: {pose.GetAsMatrix34().tolist()}")
         e = control.pose_error6(G.rotation().matrix(), G.translation(), R, t)
         ep, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
         at_goal = (self._rows == "orientation" or ep <= self._tol[0]) and (
