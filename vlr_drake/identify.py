@@ -349,9 +349,15 @@ class Exploration:
         if squeeze < 0 or squeeze_window < 0 or (squeeze > 0) != (squeeze_window > 0):
             raise ValueError(f"exploration: 'squeeze' and 'squeeze_window' must both be positive or both 0, "
                              f"got {squeeze} and {squeeze_window}")
+        for name, v in (("span", span), ("window", window)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"exploration: '{name}' must be a finite number >= 0 [m], got {v}")
         self.l = np.array(l_grasp, float)
         self.l0 = self.l.copy()
         self.range = np.asarray(tendon_range, float)
+        if self.l.shape != (self.range.shape[0],) or not np.all(np.isfinite(self.l)):
+            raise ValueError(f"exploration: 'l_grasp' must be {self.range.shape[0]} finite tendon commands [m] "
+                             f"(shape ({self.range.shape[0]},)), got {self.l.tolist()} of shape {self.l.shape}")
         self.lo = np.maximum(self.l - window, self.range[:, 0])
         self.hi = np.minimum(self.l + window, self.range[:, 1])
         self.span, self.window, self.rng = span, window, rng
