@@ -10,7 +10,11 @@ from vlr_drake.diagram import build_model_identification_diagram
 from vlr_drake.hand import model_o
 from vlr_drake.identify import Exploration, IdentifyOptions, _truth_grasp
 from vlr_drake.model_plant import ModelPlant
-from vlr_drake.systems.self_identification import ExplorationPolicy, SelfIdentificationSystem
+from vlr_drake.systems.self_identification import (
+    ExplorationPolicy,
+    ModelPlantSystem,
+    SelfIdentificationSystem,
+)
 
 
 def _grasp(seed=0):
@@ -156,3 +160,65 @@ def test_exploration_policy_squeezes_by_its_settings():
         u.append(pol.GetOutputPort("tendon_command").Eval(sim.get_context()) - l0)
     common = np.array(u).mean(axis=1)
     assert np.abs(common).max() > 1.5e-3 and np.all(np.abs(common) <= 3e-3 + 1e-12)
+
+
+# ------------------------------------------------------------------ bad input and failures
+
+
+def test_model_plant_system_refuses_a_non_finite_command():
+    """The physics plant's TendonForces refuses a NaN command; the model plant used to skip
+    it (|NaN| > 0 is False) and keep reporting its old tendon position as measured."""
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    sys = ModelPlantSystem(plant, 1.0)
+    sim = Simulator(sys)
+    sys.GetInputPort("tendon_command").FixValue(sim.get_mutable_context(), np.full(h.N, np.nan))
+    with pytest.raises(ValueError, match="tendon_command"):
+        sim.AdvanceTo(1.5)
+
+
+@pytest.mark.parametrize("l_grasp, match", [(np.full(3, np.nan), "finite"), (np.full(2, 0.015), "shape")])
+def test_exploration_refuses_a_bad_grasp_command(l_grasp, match):
+    """A NaN grasp command used to give NaN tendon commands on the policy's output; a
+    wrong-sized one a numpy broadcasting error."""
+    h = model_o().model()
+    with pytest.raises(ValueError, match=f"l_grasp.*{match}"):
+        Exploration(l_grasp, h.tendon_range, 0.5e-3, 1.2e-3, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=f"l_grasp.*{match}"):
+        ExplorationPolicy(h, l_grasp, 1.0)
+
+
+@pytest.mark.parametrize("span, window", [(np.nan, 1e-3), (1e-3, -1e-3), (-1e-3, 1e-3), (1e-3, np.inf)])
+def test_exploration_refuses_bad_span_and_window(span, window):
+    h = model_o().model()
+    with pytest.raises(ValueError, match="span|window"):
+        Exploration(np.full(3, 0.015), h.tendon_range, span, window, np.random.default_rng(0))
+
+
+def test_filter_system_checks_its_nominal_grasp_at_construction():
+    h, th, a = _grasp()
+    cfg, prior = pf.FilterConfig(particles=200), pf.PriorConfig()
+    with pytest.raises(ValueError, match=r"theta_center.*\(3, 2\)"):  # was numpy's "cannot reshape"
+        SelfIdentificationSystem(h, cfg, prior, th[:2], a, period_sec=1.0)
+    with pytest.raises(ValueError, match="theta_center.*finite"):  # was refused only at the first measurement
+        SelfIdentificationSystem(h, cfg, prior, th * np.nan, a, period_sec=1.0)
+    with pytest.raises(ValueError, match="a_center"):
+        SelfIdentificationSystem(h, cfg, prior, th, np.full(3, np.inf), period_sec=1.0)
+
+
+def test_filter_system_names_a_non_finite_tendon_command_port():
+    """It used to fail inside the filter with "'dl' contains NaN", a name the diagram
+    does not have."""
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    sys = SelfIdentificationSystem(h, pf.FilterConfig(particles=200), pf.PriorConfig(), th, a, period_sec=1.0)
+    ctx = sys.CreateDefaultContext()
+    sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
+    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(plant.state.R_PO), plant.state.t_PO))
+    sys.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    sys.ExecuteForcedEvents(ctx)
+    assert sys.filter(ctx) is not None
+    sys.tendon_command_input_port().FixValue(ctx, np.full(h.N, np.nan))
+    with pytest.raises(ValueError, match="input 'tendon_command'"):
+        sys.ExecuteForcedEvents(ctx)
+    assert sys.filter(ctx).iteration == 0  # nothing moved

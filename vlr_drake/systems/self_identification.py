@@ -32,6 +32,17 @@ from vlr_drake.trace import IdentificationTrace, TraceRecorder
 __all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
 
 
+def _checked(name: str, x, shape: tuple) -> np.ndarray:
+    """``x`` as a finite float array of ``shape`` (any array of that many numbers), or a
+    ValueError that names it."""
+    arr = np.asarray(x, float)
+    if arr.size != int(np.prod(shape)):
+        raise ValueError(f"self-identification: '{name}' must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"self-identification: '{name}' must be finite, got {arr.tolist()}")
+    return arr.reshape(shape)
+
+
 class _FilterBox:
     """Abstract-state payload: the filter object (which tracks the tendon command too) and
     the trace of what it was given."""
@@ -63,8 +74,8 @@ class SelfIdentificationSystem(LeafSystem):
         if not period_sec > 0:
             raise ValueError(f"'period_sec' must be positive, got {period_sec}")
         self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
-        self._theta_center = np.asarray(theta_center, float).reshape(hand.N, hand.K)
-        self._a_center = np.asarray(a_center, float).reshape(hand.N)
+        self._theta_center = _checked("theta_center", theta_center, (hand.N, hand.K))
+        self._a_center = _checked("a_center", a_center, (hand.N,))
         n = hand.N * hand.K
         self._command = self.DeclareVectorInputPort(name="tendon_command", size=hand.N)
         self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
@@ -110,6 +121,8 @@ class SelfIdentificationSystem(LeafSystem):
     def _update(self, context, state):
         box = state.get_mutable_abstract_state(self._box).get_mutable_value()
         l_now = np.array(self._command.Eval(context), float)
+        if not np.all(np.isfinite(l_now)):
+            raise ValueError(f"self-identification: input 'tendon_command' is not finite: {l_now.tolist()}")
         X = self._X_PO.Eval(context)
         valid = bool(self._valid.Eval(context)[0] > 0.5)
         if box.filter is None:
@@ -225,6 +238,8 @@ class ModelPlantSystem(LeafSystem):
     def _update(self, context, state):
         plant = state.get_mutable_abstract_state(self._plant).get_mutable_value()
         l = np.array(self._command.Eval(context), float)
+        if not np.all(np.isfinite(l)):  # |NaN| > 0 is False: it would be skipped silently
+            raise ValueError(f"model plant: input 'tendon_command' is not finite: {l.tolist()}")
         dl = l - plant.state.tendon_command
         if np.any(np.abs(dl) > 0):
             plant.apply_action(dl)  # a failed solve leaves the plant where it was
