@@ -349,3 +349,68 @@ def test_downsample_area_keeps_the_pixel_convention(K):
         downsample_area(np.zeros((5, 6), np.uint8), 2)
     with pytest.raises(ValueError, match="scale"):
         downsample_area(np.zeros((4, 6), np.uint8), 0)
+
+
+# ----------------------------------------------------------------- bad intrinsics, degenerate input
+
+
+def _bad_K(K, name):
+    bad = np.array(K, float)
+    if name == "zeros":
+        return np.zeros((3, 3))
+    if name == "nan":
+        bad[0, 2] = np.nan
+    elif name == "negative_focal":  # used to give a mirrored pose, reported valid
+        bad[0, 0], bad[1, 1] = -bad[0, 0], -bad[1, 1]
+    elif name == "bottom_row":
+        bad[2, 2] = 0.0
+    return bad
+
+
+@pytest.mark.parametrize("name", ["zeros", "nan", "negative_focal", "bottom_row"])
+def test_bad_camera_matrix_is_named(K, views, name):
+    """A zero or NaN K used to end in an OpenCV assertion inside SQPnP; a negative focal
+    length or a broken bottom row gave a pose, reported valid."""
+    X_CT, image = views[0]
+    config = TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE)
+    with pytest.raises(ValueError, match="K: camera matrix"):
+        observe_pom(image, config, _bad_K(K, name), None, RigidTransform())
+    with pytest.raises(ValueError, match="K: camera matrix"):
+        estimate_tag_pose(project(X_CT, K), TAG_SIZE, _bad_K(K, name))
+
+
+def test_non_finite_distortion_is_named(K, views):
+    """NaN distortion used to end in numpy's "SVD did not converge" (edge refinement) or an
+    OpenCV assertion (the pose)."""
+    X_CT, image = views[0]
+    dist = np.array([0.1, np.nan, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="dist"):
+        observe_pom(image, TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE), K, dist, RigidTransform())
+    with pytest.raises(ValueError, match="dist"):
+        estimate_tag_pose(project(X_CT, K), TAG_SIZE, K, dist)
+
+
+def test_no_distortion_coefficients_mean_no_distortion(K, views):
+    """hardware.camera.CameraIntrinsics accepts a calibration with 0 distortion
+    coefficients; the pose then failed with "dist: OpenCV distortion needs 4, 5, ..."."""
+    X_CT, _ = views[0]
+    corners = project(X_CT, K)
+    np.testing.assert_array_equal(estimate_tag_pose(corners, TAG_SIZE, K, np.zeros(0))[1],
+                                  estimate_tag_pose(corners, TAG_SIZE, K, None)[1])
+
+
+def test_degenerate_corners_give_no_pose_or_a_named_error(K):
+    """Four corners on one point used to end in an OpenCV assertion inside SQPnP."""
+    assert estimate_tag_pose(np.full((4, 2), 100.0), TAG_SIZE, K) is None
+    assert estimate_tag_pose(np.array([[0.0, 0], [10, 0], [20, 0], [30, 0]]), TAG_SIZE, K) is None
+    with pytest.raises(ValueError, match="corners"):
+        estimate_tag_pose(np.full((4, 2), np.nan), TAG_SIZE, K)
+
+
+@pytest.mark.parametrize("field, value", [("corner_offset_px", np.nan), ("min_tag_side_px", np.nan),
+                                          ("min_tag_side_px", np.inf), ("tag_size", np.inf)])
+def test_observer_config_refuses_non_finite_values(field, value):
+    """corner_offset_px NaN was accepted and crashed at the first detection ("cannot
+    convert float NaN to integer"); min_tag_side_px NaN switched the size check off."""
+    with pytest.raises(ValueError, match=field):
+        TagObserverConfig(**{field: value}).validate()

@@ -84,8 +84,8 @@ class TagObserverConfig:
 
     def validate(self) -> TagObserverConfig:
         check_tag_id(self.tag_id)
-        if not self.tag_size > 0:
-            raise ValueError(f"tag observer: 'tag_size' must be > 0 [m], got {self.tag_size}")
+        if not (np.isfinite(self.tag_size) and self.tag_size > 0):
+            raise ValueError(f"tag observer: 'tag_size' must be a finite number > 0 [m], got {self.tag_size}")
         if self.corner_refinement not in CORNER_REFINEMENTS:
             raise ValueError(
                 f"tag observer: 'corner_refinement' must be one of {sorted(CORNER_REFINEMENTS)}, "
@@ -95,8 +95,10 @@ class TagObserverConfig:
             raise ValueError(
                 f"tag observer: 'max_reprojection_error_px' must be > 0, got {self.max_reprojection_error_px}"
             )
-        if self.min_tag_side_px < 0:
-            raise ValueError(f"tag observer: 'min_tag_side_px' must be >= 0, got {self.min_tag_side_px}")
+        if not (np.isfinite(self.min_tag_side_px) and self.min_tag_side_px >= 0):
+            raise ValueError(f"tag observer: 'min_tag_side_px' must be a finite number >= 0, got {self.min_tag_side_px}")
+        if self.corner_offset_px is not None and not np.isfinite(self.corner_offset_px):
+            raise ValueError(f"tag observer: 'corner_offset_px' must be None or finite [px], got {self.corner_offset_px}")
         return self
 
 
@@ -272,12 +274,20 @@ def refine_corners_edges(
 
 
 def _check_intrinsics(K: np.ndarray, dist: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """K as a pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (fx, fy > 0, finite) and
+    dist as OpenCV's coefficients (None or none at all: no distortion), or a ValueError."""
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"K: camera matrix must be 3 x 3, got shape {K.shape}")
-    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=np.float64).ravel()
+    if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0
+            and np.allclose(K[2], [0.0, 0.0, 1.0])):
+        raise ValueError(f"K: camera matrix must be finite [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
+                         f"got {K.tolist()}")
+    dist = np.zeros(5) if dist is None or np.size(dist) == 0 else np.asarray(dist, dtype=np.float64).ravel()
     if dist.size not in (4, 5, 8, 12, 14):
         raise ValueError(f"dist: OpenCV distortion needs 4, 5, 8, 12 or 14 coefficients, got {dist.size}")
+    if not np.all(np.isfinite(dist)):
+        raise ValueError(f"dist: distortion coefficients must be finite, got {dist.tolist()}")
     return K, dist
 
 
@@ -309,13 +319,18 @@ def estimate_tag_pose(
     corners = np.asarray(corners, dtype=np.float64)
     if corners.shape != (4, 2):
         raise ValueError(f"corners: must be 4 x 2 pixel coordinates, got shape {corners.shape}")
+    if not np.all(np.isfinite(corners)):
+        raise ValueError(f"corners: must be finite, got {corners.tolist()}")
     if not tag_size > 0:
         raise ValueError(f"tag_size: must be > 0 [m], got {tag_size}")
     K, dist = _check_intrinsics(K, dist)
     object_points = tag_corners(tag_size)
     candidates = []
     for method in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP):
-        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(object_points, corners, K, dist, flags=method)
+        try:
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(object_points, corners, K, dist, flags=method)
+        except cv2.error:  # degenerate corners (e.g. all on one point): SQPnP asserts
+            continue
         candidates += [(rvecs[k], tvecs[k]) for k in range(int(n))]
     best = None
     for rvec, tvec in candidates:
@@ -361,6 +376,7 @@ def observe_pom(
         "reprojection_error_px": float("nan"),
         "X_CT": None,
     }
+    _check_intrinsics(K, dist)  # also when no tag is in view: a bad calibration is named at once
     if detector is None:
         detector = make_detector(config.corner_refinement, config.detector_overrides)
     gray = to_gray(image)
