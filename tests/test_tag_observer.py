@@ -487,3 +487,30 @@ def test_rotation_from_vector_matches_drake():
     expected = RotationMatrix(AngleAxis(np.linalg.norm(w), w / np.linalg.norm(w)))
     np.testing.assert_allclose(rotation_from_vector(w).matrix(), expected.matrix(), atol=1e-14)
     np.testing.assert_array_equal(rotation_from_vector(np.zeros(3)).matrix(), np.eye(3))
+
+
+def test_observer_checks_its_intrinsics_at_construction(camera):
+    """A zero K, or NaN distortion, used to be accepted and fail at the first frame with a
+    tag, inside OpenCV."""
+    K = camera.intrinsic_matrix()
+    with pytest.raises(ValueError, match="K: camera matrix"):
+        make_observer(np.zeros((3, 3)), camera)
+    with pytest.raises(ValueError, match="dist"):
+        TagObserver(TagObserverConfig(tag_id=3), K, np.full(5, np.nan), camera.X_PC())
+    with pytest.raises(ValueError, match="dist"):
+        TagObserver(TagObserverConfig(tag_id=3), K, np.zeros(3), camera.X_PC())
+    with pytest.raises(ValueError, match="X_PC"):
+        TagObserver(TagObserverConfig(tag_id=3), K, None, RigidTransform([np.nan, 0.0, 0.0]))
+
+
+def test_noisy_sensor_refuses_a_non_finite_true_pose_and_noise():
+    """A NaN true pose used to come out as a NaN measurement marked valid."""
+    sensor = NoisyPoseSensor(1e-4, 1e-3)
+    context = sensor.CreateDefaultContext()
+    sensor.X_PO_true_input_port().FixValue(context, RigidTransform([np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="X_PO_true"):
+        sensor.X_PO_measured_output_port().Eval(context)
+    with pytest.raises(ValueError, match="sigma_p"):
+        NoisyPoseSensor(np.inf, 0.0)
+    with pytest.raises(ValueError, match="sigma_r"):
+        NoisyPoseSensor(0.0, np.nan)

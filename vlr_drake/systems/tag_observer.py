@@ -35,7 +35,7 @@ from pydrake.systems.framework import BasicVector, Context, LeafSystem, State, V
 from pydrake.systems.sensors import ImageRgba8U
 
 from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
-from vlr_drake.perception.tag_pose import TagObserverConfig, make_detector, observe_pom
+from vlr_drake.perception.tag_pose import TagObserverConfig, _check_intrinsics, make_detector, observe_pom
 
 
 def _declare_update(system: LeafSystem, update_period_sec: float | None, update) -> None:
@@ -55,6 +55,8 @@ def _check_pose(value: Any, name: str) -> RigidTransform:
         return RigidTransform()
     if not isinstance(value, RigidTransform):
         raise TypeError(f"{name}: must be a pydrake.math.RigidTransform, got {type(value).__name__}")
+    if not np.all(np.isfinite(value.GetAsMatrix34())):
+        raise ValueError(f"{name}: the pose is not finite: {value.GetAsMatrix34().tolist()}")
     return value
 
 
@@ -96,9 +98,8 @@ class TagObserver(LeafSystem):
     ):
         super().__init__()
         self._config = config.validate()
+        _check_intrinsics(K, dist)  # named here, not at the first frame with a tag
         self._K = np.asarray(K, dtype=np.float64)
-        if self._K.shape != (3, 3):
-            raise ValueError(f"K: camera matrix must be 3 x 3, got shape {self._K.shape}")
         self._dist = None if dist is None else np.asarray(dist, dtype=np.float64).ravel()
         self._X_PC = _check_pose(X_PC, "X_PC")
         self._X_TO = _check_pose(X_TO, "X_TO")
@@ -241,10 +242,10 @@ class NoisyPoseSensor(LeafSystem):
         update_period_sec: float | None = None,
     ):
         super().__init__()
-        if not sigma_p >= 0:
-            raise ValueError(f"'sigma_p' must be >= 0 [m], got {sigma_p}")
-        if not sigma_r >= 0:
-            raise ValueError(f"'sigma_r' must be >= 0 [rad], got {sigma_r}")
+        if not (np.isfinite(sigma_p) and sigma_p >= 0):
+            raise ValueError(f"'sigma_p' must be a finite number >= 0 [m], got {sigma_p}")
+        if not (np.isfinite(sigma_r) and sigma_r >= 0):
+            raise ValueError(f"'sigma_r' must be a finite number >= 0 [rad], got {sigma_r}")
         if not 0.0 <= dropout_probability < 1.0:
             raise ValueError(f"'dropout_probability' must be in [0, 1), got {dropout_probability}")
         self._sigma_p = float(sigma_p)
