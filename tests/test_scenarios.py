@@ -164,6 +164,14 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("filter: {particles: many}\n", "field 'filter'"),  # wrong type: names the section
         ("filter: {particles: 0}\n", "particles"),
         ("camera: {width: -640}\n", "width"),
+        # non-finite camera values were accepted (NaN xyz: a NaN camera pose, NaN noise: a
+        # crash at the first rendered frame, NaN observer settings: see test_tag_pose)
+        ("camera: {xyz: [.nan, 0, 0]}\n", "xyz"),
+        ("camera: {rpy_deg: [0, .inf, 0]}\n", "rpy_deg"),
+        ("camera: {pixel_noise_std: .nan}\n", "pixel_noise_std"),
+        ("camera: {far: .inf}\n", "far"),
+        ("observer: {corner_offset_px: .nan}\n", "corner_offset_px"),
+        ("observer: {min_tag_side_px: .nan}\n", "min_tag_side_px"),
         ("physics: {time_step: 0.0}\n", "time_step"),
         ("prior: {stiffness_unknown: [[5, 1]]}\n", "stiffness_unknown"),
         ("prior: {stiffness_prior: normal}\n", "stiffness_prior"),

@@ -42,12 +42,15 @@ class CameraConfig:
             raise ValueError(f"camera: 'fov_y_deg' must be in (1, 170), got {self.fov_y_deg}")
         if len(self.xyz) != 3 or len(self.rpy_deg) != 3:
             raise ValueError("camera: 'xyz' and 'rpy_deg' must have 3 entries each")
+        for name in ("xyz", "rpy_deg"):
+            if not np.all(np.isfinite(np.asarray(getattr(self, name), float))):
+                raise ValueError(f"camera: '{name}' must be finite, got {list(getattr(self, name))}")
         if self.render_scale < 1:
             raise ValueError(f"camera: 'render_scale' must be >= 1, got {self.render_scale}")
-        if not 0 < self.near < self.far:
-            raise ValueError("camera: need 0 < near < far")
-        if self.pixel_noise_std < 0:
-            raise ValueError("camera: 'pixel_noise_std' must be >= 0")
+        if not 0 < self.near < self.far < np.inf:
+            raise ValueError(f"camera: need 0 < near < far, both finite, got near {self.near}, far {self.far}")
+        if not (np.isfinite(self.pixel_noise_std) and self.pixel_noise_std >= 0):
+            raise ValueError(f"camera: 'pixel_noise_std' must be a finite number >= 0, got {self.pixel_noise_std}")
         return self
 
     def intrinsic_matrix(self) -> np.ndarray:
