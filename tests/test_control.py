@@ -498,3 +498,24 @@ def test_control_model_refuses_a_non_finite_anchor(grasp):
     est = {"theta": grasp.plant.state.theta, "a": grasp.plant.state.a}
     with pytest.raises(ValueError, match="R_PO"):
         control.ControlModel.from_estimate(grasp.hand, est, np.full((3, 3), np.nan), np.zeros(3))
+
+
+@pytest.mark.parametrize(
+    "goal, match",
+    [
+        ((np.eye(3), np.array([np.nan, 0.0, 0.0])), "goal 1"),  # was accepted, a NaN goal output
+        ((np.ones((3, 3)), np.zeros(3)), "goal 1.*rotation"),  # was accepted: not a rotation
+        ((np.eye(3), np.zeros(2)), "goal 1"),
+        (np.zeros(3), "goal 1"),  # was "too many values to unpack"
+    ],
+)
+def test_trajectory_source_checks_its_goals(goal, match):
+    with pytest.raises(ValueError, match=match):
+        TaskTrajectorySource([(np.eye(3), np.zeros(3)), goal], 0.1)
+
+
+def test_trajectory_source_checks_max_periods():
+    with pytest.raises(ValueError, match="max_periods"):  # was "cannot convert float NaN to integer"
+        TaskTrajectorySource([(np.eye(3), np.zeros(3))], 0.1, max_periods=np.nan)
+    with pytest.raises(ValueError, match="max_periods"):  # was truncated to 2
+        TaskTrajectorySource([(np.eye(3), np.zeros(3))], 0.1, max_periods=2.5)

@@ -192,9 +192,10 @@ class TaskTrajectorySource(LeafSystem):
         super().__init__()
         if not goals:
             raise ValueError("'goals' must hold at least one pose")
-        self._goals = [g if isinstance(g, RigidTransform) else RigidTransform(*_rt(g)) for g in goals]
-        if max_periods < 1:
-            raise ValueError(f"'max_periods' must be >= 1, got {max_periods}")
+        self._goals = [_goal_pose(i, g) for i, g in enumerate(goals)]
+        if (isinstance(max_periods, bool) or not np.isfinite(max_periods) or max_periods != int(max_periods)
+                or max_periods < 1):
+            raise ValueError(f"'max_periods' must be an integer >= 1, got {max_periods}")
         self._max = int(max_periods)
         self._at_goal = self.DeclareVectorInputPort(name="at_goal", size=1)
         self._state = self.DeclareDiscreteState(np.array([0.0, 0.0, 0.0]))  # index, periods on it, done
@@ -248,11 +249,26 @@ class TaskTrajectorySource(LeafSystem):
         output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(2)])
 
 
-def _rt(g):
+def _goal_pose(i: int, g) -> RigidTransform:
+    """Goal ``i`` as a RigidTransform, from one or from (R (3, 3), t (3,)); a ValueError
+    names it unless it is finite with R a rotation to 1e-6 (pydrake does not check)."""
     from pydrake.math import RotationMatrix
 
-    R, t = g
-    return RotationMatrix(np.asarray(R, float)), np.asarray(t, float)
+    if isinstance(g, RigidTransform):
+        R, t = g.rotation().matrix(), g.translation()
+    else:
+        try:
+            R, t = g
+        except (TypeError, ValueError):
+            raise ValueError(f"'goals': goal {i} must be a RigidTransform or (R (3, 3), t (3,)), got {g!r}") from None
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        if R.shape != (3, 3) or t.shape != (3,):
+            raise ValueError(f"'goals': goal {i} must be (R (3, 3), t (3,)), got shapes {R.shape} and {t.shape}")
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise ValueError(f"'goals': goal {i} is not finite: R {R.tolist()}, t {t.tolist()}")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise ValueError(f"'goals': goal {i}'s R is not a rotation matrix: {np.round(R, 6).tolist()}")
+    return g if isinstance(g, RigidTransform) else RigidTransform(RotationMatrix(R), t)
 
 
 class EstimateFromTruth(LeafSystem):
