@@ -519,3 +519,27 @@ def test_trajectory_source_checks_max_periods():
         TaskTrajectorySource([(np.eye(3), np.zeros(3))], 0.1, max_periods=np.nan)
     with pytest.raises(ValueError, match="max_periods"):  # was truncated to 2
         TaskTrajectorySource([(np.eye(3), np.zeros(3))], 0.1, max_periods=2.5)
+
+
+def test_controller_system_names_a_bad_eps_at_construction(grasp):
+    """eps <= 0 was accepted; jacobian's ValueError was then caught as 'no usable model'
+    and the command held for ever, silently."""
+    with pytest.raises(ValueError, match="eps"):
+        JacobianController(grasp.hand, grasp.plant.state.tendon_command, 0.1, eps=0.0)
+
+
+def test_controller_system_names_a_malformed_estimate(grasp):
+    """An estimate without 'a', or of another hand's shape (a wiring mistake), was caught as
+    'no usable model here' and the command held for ever, silently."""
+    pl = fresh(grasp)
+    ctrl, ctx = _controller_context(grasp, pl, _X(pl.state.R_PO, pl.state.t_PO + 1e-3), _X(pl.state.R_PO, pl.state.t_PO))
+    ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta})
+    with pytest.raises(ValueError, match="estimate.*'a'"):
+        ctrl.ExecuteForcedEvents(ctx)
+    ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta, "a": pl.state.a[:2]})
+    with pytest.raises(ValueError, match=r"estimate\['a'\].*\(3,\)"):
+        ctrl.ExecuteForcedEvents(ctx)
+    # a non-finite estimate (a filter gone wrong) has no usable model: the command is held
+    ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta * np.nan, "a": pl.state.a})
+    ctrl.ExecuteForcedEvents(ctx)
+    np.testing.assert_array_equal(ctrl.tendon_command_output_port().Eval(ctx), pl.state.tendon_command)

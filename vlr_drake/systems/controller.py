@@ -84,6 +84,8 @@ class JacobianController(LeafSystem):
             damping=damping,
             clip=clip,
         )  # validates the settings
+        if not (np.isfinite(eps) and eps > 0):  # jacobian's error would be taken for "no usable model"
+            raise ValueError(f"'eps' must be a positive finite number [m], got {eps}")
         self._hand = hand
         self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip)
         self._eps, self._tendon = eps, tendon
@@ -162,6 +164,7 @@ class JacobianController(LeafSystem):
         discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(at_goal), ep, er])
         if at_goal:
             return
+        _check_estimate(self._hand, est)  # a malformed one is a wiring mistake, not "no model here"
         try:
             model = control.ControlModel.from_estimate(self._hand, est, R, t, tendon=self._tendon)
             J = control.jacobian(model, self._eps)
@@ -176,6 +179,17 @@ class JacobianController(LeafSystem):
 
     def _calc_error(self, context, output: BasicVector):
         output.SetFromVector(np.array(context.get_discrete_state(self._status_state).get_value())[1:])
+
+
+def _check_estimate(hand: HandModel, est: dict) -> None:
+    """The ``estimate`` input's keys and shapes (its values may be anything numeric)."""
+    N, K = hand.N, hand.K
+    for key, shape in (("theta", (N, K)), ("a", (N,)), ("stiffness", (N, K)), ("link_lengths", (N, K - 1))):
+        if key not in est:
+            if key in ("theta", "a"):
+                raise ValueError(f"controller: input 'estimate' is missing '{key}' (keys {sorted(est)})")
+        elif est[key] is not None and np.shape(est[key]) != shape:
+            raise ValueError(f"controller: input estimate['{key}'] must have shape {shape}, got {np.shape(est[key])}")
 
 
 class TaskTrajectorySource(LeafSystem):
