@@ -179,3 +179,11 @@ def test_task_grasps_have_room_to_move():
         assert copy.deepcopy(loose.plant).apply_action(dl) == p
     with pytest.raises(ValueError, match="possible_actions"):
         loose.plant.possible_actions(np.zeros(3))
+
+
+def test_non_finite_letter_sizes_are_refused():
+    """A NaN height passed both checks (NaN <= 0 is False) and gave NaN strokes: NaN goals."""
+    with pytest.raises(ValueError, match="height"):
+        font.letter_strokes("A", float("nan"))
+    with pytest.raises(ValueError, match="letter_height"):
+        write.run_write("A", plant="model", letter_height=float("nan"), progress=False)

@@ -73,8 +73,8 @@ def letter_strokes(letter: str, height: float, spacing: float | None = None) -> 
     key = letter.upper()
     if key not in LETTERS:
         raise ValueError(f"letter '{letter}' is not in the stroke font (A-Z)")
-    if height <= 0:
-        raise ValueError(f"'height' must be positive, got {height}")
+    if not (np.isfinite(height) and height > 0):
+        raise ValueError(f"'height' must be a positive finite number [m], got {height}")
     strokes = [np.asarray(s, float) for s in LETTERS[key]]
     allp = np.concatenate(strokes)
     center = 0.5 * (allp.min(axis=0) + allp.max(axis=0))

@@ -162,7 +162,7 @@ def run_write(
     letters = font.word_letters(word)
     if plant not in ("model", "physics"):
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
-    if letter_height <= 0 or letter_height > 12e-3:
+    if not 0 < letter_height <= 12e-3:  # NaN too
         raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
     from tqdm.auto import tqdm
 
