@@ -222,3 +222,21 @@ def test_filter_system_names_a_non_finite_tendon_command_port():
     with pytest.raises(ValueError, match="input 'tendon_command'"):
         sys.ExecuteForcedEvents(ctx)
     assert sys.filter(ctx).iteration == 0  # nothing moved
+
+
+@pytest.mark.parametrize("period, offset", [(np.inf, None), (np.nan, None), (0.0, None), (1.0, np.nan), (1.0, -0.1),
+                                            (1.0, np.inf)])
+def test_periodic_systems_name_a_bad_period_or_offset(period, offset):
+    """A period or offset that is not a finite time is named at construction, by each of the
+    three periodic systems (an infinite period or a NaN offset used to be accepted)."""
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    name = "period_sec" if offset is None else "offset_sec"
+    with pytest.raises(ValueError, match=f"'{name}' must be"):
+        SelfIdentificationSystem(h, pf.FilterConfig(particles=200), pf.PriorConfig(), th, a, period_sec=period,
+                                 offset_sec=offset)
+    with pytest.raises(ValueError, match=f"'{name}' must be"):
+        ModelPlantSystem(plant, period_sec=period, offset_sec=offset)
+    if offset is None:
+        with pytest.raises(ValueError, match="'period_sec' must be"):
+            ExplorationPolicy(h, plant.state.tendon_command, period_sec=period)

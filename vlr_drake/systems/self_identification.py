@@ -43,6 +43,16 @@ def _checked(name: str, x, shape: tuple) -> np.ndarray:
     return arr.reshape(shape)
 
 
+def _timing(period_sec, offset_sec=None) -> tuple[float, float | None]:
+    """A periodic event's ``period_sec`` (finite, > 0) and ``offset_sec`` (None, or finite
+    and >= 0) [s], or a ValueError that names the bad one."""
+    if not (np.isfinite(period_sec) and period_sec > 0):
+        raise ValueError(f"'period_sec' must be a positive finite number [s], got {period_sec}")
+    if offset_sec is not None and not (np.isfinite(offset_sec) and offset_sec >= 0):
+        raise ValueError(f"'offset_sec' must be None or a finite number >= 0 [s], got {offset_sec}")
+    return float(period_sec), None if offset_sec is None else float(offset_sec)
+
+
 class _FilterBox:
     """Abstract-state payload: the filter object (which tracks the tendon command too) and
     the trace of what it was given."""
@@ -71,8 +81,7 @@ class SelfIdentificationSystem(LeafSystem):
     def __init__(self, hand: HandModel, config: pf.FilterConfig, prior: pf.PriorConfig, theta_center, a_center,
                  period_sec: float, offset_sec: float | None = None, seed: int = 0):
         super().__init__()
-        if not period_sec > 0:
-            raise ValueError(f"'period_sec' must be positive, got {period_sec}")
+        period_sec, offset_sec = _timing(period_sec, offset_sec)
         self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
         self._theta_center = _checked("theta_center", theta_center, (hand.N, hand.K))
         self._a_center = _checked("a_center", a_center, (hand.N,))
@@ -186,6 +195,7 @@ class ExplorationPolicy(LeafSystem):
     def __init__(self, hand: HandModel, l_grasp, period_sec: float, span: float = 1.5e-3, window: float = 4e-3,
                  seed: int = 0, squeeze: float = 0.0, squeeze_window: float = 0.0):
         super().__init__()
+        period_sec, _ = _timing(period_sec)
         self._l0 = np.asarray(l_grasp, float)
         self._seed = seed
         self._state = self.DeclareDiscreteState(self._l0)
@@ -213,6 +223,7 @@ class ModelPlantSystem(LeafSystem):
         super().__init__()
         import copy
 
+        period_sec, offset_sec = _timing(period_sec, offset_sec)
         self._template = copy.deepcopy(plant)
         h = plant.hand
         self._N, self._K = h.N, h.K
