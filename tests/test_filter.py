@@ -867,6 +867,29 @@ def test_each_experiment_holds_its_papers_object_unless_told():
     assert IdentifyOptions(experiment="stiffness", object="apple").validate().object == "apple"
 
 
+def test_iteration_budget_is_the_experiments_unless_told():
+    """The stiffness on the physics plant runs 240 iterations (its spring narrows slowly),
+    every other experiment and the model plant 120; a given budget is kept, and one that is
+    not a positive integer is named."""
+    from vlr_drake.identify import DEFAULT_ITERATIONS, default_iterations
+    from vlr_drake.scenario import load_scenario, options_from_scenario
+
+    assert DEFAULT_ITERATIONS == 120 and default_iterations("hardware", "stiffness") == 240
+    budgets = {(p, e): IdentifyOptions(experiment=e, plant=p, hand="NH1" if e == "novel_fingers" else "model_o")
+               .validate().max_iterations for p in ("model", "physics") for e in ("known_hand", "stiffness",
+                                                                                  "novel_fingers")}
+    assert budgets == {("model", "known_hand"): 120, ("model", "stiffness"): 120, ("model", "novel_fingers"): 120,
+                       ("physics", "known_hand"): 120, ("physics", "stiffness"): 240,
+                       ("physics", "novel_fingers"): 120}
+    assert IdentifyOptions(experiment="stiffness", plant="physics", max_iterations=30).validate().max_iterations == 30
+    scenario = load_scenario("diagrams/stiffness.yaml")  # the model plant
+    assert options_from_scenario(scenario, max_iterations=None).validate().max_iterations == 120
+    assert options_from_scenario(scenario, plant="physics", max_iterations=None).validate().max_iterations == 240
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="max_iterations must be an integer >= 1"):
+            IdentifyOptions(max_iterations=bad).validate()
+
+
 @pytest.mark.parametrize("kind", ["uniform", "log_uniform"])
 def test_unknown_stiffness_prior_draws(kind):
     """The unknown stiffness is drawn in its range, uniformly or log-uniformly (the median

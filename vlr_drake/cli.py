@@ -541,15 +541,15 @@ def _count(least: int):
 MIN_PARTICLES = 10
 
 
-def _common(p: argparse.ArgumentParser, particles: int, iterations: int, out: str = "out",
-            least_iterations: int = 1) -> None:
+def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, out: str = "out",
+            least_iterations: int = 1, iterations_help: str | None = None) -> None:
     p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
     p.add_argument("--seed", type=_count(0), default=None,
                    help="seed of every random draw (default: the scenario's, else 0)")
     p.add_argument("--particles", type=_count(MIN_PARTICLES), default=None,
                    help=f"number of particles (default: the scenario's filter.particles, else {particles})")
     p.add_argument("--iterations", type=_count(least_iterations), default=iterations,
-                   help=f"iteration budget of the identification (default {iterations})")
+                   help=f"iteration budget of the identification (default {iterations_help or iterations})")
     p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
     p.add_argument("--out", default=out, help=f"output folder for plots, recordings and results (default ./{out})")
     p.add_argument("--plant", choices=["model", "physics"], default=None,
@@ -577,7 +577,12 @@ def main(argv: list[str] | None = None) -> int:
     for name, help_text in [("identify", "run a self-identification experiment"),
                             ("demo", "the main job: self-check, self-identification, handwriting")]:
         p = _parser(name, sub, help_text)
-        _common(p, particles=20_000, iterations=120)
+        if name == "identify":  # None: the experiment's (IdentifyOptions.max_iterations)
+            _common(p, particles=20_000, iterations=None,
+                    iterations_help="120; 240 for the stiffness on the physics plant, whose spring narrows slowly: "
+                                    "vlr_drake.identify.ITERATIONS")
+        else:
+            _common(p, particles=20_000, iterations=120)
         if name == "identify":
             p.add_argument("experiment", nargs="?", default=None, choices=["known_hand", "stiffness", "novel_fingers"],
                            help="known_hand: angles and contacts; stiffness: also the thumb's distal spring; "
