@@ -442,3 +442,39 @@ def test_module_docstrings_read_as_plain_help():
 
     text = plain("a :class:`~vlr_drake.scenario.Scenario` in, :meth:`PhysicsHand.grasp`, ``actions`` of them")
     assert text == "a Scenario in, PhysicsHand.grasp, actions of them"
+
+
+def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, monkeypatch):
+    """Without --iterations every identification row runs identify's budget for its
+    experiment (240 for the stiffness on the physics plant, 120 otherwise) and the tasks'
+    self-identification 100; a given budget applies to all of them."""
+    import vlr_drake.reproduce as rp
+
+    budgets = []
+
+    class Stop(Exception):
+        pass
+
+    def fake(opts):  # records the budget, then ends the run before any plant is built
+        budgets.append((opts.experiment, opts.validate().max_iterations))
+        raise Stop
+
+    monkeypatch.setattr(rp, "run_identification", fake)
+    for experiment, iterations, want in [("stiffness", None, 240), ("NH1", None, 120), ("stiffness", 30, 30)]:
+        with pytest.raises(Stop):
+            rp.reproduce(trials=1, plant="physics", iterations=iterations, out=tmp_path, progress=False,
+                         experiments=[experiment])
+        assert budgets[-1][1] == want
+    assert [e for e, _ in budgets] == ["stiffness", "novel_fingers", "stiffness"]
+
+    def fake_write(word, **kw):  # the tasks' self-identification: 100 unless told
+        budgets.append(("write", kw["identify_iterations"]))
+        raise Stop
+
+    monkeypatch.setattr("vlr_drake.tasks.write.run_write", fake_write)
+    for iterations, want in [(None, rp.TASK_IDENTIFY_ITERATIONS), (30, 30)]:
+        with pytest.raises(Stop):
+            rp.reproduce(trials=1, plant="model", iterations=iterations, out=tmp_path, progress=False,
+                         experiments=["write"])
+        assert budgets[-1] == ("write", want)
+    assert rp.TASK_IDENTIFY_ITERATIONS == 100

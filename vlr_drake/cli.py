@@ -494,9 +494,9 @@ toy block), mean +- SD of the paper's measure beside the paper's, whether ours i
 for the identification rows how often the truth lay inside the 95% intervals (joints,
 contacts, springs, links) and how many identified hand parameters stayed weakly identified.
 Prints the markdown table and writes reproduce.md and reproduce.json to --out. The default is
-the paper's setting, the physics plant with the rendered camera (5 trials: about 55 minutes
-on 2 cores, 26 of them the identification rows); --plant model runs the fast model plant (5
-trials: about 5 minutes); --experiments runs some of the rows. A --scenario
+the paper's setting, the physics plant with the rendered camera (5 trials: about an hour on
+2 cores, half of it the identification rows, each with identify's budget); --plant model runs
+the fast model plant (5 trials: about 5 minutes); --experiments runs some of the rows. A --scenario
 supplies the plant and its settings; each row sets its own experiment, hand and object.
 --quick: one small trial of each (a smoke run, not a result).""",
     "replay": """Replay an identification's trace (vlr-drake identify --trace PATH) without the plant: the
@@ -628,7 +628,9 @@ def main(argv: list[str] | None = None) -> int:
                            help="rotational weight of Eq. 12, on rotations in rad against positions in mm (paper: 9.5)")
 
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
-    _common(p, particles=20_000, iterations=100, out="out/reproduce")
+    _common(p, particles=20_000, iterations=None, out="out/reproduce",
+            iterations_help="each experiment's, as identify's: 120, 240 for the stiffness on the physics plant; "
+                            "100 for the tasks' self-identification")
     p.add_argument("--trials", type=_count(1), default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,

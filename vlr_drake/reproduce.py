@@ -122,7 +122,12 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 20_000, iterations: int = 100,
+#: Identification iterations of the tasks' self-identification in :func:`reproduce` when no
+#: budget is given.
+TASK_IDENTIFY_ITERATIONS = 100
+
+
+def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 20_000, iterations: int | None = None,
               quick: bool = False, out: str | Path = "out/reproduce", progress: bool = True, seed: int = 0,
               scenario=None, scenario_path=None, meshcat=None, experiments=None) -> dict:
     """Run the table; returns {"rows": [...], "runs": {...}} and writes markdown + JSON.
@@ -135,7 +140,10 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     :class:`vlr_drake.scenario.Scenario`, loaded from ``scenario_path``) supplies the plant
     (``plant=None``) and its settings (noise, physics, camera, exploration); each row still
     sets its own experiment, hand and object. ``meshcat``: the tasks show their targets and
-    save a recording beside their plots (:class:`vlr_drake.visualization.TaskView`)."""
+    save a recording beside their plots (:class:`vlr_drake.visualization.TaskView`).
+    ``iterations``: the budget of every identification, the tasks' included; None: each
+    experiment's own (``vlr-drake identify``'s: :func:`vlr_drake.identify.default_iterations`),
+    and :data:`TASK_IDENTIFY_ITERATIONS` for the tasks."""
     from tqdm.auto import tqdm
 
     from vlr_drake.tasks.maze import run_maze
@@ -171,7 +179,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     task_model = "true" if quick else "filter"
     def task(name, s):
         return dict(model=task_model, progress=False, out=str(out / f"{name}_{s}"), meshcat=meshcat,
-                    identify_iterations=iterations,
+                    identify_iterations=TASK_IDENTIFY_ITERATIONS if iterations is None else iterations,
                     **task_settings(scenario, scenario_path, seed=s, plant=plant, particles=min(particles, 10_000)))
 
     jobs += [("write", lambda s: run_write("I" if quick else "SCIENCE", **task("write", s))),
