@@ -414,3 +414,22 @@ def test_observer_config_refuses_non_finite_values(field, value):
     convert float NaN to integer"); min_tag_side_px NaN switched the size check off."""
     with pytest.raises(ValueError, match=field):
         TagObserverConfig(**{field: value}).validate()
+
+
+@pytest.mark.parametrize("name, value, match", [("adaptiveThreshWinSizeMin", np.nan, "must be an integer"),
+                                                ("adaptiveThreshWinSizeMin", 3.5, "must be an integer"),
+                                                ("minMarkerPerimeterRate", np.inf, "must be a finite number"),
+                                                ("minMarkerPerimeterRate", "small", "must be a finite number"),
+                                                ("noSuchField", 1, "has no field")])
+def test_bad_detector_overrides_are_named(name, value, match):
+    """An override that is not a number of its field's kind is named: NaN for an integer
+    field used to fail with "cannot convert float NaN to integer", and 3.5 was cut to 3."""
+    with pytest.raises(ValueError, match=f"detector_overrides.*{match}"):
+        make_detector("apriltag", {name: value})
+
+
+def test_detector_overrides_set_their_fields():
+    params = make_detector("apriltag", {"adaptiveThreshWinSizeMin": 5.0, "minMarkerPerimeterRate": 0.02,
+                                        "detectInvertedMarker": 1}).getDetectorParameters()
+    assert params.adaptiveThreshWinSizeMin == 5 and isinstance(params.adaptiveThreshWinSizeMin, int)
+    assert params.minMarkerPerimeterRate == pytest.approx(0.02) and params.detectInvertedMarker is True

@@ -115,7 +115,15 @@ def make_detector(
     for name, value in (overrides or {}).items():
         if not hasattr(params, name):
             raise ValueError(f"'detector_overrides': aruco DetectorParameters has no field {name!r}")
-        setattr(params, name, type(getattr(params, name))(value))
+        kind = type(getattr(params, name))
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = float("nan")
+        if not np.isfinite(number) or (kind is int and number != int(number)):
+            what = "an integer" if kind is int else "a finite number"
+            raise ValueError(f"'detector_overrides': {name!r} must be {what}, got {value!r}")
+        setattr(params, name, kind(number) if kind is not bool else bool(number))
     return cv2.aruco.ArucoDetector(dictionary(), params)
 
 
