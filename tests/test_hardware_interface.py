@@ -124,8 +124,10 @@ class FakeCapture:
     """A VideoCapture stand-in: ``n`` grey frames, then ``read`` blocks until released.
     With ``gate`` (a threading.Event) the first frame waits until the gate opens."""
 
-    def __init__(self, n: int, size=(W, H), gate: threading.Event | None = None):
+    def __init__(self, n: int, size=(W, H), gate: threading.Event | None = None, shape=None, dtype=np.uint8):
         self.n, self.size, self.gate = n, size, gate
+        # a frame's shape beyond (height, width): (3,) BGR by default, () for a gray camera
+        self.shape, self.dtype = (3,) if shape is None else tuple(shape), dtype
         self.release_event = threading.Event()
 
     def __call__(self, source):
@@ -139,7 +141,7 @@ class FakeCapture:
             self.gate.wait(timeout=5.0)
         if self.n > 0:
             self.n -= 1
-            return True, np.full((self.size[1], self.size[0], 3), 77, np.uint8)
+            return True, np.full((self.size[1], self.size[0], *self.shape), 77, self.dtype)
         self.release_event.wait(timeout=30.0)
         return False, None
 
@@ -594,6 +596,37 @@ def test_nonfinite_command_stops_with_torque_off(emulator, tag_video):
         hw.ExecuteForcedEvents(ctx)
     emulator.wait_idle()
     assert len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)) == n_writes
+    assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
+
+
+@pytest.mark.parametrize("shape", [(), (1,), (4,)])
+def test_gray_and_bgra_cameras_give_rgba_images(emulator, shape):
+    """A monochrome camera's (H, W) or (H, W, 1) frames and BGRA frames become the RGBA
+    image (they used to fail in cvtColor's BGR conversion)."""
+    camera = FrameSource(0, timeout_s=1.0, expected_size=(W, H), mode="sequential",
+                         capture_factory=FakeCapture(3, shape=shape))
+    hw = HardwareInterface(model_o(), make_config(emulator, 0), intrinsics=intrinsics(), camera=camera)
+    ctx = hw.CreateDefaultContext()
+    hw.ExecuteInitializationEvents(ctx)
+    hw.ExecuteForcedEvents(ctx)
+    image = np.asarray(hw.get_rgb_image_output_port().Eval(ctx).data)
+    assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 1.0
+    alpha = 77 if shape == (4,) else 255  # a BGRA frame keeps its own alpha
+    assert image.shape == (H, W, 4) and np.all(image[..., :3] == 77) and np.all(image[..., 3] == alpha)
+    hw.close()
+
+
+@pytest.mark.parametrize("shape, dtype", [((3,), np.uint16), ((2,), np.uint8)])
+def test_unreadable_frames_stop_with_torque_off(emulator, shape, dtype):
+    """A frame that is not a uint8 BGR, BGRA or gray image is named, and the motors stop."""
+    camera = FrameSource(0, timeout_s=1.0, expected_size=(W, H), mode="sequential",
+                         capture_factory=FakeCapture(3, shape=shape, dtype=dtype))
+    hw = HardwareInterface(model_o(), make_config(emulator, 0), intrinsics=intrinsics(), camera=camera)
+    ctx = hw.CreateDefaultContext()
+    hw.ExecuteInitializationEvents(ctx)
+    with pytest.raises(CameraError, match=f"got shape \\({H}, {W}(, {shape[0]})?\\) of {np.dtype(dtype).name}"):
+        hw.ExecuteForcedEvents(ctx)
+    emulator.wait_idle()
     assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
 
 

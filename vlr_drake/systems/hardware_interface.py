@@ -41,7 +41,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
 from vlr_drake.hand import HandSpec
-from vlr_drake.hardware.camera import CameraIntrinsics, FrameSource, read_intrinsics
+from vlr_drake.hardware.camera import CameraError, CameraIntrinsics, FrameSource, read_intrinsics
 from vlr_drake.hardware.config import HardwareConfig, TendonMotorMap
 from vlr_drake.hardware.dynamixel import TendonMotors
 
@@ -57,6 +57,21 @@ def _shutdown(motors, camera) -> None:
     finally:
         if camera is not None:
             camera.release()
+
+
+def _to_rgba(frame: np.ndarray) -> np.ndarray:
+    """A camera frame as RGBA uint8: OpenCV's BGR (H, W, 3), BGRA (H, W, 4), or gray (H, W)
+    or (H, W, 1), as monochrome cameras deliver; another shape or dtype is a CameraError
+    that names it."""
+    import cv2
+
+    frame = np.asarray(frame)
+    codes = {1: cv2.COLOR_GRAY2RGBA, 3: cv2.COLOR_BGR2RGBA, 4: cv2.COLOR_BGRA2RGBA}
+    channels = 1 if frame.ndim == 2 else frame.shape[2] if frame.ndim == 3 else 0
+    if frame.dtype != np.uint8 or channels not in codes or min(frame.shape[:2], default=0) < 1:
+        raise CameraError(f"camera: frames must be uint8 BGR, BGRA or gray images, got shape {frame.shape} "
+                          f"of {frame.dtype}")
+    return cv2.cvtColor(np.ascontiguousarray(frame), codes[channels])
 
 
 class HardwareInterface(LeafSystem):
@@ -178,8 +193,6 @@ class HardwareInterface(LeafSystem):
     def _update(self, context, state) -> None:
         if self.closed:
             raise RuntimeError("hardware interface: closed (torque is off); the run cannot continue")
-        import cv2
-
         try:
             if self._command_port.HasValue(context):
                 command = np.asarray(self._command_port.Eval(context), float)
@@ -189,6 +202,7 @@ class HardwareInterface(LeafSystem):
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
             ticks, current = self.motors.read()
             ok, frame = self.camera.read()
+            rgba = _to_rgba(frame) if ok else self._blank
         except BaseException:
             self.close()
             raise
@@ -200,7 +214,6 @@ class HardwareInterface(LeafSystem):
             np.asarray(current, float) * self.config.current_unit_a
         )
         state.get_mutable_discrete_state(self._valid_index).set_value([1.0 if ok else 0.0])
-        rgba = cv2.cvtColor(frame, cv2.COLOR_BGR2RGBA) if ok else self._blank
         state.get_mutable_abstract_state(self._image_index).set_value(self._image_value(rgba).get_value())
 
     # --- port handles -------------------------------------------------------------------------
