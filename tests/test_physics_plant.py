@@ -266,6 +266,31 @@ def test_balanced_pretension_cancels_the_pad_forces_in_the_palm_plane():
     np.testing.assert_allclose(ph.pretensions(root), ph.physics.pretension * w)
 
 
+def test_pretension_mode_auto_balances_every_hand_but_the_model_o():
+    """"auto" (the default) keeps the thumb factor on the Model O's fingers, whatever its
+    springs, and balances the tensions on any other hand; a mode given is kept."""
+    import dataclasses
+
+    cfg = PhysicsConfig()
+    assert cfg.pretension_mode == "auto"
+    spec = model_o()
+    soft = dataclasses.replace(spec, fingers=[dataclasses.replace(spec.fingers[0], stiffness=[0.09, 0.12]),
+                                              *spec.fingers[1:]])  # the stiffness experiment's hand
+    assert cfg.pretension_mode_for(spec.model()) == cfg.pretension_mode_for(soft.model()) == "thumb_factor"
+    assert [cfg.pretension_mode_for(hand_by_name(n).model()) for n in ("NH1", "NH2", "NH3")] == ["balanced"] * 3
+    assert PhysicsConfig(pretension_mode="thumb_factor").pretension_mode_for(hand_by_name("NH1").model()) == (
+        "thumb_factor")
+    with pytest.raises(ValueError, match="'pretension_mode' must be auto, thumb_factor or balanced, got 'even'"):
+        PhysicsConfig(pretension_mode="even").validate()
+    _, ph, sim = build_physics_hand(hand_by_name("NH1"), preset("apple"), cfg)
+    root = sim.get_mutable_context()
+    ph.plant.SetFreeBodyPose(ph.plant_context(root), ph.object_body, ph.physics.X_WP() @ ph.obj.X_PB())
+    ph.place_fingers(root)
+    np.testing.assert_allclose(ph.pretensions(root), cfg.pretension * ph.balanced_tension_factors(root))
+    assert not np.allclose(ph.pretensions(root), PhysicsConfig(pretension_mode="thumb_factor").pretension
+                           * np.array([cfg.thumb_factor, 1.0, 1.0]))
+
+
 def test_novel_hand_balanced_pretension_holds():
     r = run_check("gelatin_box", "NH1", actions=5, seed=2, physics=PhysicsConfig(pretension_mode="balanced"))
     assert r.held and r.grasp_settled

@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-camera", action="store_true", help="skip rendering")
     ap.add_argument("--time-step", type=float, default=None, help="plant time step [s]")
-    ap.add_argument("--pretension-mode", default=None, help="thumb_factor or balanced")
+    ap.add_argument("--pretension-mode", default=None, help="auto, thumb_factor or balanced (default: auto)")
     ap.add_argument(
         "--html-dir", default=None, help="save a Meshcat recording per object here (<object>.html)"
     )

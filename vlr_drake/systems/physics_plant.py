@@ -27,8 +27,9 @@ contact (``contact_model="hydroelastic_with_fallback"``; the models carry the pr
 also holds, 3-4x slower. The pads are two spheres across the finger so the object cannot
 pivot about one contact. The grasp places the pads on the object first (solving each
 finger's closing angle), then sets each tendon to the matching length plus a pretension of
-20 N (the thumb, opposing two fingers, 1.7x; or "balanced" tensions solved from the placed
-grasp, better for the novel hands), then settles. One paper iteration
+20 N (on the Model O the thumb, opposing two fingers, 1.7x; on other hands, the novel ones
+included, "balanced" tensions solved from the placed grasp; ``PhysicsConfig.pretension_mode``),
+then settles. One paper iteration
 (:meth:`PhysicsHand.apply_action`) ramps the tendons (0.2 s), then settles by displacement
 over 10 ms windows (SAP's regularised friction leaves a slow creep) with a 0.5 s cap: about
 0.1-0.17 s of wall time for the physics and 0.08-0.13 s for the 2x render and downsample.
@@ -125,6 +126,23 @@ class PlacementError(ValueError, RuntimeError):
     before, for callers that catch that."""
 
 
+#: How the tendons share the pretension at the grasp (PhysicsConfig.pretension_mode).
+PRETENSION_MODES = ("auto", "thumb_factor", "balanced")
+
+
+def has_model_o_fingers(hand: HandModel) -> bool:
+    """True where every finger of ``hand`` has the Model O's kinematics (bases, flexion
+    directions, link lengths, pads and moment arms; springs may differ, as in the stiffness
+    experiment): the hand that ``PhysicsConfig.thumb_factor`` was tuned for."""
+    from vlr_drake.hand import model_o
+
+    ref = model_o().model()
+    if (hand.N, hand.K) != (ref.N, ref.K):
+        return False
+    return all(np.allclose(getattr(hand, a), getattr(ref, a), rtol=0.0, atol=1e-9)
+               for a in ("base", "u", "link_lengths", "distal_length", "pad", "moment_arms"))
+
+
 @dataclass
 class PhysicsConfig:
     """Settings of the physics plant (DESIGN.md section 8 has the measurements behind them)."""
@@ -157,9 +175,14 @@ class PhysicsConfig:
     # Tendon pretension at the grasp [N]: 20-25 N held a box; 8 N dropped it.
     pretension: float = 20.0
     # How tendons share the pretension: "thumb_factor" (the thumb, i.e. fingers whose name
-    # starts with "thumb", gets thumb_factor x) or "balanced" (solved from the placed
-    # grasp so the pad forces cancel in the palm plane; for other hands and objects).
-    pretension_mode: str = "thumb_factor"
+    # starts with "thumb", gets thumb_factor x), "balanced" (solved from the placed grasp so
+    # the pad forces cancel in the palm plane), or "auto" (default): thumb_factor on the
+    # Model O's fingers, for which the factor was tuned, balanced on any other hand (novel
+    # fingers, a hand of your own; pretension_mode_for). Measured on NH1 (apple, 20,000
+    # particles, 120 iterations, seeds 0-14): balanced 1.31 +- 0.92 mm link error, every joint
+    # inside its interval; the thumb factor 2.54 +- 1.73 mm, joints inside 0.74
+    # (docs/results.md, "A longer budget for the spring, and unknown pad moments").
+    pretension_mode: str = "auto"
     # Pretension factor of the thumb: opposing two fingers it needs about 1.7x their
     # tension or the object drifts to it and drops.
     thumb_factor: float = 1.7
@@ -194,6 +217,13 @@ class PhysicsConfig:
     # it causes (python -m vlr_drake.physics.agreement --physics gravity=0).
     gravity: float = 9.81
 
+    def pretension_mode_for(self, hand: HandModel) -> str:
+        """``pretension_mode`` on ``hand``, with "auto" resolved: "thumb_factor" on the Model
+        O's fingers (:func:`has_model_o_fingers`), "balanced" on any other hand."""
+        if self.pretension_mode != "auto":
+            return self.pretension_mode
+        return "thumb_factor" if has_model_o_fingers(hand) else "balanced"
+
     def validate(self) -> "PhysicsConfig":
         if not self.time_step > 0:
             raise ValueError(
@@ -206,9 +236,9 @@ class PhysicsConfig:
                 f"physics: 'discrete_contact_approximation' must be sap, lagged or similar, got "
                 f"'{self.discrete_contact_approximation}'"
             )
-        if self.pretension_mode not in ("thumb_factor", "balanced"):
+        if self.pretension_mode not in PRETENSION_MODES:
             raise ValueError(
-                f"physics: 'pretension_mode' must be thumb_factor or balanced, got '{self.pretension_mode}'"
+                f"physics: 'pretension_mode' must be auto, thumb_factor or balanced, got '{self.pretension_mode}'"
             )
         if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
             raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
@@ -667,7 +697,7 @@ class PhysicsHand:
         configuration (needs ``root_context`` with the fingers placed; see
         :meth:`balanced_tension_factors`).
         """
-        if self.physics.pretension_mode == "balanced":
+        if self.physics.pretension_mode_for(self.hand) == "balanced":
             if root_context is None:
                 raise ValueError("balanced pretensions need the context with the fingers placed")
             return self.physics.pretension * self.balanced_tension_factors(root_context)
