@@ -23,15 +23,22 @@ def _grasp(seed=0):
     return h, th, a
 
 
-def test_filter_system_ports_with_fixvalue():
+def _fixed_filter_system(particles: int, valid: float):
+    """A SelfIdentificationSystem on the model plant's grasp, its inputs fixed to the grasp's
+    tendon command and POM pose, measured ``valid``: (hand, theta, a, plant, system, context)."""
     h, th, a = _grasp()
     plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
-    sys = SelfIdentificationSystem(h, pf.FilterConfig(particles=500), pf.PriorConfig(), th, a, period_sec=1.0)
+    sys = SelfIdentificationSystem(h, pf.FilterConfig(particles=particles), pf.PriorConfig(), th, a, period_sec=1.0)
     ctx = sys.CreateDefaultContext()
     sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
     sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(plant.state.R_PO), plant.state.t_PO))
+    sys.X_PO_valid_input_port().FixValue(ctx, [valid])
+    return h, th, a, plant, sys, ctx
+
+
+def test_filter_system_ports_with_fixvalue():
     # an invalid measurement: the filter waits
-    sys.X_PO_valid_input_port().FixValue(ctx, [0.0])
+    h, th, a, plant, sys, ctx = _fixed_filter_system(500, valid=0.0)
     sys.ExecuteForcedEvents(ctx)
     assert sys.filter(ctx) is None
     assert sys.GetOutputPort("converged").Eval(ctx)[0] == 0.0
@@ -209,13 +216,7 @@ def test_filter_system_checks_its_nominal_grasp_at_construction():
 def test_filter_system_names_a_non_finite_tendon_command_port():
     """It used to fail inside the filter with "'dl' contains NaN", a name the diagram
     does not have."""
-    h, th, a = _grasp()
-    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
-    sys = SelfIdentificationSystem(h, pf.FilterConfig(particles=200), pf.PriorConfig(), th, a, period_sec=1.0)
-    ctx = sys.CreateDefaultContext()
-    sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
-    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(plant.state.R_PO), plant.state.t_PO))
-    sys.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    h, *_, sys, ctx = _fixed_filter_system(200, valid=1.0)
     sys.ExecuteForcedEvents(ctx)
     assert sys.filter(ctx) is not None
     sys.tendon_command_input_port().FixValue(ctx, np.full(h.N, np.nan))
