@@ -181,7 +181,7 @@ class PhysicsConfig:
     # fingers, a hand of your own; pretension_mode_for). Measured on NH1 (apple, 20,000
     # particles, 120 iterations, seeds 0-14): balanced 1.31 +- 0.92 mm link error, every joint
     # inside its interval; the thumb factor 2.54 +- 1.73 mm, joints inside 0.74
-    # (docs/results.md, "A longer budget for the spring, and unknown pad moments").
+    # (docs/results.md, "A longer budget for the spring, balanced tensions for the novel hands").
     pretension_mode: str = "auto"
     # Pretension factor of the thumb: opposing two fingers it needs about 1.7x their
     # tension or the object drifts to it and drops.
