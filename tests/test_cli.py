@@ -446,8 +446,8 @@ def test_module_docstrings_read_as_plain_help():
 
 def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, monkeypatch):
     """Without --iterations every identification row runs identify's budget for its
-    experiment (240 for the stiffness on the physics plant, 120 otherwise) and the tasks'
-    self-identification 100; a given budget applies to all of them."""
+    experiment (240 for the stiffness and the novel fingers on the physics plant, 120 for the
+    known hand) and the tasks' self-identification 100; a given budget applies to all of them."""
     import vlr_drake.reproduce as rp
 
     budgets = []
@@ -460,12 +460,12 @@ def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, mo
         raise Stop
 
     monkeypatch.setattr(rp, "run_identification", fake)
-    for experiment, iterations, want in [("stiffness", None, 240), ("NH1", None, 120), ("stiffness", 30, 30)]:
+    for experiment, iterations, want in [("stiffness", None, 240), ("known_hand", None, 120), ("stiffness", 30, 30)]:
         with pytest.raises(Stop):
             rp.reproduce(trials=1, plant="physics", iterations=iterations, out=tmp_path, progress=False,
                          experiments=[experiment])
         assert budgets[-1][1] == want
-    assert [e for e, _ in budgets] == ["stiffness", "novel_fingers", "stiffness"]
+    assert [e for e, _ in budgets] == ["stiffness", "known_hand", "stiffness"]
 
     def fake_write(word, **kw):  # the tasks' self-identification: 100 unless told
         budgets.append(("write", kw["identify_iterations"]))

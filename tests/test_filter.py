@@ -868,9 +868,9 @@ def test_each_experiment_holds_its_papers_object_unless_told():
 
 
 def test_iteration_budget_is_the_experiments_unless_told():
-    """The stiffness on the physics plant runs 240 iterations (its spring narrows slowly),
-    every other experiment and the model plant 120; a given budget is kept, and one that is
-    not a positive integer is named."""
+    """The stiffness and the novel fingers on the physics plant run 240 iterations (their
+    hand parameters narrow slowly), the known hand and the model plant 120; a given budget is
+    kept, and one that is not a positive integer is named."""
     from vlr_drake.identify import DEFAULT_ITERATIONS, default_iterations
     from vlr_drake.scenario import load_scenario, options_from_scenario
 
@@ -880,7 +880,7 @@ def test_iteration_budget_is_the_experiments_unless_told():
                                                                                   "novel_fingers")}
     assert budgets == {("model", "known_hand"): 120, ("model", "stiffness"): 120, ("model", "novel_fingers"): 120,
                        ("physics", "known_hand"): 120, ("physics", "stiffness"): 240,
-                       ("physics", "novel_fingers"): 120}
+                       ("physics", "novel_fingers"): 240}
     assert IdentifyOptions(experiment="stiffness", plant="physics", max_iterations=30).validate().max_iterations == 30
     scenario = load_scenario("diagrams/stiffness.yaml")  # the model plant
     assert options_from_scenario(scenario, max_iterations=None).validate().max_iterations == 120

@@ -494,8 +494,8 @@ toy block), mean +- SD of the paper's measure beside the paper's, whether ours i
 for the identification rows how often the truth lay inside the 95% intervals (joints,
 contacts, springs, links) and how many identified hand parameters stayed weakly identified.
 Prints the markdown table and writes reproduce.md and reproduce.json to --out. The default is
-the paper's setting, the physics plant with the rendered camera (5 trials: about an hour on
-2 cores, half of it the identification rows, each with identify's budget); --plant model runs
+the paper's setting, the physics plant with the rendered camera (5 trials: about an hour and
+a half on 2 cores, most of it the identification rows, each with identify's budget); --plant model runs
 the fast model plant (5 trials: about 5 minutes); --experiments runs some of the rows. A --scenario
 supplies the plant and its settings; each row sets its own experiment, hand and object.
 --quick: one small trial of each (a smoke run, not a result).""",
@@ -579,8 +579,8 @@ def main(argv: list[str] | None = None) -> int:
         p = _parser(name, sub, help_text)
         if name == "identify":  # None: the experiment's (IdentifyOptions.max_iterations)
             _common(p, particles=20_000, iterations=None,
-                    iterations_help="120; 240 for the stiffness on the physics plant, whose spring narrows slowly: "
-                                    "vlr_drake.identify.ITERATIONS")
+                    iterations_help="120; 240 for the stiffness and the novel fingers on the physics plant, "
+                                    "whose hand parameters narrow slowly: vlr_drake.identify.ITERATIONS")
         else:
             _common(p, particles=20_000, iterations=120)
         if name == "identify":
@@ -629,8 +629,8 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
     _common(p, particles=20_000, iterations=None, out="out/reproduce",
-            iterations_help="each experiment's, as identify's: 120, 240 for the stiffness on the physics plant; "
-                            "100 for the tasks' self-identification")
+            iterations_help="each experiment's, as identify's: 120, 240 for the stiffness and the novel "
+                            "fingers on the physics plant; 100 for the tasks' self-identification")
     p.add_argument("--trials", type=_count(1), default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,

@@ -147,16 +147,20 @@ LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.
 #: The object's weight (IdentifyOptions.object_weight) always follows.
 GRAVITY_LOADS = {("physics", "stiffness"): "following"}
 #: IdentifyOptions.max_iterations per (plant, experiment) where it is None; DEFAULT_ITERATIONS
-#: elsewhere ("physics" stands for hardware too). The thumb's distal spring shows only in the
-#: motions the squeezes add, and its interval keeps narrowing long after the joints' have
+#: elsewhere ("physics" stands for hardware too). The experiments that identify hand
+#: parameters run 240: the parameters' intervals keep narrowing long after the joints' have
 #: levelled off. Fresh physics runs of 240 iterations (20,000 particles, seeds 0-14,
-#: 2026-11-25), the estimate after 60 / 120 / 180 / 240 iterations (a run that converged
-#: earlier counts where it stopped): spring 0.049 +- 0.032 / 0.0198 +- 0.0208 / 0.0169 +-
-#: 0.0116 / 0.0146 +- 0.0117 N m/rad, springs inside 12 / 15 / 15 / 15 of 15, the spring's
-#: interval 0.21 / 0.15 / 0.11 / 0.08 N m/rad wide (median), joints inside 0.98 / 0.94 /
-#: 0.90 / 0.87 (four runs converged, at 137-219, with 0.50-0.83 of their joints inside).
+#: 2026-11-25), the estimate after 120 / 240 iterations (a run that converged earlier counts
+#: where it stopped; docs/results.md, "A longer budget for the spring, balanced tensions for
+#: the novel hands"):
+#:   thumb spring [N m/rad]   0.0198 +- 0.0208 / 0.0146 +- 0.0117, springs inside 15 / 15 of
+#:                            15, joints inside 0.94 / 0.87 (four runs converged, at 137-219)
+#:   NH1 / NH2 / NH3 links    1.31 / 2.99 / 2.89 mm against 1.21 / 2.72 / 1.35, every link
+#:                            inside; joints inside 1.00 / 1.00 / 1.00 against 1.00 / 1.00 /
+#:                            0.99; proximal joints 0.82 / 0.90 / 1.04 deg against 0.78 /
+#:                            1.22 / 1.36
 DEFAULT_ITERATIONS = 120
-ITERATIONS = {("physics", "stiffness"): 240}
+ITERATIONS = {("physics", "stiffness"): 240, ("physics", "novel_fingers"): 240}
 
 
 def default_iterations(plant: str, experiment: str) -> int:
@@ -225,8 +229,8 @@ class IdentifyOptions:
     seed: int = 0
     particles: int = 20_000
     # Iteration budget; the run stops earlier once converged (plus ``extra_iterations``).
-    # None: the plant's and experiment's (ITERATIONS: 240 for the stiffness on the physics
-    # plant, else DEFAULT_ITERATIONS, 120).
+    # None: the plant's and experiment's (ITERATIONS: 240 for the stiffness and the novel
+    # fingers on the physics plant, else DEFAULT_ITERATIONS, 120).
     max_iterations: int | None = None
     extra_iterations: int = 0
     # Exploration: uniform actions of +-action_range per tendon [m], reflected inside a
