@@ -32,17 +32,6 @@ from vlr_drake.trace import IdentificationTrace, TraceRecorder
 __all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
 
 
-def _checked(name: str, x, shape: tuple) -> np.ndarray:
-    """``x`` as a finite float array of ``shape`` (any array of that many numbers), or a
-    ValueError that names it."""
-    arr = np.asarray(x, float)
-    if arr.size != int(np.prod(shape)):
-        raise ValueError(f"self-identification: '{name}' must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"self-identification: '{name}' must be finite, got {arr.tolist()}")
-    return arr.reshape(shape)
-
-
 def _timing(period_sec, offset_sec=None) -> tuple[float, float | None]:
     """A periodic event's ``period_sec`` (finite, > 0) and ``offset_sec`` (None, or finite
     and >= 0) [s], or a ValueError that names the bad one."""
@@ -83,8 +72,8 @@ class SelfIdentificationSystem(LeafSystem):
         super().__init__()
         period_sec, offset_sec = _timing(period_sec, offset_sec)
         self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
-        self._theta_center = _checked("theta_center", theta_center, (hand.N, hand.K))
-        self._a_center = _checked("a_center", a_center, (hand.N,))
+        self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
+        self._a_center = pf._shaped("a_center", a_center, (hand.N,))
         n = hand.N * hand.K
         self._command = self.DeclareVectorInputPort(name="tendon_command", size=hand.N)
         self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
