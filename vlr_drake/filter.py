@@ -639,7 +639,8 @@ class FilterConfig:
     # against 1.07 deg) and spring (0.0255 against 0.0258 N m/rad) and worse novel hands
     # (NH1 3.13 against 2.54 mm, NH3 3.10 against 2.71; NH2 2.19 against 2.25), whose
     # failed draws are held rather than rescued (stuck_probability), so it is not the
-    # default.
+    # default. Re-measured with the novel hands' balanced tensions (replays of the fifteen
+    # 240-iteration traces per hand): 1.53 / 3.20 / 1.54 mm against 1.21 / 2.72 / 1.35.
     first_move_substeps: int | None = None
     # Probability that a hypothesis whose move finds no equilibrium (even with the
     # continuation) is held where it was by friction, which the VLR does not model (the

@@ -89,8 +89,11 @@ ACTION_CHOICE = {"model": "informative", "physics": "random"}
 #: known hand is unchanged (0.62 deg either way), and on the model plant, where the truth
 #: always has an equilibrium, holding cost honesty (known hand, seeds 0-11: truth inside
 #: 0.93 / 0.92 against 0.99 / 1.00, 40 iterations against 30).
-#: (The novel hands' figures here were measured with the Model O's thumb-factor tensions,
-#: before PhysicsConfig.pretension_mode "auto" balanced them; not re-measured since.)
+#: (The novel hands' figures above were measured with the Model O's thumb-factor tensions.
+#: Re-measured with the balanced tensions, by replays of the fifteen fresh 240-iteration
+#: traces per hand: 0 gave NH1 / NH2 / NH3 links of 1.58 / 2.94 / 1.77 mm against 1.21 /
+#: 2.72 / 1.35 with 1.0, so 1.0 stays; docs/results.md, "The novel fingers' settings
+#: re-measured".)
 STUCK_PROBABILITY = {("physics", "novel_fingers"): 1.0}
 ACTION_CHOICES = ("random", "informative")
 #: Whether the filter's model carries the weight of the fingers' links, per (plant,
@@ -125,8 +128,10 @@ ACTION_CHOICES = ("random", "informative")
 #: 5.41 / 3.58 / 4.92 mm against 2.54 / 2.25 / 2.76. So the stiffness carries the links'
 #: weight, following (GRAVITY_LOADS), and the others keep it held. Why held does better on
 #: the novel hands, where the two moves differ by ~5% of the motion, is not understood.
-#: (The novel hands' figures here were measured with the Model O's thumb-factor tensions,
-#: before PhysicsConfig.pretension_mode "auto" balanced them; not re-measured since.)
+#: (The novel hands' figures above were measured with the Model O's thumb-factor tensions.
+#: Re-measured with the balanced tensions (replays of the fifteen fresh 240-iteration traces
+#: per hand; links NH1 / NH2 / NH3): held 1.21 / 2.72 / 1.35 mm, following 1.68 / 3.90 /
+#: 3.12, none 0.99 / 3.97 / 1.68. The weight held stays.)
 LINK_WEIGHT = {("physics", "known_hand"): True, ("physics", "novel_fingers"): True, ("physics", "stiffness"): True}
 #: FilterConfig.likelihood_width per (plant, experiment) where it is None; 1 elsewhere
 #: ("physics" stands for hardware too). Replays of the physics traces (20,000 particles,
@@ -140,8 +145,9 @@ LINK_WEIGHT = {("physics", "known_hand"): True, ("physics", "novel_fingers"): Tr
 #: mismatch, which the squeezes load, is what their narrow intervals missed), at a spring
 #: 0.004 N m/rad further off; the novel hands' links, which need all that the camera tells,
 #: come out longer (NH3 past the paper's 3.4 mm), so the novel fingers keep 1.
-#: (The novel hands' figures here were measured with the Model O's thumb-factor tensions,
-#: before PhysicsConfig.pretension_mode "auto" balanced them; not re-measured since.)
+#: (The novel hands' figures above were measured with the Model O's thumb-factor tensions.
+#: Re-measured with the balanced tensions, 240 iterations, fifteen seeds: 1.5x gave 1.46 /
+#: 3.05 / 3.15 mm against 1.21 / 2.72 / 1.35 with 1x, so the novel fingers keep 1.)
 LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.5}
 #: FilterConfig.gravity_loads per (plant, experiment) where it is None: "held" elsewhere.
 #: The object's weight (IdentifyOptions.object_weight) always follows.
