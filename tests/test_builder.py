@@ -269,6 +269,7 @@ def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: 
     r = run(s, iterations=4, trace=tmp_path / "diagram.npz")
     trace = IdentificationTrace.load(r["trace"])
     assert trace.steps == 4 and trace.truths is None and trace.meta["scenario"] == "model_plant"
+    assert trace.meta["stops_at_convergence"] is False  # a replay of it does not stop at convergence either
     # what replay prints about the run comes from the scenario
     assert (trace.meta["experiment"], trace.meta["hand"], trace.meta["object"]) == (s.experiment(), s.hand, s.object)
     out = replay(trace)

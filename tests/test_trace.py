@@ -247,3 +247,41 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     assert "--profile needs --values" in capsys.readouterr().err
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2
     assert "--filter 'roughness=2'" in capsys.readouterr().err
+
+
+def test_a_replay_stops_where_a_run_with_its_settings_would_stop(tmp_path, capsys):
+    """A run stops at convergence (plus its extra iterations); a replay with other settings
+    that converges earlier stops there too, its errors measured against the truth of that
+    step, unless every step is asked for."""
+    r = _run("known_hand", particles=1500, iterations=30, seed=4,
+             filter=pf.FilterConfig(particles=1500, convergence_deg=0.0))  # never converges
+    trace = r["_trace"]
+    T = trace.steps  # the actions the plant took
+    assert not r["converged"] and T > 20 and trace.meta["extra_iterations"] == 0
+    assert trace.meta["stops_at_convergence"] is True
+    loose = config_overrides(trace.filter, ["convergence_deg=10"], "--filter")
+    whole = replay(trace, loose)
+    assert whole["steps"] == T and whole["converged_at"] is not None and whole["converged_at"] < T
+    stopped = replay(trace, loose, stop_at_convergence=True)
+    k = whole["converged_at"]
+    assert stopped["steps"] == k == stopped["converged_at"]
+    for key in ("theta", "theta_lo", "theta_hi", "a"):
+        np.testing.assert_array_equal(stopped["estimates"][-1][key], whole["estimates"][k][key])
+    truth = np.rad2deg(np.abs(stopped["estimates"][-1]["theta"] - trace.truths["theta"][k]))
+    assert stopped["errors"]["joint_error_deg_mean"] == pytest.approx(truth.mean())
+    # the run's own settings: it never converged, so the replay is the whole trace, either way
+    assert replay(trace, stop_at_convergence=True)["steps"] == T
+    # extra iterations recorded with the run are replayed after convergence too
+    extra = IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "extra_iterations": 3}})
+    assert replay(extra, loose, stop_at_convergence=True)["steps"] == min(k + 3, T)
+    # a diagram's run (hardware) lasts its iterations, converged or not: its replay too
+    diagram = IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "stops_at_convergence": False}})
+    assert replay(diagram, loose, stop_at_convergence=True)["steps"] == T
+    # the command stops at convergence by default, and says so; --all-steps replays the whole trace
+    path = trace.save(tmp_path / "run.npz")
+    main(["replay", str(path), "--filter", "convergence_deg=10", "--no-progress", "--json", str(tmp_path / "a.json")])
+    assert f"{k} of the trace's {T} steps replayed" in capsys.readouterr().out
+    main(["replay", str(path), "--filter", "convergence_deg=10", "--no-progress", "--all-steps",
+          "--json", str(tmp_path / "b.json")])
+    assert json.loads((tmp_path / "a.json").read_text())["runs"][0]["steps"] == k
+    assert json.loads((tmp_path / "b.json").read_text())["runs"][0]["steps"] == T

@@ -264,11 +264,14 @@ def replay_trace(args) -> dict:
         print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
               f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
         if values is None:
-            r = replay(trace, config, prior, progress=not args.no_progress)
+            r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps)
             run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
+                   "steps": r["steps"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
                    "weakly_identified": r["weakly_identified"], **(r.get("errors") or {})}
             conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
+            if r["steps"] < trace.steps:
+                conv += f", where a run stops: {r['steps']} of the trace's {trace.steps} steps replayed"
             print(f"  log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
             if r["weakly_identified"]:
                 print("  weakly identified: " + ", ".join(
@@ -503,7 +506,9 @@ supplies the plant and its settings; each row sets its own experiment, hand and 
 filter gets the same measurements, actions and motor readings, so with the run's settings it
 reproduces the run exactly, and with --filter KEY=VALUE overrides it shows what other
 settings would have made of the same data (exact for random exploration, the physics
-plant's default). Given several traces (vlr-drake reproduce keeps one per identification
+plant's default): a replay stops where such a run would have stopped, at convergence
+(--all-steps replays the whole trace), and one that has not converged ends with the trace,
+where the recorded run stopped. Given several traces (vlr-drake reproduce keeps one per identification
 run in out/reproduce/traces/), it also prints the table's rows for them. --profile fixes one identified hand parameter (stiffness, or
 link_length:<finger>) at each of --values and prints each value's log evidence, the sum over
 the run of log p(measurement | the ones before), relative to the best: how strongly the
@@ -654,6 +659,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="with --profile: no replay; how the VLR's equilibrium under the motors' commands, with the "
                         "parameter at each value, agrees with the plant's true angles along the trace (simulation "
                         "traces)")
+    p.add_argument("--all-steps", action="store_true",
+                   help="replay every step of the trace; by default a replay stops where a run with its settings "
+                        "would have stopped, at convergence (plus the run's extra iterations)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

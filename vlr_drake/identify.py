@@ -607,7 +607,8 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
 def _trace_meta(opts: IdentifyOptions) -> dict:
     return {"experiment": opts.experiment, "plant": opts.plant, "hand": _hand_name(opts), "seed": opts.seed,
             "object": opts.object_spec.name if opts.object_spec is not None else opts.object,
-            "action_choice": opts.action_choice, "scenario": opts.scenario}
+            "action_choice": opts.action_choice, "scenario": opts.scenario,
+            "stops_at_convergence": True, "extra_iterations": int(opts.extra_iterations)}
 
 
 #: An identified hand parameter whose 95% interval is still more than half as wide as the

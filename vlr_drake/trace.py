@@ -242,16 +242,25 @@ class TraceRecorder:
 
 # ---------------------------------------------------------------------- replay
 def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, prior: pf.PriorConfig | None = None,
-           hand: HandSpec | None = None, progress: bool = False) -> dict:
+           hand: HandSpec | None = None, progress: bool = False, stop_at_convergence: bool = False) -> dict:
     """Run the filter over the trace's measurements.
 
     ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
     the run's). Returns ``estimates`` (one per step and the initial one), ``history`` (the
     StepReports), ``log_evidence`` (their sum of ``log_evidence``, NaN steps skipped),
-    ``log_evidence_steps`` (T,), ``hand_parameters`` and ``weakly_identified`` (the
-    identified springs and links, :func:`vlr_drake.identify.hand_parameter_report`) and, where
-    the trace has truths, ``errors`` (the result fields of DESIGN.md section 11 that compare
-    the final estimate with the truth).
+    ``log_evidence_steps`` (T,), ``steps`` (how many were replayed), ``hand_parameters`` and
+    ``weakly_identified`` (the identified springs and links,
+    :func:`vlr_drake.identify.hand_parameter_report`) and, where the trace has truths,
+    ``errors`` (the result fields of DESIGN.md section 11 that compare the final estimate with
+    the truth at that step).
+
+    ``stop_at_convergence``: stop where a run with these settings would have stopped, at the
+    step where the filter converged plus the run's ``extra_iterations`` (the trace's
+    ``meta``; 0 if it has none), instead of at the trace's end; only for a run that stopped
+    at convergence (``vlr-drake identify``'s; a diagram's run lasts its iterations, and its
+    trace's ``meta["stops_at_convergence"]`` is False). Without it (the default) every step is
+    replayed, as an evidence profile needs. Either way, a replay whose filter has not
+    converged ends with the trace, where the recorded run stopped.
     """
     from tqdm.auto import tqdm
 
@@ -263,17 +272,25 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     h = spec.validate().model()
     f = pf.SelfIdentificationFilter(h, config, prior, np.random.default_rng(trace.filter_seed))
     f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, tendon_command=trace.tendon_command0)
+    extra = int(trace.meta.get("extra_iterations", 0) or 0)
+    stop_at_convergence = stop_at_convergence and bool(trace.meta.get("stops_at_convergence", True))
+    converged_at = None
     for i in tqdm(range(trace.steps), disable=not progress, desc="replay", unit="it", leave=False):
         valid = bool(trace.valid[i])
-        f.step(trace.actions[i], trace.R[i] if valid else None, trace.t[i] if valid else None, valid,
-               tendon_command=trace.tendon_commands[i])
+        rep = f.step(trace.actions[i], trace.R[i] if valid else None, trace.t[i] if valid else None, valid,
+                     tendon_command=trace.tendon_commands[i])
+        if rep.converged and converged_at is None:
+            converged_at = i + 1
+        if stop_at_convergence and converged_at is not None and i + 1 >= converged_at + extra:
+            break
     steps = np.array([r.log_evidence for r in f.history])
-    out = {"estimates": f.estimates, "history": f.history, "log_evidence_steps": steps,
+    out = {"estimates": f.estimates, "history": f.history, "log_evidence_steps": steps, "steps": len(f.history),
            "log_evidence": float(np.nansum(steps)), "reinitialisations": f.reinitialisations,
            "converged_at": next((r.iteration for r in f.history if r.converged), None),
            **hand_parameter_report(h, prior, f.estimates[-1], f.estimates[0])}
     if trace.truths is not None:
-        truth = {k: v[-1] for k, v in trace.truths.items()}
+        # truths[0] is the grasp's, truths[i] the plant's after step i
+        truth = {k: v[len(f.history)] for k, v in trace.truths.items()}
         out["errors"] = estimate_errors(h, prior, f.estimates[-1], truth)
     return out
 
