@@ -140,6 +140,8 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
         evidence_profile(trace, "link_length:thumb", [0.05])
     with pytest.raises(ValueError, match="no finger 'pinky'"):
         evidence_profile(trace, "link_length:pinky", [0.05])
+    with pytest.raises(ValueError, match="evidence profile: 'values' must be a non-empty list of numbers"):
+        evidence_profile(trace, "stiffness", ["soft"])
 
 
 def test_bad_trace_headers_arrays_and_truths_are_named(tmp_path):

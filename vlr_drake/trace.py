@@ -303,8 +303,11 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
 def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str):
     """Checked ``values`` (V,) and the (finger, joint) of a profile's ``parameter`` (see
     :func:`evidence_profile`; joint 0 for a link length); errors start with ``what``."""
-    values = np.atleast_1d(np.asarray(values, float))
-    if values.ndim != 1 or values.size == 0:
+    try:
+        values = np.atleast_1d(np.asarray(values, float))
+    except (TypeError, ValueError):
+        values = None
+    if values is None or values.ndim != 1 or values.size == 0:
         raise ValueError(f"{what}: 'values' must be a non-empty list of numbers")
     if not np.all(np.isfinite(values)) or np.any(values <= 0):
         raise ValueError(f"{what}: '{parameter}' values must be finite and positive, got {values.tolist()}")
