@@ -201,6 +201,18 @@ def test_config_validate_names_bad_field(field, value):
         cfg.validate()
 
 
+def test_config_loader_errors_name_the_file(tmp_path):
+    """Drake's loader raised RuntimeError for an unknown or mistyped field, which the bring-up
+    tool's error handling (ValueError, FileNotFoundError) let through as a traceback."""
+    (tmp_path / "hw.yaml").write_text("motor_idz: [1, 2, 3]\n")
+    with pytest.raises(ValueError, match=r"hardware config file '.*hw.yaml': .*motor_idz"):
+        load_hardware_config(filename=str(tmp_path / "hw.yaml"))
+    with pytest.raises(ValueError, match=r"hardware config text: .*camera"):
+        load_hardware_config(data="camera: true\n")
+    with pytest.raises(ValueError, match=r"hardware config text: "):  # YAML that does not parse
+        load_hardware_config(data="port: [1\n")
+
+
 def test_config_validate_checks_finger_count():
     with pytest.raises(ValueError, match="'motor_ids' has 3 motors but the hand has 4"):
         HardwareConfig().validate(num_fingers=4)
