@@ -213,6 +213,16 @@ def test_config_loader_errors_name_the_file(tmp_path):
         load_hardware_config(data="port: [1\n")
 
 
+def test_bring_up_tool_refuses_no_frames(capsys):
+    """--frames 0 or less read nothing and reported "0 of 0 frames" (after opening the camera)."""
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    for frames in ("0", "-3"):
+        with pytest.raises(SystemExit):
+            bring_up(["camera", "--frames", frames])
+        assert "--frames: must be a positive integer" in capsys.readouterr().err
+
+
 def test_config_validate_checks_finger_count():
     with pytest.raises(ValueError, match="'motor_ids' has 3 motors but the hand has 4"):
         HardwareConfig().validate(num_fingers=4)
