@@ -317,3 +317,18 @@ def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
             assert [emu.goal_position(i) for i in ids] == want
         finally:
             b.plant.close()
+
+
+def test_run_options_without_run_and_a_trace_of_no_iterations_are_refused(tmp_path: Path, capsys):
+    """--set, --trace and --iterations were silently ignored without --run (the command printed
+    its help, or wrote the diagrams without the override, and exited 0), and run(..., 0,
+    trace=...) returned without writing the trace it was asked for."""
+    from vlr_drake.builder import main, run
+
+    for extra in (["--set", "seed: 3"], ["--trace", str(tmp_path / "t.npz")], ["--iterations", "5"]):
+        with pytest.raises(SystemExit):
+            main([*extra, "--no-render"])
+        assert f"{extra[0]} needs --run" in capsys.readouterr().err
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    with pytest.raises(ValueError, match="a trace needs at least one iteration"):
+        run(s, iterations=0, trace=tmp_path / "t.npz")

@@ -100,3 +100,20 @@ def test_command_line_writes_intrinsics(rng, tmp_path):
     intr = read_intrinsics(out)
     assert abs(intr.K[0, 0] / K_TRUE[0, 0] - 1) < 0.02
     assert intr.K[0, 0] == pytest.approx(intr.K[1, 1])  # --fix-aspect
+
+
+def test_bad_targets_and_images_are_named():
+    """ChArUco sizes OpenCV refuses raised its SystemError; images of other sizes went into
+    one ChArUco calibration; an empty, 1-D or 2-channel image failed inside OpenCV."""
+    blank = np.full(SIZE[::-1], 128, np.uint8)
+    for squares, square, marker, field in [((7, 5), 0.0, 0.02, "square_size"), ((7, 5), 0.03, 0.04, "marker_size"),
+                                           ((1, 1), 0.03, 0.02, "squares")]:
+        with pytest.raises(ValueError, match=field):
+            calibrate_charuco([blank], squares, square, marker)
+    with pytest.raises(ValueError, match="square_size must be positive, got nan"):  # was accepted
+        calibrate_chessboard([blank], (9, 6), float("nan"))
+    with pytest.raises(ValueError, match="all calibration images must have one size"):
+        calibrate_charuco([blank, blank[:240, :320]], (7, 5), 0.03, 0.02)
+    for image in (np.zeros((0, 0), np.uint8), np.zeros(10, np.uint8), np.zeros((10, 10, 2), np.uint8)):
+        with pytest.raises(ValueError, match="calibration images must be"):
+            calibrate_chessboard([image], (9, 6), 0.025)

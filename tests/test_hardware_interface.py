@@ -201,6 +201,28 @@ def test_config_validate_names_bad_field(field, value):
         cfg.validate()
 
 
+def test_config_loader_errors_name_the_file(tmp_path):
+    """Drake's loader raised RuntimeError for an unknown or mistyped field, which the bring-up
+    tool's error handling (ValueError, FileNotFoundError) let through as a traceback."""
+    (tmp_path / "hw.yaml").write_text("motor_idz: [1, 2, 3]\n")
+    with pytest.raises(ValueError, match=r"hardware config file '.*hw.yaml': .*motor_idz"):
+        load_hardware_config(filename=str(tmp_path / "hw.yaml"))
+    with pytest.raises(ValueError, match=r"hardware config text: .*camera"):
+        load_hardware_config(data="camera: true\n")
+    with pytest.raises(ValueError, match=r"hardware config text: "):  # YAML that does not parse
+        load_hardware_config(data="port: [1\n")
+
+
+def test_bring_up_tool_refuses_no_frames(capsys):
+    """--frames 0 or less read nothing and reported "0 of 0 frames" (after opening the camera)."""
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    for frames in ("0", "-3"):
+        with pytest.raises(SystemExit):
+            bring_up(["camera", "--frames", frames])
+        assert "--frames: must be a positive integer" in capsys.readouterr().err
+
+
 def test_config_validate_checks_finger_count():
     with pytest.raises(ValueError, match="'motor_ids' has 3 motors but the hand has 4"):
         HardwareConfig().validate(num_fingers=4)

@@ -194,6 +194,8 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_contacts_figure(bad, tr, NAMES)
     with pytest.raises(ValueError, match="empty"):
         plots.make_convergence_figure([])
+    with pytest.raises(ValueError, match=r"estimates\[0\] has no 'theta'"):  # was an AttributeError
+        plots.make_contacts_figure([None, *est[1:]], None, NAMES)
 
 
 def test_hypotheses_still_segments_in_mm(rng, tmp_path):
@@ -215,3 +217,13 @@ def test_hypotheses_still_segments_in_mm(rng, tmp_path):
     assert out.stat().st_size > 1000
     with pytest.raises(ValueError, match="contacts"):
         plots.make_hypotheses_figure(joints, contacts[:, :2])
+    # no particles, or a non-finite one, failed inside matplotlib ("need at least one array to
+    # concatenate", "Axis limits cannot be NaN or Inf")
+    with pytest.raises(ValueError, match=r"joints has no particles \(P = 0\)"):
+        plots.make_hypotheses_figure(joints[:0], contacts[:0])
+    bad = joints.copy()
+    bad[1, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="joints must be finite"):
+        plots.make_hypotheses_figure(bad, contacts)
+    with pytest.raises(ValueError, match="pom_position must be finite"):
+        plots.make_hypotheses_figure(joints, contacts, np.full(3, np.inf))

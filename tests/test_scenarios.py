@@ -179,6 +179,25 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("filter: {newton_tolerance: sloppy}\n", "newton_tolerance"),
         ("exploration: {squeeze: 0.004, squeeze_window: 0.003}\n", "squeeze"),
         ("exploration: {squeeze: -0.001}\n", "squeeze"),
+        # non-finite numbers in the scenario's own sections were accepted: a NaN period or
+        # contact drift silently became the default / none, a NaN min_tension or an
+        # infinite stiffness range failed inside the filter's prior draw (numpy's
+        # OverflowError), a negative link range inside the model
+        ("exploration: {period_sec: .nan}\n", "period_sec"),
+        ("exploration: {span: .inf}\n", "span"),
+        ("exploration: {squeeze: .inf, squeeze_window: .inf}\n", "squeeze"),
+        ("prior: {proximal_half_width: .inf}\n", "proximal_half_width"),
+        ("prior: {min_tension: .nan}\n", "min_tension"),
+        ("prior: {stiffness_range: [0.05, .inf], stiffness_unknown: [[0, 1]]}\n", "stiffness_range"),
+        ("prior: {link_range: [-0.01, 0.05], links_unknown: [0]}\n", "link_range"),
+        ("prior: {link_range: [0.03, .inf], links_unknown: [0]}\n", "link_range"),
+        ("plant: model\nmodel_plant: {sigma_position: .nan}\n", "sigma_position"),
+        ("plant: model\nmodel_plant: {sigma_rotation_deg: .inf}\n", "sigma_rotation_deg"),
+        ("plant: model\nmodel_plant: {contact_drift: .nan}\n", "contact_drift"),
+        ("plant: model\nmodel_plant: {stiffness: [[.inf, 0.2], [0.2, 0.2], [0.2, 0.2]]}\n", "stiffness"),
+        ("plant: model\nmodel_plant: {link_lengths: [[-0.05], [0.05], [0.05]]}\n", "link_lengths"),
+        ("grasp: {theta_deg: [[.nan, 10], [10, 10], [10, 10]]}\n", "theta_deg"),
+        ("grasp: {contact: [.nan, 0.02, 0.02]}\n", "contact"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",

@@ -140,6 +140,37 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
         evidence_profile(trace, "link_length:thumb", [0.05])
     with pytest.raises(ValueError, match="no finger 'pinky'"):
         evidence_profile(trace, "link_length:pinky", [0.05])
+    with pytest.raises(ValueError, match="evidence profile: 'values' must be a non-empty list of numbers"):
+        evidence_profile(trace, "stiffness", ["soft"])
+
+
+def test_bad_trace_headers_arrays_and_truths_are_named(tmp_path):
+    """A trace file whose seed, flags or truths are not what the filter needs failed at replay
+    (numpy's "expected non-negative integer", a broadcast error inside estimate_errors), with
+    a TypeError from numpy at load, or loaded a fractional seed truncated."""
+    trace = _run("stiffness", iterations=3)["_trace"]
+    path = trace.save(tmp_path / "good.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+
+    def write(name, header=header, **changed):
+        np.savez(tmp_path / name, header=np.array(json.dumps(header)), **{**arrays, **changed})
+        return tmp_path / name
+
+    for seed in (1.7, -1, True):
+        with pytest.raises(ValueError, match=rf"seed.npz: trace: 'filter_seed' must be an integer >= 0, got {seed}"):
+            IdentificationTrace.load(write("seed.npz", {**header, "filter_seed": seed}))
+    with pytest.raises(ValueError, match="meta.npz: .*'meta' must be a JSON object"):
+        IdentificationTrace.load(write("meta.npz", {**header, "meta": [1, 2]}))
+    with pytest.raises(ValueError, match="valid.npz: trace: 'valid' must be booleans, got float64"):
+        IdentificationTrace.load(write("valid.npz", valid=arrays["valid"].astype(float)))
+    with pytest.raises(ValueError, match="R.npz: trace: 'R' must be numbers"):
+        IdentificationTrace.load(write("R.npz", R=np.full(arrays["R"].shape, "x")))
+    with pytest.raises(ValueError, match=r"theta.npz: trace: truths 'theta' must have shape \(4, 3, 2\), got \(4, 2, 2\)"):
+        IdentificationTrace.load(write("theta.npz", truth_theta=arrays["truth_theta"][:, :2]))
+    with pytest.raises(ValueError, match="k.npz: trace: truths 'stiffness' must be finite numbers"):
+        IdentificationTrace.load(write("k.npz", truth_stiffness=np.full_like(arrays["truth_stiffness"], np.nan)))
 
 
 def test_a_trace_from_before_a_setting_existed_replays_with_its_behaviour_then(tmp_path):

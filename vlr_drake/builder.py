@@ -475,6 +475,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
 
     if iterations < 0:
         raise ValueError(f"'iterations' must be >= 0, got {iterations}")
+    if trace is not None and iterations == 0:
+        raise ValueError("'iterations' is 0: a trace needs at least one iteration (the filter starts at the first)")
     t0 = time.perf_counter()
     built = build_diagram(scenario, meshcat)
     simulator = Simulator(built.diagram)
@@ -528,13 +530,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
     parser.add_argument("--run", metavar="SCENARIO", default=None, help="run a scenario file")
-    parser.add_argument("--iterations", type=int, default=10, help="filter iterations of --run")
+    parser.add_argument("--iterations", type=int, default=None, help="filter iterations of --run (default 10)")
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
     args = parser.parse_args(argv)
+    for flag, value in (("--set", args.set), ("--trace", args.trace), ("--iterations", args.iterations)):
+        if value is not None and not args.run:
+            parser.error(f"{flag} needs --run SCENARIO")
     if args.run:
-        r = run(load_scenario(args.run, args.set), args.iterations, trace=args.trace)
+        iterations = 10 if args.iterations is None else args.iterations
+        r = run(load_scenario(args.run, args.set), iterations, trace=args.trace)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"

@@ -106,7 +106,9 @@ def _dims(estimates: Sequence[dict], names: Sequence[str]) -> tuple[int, int]:
     """(N, K) from the first estimate's ``theta``, checked against ``names``."""
     if len(estimates) == 0:
         raise ValueError("estimates is empty: nothing to plot")
-    theta = np.asarray(estimates[0].get("theta"))
+    if estimates[0] is None or "theta" not in estimates[0]:
+        raise ValueError("estimates[0] has no 'theta'")
+    theta = np.asarray(estimates[0]["theta"])
     if theta.ndim != 2:
         raise ValueError(f"estimates[0]['theta'] must have shape (N, K), got {theta.shape}")
     N, K = theta.shape
@@ -358,12 +360,18 @@ def make_hypotheses_figure(
     if joints.ndim != 4 or joints.shape[-1] != 3:
         raise ValueError(f"joints must have shape (P, N, K, 3), got {joints.shape}")
     P, N, K, _ = joints.shape
+    if P == 0:
+        raise ValueError("joints has no particles (P = 0): nothing to draw")
     contacts = np.asarray(contacts, dtype=float)
     if contacts.shape != (P, N, 3):
         raise ValueError(f"contacts must have shape ({P}, {N}, 3), got {contacts.shape}")
     p_hat = contacts.mean(axis=0) if estimate_contacts is None else np.asarray(estimate_contacts, dtype=float)
     if p_hat.shape != (N, 3):
         raise ValueError(f"estimate_contacts must have shape ({N}, 3), got {p_hat.shape}")
+    for name, value in [("joints", joints), ("contacts", contacts), ("estimate_contacts", p_hat),
+                        ("pom_position", pom_position)]:
+        if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
+            raise ValueError(f"{name} must be finite (a hypothesis with NaN or inf positions)")
     mm = 1e3
     # E^J: q_1 -> ... -> q_K -> p_i per particle and finger
     chain = np.concatenate([joints, contacts[:, :, None, :]], axis=2) * mm  # (P, N, K+1, 3)

@@ -145,14 +145,18 @@ class PriorSettings:
 
     def validate(self, N: int, K: int) -> "PriorSettings":
         for name in ("proximal_half_width", "distal_half_width", "contact_half_width"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"prior: '{name}' must be positive, got {getattr(self, name)}")
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"prior: '{name}' must be positive and finite, got {getattr(self, name)}")
         for name in ("stiffness_range", "link_range", "contact_limits"):
             v = getattr(self, name)
             if v is None:
                 continue
-            if len(v) != 2 or not v[0] < v[1]:
-                raise ValueError(f"prior: '{name}' must be [min, max] with min < max, got {v}")
+            if len(v) != 2 or not (np.all(np.isfinite(v)) and v[0] < v[1]):
+                raise ValueError(f"prior: '{name}' must be finite [min, max] with min < max, got {v}")
+        if not self.link_range[0] > 0:
+            raise ValueError(f"prior: 'link_range' must be positive, got {self.link_range}")
+        if not np.isfinite(self.min_tension):
+            raise ValueError(f"prior: 'min_tension' must be finite, got {self.min_tension}")
         if self.stiffness_prior not in pf.STIFFNESS_PRIORS:
             raise ValueError(f"prior: 'stiffness_prior' must be one of {pf.STIFFNESS_PRIORS}, got "
                              f"'{self.stiffness_prior}'")
@@ -207,19 +211,21 @@ class ExplorationSettings:
                 window if self.squeeze_window is None else float(self.squeeze_window))
 
     def validate(self) -> "ExplorationSettings":
-        if (self.span is not None and not self.span > 0) or (self.window is not None and not self.window > 0):
-            raise ValueError(
-                f"exploration: 'span' and 'window' must be positive, got {self.span}, {self.window}"
-            )
+        for name in ("span", "window"):
+            value = getattr(self, name)
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"exploration: 'span' and 'window' must be positive and finite, got {self.span}, {self.window}"
+                )
         for name in ("squeeze", "squeeze_window"):
             value = getattr(self, name)
-            if value is not None and not value >= 0:
-                raise ValueError(f"exploration: '{name}' must be >= 0, got {value}")
+            if value is not None and not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"exploration: '{name}' must be finite and >= 0, got {value}")
         if self.squeeze is not None and self.squeeze_window is not None and self.squeeze > self.squeeze_window:
             raise ValueError(f"exploration: 'squeeze' ({self.squeeze}) must not exceed 'squeeze_window' "
                              f"({self.squeeze_window})")
-        if self.period_sec < 0:
-            raise ValueError(f"exploration: 'period_sec' must be >= 0, got {self.period_sec}")
+        if not (np.isfinite(self.period_sec) and self.period_sec >= 0):
+            raise ValueError(f"exploration: 'period_sec' must be finite and >= 0, got {self.period_sec}")
         return self
 
 
@@ -244,24 +250,28 @@ class ModelPlantSettings:
     contact_drift: float = 0.0
 
     def validate(self, N: int, K: int) -> "ModelPlantSettings":
-        if self.sigma_position < 0 or self.sigma_rotation_deg < 0:
-            raise ValueError("model_plant: 'sigma_position' and 'sigma_rotation_deg' must be >= 0")
+        for name in ("sigma_position", "sigma_rotation_deg"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"model_plant: '{name}' must be finite and >= 0, got {value}")
         if not 0 <= self.dropout < 1:
             raise ValueError(f"model_plant: 'dropout' must be in [0, 1), got {self.dropout}")
         if self.stiffness and np.shape(self.stiffness) != (N, K):
             raise ValueError(f"model_plant: 'stiffness' must be {N} lists of {K}, got {self.stiffness}")
-        if self.stiffness and not np.all(np.asarray(self.stiffness) > 0):
-            raise ValueError(f"model_plant: 'stiffness' must be positive, got {self.stiffness}")
+        if self.stiffness and not np.all(np.isfinite(self.stiffness) & (np.asarray(self.stiffness) > 0)):
+            raise ValueError(f"model_plant: 'stiffness' must be positive and finite, got {self.stiffness}")
         if self.link_lengths and np.shape(self.link_lengths) != (N, K - 1):
             raise ValueError(
                 f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}"
             )
+        if self.link_lengths and not np.all(np.isfinite(self.link_lengths) & (np.asarray(self.link_lengths) > 0)):
+            raise ValueError(f"model_plant: 'link_lengths' must be positive and finite, got {self.link_lengths}")
         if not 0 <= self.center_offset_fraction <= 1:
             raise ValueError(
                 f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}"
             )
-        if self.contact_drift < 0:
-            raise ValueError(f"model_plant: 'contact_drift' must be >= 0, got {self.contact_drift}")
+        if not (np.isfinite(self.contact_drift) and self.contact_drift >= 0):
+            raise ValueError(f"model_plant: 'contact_drift' must be finite and >= 0, got {self.contact_drift}")
         return self
 
 
@@ -279,8 +289,12 @@ class NominalGrasp:
     def validate(self, N: int, K: int) -> "NominalGrasp":
         if self.theta_deg and np.shape(self.theta_deg) != (N, K):
             raise ValueError(f"grasp: 'theta_deg' must be {N} lists of {K}, got {self.theta_deg}")
+        if self.theta_deg and not np.all(np.isfinite(self.theta_deg)):
+            raise ValueError(f"grasp: 'theta_deg' must be finite, got {self.theta_deg}")
         if self.contact and np.shape(self.contact) != (N,):
             raise ValueError(f"grasp: 'contact' must have {N} entries, got {self.contact}")
+        if self.contact and not np.all(np.isfinite(self.contact) & (np.asarray(self.contact) > 0)):
+            raise ValueError(f"grasp: 'contact' must be positive and finite [m], got {self.contact}")
         return self
 
 

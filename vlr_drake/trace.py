@@ -93,6 +93,11 @@ class IdentificationTrace:
     def validate(self) -> IdentificationTrace:
         """Check the arrays' shapes against the hand; raises ``ValueError`` naming the field."""
         self.hand.validate()
+        seed = self.filter_seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"trace: 'filter_seed' must be an integer >= 0, got {seed!r}")
+        if not isinstance(self.meta, dict):
+            raise ValueError(f"trace: 'meta' must be a JSON object, got {self.meta!r}")
         N, K, T = self.hand.num_fingers, self.hand.num_joints_per_finger, self.steps
         expected = {"theta_center": (N, K), "a_center": (N,), "R0": (3, 3), "t0": (3,), "tendon_command0": (N,),
                     "actions": (T, N), "R": (T, 3, 3), "t": (T, 3), "valid": (T,), "tendon_commands": (T, N)}
@@ -107,6 +112,11 @@ class IdentificationTrace:
                 if arr.dtype.kind in "fiu" and arr.ndim == 2 and name in ("actions", "tendon_commands"):
                     where = f" (step {int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0]) + 1})"
                 raise ValueError(f"trace: '{name}' must be finite numbers{where}")
+        if np.asarray(self.valid).dtype != bool:
+            raise ValueError(f"trace: 'valid' must be booleans, got {np.asarray(self.valid).dtype}")
+        for name in ("R", "t"):
+            if np.asarray(getattr(self, name)).dtype.kind not in "fiu":
+                raise ValueError(f"trace: '{name}' must be numbers, got {np.asarray(getattr(self, name)).dtype}")
         bad = self.valid & ~(np.isfinite(self.R).all(axis=(1, 2)) & np.isfinite(self.t).all(axis=1))
         if bad.any():
             raise ValueError(f"trace: step {int(np.flatnonzero(bad)[0]) + 1} is marked valid but its POM pose is not finite")
@@ -118,6 +128,18 @@ class IdentificationTrace:
                 if self.truths[k].shape[0] != T + 1:
                     raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
                                      f"got {self.truths[k].shape[0]}")
+            shapes = {"theta": (N, K), "a": (N,), "contacts": (N, 3), "stiffness": (N, K), "link_lengths": (N, K - 1),
+                      "object_mass": (), "object_load": (N,)}
+            for k, shape in shapes.items():
+                if k in self.truths and self.truths[k].shape != (T + 1, *shape):
+                    raise ValueError(f"trace: truths '{k}' must have shape {(T + 1, *shape)}, "
+                                     f"got {self.truths[k].shape}")
+            for k in self.truths:
+                if self.truths[k].dtype.kind not in "fiu":
+                    raise ValueError(f"trace: truths '{k}' must be numbers, got {self.truths[k].dtype}")
+            for k in ("theta", "stiffness", "link_lengths"):
+                if not np.all(np.isfinite(self.truths[k])):
+                    raise ValueError(f"trace: truths '{k}' must be finite numbers")
         return self
 
     # ------------------------------------------------------------------ files
@@ -168,7 +190,7 @@ class IdentificationTrace:
                 hand=_hand_from_dict(header["hand"]),
                 filter=_config_from_dict(pf.FilterConfig, header["filter"]),
                 prior=_config_from_dict(pf.PriorConfig, header["prior"]),
-                filter_seed=int(header["filter_seed"]),
+                filter_seed=header["filter_seed"],
                 truths=truths, meta=header.get("meta", {}),
                 **{k: arrays[k] for k in ("theta_center", "a_center", "R0", "t0", "tendon_command0", "actions",
                                           "R", "t", "valid", "tendon_commands")},
@@ -298,8 +320,11 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
 def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str):
     """Checked ``values`` (V,) and the (finger, joint) of a profile's ``parameter`` (see
     :func:`evidence_profile`; joint 0 for a link length); errors start with ``what``."""
-    values = np.atleast_1d(np.asarray(values, float))
-    if values.ndim != 1 or values.size == 0:
+    try:
+        values = np.atleast_1d(np.asarray(values, float))
+    except (TypeError, ValueError):
+        values = None
+    if values is None or values.ndim != 1 or values.size == 0:
         raise ValueError(f"{what}: 'values' must be a non-empty list of numbers")
     if not np.all(np.isfinite(values)) or np.any(values <= 0):
         raise ValueError(f"{what}: '{parameter}' values must be finite and positive, got {values.tolist()}")

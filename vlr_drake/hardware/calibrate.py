@@ -60,6 +60,10 @@ def _gray(image) -> np.ndarray:
             raise FileNotFoundError(f"cannot read image '{image}'")
         return img
     img = np.asarray(image)
+    if img.size == 0 or not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] in (1, 3, 4))):
+        raise ValueError(f"calibration images must be non-empty gray, BGR or BGRA images, got shape {img.shape}")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
     if img.dtype != np.uint8:
@@ -107,7 +111,7 @@ def calibrate_chessboard(
     cols, rows = (int(x) for x in pattern_size)
     if cols < 2 or rows < 2:
         raise ValueError(f"pattern_size must count at least 2 x 2 inner corners, got {pattern_size}")
-    if square_size <= 0:
+    if not square_size > 0:
         raise ValueError(f"square_size must be positive, got {square_size}")
     obj = np.zeros((rows * cols, 3), np.float32)
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square_size
@@ -143,6 +147,13 @@ def calibrate_charuco(
     import cv2
 
     aruco = cv2.aruco
+    cols, rows = (int(s) for s in squares)
+    if cols < 2 or rows < 2:
+        raise ValueError(f"squares must count at least 2 x 2 ChArUco squares, got {squares}")
+    if not square_size > 0:
+        raise ValueError(f"square_size must be positive, got {square_size}")
+    if not 0 < marker_size < square_size:
+        raise ValueError(f"marker_size must be positive and smaller than square_size ({square_size}), got {marker_size}")
     dictionary = aruco.DICT_5X5_100 if dictionary is None else dictionary
     board = aruco.CharucoBoard(
         tuple(int(s) for s in squares),
@@ -156,6 +167,10 @@ def calibrate_charuco(
         gray = _gray(image)
         if size is None:
             size = (gray.shape[1], gray.shape[0])
+        elif size != (gray.shape[1], gray.shape[0]):
+            raise ValueError(
+                f"all calibration images must have one size: {size} vs {(gray.shape[1], gray.shape[0])}"
+            )
         ch_corners, ch_ids, _, _ = detector.detectBoard(gray)
         ok = ch_ids is not None and len(ch_ids) >= 6
         if ok:

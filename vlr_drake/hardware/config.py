@@ -20,6 +20,7 @@ the hand's numbers stay in one place; a hardware build may narrow them here.
 # field types at run time.
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -228,12 +229,22 @@ class TendonMotorMap:
 
 
 def load_hardware_config(filename: str | None = None, data: str | None = None) -> HardwareConfig:
-    """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file)."""
+    """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file).
+    A missing file raises ``FileNotFoundError``; an unknown or mistyped field ``ValueError``
+    naming the file or the text."""
     from pydrake.common.yaml import yaml_load_typed
 
     config = HardwareConfig()
     if filename is not None:
-        config = yaml_load_typed(schema=HardwareConfig, filename=filename, defaults=config)
+        if not Path(filename).is_file():
+            raise FileNotFoundError(f"hardware config file '{filename}' not found")
+        try:
+            config = yaml_load_typed(schema=HardwareConfig, filename=filename, defaults=config)
+        except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError, yaml.YAMLError
+            raise ValueError(f"hardware config file '{filename}': {e}") from e
     if data is not None:
-        config = yaml_load_typed(schema=HardwareConfig, data=data, defaults=config)
+        try:
+            config = yaml_load_typed(schema=HardwareConfig, data=data, defaults=config)
+        except Exception as e:
+            raise ValueError(f"hardware config text: {e}") from e
     return config
