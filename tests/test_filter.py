@@ -529,6 +529,18 @@ def test_prior_half_widths_must_be_positive():
                                     np.random.default_rng(0))
 
 
+def test_an_unknown_named_twice_is_refused():
+    """A repeated entry would give the same quantity two columns of the unknowns, drawn and
+    roughened separately, the last one written winning."""
+    h = model_o().model()
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=r"prior: stiffness_unknown names \[\(0, 1\)\] more than once"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(stiffness_unknown=[(0, 1), (0, 1)]), rng)
+    with pytest.raises(ValueError, match=r"prior: links_unknown names \[0\] more than once"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(links_unknown=[0, 1, 0]), rng)
+    pf.SelfIdentificationFilter(h, pf.FilterConfig(), pf.PriorConfig(stiffness_unknown=[(0, 1), (1, 1)]), rng)
+
+
 def test_a_resampling_threshold_the_tempering_never_reaches_is_refused():
     with pytest.raises(ValueError, match=r"'resample_fraction' \(0.25\) must be above 'ess_fraction' \(0.3\)"):
         pf.FilterConfig(resample_fraction=0.25).validate()

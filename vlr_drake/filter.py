@@ -904,6 +904,12 @@ class SelfIdentificationFilter:
         for fi in prior.links_unknown:
             if not 0 <= fi < N:
                 raise ValueError(f"prior: links_unknown entry {fi} is not a finger of a {N}-finger hand")
+        # one column of the unknowns per quantity: a repeated one would be drawn and roughened twice
+        joints = [(int(fi), int(j)) for fi, j in prior.stiffness_unknown]
+        for name, entries in (("stiffness_unknown", joints), ("links_unknown", [int(fi) for fi in prior.links_unknown])):
+            repeated = sorted({e for e in entries if entries.count(e) > 1})
+            if repeated:
+                raise ValueError(f"prior: {name} names {repeated} more than once")
         if prior.object_mass_unknown:
             lo, hi = prior.object_mass_range
             if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
