@@ -478,3 +478,12 @@ def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, mo
                          experiments=["write"])
         assert budgets[-1] == ("write", want)
     assert rp.TASK_IDENTIFY_ITERATIONS == 100
+
+
+@pytest.mark.parametrize("trials", [0, 2.5, True, "5"])
+def test_reproduce_names_a_bad_trial_count(tmp_path, trials):
+    """From Python a fractional count had ended in range()'s TypeError, and True ran 1 trial."""
+    from vlr_drake.reproduce import reproduce
+
+    with pytest.raises(ValueError, match=r"reproduce: 'trials' must be an integer >= 1, got "):
+        reproduce(trials=trials, plant="model", out=tmp_path, progress=False, experiments=["known_hand"])

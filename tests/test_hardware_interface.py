@@ -179,6 +179,22 @@ def test_tendon_limits_default_to_the_hand():
     assert hi.tolist() == [f.tendon_range[1] for f in hand.fingers]
 
 
+def test_tendon_limits_may_narrow_the_hand_s_range_not_widen_it():
+    hand = model_o()
+    top = hand.fingers[2].tendon_range[1]
+    cfg = HardwareConfig(tendon_lower=[0.0, 0.0, 0.001], tendon_upper=[0.03, 0.03, top])
+    lo, hi = cfg.tendon_limits(hand)
+    assert lo.tolist() == [0.0, 0.0, 0.001] and hi.tolist() == [0.03, 0.03, top]
+    cfg.tendon_upper = [0.03, 0.03, top + 0.01]
+    assert cfg.tendon_limits()[1][2] == top + 0.01  # without the hand there is nothing to check against
+    with pytest.raises(ValueError, match=r"motor 2 \(finger_right\) limits \[0.001, 0.055\] m reach outside the "
+                                         r"hand's tendon_range \[0.0, 0.045\] m"):
+        cfg.tendon_limits(hand)
+    cfg = HardwareConfig(tendon_lower=[-1.0, 0.0, 0.0], tendon_upper=[0.03, 0.03, 0.03])
+    with pytest.raises(ValueError, match=r"motor 0 \(thumb\) limits \[-1.0, 0.03\] m reach outside"):
+        cfg.tendon_limits(hand)
+
+
 @pytest.mark.parametrize(
     "field, value",
     [

@@ -152,8 +152,8 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
     if quick:
         trials, particles, iterations = 1, 1000, 8
-    if trials < 1:
-        raise ValueError(f"reproduce: 'trials' must be >= 1, got {trials}")
+    if isinstance(trials, bool) or not isinstance(trials, (int, np.integer)) or trials < 1:
+        raise ValueError(f"reproduce: 'trials' must be an integer >= 1, got {trials!r}")
     chosen = EXPERIMENTS if experiments is None else tuple(experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:

@@ -164,20 +164,32 @@ class HardwareConfig:
     def tendon_limits(self, hand=None) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper tendon limits (N,) [m]: this config's, else the hand's tendon_range.
 
-        ``hand`` is a :class:`vlr_drake.hand.HandSpec`, needed when the config gives none.
+        ``hand`` is a :class:`vlr_drake.hand.HandSpec`, needed when the config gives none. A
+        config may narrow the hand's range, not widen it: given the hand, limits outside its
+        ``tendon_range`` are refused (they would let the motors pull past the tendon's travel).
         """
         if self.tendon_lower:
-            return np.asarray(self.tendon_lower, float), np.asarray(self.tendon_upper, float)
-        if hand is None:
+            lower, upper = np.asarray(self.tendon_lower, float), np.asarray(self.tendon_upper, float)
+        elif hand is None:
             raise ValueError(
                 "hardware config: no 'tendon_lower'/'tendon_upper' given and no hand to take tendon_range from"
             )
+        if hand is None:
+            return lower, upper
         rng = np.array([f.tendon_range for f in hand.fingers], float)
         if len(rng) != self.num_motors:
             raise ValueError(
                 f"hardware config: 'motor_ids' has {self.num_motors} motors but the hand has {len(rng)} fingers"
             )
-        return rng[:, 0].copy(), rng[:, 1].copy()
+        if not self.tendon_lower:
+            return rng[:, 0].copy(), rng[:, 1].copy()
+        for k, finger in enumerate(hand.fingers):
+            if not rng[k, 0] <= lower[k] < upper[k] <= rng[k, 1]:
+                raise ValueError(
+                    f"hardware config: motor {k} ({finger.name}) limits [{lower[k]}, {upper[k]}] m reach outside the "
+                    f"hand's tendon_range [{rng[k, 0]}, {rng[k, 1]}] m ('tendon_lower'/'tendon_upper' may only narrow it)"
+                )
+        return lower, upper
 
 
 class TendonMotorMap:
