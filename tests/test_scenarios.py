@@ -198,6 +198,10 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nmodel_plant: {link_lengths: [[-0.05], [0.05], [0.05]]}\n", "link_lengths"),
         ("grasp: {theta_deg: [[.nan, 10], [10, 10], [10, 10]]}\n", "theta_deg"),
         ("grasp: {contact: [.nan, 0.02, 0.02]}\n", "contact"),
+        # ragged lists failed with numpy's "inhomogeneous shape", naming no field
+        ("grasp: {theta_deg: [[1, 2], [3]]}\n", "'theta_deg' must be 3 lists of 2"),
+        ("plant: model\nmodel_plant: {stiffness: [[0.1, 0.2], [0.3]]}\n", "'stiffness' must be 3 lists of 2"),
+        ("plant: model\nmodel_plant: {link_lengths: [[0.05], [0.05, 0.01], [0.05]]}\n", "'link_lengths' must be 3"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",

@@ -72,6 +72,15 @@ HAND_PRESETS = ("model_o", "NH1", "NH2", "NH3")
 DIAGRAMS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
 
 
+def _shape_of(value) -> tuple | None:
+    """``np.shape`` of a (nested) list, or None where its rows differ in length (a ragged
+    list, which the shape checks then name instead of numpy's "inhomogeneous shape")."""
+    try:
+        return np.shape(value)
+    except ValueError:
+        return None
+
+
 def _resolve_field_types(cls: type) -> type:
     """Replace string field annotations (postponed evaluation) of the dataclass ``cls`` and of
     the dataclasses its fields hold with the resolved types, so ``yaml_load_typed`` can read
@@ -256,11 +265,11 @@ class ModelPlantSettings:
                 raise ValueError(f"model_plant: '{name}' must be finite and >= 0, got {value}")
         if not 0 <= self.dropout < 1:
             raise ValueError(f"model_plant: 'dropout' must be in [0, 1), got {self.dropout}")
-        if self.stiffness and np.shape(self.stiffness) != (N, K):
+        if self.stiffness and _shape_of(self.stiffness) != (N, K):
             raise ValueError(f"model_plant: 'stiffness' must be {N} lists of {K}, got {self.stiffness}")
         if self.stiffness and not np.all(np.isfinite(self.stiffness) & (np.asarray(self.stiffness) > 0)):
             raise ValueError(f"model_plant: 'stiffness' must be positive and finite, got {self.stiffness}")
-        if self.link_lengths and np.shape(self.link_lengths) != (N, K - 1):
+        if self.link_lengths and _shape_of(self.link_lengths) != (N, K - 1):
             raise ValueError(
                 f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}"
             )
@@ -287,11 +296,11 @@ class NominalGrasp:
     contact: list[float] = field(default_factory=list)
 
     def validate(self, N: int, K: int) -> "NominalGrasp":
-        if self.theta_deg and np.shape(self.theta_deg) != (N, K):
+        if self.theta_deg and _shape_of(self.theta_deg) != (N, K):
             raise ValueError(f"grasp: 'theta_deg' must be {N} lists of {K}, got {self.theta_deg}")
         if self.theta_deg and not np.all(np.isfinite(self.theta_deg)):
             raise ValueError(f"grasp: 'theta_deg' must be finite, got {self.theta_deg}")
-        if self.contact and np.shape(self.contact) != (N,):
+        if self.contact and _shape_of(self.contact) != (N,):
             raise ValueError(f"grasp: 'contact' must have {N} entries, got {self.contact}")
         if self.contact and not np.all(np.isfinite(self.contact) & (np.asarray(self.contact) > 0)):
             raise ValueError(f"grasp: 'contact' must be positive and finite [m], got {self.contact}")
