@@ -107,7 +107,7 @@ def test_bad_targets_and_images_are_named():
     one ChArUco calibration; an empty, 1-D or 2-channel image failed inside OpenCV."""
     blank = np.full(SIZE[::-1], 128, np.uint8)
     for squares, square, marker, field in [((7, 5), 0.0, 0.02, "square_size"), ((7, 5), 0.03, 0.04, "marker_size"),
-                                           ((1, 1), 0.03, 0.02, "squares")]:
+                                           ((1, 1), 0.03, 0.02, "squares"), ((2, 2), 0.03, 0.02, "squares")]:
         with pytest.raises(ValueError, match=field):
             calibrate_charuco([blank], squares, square, marker)
     with pytest.raises(ValueError, match="square_size must be positive, got nan"):  # was accepted

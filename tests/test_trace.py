@@ -163,7 +163,7 @@ def test_bad_trace_headers_arrays_and_truths_are_named(tmp_path):
             IdentificationTrace.load(write("seed.npz", {**header, "filter_seed": seed}))
     with pytest.raises(ValueError, match="meta.npz: .*'meta' must be a JSON object"):
         IdentificationTrace.load(write("meta.npz", {**header, "meta": [1, 2]}))
-    with pytest.raises(ValueError, match="valid.npz: trace: 'valid' must be booleans, got float64"):
+    with pytest.raises(ValueError, match=r"valid.npz: trace: 'valid' must be booleans \(or 0/1\), got float64"):
         IdentificationTrace.load(write("valid.npz", valid=arrays["valid"].astype(float)))
     with pytest.raises(ValueError, match="R.npz: trace: 'R' must be numbers"):
         IdentificationTrace.load(write("R.npz", R=np.full(arrays["R"].shape, "x")))
@@ -308,6 +308,27 @@ def test_a_replay_stops_where_a_run_with_its_settings_would_stop(tmp_path, capsy
     # a diagram's run (hardware) lasts its iterations, converged or not: its replay too
     diagram = IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "stops_at_convergence": False}})
     assert replay(diagram, loose, stop_at_convergence=True)["steps"] == T
+    # older traces do not say: identify's (they name their action choice) stopped, a diagram's did not
+    old = {k: v for k, v in trace.meta.items() if k not in ("stops_at_convergence", "extra_iterations")}
+    assert replay(IdentificationTrace(**{**trace.__dict__, "meta": old}), loose, stop_at_convergence=True)["steps"] == k
+    assert replay(IdentificationTrace(**{**trace.__dict__, "meta": {"plant": "diagram"}}), loose,
+                  stop_at_convergence=True)["steps"] == T
+    with pytest.raises(ValueError, match="meta 'extra_iterations' must be an integer >= 0, got 2.5"):
+        IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "extra_iterations": 2.5}}).validate()
+    with pytest.raises(ValueError, match="meta 'stops_at_convergence' must be true or false, got 'false'"):
+        IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "stops_at_convergence": "false"}}).validate()
+    # hand-made traces may flag valid steps with 0/1
+    assert IdentificationTrace(**{**trace.__dict__, "valid": trace.valid.astype(int)}).validate().valid.dtype == bool
+    # a run that converged and went on for its extra iterations replays exactly with its own settings
+    ran = _run("known_hand", particles=1500, iterations=30, seed=4, extra_iterations=3,
+               filter=pf.FilterConfig(particles=1500, convergence_deg=10.0))
+    assert ran["converged"] and ran["_trace"].meta["extra_iterations"] == 3
+    again = replay(ran["_trace"], stop_at_convergence=True)
+    assert again["steps"] == ran["_trace"].steps == again["converged_at"] + 3
+    np.testing.assert_array_equal(again["estimates"][-1]["theta"], ran["_estimates"][-1]["theta"])
+    assert again["errors"]["joint_error_deg_mean"] == ran["joint_error_deg_mean"]
+    with pytest.raises(ValueError, match="extra_iterations must be an integer >= 0, got 2.5"):
+        _run("known_hand", particles=300, iterations=3, extra_iterations=2.5)
     # the command stops at convergence by default, and says so; --all-steps replays the whole trace
     path = trace.save(tmp_path / "run.npz")
     main(["replay", str(path), "--filter", "convergence_deg=10", "--no-progress", "--json", str(tmp_path / "a.json")])
@@ -316,3 +337,6 @@ def test_a_replay_stops_where_a_run_with_its_settings_would_stop(tmp_path, capsy
           "--json", str(tmp_path / "b.json")])
     assert json.loads((tmp_path / "a.json").read_text())["runs"][0]["steps"] == k
     assert json.loads((tmp_path / "b.json").read_text())["runs"][0]["steps"] == T
+    # an evidence profile always replays every step
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--all-steps"]) == 2
+    assert "--all-steps is for a replay" in capsys.readouterr().err

@@ -497,8 +497,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             recorded.meta.update(
                 scenario=scenario.name, plant=scenario.plant, seed=scenario.seed, experiment=scenario.experiment(),
                 hand=scenario.hand_spec.name if scenario.hand_spec is not None else scenario.hand,
-                object=scenario.object_spec.name if scenario.object_spec is not None else scenario.object,
-                stops_at_convergence=False)  # the diagram runs its iterations, converged or not
+                object=scenario.object_spec.name if scenario.object_spec is not None else scenario.object)
         return {
             "trace": None if recorded is None else str(recorded.save(trace)),
             "scenario": scenario.name,

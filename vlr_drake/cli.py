@@ -247,6 +247,8 @@ def replay_trace(args) -> dict:
         raise ValueError("--values needs --profile")
     if args.statics and args.profile is None:
         raise ValueError("--statics needs --profile and --values")
+    if args.all_steps and args.profile is not None:
+        raise ValueError("--all-steps is for a replay: an evidence profile always replays every step")
     values = None
     if args.profile is not None:
         if not args.values:

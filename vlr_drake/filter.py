@@ -531,6 +531,41 @@ class PriorConfig:
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
 
+    def validate(self, N: int | None = None, K: int | None = None) -> PriorConfig:
+        """Check the settings, and with ``N`` and ``K`` that the unknowns name fingers and
+        joints of a hand of N fingers of K joints; raises ``ValueError`` naming the field.
+        (``contact_limits`` needs the hand's links: :meth:`contact_bounds`.)"""
+        widths = {n: getattr(self, n) for n in ("proximal_half_width", "distal_half_width", "contact_half_width")}
+        bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
+        if bad:
+            raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
+        for name in ("stiffness_range", "link_range"):
+            lo, hi = getattr(self, name)
+            if not (np.isfinite([lo, hi]).all() and 0 < lo < hi):
+                raise ValueError(f"prior: '{name}' must be finite [min, max] with 0 < min < max, "
+                                 f"got {getattr(self, name)}")
+        if self.stiffness_prior not in STIFFNESS_PRIORS:
+            raise ValueError(f"prior: 'stiffness_prior' must be one of {STIFFNESS_PRIORS}, got '{self.stiffness_prior}'")
+        if not np.isfinite(self.min_tension):
+            raise ValueError(f"prior: 'min_tension' must be finite, got {self.min_tension}")
+        for fi, j in self.stiffness_unknown if N is not None else ():
+            if not (0 <= fi < N and 0 <= j < K):
+                raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
+        for fi in self.links_unknown if N is not None else ():
+            if not 0 <= fi < N:
+                raise ValueError(f"prior: links_unknown entry {fi} is not a finger of a {N}-finger hand")
+        # one column of the unknowns per quantity: a repeated one would be drawn and roughened twice
+        joints = [(int(fi), int(j)) for fi, j in self.stiffness_unknown]
+        for name, entries in (("stiffness_unknown", joints), ("links_unknown", [int(fi) for fi in self.links_unknown])):
+            repeated = sorted({e for e in entries if entries.count(e) > 1})
+            if repeated:
+                raise ValueError(f"prior: {name} names {repeated} more than once")
+        if self.object_mass_unknown:
+            lo, hi = self.object_mass_range
+            if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
+                raise ValueError(f"prior: 'object_mass_range' must be 0 <= min < max [kg], got {self.object_mass_range}")
+        return self
+
     def contact_bounds(self, hand: HandModel) -> tuple[np.ndarray, np.ndarray]:
         """Each finger's contact range along its last link [m]: (lower (N,), upper (N,)).
 
@@ -889,31 +924,9 @@ class SelfIdentificationFilter:
         self.resamples = 0
         self.tendon_command: np.ndarray | None = None  # absolute tendon pull l (N,) [m]
         N, K = hand.N, hand.K
-        widths = {n: getattr(prior, n) for n in ("proximal_half_width", "distal_half_width", "contact_half_width")}
-        bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
-        if bad:
-            raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
+        prior.validate(N, K)
         self._contact_bounds = prior.contact_bounds(hand)
-        for fi, j in prior.stiffness_unknown:
-            if not (0 <= fi < N and 0 <= j < K):
-                raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")
-        if prior.stiffness_prior not in STIFFNESS_PRIORS:
-            raise ValueError(f"prior: 'stiffness_prior' must be one of {STIFFNESS_PRIORS}, got '{prior.stiffness_prior}'")
-        if prior.stiffness_unknown and not 0 < prior.stiffness_range[0] < prior.stiffness_range[1]:
-            raise ValueError(f"prior: 'stiffness_range' must be 0 < min < max, got {prior.stiffness_range}")
-        for fi in prior.links_unknown:
-            if not 0 <= fi < N:
-                raise ValueError(f"prior: links_unknown entry {fi} is not a finger of a {N}-finger hand")
-        # one column of the unknowns per quantity: a repeated one would be drawn and roughened twice
-        joints = [(int(fi), int(j)) for fi, j in prior.stiffness_unknown]
-        for name, entries in (("stiffness_unknown", joints), ("links_unknown", [int(fi) for fi in prior.links_unknown])):
-            repeated = sorted({e for e in entries if entries.count(e) > 1})
-            if repeated:
-                raise ValueError(f"prior: {name} names {repeated} more than once")
         if prior.object_mass_unknown:
-            lo, hi = prior.object_mass_range
-            if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
-                raise ValueError(f"prior: 'object_mass_range' must be 0 <= min < max [kg], got {prior.object_mass_range}")
             if not np.any(self.config.gravity_palm):
                 raise ValueError("prior: object_mass_unknown needs gravity: set filter 'gravity_palm' (the gravity "
                                  "in the palm frame [m/s^2]); without it the object's weight moves nothing")

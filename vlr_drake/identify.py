@@ -238,6 +238,7 @@ class IdentifyOptions:
     # None: the plant's and experiment's (ITERATIONS: 240 for the stiffness and the novel
     # fingers on the physics plant, else DEFAULT_ITERATIONS, 120).
     max_iterations: int | None = None
+    # Filter steps to go on after convergence (0: stop there).
     extra_iterations: int = 0
     # Exploration: uniform actions of +-action_range per tendon [m], reflected inside a
     # window of +-window around the grasp's tendon commands. None: the plant's default
@@ -332,6 +333,9 @@ class IdentifyOptions:
         if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer)) \
                 or self.max_iterations < 1:
             raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
+        if isinstance(self.extra_iterations, bool) or not isinstance(self.extra_iterations, (int, np.integer)) \
+                or self.extra_iterations < 0:
+            raise ValueError(f"extra_iterations must be an integer >= 0, got {self.extra_iterations!r}")
         if self.link_weight is None:
             self.link_weight = default_link_weight(self.plant, self.experiment)
         if self.link_weight and self.plant != "physics":
@@ -588,8 +592,9 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         bar.update(1)
         bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
         if rep.converged and converged_at is None:
-            converged_at = it
-        if converged_at is not None and it >= converged_at + opts.extra_iterations:
+            converged_at, converged_step = it, len(f.history)
+        # the extra iterations count filter steps, as a replay of the trace does
+        if converged_at is not None and len(f.history) >= converged_step + opts.extra_iterations:
             break
     bar.close()
     timing["total"] = time.perf_counter() - t_start

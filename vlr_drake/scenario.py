@@ -153,32 +153,15 @@ class PriorSettings:
         )
 
     def validate(self, N: int, K: int) -> "PriorSettings":
-        for name in ("proximal_half_width", "distal_half_width", "contact_half_width"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"prior: '{name}' must be positive and finite, got {getattr(self, name)}")
+        # the YAML forms first; the values are checked where the filter checks them
         for name in ("stiffness_range", "link_range", "contact_limits"):
             v = getattr(self, name)
-            if v is None:
-                continue
-            if len(v) != 2 or not (np.all(np.isfinite(v)) and v[0] < v[1]):
-                raise ValueError(f"prior: '{name}' must be finite [min, max] with min < max, got {v}")
-        if not self.link_range[0] > 0:
-            raise ValueError(f"prior: 'link_range' must be positive, got {self.link_range}")
-        if not np.isfinite(self.min_tension):
-            raise ValueError(f"prior: 'min_tension' must be finite, got {self.min_tension}")
-        if self.stiffness_prior not in pf.STIFFNESS_PRIORS:
-            raise ValueError(f"prior: 'stiffness_prior' must be one of {pf.STIFFNESS_PRIORS}, got "
-                             f"'{self.stiffness_prior}'")
-        if not self.stiffness_range[0] > 0:
-            raise ValueError(f"prior: 'stiffness_range' must be positive, got {self.stiffness_range}")
+            if v is not None and len(v) != 2:
+                raise ValueError(f"prior: '{name}' must be [min, max], got {v}")
         for pair in self.stiffness_unknown:
-            if len(pair) != 2 or not (0 <= pair[0] < N and 0 <= pair[1] < K):
-                raise ValueError(
-                    f"prior: 'stiffness_unknown' entry {pair} is not a [finger < {N}, joint < {K}] pair"
-                )
-        for i in self.links_unknown:
-            if not 0 <= i < N:
-                raise ValueError(f"prior: 'links_unknown' entry {i} is not a finger index < {N}")
+            if len(pair) != 2:
+                raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger, joint] pair")
+        self.to_prior().validate(N, K)
         return self
 
 
@@ -223,9 +206,7 @@ class ExplorationSettings:
         for name in ("span", "window"):
             value = getattr(self, name)
             if value is not None and not (np.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"exploration: 'span' and 'window' must be positive and finite, got {self.span}, {self.window}"
-                )
+                raise ValueError(f"exploration: '{name}' must be positive and finite, got {value}")
         for name in ("squeeze", "squeeze_window"):
             value = getattr(self, name)
             if value is not None and not (np.isfinite(value) and value >= 0):

@@ -98,6 +98,12 @@ class IdentificationTrace:
             raise ValueError(f"trace: 'filter_seed' must be an integer >= 0, got {seed!r}")
         if not isinstance(self.meta, dict):
             raise ValueError(f"trace: 'meta' must be a JSON object, got {self.meta!r}")
+        extra = self.meta.get("extra_iterations", 0)
+        if isinstance(extra, bool) or not isinstance(extra, (int, np.integer)) or extra < 0:
+            raise ValueError(f"trace: meta 'extra_iterations' must be an integer >= 0, got {extra!r}")
+        if not isinstance(self.meta.get("stops_at_convergence", False), bool):
+            raise ValueError(f"trace: meta 'stops_at_convergence' must be true or false, "
+                             f"got {self.meta['stops_at_convergence']!r}")
         N, K, T = self.hand.num_fingers, self.hand.num_joints_per_finger, self.steps
         expected = {"theta_center": (N, K), "a_center": (N,), "R0": (3, 3), "t0": (3,), "tendon_command0": (N,),
                     "actions": (T, N), "R": (T, 3, 3), "t": (T, 3), "valid": (T,), "tendon_commands": (T, N)}
@@ -112,8 +118,11 @@ class IdentificationTrace:
                 if arr.dtype.kind in "fiu" and arr.ndim == 2 and name in ("actions", "tendon_commands"):
                     where = f" (step {int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0]) + 1})"
                 raise ValueError(f"trace: '{name}' must be finite numbers{where}")
-        if np.asarray(self.valid).dtype != bool:
-            raise ValueError(f"trace: 'valid' must be booleans, got {np.asarray(self.valid).dtype}")
+        valid = np.asarray(self.valid)
+        if valid.dtype.kind in "iu" and np.isin(valid, (0, 1)).all():  # 0/1 flags, as a hand-made trace may have
+            self.valid = valid = valid.astype(bool)
+        if valid.dtype != bool:
+            raise ValueError(f"trace: 'valid' must be booleans (or 0/1), got {valid.dtype}")
         for name in ("R", "t"):
             if np.asarray(getattr(self, name)).dtype.kind not in "fiu":
                 raise ValueError(f"trace: '{name}' must be numbers, got {np.asarray(getattr(self, name)).dtype}")
@@ -270,7 +279,7 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
     the run's). Returns ``estimates`` (one per step and the initial one), ``history`` (the
     StepReports), ``log_evidence`` (their sum of ``log_evidence``, NaN steps skipped),
-    ``log_evidence_steps`` (T,), ``steps`` (how many were replayed), ``hand_parameters`` and
+    ``log_evidence_steps`` (one per replayed step), ``steps`` (how many were replayed), ``hand_parameters`` and
     ``weakly_identified`` (the identified springs and links,
     :func:`vlr_drake.identify.hand_parameter_report`) and, where the trace has truths,
     ``errors`` (the result fields of DESIGN.md section 11 that compare the final estimate with
@@ -279,8 +288,10 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     ``stop_at_convergence``: stop where a run with these settings would have stopped, at the
     step where the filter converged plus the run's ``extra_iterations`` (the trace's
     ``meta``; 0 if it has none), instead of at the trace's end; only for a run that stopped
-    at convergence (``vlr-drake identify``'s; a diagram's run lasts its iterations, and its
-    trace's ``meta["stops_at_convergence"]`` is False). Without it (the default) every step is
+    at convergence (``vlr-drake identify``'s, whose traces say so in ``meta``; a diagram's run
+    lasts its iterations, and its trace's ``meta["stops_at_convergence"]`` is False; a trace
+    that does not say is taken to be identify's if its ``meta`` has identify's
+    ``action_choice``). Without it (the default) every step is
     replayed, as an evidence profile needs. Either way, a replay whose filter has not
     converged ends with the trace, where the recorded run stopped.
     """
@@ -295,7 +306,8 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     f = pf.SelfIdentificationFilter(h, config, prior, np.random.default_rng(trace.filter_seed))
     f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, tendon_command=trace.tendon_command0)
     extra = int(trace.meta.get("extra_iterations", 0) or 0)
-    stop_at_convergence = stop_at_convergence and bool(trace.meta.get("stops_at_convergence", True))
+    stop_at_convergence = stop_at_convergence and trace.meta.get("stops_at_convergence",
+                                                                 "action_choice" in trace.meta)
     converged_at = None
     for i in tqdm(range(trace.steps), disable=not progress, desc="replay", unit="it", leave=False):
         valid = bool(trace.valid[i])

@@ -148,8 +148,9 @@ def calibrate_charuco(
 
     aruco = cv2.aruco
     cols, rows = (int(s) for s in squares)
-    if cols < 2 or rows < 2:
-        raise ValueError(f"squares must count at least 2 x 2 ChArUco squares, got {squares}")
+    if cols < 2 or rows < 2 or (cols - 1) * (rows - 1) < 6:  # its inner corners; a view needs 6 of them
+        raise ValueError(f"squares must give the board at least 6 inner corners (e.g. 3 x 4 ChArUco squares), "
+                         f"got {squares}")
     if not square_size > 0:
         raise ValueError(f"square_size must be positive, got {square_size}")
     if not 0 < marker_size < square_size:

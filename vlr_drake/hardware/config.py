@@ -244,19 +244,21 @@ def load_hardware_config(filename: str | None = None, data: str | None = None) -
     """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file).
     A missing file raises ``FileNotFoundError``; an unknown or mistyped field ``ValueError``
     naming the file or the text."""
+    import yaml
     from pydrake.common.yaml import yaml_load_typed
 
+    errors = (RuntimeError, ValueError, TypeError, yaml.YAMLError)  # what the loader raises on bad input
     config = HardwareConfig()
     if filename is not None:
         if not Path(filename).is_file():
-            raise FileNotFoundError(f"hardware config file '{filename}' not found")
+            raise FileNotFoundError(f"hardware config file '{filename}' not found (or not a file)")
         try:
             config = yaml_load_typed(schema=HardwareConfig, filename=filename, defaults=config)
-        except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError, yaml.YAMLError
+        except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
     if data is not None:
         try:
             config = yaml_load_typed(schema=HardwareConfig, data=data, defaults=config)
-        except Exception as e:
+        except errors as e:
             raise ValueError(f"hardware config text: {e}") from e
     return config

@@ -131,7 +131,7 @@ class SelfIdentificationSystem(LeafSystem):
                            tendon_command=l_now)
             box.filter = flt
             box.recorder = TraceRecorder(self._hand.spec, self._config, self._prior, self._seed,
-                                         meta={"plant": "diagram"})
+                                         meta={"plant": "diagram", "stops_at_convergence": False})  # it runs on, converged or not
             box.recorder.start(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(), l_now)
             return
         dl = l_now - box.filter.tendon_command
