@@ -148,6 +148,9 @@ LINK_WEIGHT = {("physics", "known_hand"): True, ("physics", "novel_fingers"): Tr
 #: (The novel hands' figures above were measured with the Model O's thumb-factor tensions.
 #: Re-measured with the balanced tensions, 240 iterations, fifteen seeds: 1.5x gave 1.46 /
 #: 3.05 / 3.15 mm against 1.21 / 2.72 / 1.35 with 1x, so the novel fingers keep 1.)
+#: The known hand again on forty fresh runs (4 objects x seeds 0-9, replays), 1x / 1.25x /
+#: 1.5x / 2x: proximal 1.43 / 1.23 / 1.15 / 1.09 deg, joints inside 0.93 / 0.96 / 0.97 / 1.00;
+#: 2x helps only the flat screwdriver (2.46 -> 2.19 deg), with intervals wider than 95%.
 LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.5}
 #: FilterConfig.gravity_loads per (plant, experiment) where it is None: "held" elsewhere.
 #: The object's weight (IdentifyOptions.object_weight) always follows.
