@@ -236,7 +236,7 @@ def test_bring_up_tool_refuses_no_frames(capsys):
     for frames in ("0", "-3"):
         with pytest.raises(SystemExit):
             bring_up(["camera", "--frames", frames])
-        assert "--frames: must be a positive integer" in capsys.readouterr().err
+        assert f"--frames: must be >= 1, got {frames}" in capsys.readouterr().err
 
 
 def test_config_validate_checks_finger_count():

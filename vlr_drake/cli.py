@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, report
+from vlr_drake.entry import USER_ERRORS, count, report
 
 
 def _json_default(o):
@@ -528,22 +528,6 @@ and filtering).""",
 }
 
 
-def _count(least: int):
-    """An argparse type: an integer >= ``least`` (argparse names the flag in its error)."""
-
-    def parse(text: str) -> int:
-        try:
-            n = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-        if n < least:
-            raise argparse.ArgumentTypeError(f"must be >= {least}, got {n}")
-        return n
-
-    parse.__name__ = f"integer >= {least}"
-    return parse
-
-
 #: Fewest particles a filter runs with (FilterConfig.validate says the same).
 MIN_PARTICLES = 10
 
@@ -551,11 +535,11 @@ MIN_PARTICLES = 10
 def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, out: str = "out",
             least_iterations: int = 1, iterations_help: str | None = None) -> None:
     p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
-    p.add_argument("--seed", type=_count(0), default=None,
+    p.add_argument("--seed", type=count(0), default=None,
                    help="seed of every random draw (default: the scenario's, else 0)")
-    p.add_argument("--particles", type=_count(MIN_PARTICLES), default=None,
+    p.add_argument("--particles", type=count(MIN_PARTICLES), default=None,
                    help=f"number of particles (default: the scenario's filter.particles, else {particles})")
-    p.add_argument("--iterations", type=_count(least_iterations), default=iterations,
+    p.add_argument("--iterations", type=count(least_iterations), default=iterations,
                    help=f"iteration budget of the identification (default {iterations_help or iterations})")
     p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
     p.add_argument("--out", default=out, help=f"output folder for plots, recordings and results (default ./{out})")
@@ -578,7 +562,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = _parser("selfcheck", sub, "move the default hand with both solvers and compare")
-    p.add_argument("--seed", type=_count(0), default=0, help="seed of the grasp and the actions (default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the grasp and the actions (default 0)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     for name, help_text in [("identify", "run a self-identification experiment"),
@@ -638,7 +622,7 @@ def main(argv: list[str] | None = None) -> int:
     _common(p, particles=20_000, iterations=None, out="out/reproduce",
             iterations_help="each experiment's, as identify's: 120, 240 for the stiffness and the novel "
                             "fingers on the physics plant; 100 for the tasks' self-identification")
-    p.add_argument("--trials", type=_count(1), default=5, help="trials per row (default 5)")
+    p.add_argument("--trials", type=count(1), default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,
                    help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
@@ -674,12 +658,12 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("bench", sub, "benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
-    p.add_argument("--particles", type=_count(MIN_PARTICLES), default=60_000, help="number of particles (default 60,000)")
-    p.add_argument("--iterations", type=_count(1), default=10, help="filter iterations timed (default 10)")
-    p.add_argument("--run-iterations", type=_count(0), default=30,
+    p.add_argument("--particles", type=count(MIN_PARTICLES), default=60_000, help="number of particles (default 60,000)")
+    p.add_argument("--iterations", type=count(1), default=10, help="filter iterations timed (default 10)")
+    p.add_argument("--run-iterations", type=count(0), default=30,
                    help="filter: iterations of the known-hand identification on the physics plant whose wall "
                         "time is split into physics, rendering, detection and filtering (default 30; 0: none)")
-    p.add_argument("--seed", type=_count(0), default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of every random draw (default 0)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     args = parser.parse_args(argv)

@@ -8,6 +8,7 @@ traceback. Errors that are bugs still show their traceback.
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 from collections.abc import Callable
@@ -50,3 +51,19 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     except errors as e:
         return report(prog, e)
     return status if isinstance(status, int) else 0
+
+
+def count(least: int):
+    """An argparse type: an integer >= ``least`` (argparse names the flag in its error)."""
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if n < least:
+            raise argparse.ArgumentTypeError(f"must be >= {least}, got {n}")
+        return n
+
+    parse.__name__ = f"integer >= {least}"
+    return parse

@@ -806,16 +806,14 @@ class FilterConfig:
             raise ValueError(f"filter: 'held_motion' must be one of {HELD_MOTIONS}, got '{self.held_motion}'")
         if self.max_substeps < 0:
             raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
-        if self.first_move_substeps is not None and (
-                isinstance(self.first_move_substeps, bool) or not isinstance(self.first_move_substeps, (int, np.integer))
-                or self.first_move_substeps < 0):
+        if self.first_move_substeps is not None and not kinematics.is_count(self.first_move_substeps):
             raise ValueError(f"filter: 'first_move_substeps' must be None or an integer >= 0, "
                              f"got {self.first_move_substeps!r}")
         if self.newton_tolerance not in motion.TOLERANCES:
             raise ValueError(f"filter: 'newton_tolerance' must be one of {tuple(motion.TOLERANCES)}, "
                              f"got '{self.newton_tolerance}'")
         n = self.newton_loose_after
-        if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= motion.MAX_ITER):
+        if n is not None and not (kinematics.is_count(n, 1) and n <= motion.MAX_ITER):
             raise ValueError(f"filter: 'newton_loose_after' must be None or in [1, {motion.MAX_ITER}], "
                              f"got {n!r}")
         if not 0 < self.roughening < 1:

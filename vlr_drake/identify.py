@@ -29,6 +29,7 @@ import numpy as np
 from vlr_drake import filter as pf
 from vlr_drake import grasps
 from vlr_drake.hand import NOVEL_HANDS, hand_by_name
+from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.objects import preset_names
 from vlr_drake.trace import TraceRecorder
@@ -333,11 +334,9 @@ class IdentifyOptions:
                              f"(python -m vlr_drake.builder --run SCENARIO) or on the model plant (--plant model)")
         if self.max_iterations is None:
             self.max_iterations = default_iterations(self.plant, self.experiment)
-        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer)) \
-                or self.max_iterations < 1:
+        if not is_count(self.max_iterations, 1):
             raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
-        if isinstance(self.extra_iterations, bool) or not isinstance(self.extra_iterations, (int, np.integer)) \
-                or self.extra_iterations < 0:
+        if not is_count(self.extra_iterations):
             raise ValueError(f"extra_iterations must be an integer >= 0, got {self.extra_iterations!r}")
         if self.link_weight is None:
             self.link_weight = default_link_weight(self.plant, self.experiment)

@@ -32,6 +32,7 @@ __all__ = [
     "joint_positions",
     "virtual_links",
     "as_particles",
+    "is_count",
     "finger_contact_derivatives",
     "contact_force_torque",
 ]
@@ -169,6 +170,12 @@ def _contacts_kernel(theta, L, a, pad, base, u, out):  # pragma: no cover - numb
             for r in range(3):
                 out[p, i, r] = base[i, r] + x * u[i, r]
             out[p, i, 2] += z
+
+
+def is_count(value, least: int = 0) -> bool:
+    """Whether ``value`` is an integer (Python's or numpy's, not a bool) >= ``least``: the
+    check of every count and seed a caller may pass (2.5 would be cut to 2, True read as 1)."""
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= least
 
 
 def as_particles(name: str, value, shape: tuple, allow_shared: bool = False) -> np.ndarray:

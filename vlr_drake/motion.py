@@ -46,6 +46,7 @@ from vlr_drake.kinematics import (
     contact_force_torque,
     contacts,
     finger_contact_derivatives,
+    is_count,
     sincos,
 )
 
@@ -1141,8 +1142,7 @@ def move(
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if tolerance not in TOLERANCES:
         raise ValueError(f"Newton tolerance must be one of {tuple(TOLERANCES)}, got '{tolerance}'")
-    if loose_after is not None and (isinstance(loose_after, bool) or not isinstance(loose_after, (int, np.integer))
-                                    or loose_after < 1):
+    if loose_after is not None and not is_count(loose_after, 1):
         raise ValueError(f"'loose_after' must be None or an integer >= 1, got {loose_after!r}")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
+from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import options_from_scenario, task_settings
 
 __all__ = ["PAPER_ROWS", "EXPERIMENTS", "known_hand_objects", "reproduce", "format_table", "honesty"]
@@ -152,7 +153,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
     if quick:
         trials, particles, iterations = 1, 1000, 8
-    if isinstance(trials, bool) or not isinstance(trials, (int, np.integer)) or trials < 1:
+    if not is_count(trials, 1):
         raise ValueError(f"reproduce: 'trials' must be an integer >= 1, got {trials!r}")
     chosen = EXPERIMENTS if experiments is None else tuple(experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]

@@ -37,6 +37,7 @@ from pydrake.common.yaml import yaml_load_typed
 from vlr_drake import filter as pf
 from vlr_drake.hand import HandSpec, hand_by_name
 from vlr_drake.hardware.config import HardwareConfig
+from vlr_drake.kinematics import is_count
 from vlr_drake.objects import ObjectSpec, preset, preset_names
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.perception.tag_pose import TagObserverConfig
@@ -367,7 +368,7 @@ class Scenario:
 
     def validate(self) -> "Scenario":
         """Check every section; raises ``ValueError`` naming the section and field."""
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+        if not is_count(self.seed):
             raise ValueError(f"'seed' must be an integer >= 0, got {self.seed!r}")
         if self.plant not in PLANTS:
             raise ValueError(f"'plant' must be one of {list(PLANTS)}, got '{self.plant}'")

@@ -39,6 +39,7 @@ import numpy as np
 from vlr_drake import filter as pf
 from vlr_drake import motion
 from vlr_drake.hand import FingerSpec, HandSpec
+from vlr_drake.kinematics import is_count
 
 __all__ = ["IdentificationTrace", "TraceRecorder", "replay", "evidence_profile", "statics_profile",
            "PROFILE_PARAMETERS"]
@@ -94,12 +95,12 @@ class IdentificationTrace:
         """Check the arrays' shapes against the hand; raises ``ValueError`` naming the field."""
         self.hand.validate()
         seed = self.filter_seed
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        if not is_count(seed):
             raise ValueError(f"trace: 'filter_seed' must be an integer >= 0, got {seed!r}")
         if not isinstance(self.meta, dict):
             raise ValueError(f"trace: 'meta' must be a JSON object, got {self.meta!r}")
         extra = self.meta.get("extra_iterations", 0)
-        if isinstance(extra, bool) or not isinstance(extra, (int, np.integer)) or extra < 0:
+        if not is_count(extra):
             raise ValueError(f"trace: meta 'extra_iterations' must be an integer >= 0, got {extra!r}")
         if not isinstance(self.meta.get("stops_at_convergence", False), bool):
             raise ValueError(f"trace: meta 'stops_at_convergence' must be true or false, "

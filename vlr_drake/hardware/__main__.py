@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from vlr_drake.entry import count
 from vlr_drake.hardware.config import load_hardware_config
 
 __all__ = ["main"]
@@ -32,13 +33,6 @@ def _motors(config):
     return TendonMotors.from_config(config, unlimited)
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
 def main(argv: Sequence[str] | None = None, out=None) -> int:
     """Command line entry (see the module docstring). Returns the exit status."""
     out = out or sys.stdout
@@ -46,7 +40,7 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
     p.add_argument("command", choices=["status", "zero", "camera"])
     p.add_argument("--config", help="hardware section YAML file")
     p.add_argument("--set", default=None, help="YAML text overriding config fields")
-    p.add_argument("--frames", type=_positive_int, default=30, help="camera: frames to read")
+    p.add_argument("--frames", type=count(1), default=30, help="camera: frames to read")
     a = p.parse_args(argv)
     config = load_hardware_config(filename=a.config, data=a.set).validate()
 
