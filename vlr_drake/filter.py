@@ -869,13 +869,18 @@ class ParticleSet:
         return self.theta.shape[0]
 
     def take(self, idx: np.ndarray) -> ParticleSet:
+        """The particles ``idx`` (with repeats: a resampling's copies), with equal weights."""
+
+        def rows(x):  # np.take copies rows about twice as fast as x[idx] (60,000 particles)
+            return np.take(x, idx, axis=0)
+
         def pick(x):
-            return x[idx] if x.shape[0] > 1 else x
+            return rows(x) if x.shape[0] > 1 else x
 
         return ParticleSet(
-            self.theta[idx], self.a[idx], pick(self.stiffness), pick(self.link_lengths),
-            self.stretch[idx], self.p_O[idx], np.zeros(len(idx)),
-            None if self.object_load is None else self.object_load[idx],
+            rows(self.theta), rows(self.a), pick(self.stiffness), pick(self.link_lengths),
+            rows(self.stretch), rows(self.p_O), np.zeros(len(idx)),
+            None if self.object_load is None else rows(self.object_load),
         )
 
 
