@@ -16,7 +16,7 @@ from vlr_drake.builder import (
     write_diagrams,
 )
 from vlr_drake.hardware.camera import read_intrinsics
-from vlr_drake.identify import _truth_grasp
+from vlr_drake.identify import _truth_grasp, contact_guess_rng
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.scenario import DIAGRAMS_DIR, example_scenarios, load_scenario
@@ -72,9 +72,15 @@ def test_example_scenario_builds_and_runs(path: Path):
     if s.plant == "physics":
         assert np.all(start["in_contact"]), start
         assert d.HasOutputPort("hand.rgb_image")
-        # the prior's centre: the placed angles, contacts at PAD_FRACTION of the distal link
+        # the prior's centre: the placed angles, and a guess of the contacts, which the pads
+        # fix at PAD_FRACTION of the distal link (not the truth itself), as identify guesses
         np.testing.assert_allclose(b.theta_center.ravel(), start["theta_placed"])
-        np.testing.assert_allclose(b.a_center, PAD_FRACTION * b.hand.distal_length)
+        pad = PAD_FRACTION * b.hand.distal_length
+        off = np.abs(b.a_center - pad)
+        bound = s.model_plant.center_offset_fraction * s.prior.to_prior().contact_half_width
+        assert np.all(off <= bound) and np.all(off > 0)
+        _, guess = s.prior.to_prior().guessed_grasp(b.theta_center, pad, contact_guess_rng(s.seed), angles=False)
+        np.testing.assert_allclose(b.a_center, guess)
         # the policy starts at the placed grasp's commands
         np.testing.assert_allclose(d.GetOutputPort("exploration.tendon_command").Eval(ctx), start["command"])
     sim.AdvanceTo(1.5 * T)  # the first action came at T
@@ -215,9 +221,17 @@ def test_write_diagrams_writes_one_dot_per_scenario(tmp_path: Path):
     (tmp_path / "a.yaml").write_text(
         (DIAGRAMS_DIR / "model_plant.yaml").read_text().replace("name: model_plant", "name: a")
     )
+    (tmp_path / "my_copy.yaml").write_text((DIAGRAMS_DIR / "model_plant.yaml").read_text())  # name kept
     written = write_diagrams(tmp_path, render=False)
-    assert written == [tmp_path / "a.dot"]
+    assert written == [tmp_path / "a.dot", tmp_path / "my_copy.dot"]  # named after the files
     assert (tmp_path / "a.dot").read_text().startswith("digraph _0 {")
+
+
+def test_write_diagrams_names_a_missing_or_empty_folder(tmp_path: Path):
+    with pytest.raises(FileNotFoundError, match="--folder: no folder '.*nowhere'"):
+        write_diagrams(tmp_path / "nowhere", render=False)
+    with pytest.raises(ValueError, match="holds no scenario file"):
+        write_diagrams(tmp_path, render=False)
 
 
 def test_run_returns_the_estimate_and_the_truth(capsys):
@@ -332,3 +346,14 @@ def test_run_options_without_run_and_a_trace_of_no_iterations_are_refused(tmp_pa
     s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
     with pytest.raises(ValueError, match="a trace needs at least one iteration"):
         run(s, iterations=0, trace=tmp_path / "t.npz")
+
+
+def test_help_lists_the_plants_and_a_bad_trace_path_is_refused_before_the_run(tmp_path: Path, capsys):
+    from vlr_drake.builder import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = capsys.readouterr().out
+    assert "- hardware: exploration -> hand" in text and "- model:" in text  # the whole list
+    with pytest.raises(ValueError, match="--trace: '.*' is a folder"):
+        main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--trace", str(tmp_path)])

@@ -1,5 +1,5 @@
 """The vlr-drake command line: quick runs write JSON with the documented fields
-(DESIGN.md section 11) and bad input fails with a clear message."""
+(docs/result-files.md) and bad input fails with a clear message."""
 
 import json
 
@@ -14,6 +14,27 @@ IDENTIFY_FIELDS = {"experiment", "scenario", "seed", "particles", "plant", "conv
 TASK_FIELDS = {"task", "scenario", "seed", "plant", "position_error_mm", "orientation_error_deg", "success"}
 BENCH_MOTION_FIELDS = {"particles", "batched_move_s", "ipopt_solve_s", "snopt_solve_s", "speedup_per_particle"}
 BENCH_FILTER_FIELDS = {"particles", "iteration_s", "particles_per_s"}
+
+
+def _documented(section: str) -> tuple[set, set]:
+    """The fields docs/result-files.md lists under ``section`` (a heading's first words),
+    and those of them marked as the contract."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "result-files.md").read_text()
+    part = next(p for p in text.split("\n## ")[1:] if p.startswith(section))
+    rows = [line.split("|")[1] for line in part.splitlines() if line.startswith("| ")]
+    fields = {f for row in rows for f in re.findall(r"`([A-Za-z_0-9]+)`", row)}
+    contract = {f for row in rows for f in re.findall(r"`([A-Za-z_0-9]+)` \*\*contract\*\*", row)}
+    return fields, contract
+
+
+def _check_fields(r: dict, section: str, contract: set) -> None:
+    """Every field of the result ``r`` is documented, the contract's among them."""
+    fields, marked = _documented(section)
+    assert contract <= set(r) and contract <= marked
+    assert set(r) <= fields, f"fields missing from docs/result-files.md: {sorted(set(r) - fields)}"
 
 
 def _run(tmp_path, *argv):
@@ -32,7 +53,7 @@ def test_selfcheck(tmp_path):
 def test_identify_quick(tmp_path, experiment, extra):
     r = _run(tmp_path, "identify", experiment, "--plant", "model", "--particles", "1500", "--iterations", "6",
              "--no-progress", "--out", str(tmp_path / "out"), *extra)
-    assert IDENTIFY_FIELDS <= set(r)
+    _check_fields(r, "Identification run", IDENTIFY_FIELDS)
     assert r["experiment"] == experiment and r["plant"] == "model" and r["particles"] == 1500
     assert set(r["timing_s"]) >= {"physics", "render", "detect", "filter", "total"}
     assert len(r["proximal_joint_error_deg"]) == 3 and np.all(np.isfinite(r["proximal_joint_error_deg"]))
@@ -108,10 +129,11 @@ def test_demo_has_no_hand_option(capsys):
 
 def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
-    assert BENCH_MOTION_FIELDS <= set(r) and r["particles"] == 2000
+    _check_fields(r, "Benchmark", BENCH_MOTION_FIELDS)
+    assert r["particles"] == 2000
     assert r["speedup_per_particle"] > 1
     r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2", "--run-iterations", "3")
-    assert BENCH_FILTER_FIELDS <= set(r)
+    _check_fields(r, "Benchmark", BENCH_FILTER_FIELDS)
     assert {"move", "weigh", "estimate"} <= set(r["iteration_phases_s"])
     slowest = r["slowest_iteration_phases_s"]
     assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
@@ -286,7 +308,8 @@ def test_tasks_take_a_scenario(tmp_path, command):
                                   (str(path), "quiet", str(path))]:
         out = tmp_path / name
         r = _run(tmp_path, command, *word, "--model", "true", "--scenario", scenario, "--no-progress", "--out", str(out))
-        assert TASK_FIELDS <= set(r) and r["task"] == command
+        _check_fields(r, "Task run", TASK_FIELDS)
+        assert r["task"] == command
         assert r["scenario"] == name and r["scenario_path"].endswith(where) and r["plant"] == "model"
         assert r["seed"] == (2 if name == "quiet" else 0)
         assert list(out.glob("*.png"))
@@ -373,6 +396,16 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
     assert f"--out: '{afile}' is a file, not a folder" in capsys.readouterr().err
     assert main(["identify", "--plant", "model", "--json", str(tmp_path), "--no-progress"]) == 2
     assert f"--json: '{tmp_path}' is a folder" in capsys.readouterr().err
+    # a trace path that is a folder, and outputs under a file, are refused before the run too
+    # (a run of minutes had ended in a traceback, its result never written)
+    assert main(["identify", "--plant", "model", "--trace", str(tmp_path), "--no-progress"]) == 2
+    assert f"--trace: '{tmp_path}' is a folder" in capsys.readouterr().err
+    for flag, path in (("--json", afile / "r.json"), ("--out", afile / "sub"), ("--trace", afile / "t.npz")):
+        assert main(["identify", "--plant", "model", flag, str(path), "--no-progress"]) == 2
+        assert f"{flag}: '{afile}' is a file, so '{path}' cannot be written" in capsys.readouterr().err
+    assert main(["replay", str(afile), "--json", str(afile / "r.json")]) == 2
+    assert f"--json: '{afile}' is a file" in capsys.readouterr().err
+    assert not list(tmp_path.glob("**/*.json"))
 
 
 def test_json_has_no_nan_or_infinity(tmp_path):
@@ -436,6 +469,23 @@ def test_module_tools_name_a_bad_input_in_one_line(tmp_path, module, argv, says)
     assert len(lines) == 1 and lines[0].startswith(f"python -m {module}: error: ") and says in lines[0], out.stderr
 
 
+@pytest.mark.parametrize("module, argv, says", [
+    ("vlr_drake.physics.check", ["--actions", "-5", "--objects", "apple", "--no-camera"],
+     "argument --actions: must be >= 1, got -5"),
+    ("vlr_drake.physics.check", ["--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+    ("vlr_drake.physics.agreement", ["--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+    ("vlr_drake.physics.agreement", ["--actions", "0"], "argument --actions: must be >= 1, got 0"),
+])
+def test_module_tools_check_their_counts_before_anything_runs(tmp_path, module, argv, says):
+    """The physics tools' counts are the commands' count type: argparse names the flag, and
+    nothing is simulated first (--actions -5 had grasped the apple, then failed in numpy)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", module, *argv], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 2 and says in out.stderr, out.stderr
+
+
 def test_module_docstrings_read_as_plain_help():
     """The tools' help texts show reST roles as Sphinx renders them and drop literals' quotes."""
     from vlr_drake.entry import plain
@@ -487,3 +537,11 @@ def test_reproduce_names_a_bad_trial_count(tmp_path, trials):
 
     with pytest.raises(ValueError, match=r"reproduce: 'trials' must be an integer >= 1, got "):
         reproduce(trials=trials, plant="model", out=tmp_path, progress=False, experiments=["known_hand"])
+
+
+def test_demo_refuses_a_scenario_of_another_experiment_before_anything_runs(capsys):
+    """The demo identifies the Model O's known hand: a stiffness scenario is refused before
+    the self-check (it had run the self-check, then stopped)."""
+    assert main(["demo", "--scenario", "stiffness", "--no-progress"]) == 2
+    out, err = capsys.readouterr()
+    assert "self-check" not in out and "not the experiment 'known_hand'" in err

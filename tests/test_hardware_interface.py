@@ -170,6 +170,12 @@ tendon_upper: [0.04, 0.04, 0.03]
     assert lo.tolist() == [0.0, 0.0, 0.001] and hi.tolist() == [0.04, 0.04, 0.03]
     cfg = yaml_load_typed(schema=HardwareConfig, data="camera: /videos/run.avi\n")
     assert cfg.camera == "/videos/run.avi"
+    # a scenario file gives its hardware section (the bring-up tool with diagrams/hardware.yaml)
+    from vlr_drake.scenario import DIAGRAMS_DIR, load_scenario
+
+    cfg = load_hardware_config(filename=str(DIAGRAMS_DIR / "hardware.yaml"), data="baud_rate: 57600\n")
+    expected = load_scenario(DIAGRAMS_DIR / "hardware.yaml").hardware
+    assert cfg.motor_ids == expected.motor_ids and cfg.direction == expected.direction and cfg.baud_rate == 57600
 
 
 def test_tendon_limits_default_to_the_hand():

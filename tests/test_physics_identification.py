@@ -32,6 +32,10 @@ def test_short_physics_run_lowers_the_error_from_its_prior(obj, seed):
     assert final < 0.6 * prior, (prior, final)
     assert r["truth_inside_95_theta"] >= 0.66 and r["truth_inside_95_contact"] >= 0.66
     assert r["lost_measurements"] == 0 and r["reinitialisations"] == 0
+    # the pads fix the true contacts; the filter's prior is centred on a guess of them, up to
+    # 60% of the contact half-width (4.8 mm) off, never on the truth itself
+    off = np.abs(r["_trace"].a_center - r["_truths"][0]["a"])
+    assert np.all(off > 1e-6) and np.all(off <= 0.6 * 0.008 + 1e-12), off
 
 
 @pytest.mark.slow

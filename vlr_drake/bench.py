@@ -3,7 +3,7 @@
 The motion benchmark measures, in one run, one batched move of ``particles`` Model O
 hypotheses (numba Newton, DESIGN.md section 4) and single MathematicalProgram solves of
 the same problem with IPOPT and with SNOPT, and reports the per-particle speed-up. Field
-names follow DESIGN.md section 11.
+names follow docs/result-files.md.
 """
 
 from __future__ import annotations

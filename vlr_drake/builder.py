@@ -16,15 +16,17 @@ policy's ``tendon_command`` with ``filter_action: commanded``. Systems are added
 
 The filter's nominal grasp (its prior's centre): on the model plant, the (hidden) true grasp
 displaced by up to ``model_plant.center_offset_fraction`` of the prior's half-widths; on the
-physics plant, the angles :meth:`PhysicsHand.place` puts the pads on the object with and the
-contacts at ``PAD_FRACTION`` of the distal length; on hardware, the scenario's ``grasp``
+physics plant, the angles :meth:`PhysicsHand.place` puts the pads on the object with and a
+guess of the contacts, which the pads fix at ``PAD_FRACTION`` of the distal length (displaced
+by up to ``model_plant.center_offset_fraction`` of the prior's half-width,
+:func:`vlr_drake.identify.contact_guess_rng`); on hardware, the scenario's ``grasp``
 section. The physics grasp needs :func:`initialize` before simulating: it places the object
 and fingers (``place``), whose tendon commands are the policy's initial (grasp) commands,
 and simulates to settle; the first action comes at t = T.
 
 Diagram pictures: ``python -m vlr_drake.builder --write-diagrams`` writes
-``diagrams/<name>.dot`` (``GetGraphvizString(max_depth=1)``) for every example scenario and,
-when Graphviz's ``dot`` is installed, ``diagrams/<name>.svg``. The ``.dot`` text is the source
+``diagrams/<file>.dot`` (``GetGraphvizString(max_depth=1)``) for every example scenario
+``diagrams/<file>.yaml`` and, when Graphviz's ``dot`` is installed, ``diagrams/<file>.svg``. The ``.dot`` text is the source
 of truth (a test checks it is current); the picture is a convenience.
 ``python -m vlr_drake.builder --run diagrams/model_plant.yaml --iterations 20 --set 'seed: 3'``
 runs a scenario (:func:`run`) and prints the estimate beside the truth.
@@ -44,10 +46,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import plain
+from vlr_drake.entry import check_output, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
-from vlr_drake.identify import _truth_grasp
+from vlr_drake.identify import _truth_grasp, contact_guess_rng
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
@@ -67,6 +69,7 @@ __all__ = [
     "initialize",
     "wire_identification",
     "graphviz_text",
+    "graphviz_available",
     "write_diagrams",
     "run",
     "main",
@@ -190,11 +193,7 @@ def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: floa
         tendon=s.filter.tendon,
         contact_drift=mp.contact_drift,
     )
-    f = mp.center_offset_fraction
-    theta_c = plant.state.theta.copy()
-    theta_c[:, 0] += f * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
-    theta_c[:, 1:] += f * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
-    a_c = plant.state.a + f * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+    theta_c, a_c = prior.guessed_grasp(plant.state.theta, plant.state.a, rng, mp.center_offset_fraction)
     plant_sys = ModelPlantSystem(plant, T)
     sensor = NoisyPoseSensor(
         mp.sigma_position,
@@ -267,7 +266,10 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         ph = add_physics_hand(builder, spec, obj, s.physics, s.camera, meshcat)
         plant = ph.diagram
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
-        a_c = np.full(h.N, PAD_FRACTION) * h.distal_length
+        # the pads fix the true contacts at PAD_FRACTION of the distal links: a guess of them,
+        # as vlr-drake identify makes
+        _, a_c = prior.guessed_grasp(theta_c, np.full(h.N, PAD_FRACTION) * h.distal_length,
+                                     contact_guess_rng(s.seed), s.model_plant.center_offset_fraction, angles=False)
         sensor = TagObserver(
             _observer_config(s),
             vtk_render_intrinsics(s.camera),
@@ -444,17 +446,30 @@ def graphviz_text(built: BuiltDiagram) -> str:
     return "\n".join(out[:-1]) + "\n"
 
 
+def graphviz_available() -> str | None:
+    """The path of Graphviz's ``dot``, or None where it is not installed (then only the
+    ``.dot`` text is written)."""
+    return shutil.which("dot")
+
+
 def write_diagrams(folder: str | Path | None = None, render: bool = True) -> list[Path]:
-    """Write ``<name>.dot`` for every example scenario in ``folder`` (default ``diagrams/``)
-    and, with ``render`` and Graphviz's ``dot`` on the PATH, ``<name>.svg``. Returns the
-    written paths."""
+    """Write ``<file>.dot`` beside every scenario file ``<file>.yaml`` in ``folder`` (default
+    ``diagrams/``; named after the file, so that a copy of an example gets its own) and,
+    with ``render`` and Graphviz's ``dot`` on the PATH (:func:`graphviz_available`),
+    ``<file>.svg``. Returns the written paths. A folder that does not exist, or holds no
+    scenario file, is an error."""
     folder = DIAGRAMS_DIR if folder is None else Path(folder)
-    dot = shutil.which("dot") if render else None
+    if not folder.is_dir():
+        raise FileNotFoundError(f"--folder: no folder '{folder}'")
+    scenarios = example_scenarios(folder)
+    if not scenarios:
+        raise ValueError(f"--folder: '{folder}' holds no scenario file (*.yaml)")
+    dot = graphviz_available() if render else None
     written = []
-    for path in example_scenarios(folder):
+    for path in scenarios:
         s = load_scenario(path)
         text = graphviz_text(build_diagram(s))
-        out = folder / f"{s.name}.dot"
+        out = path.with_suffix(".dot")
         out.write_text(text)
         written.append(out)
         if dot:
@@ -523,9 +538,11 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder", description=" ".join(
-        plain(__doc__.split("\n\n")[0]).split()))
-    parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<name>.dot (and .svg)")
+    # the docstring's first paragraph and its list of plants, as written
+    parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     description=plain("\n\n".join(__doc__.split("\n\n")[:2])))
+    parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<file>.dot (and .svg) beside each scenario file")
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
     parser.add_argument("--run", metavar="SCENARIO", default=None, help="run a scenario file")
@@ -538,6 +555,7 @@ def main(argv: list[str] | None = None) -> int:
         if value is not None and not args.run:
             parser.error(f"{flag} needs --run SCENARIO")
     if args.run:
+        check_output("--trace", args.trace)  # before the run, not after it
         iterations = 10 if args.iterations is None else args.iterations
         r = run(load_scenario(args.run, args.set), iterations, trace=args.trace)
         np.set_printoptions(precision=2, suppress=True)
@@ -556,6 +574,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     for p in write_diagrams(args.folder, render=not args.no_render):
         print(p)
+    if not args.no_render and graphviz_available() is None:
+        print("Graphviz's dot is not on the PATH: no .svg written")
     return 0
 
 

@@ -108,12 +108,12 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
 # ------------------------------------------------------------------------------ scenario
 def _check_outputs(args) -> None:
     """Refuse an output path that cannot be written before the run, not after it."""
-    out = getattr(args, "out", None)
-    if out is not None and Path(out).exists() and not Path(out).is_dir():
-        raise ValueError(f"--out: '{out}' is a file, not a folder")
-    path = getattr(args, "json", None)
-    if path and Path(path).is_dir():
-        raise ValueError(f"--json: '{path}' is a folder; give a file, e.g. {Path(path) / 'result.json'}")
+    from vlr_drake.entry import check_output
+
+    check_output("--out", getattr(args, "out", None), folder=True)
+    check_output("--json", getattr(args, "json", None))
+    if args.command == "identify":  # (replay's traces are its inputs)
+        check_output("--trace", args.trace)
 
 
 def _load_scenario(args) -> None:
@@ -183,7 +183,7 @@ def print_summary(result: dict) -> None:
           f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
           f"after {result['iterations']} iterations")
     # the label column fits the longest name (novel fingers: "finger_left_NF2 proximal [deg]")
-    w = max([28] + [len(n) + len(" proximal [deg]") for n in names]
+    w = max([28] + [len(n) + len(" contact along link [mm]") for n in names]
             + [len(name.split(":", 1)[1]) + len(" link [mm]") for name in result.get("hand_parameters", {})])
     print(f"{'quantity':{w}s} {'estimate':>10s} {'95% interval':>20s} {'truth':>10s} {'error':>8s}")
     for i, n in enumerate(names):
@@ -191,7 +191,9 @@ def print_summary(result: dict) -> None:
             e, lo, hi, t = (np.rad2deg(x[i, j]) for x in (est["theta"], est["theta_lo"], est["theta_hi"], truth["theta"]))
             print(f"{n + ' ' + label + ' [deg]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
         e, lo, hi, t = (1e3 * x[i] for x in (est["a"], est["a_lo"], est["a_hi"], truth["a"]))
-        print(f"{n + ' contact [mm]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
+        # a_i, the contact's position along the last link (the JSON's contact_error_mm is the
+        # distance between the estimated and the true contact points, joint angles' errors included)
+        print(f"{n + ' contact along link [mm]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
     for name, p in result.get("hand_parameters", {}).items():  # identified springs and links
         kind, where = name.split(":", 1)
         key, scale, unit, d = (("link_lengths", 1e3, "mm", 2) if kind == "link_length"
@@ -432,10 +434,11 @@ def bench(args) -> dict:
 # ------------------------------------------------------------------------------ demo
 def demo(args) -> None:
     t0 = time.perf_counter()
+    args.experiment, args.hand = "known_hand", "model_o"
+    _identify_options(args)  # a scenario for another experiment or hand is refused before anything runs
     print("== self-check: the motion function, batched vs MathematicalProgram ==")
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
-    args.experiment, args.hand = "known_hand", "model_o"
     identify(args)
     print("\n== in-hand manipulation: the identified model writes with the POM ==")
     from vlr_drake.tasks.write import run_write
@@ -464,8 +467,8 @@ tendon actions (random on the physics plant, as the paper's; informative on the 
 plant), each followed by a camera measurement of the POM and a particle filter iteration,
 until the 95% intervals of the joint angles are narrow (converged) or the
 iteration budget is spent. Prints a table of estimated vs true joint angles, contacts (and
-stiffness or link lengths), writes convergence plots and the JSON result (DESIGN.md section
-11) to --out. The experiment follows from the scenario's prior when not given:
+stiffness or link lengths), writes convergence plots and the JSON result (its fields: docs/result-files.md)
+to --out. The experiment follows from the scenario's prior when not given:
 known_hand (joint angles and contacts unknown), stiffness (also the thumb's distal spring),
 novel_fingers (also the proximal link lengths of the replaced fingers of NH1/NH2/NH3).
 Plants: physics (the default without a scenario, as in the paper's experiments: Drake
@@ -533,8 +536,9 @@ MIN_PARTICLES = 10
 
 
 def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, out: str = "out",
-            least_iterations: int = 1, iterations_help: str | None = None) -> None:
-    p.add_argument("--scenario", default=None, help=_SCENARIO_HELP)
+            least_iterations: int = 1, iterations_help: str | None = None,
+            scenario_help: str = _SCENARIO_HELP) -> None:
+    p.add_argument("--scenario", default=None, help=scenario_help)
     p.add_argument("--seed", type=count(0), default=None,
                    help="seed of every random draw (default: the scenario's, else 0)")
     p.add_argument("--particles", type=count(MIN_PARTICLES), default=None,
@@ -572,8 +576,10 @@ def main(argv: list[str] | None = None) -> int:
             _common(p, particles=20_000, iterations=None,
                     iterations_help="120; 240 for the stiffness and the novel fingers on the physics plant, "
                                     "whose hand parameters narrow slowly: vlr_drake.identify.ITERATIONS")
-        else:
-            _common(p, particles=20_000, iterations=120)
+        else:  # the demo's identification is the Model O's known hand
+            _common(p, particles=20_000, iterations=120,
+                    scenario_help="a known-hand scenario of the Model O: a YAML file, or the name of an example "
+                                  "in diagrams/ (default, model_plant); flags given here override it")
         if name == "identify":
             p.add_argument("experiment", nargs="?", default=None, choices=["known_hand", "stiffness", "novel_fingers"],
                            help="known_hand: angles and contacts; stiffness: also the thumb's distal spring; "
@@ -683,10 +689,12 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command in ("write", "maze", "stack"):
             task(args)
         elif args.command == "diagrams":
-            from vlr_drake.builder import write_diagrams
+            from vlr_drake.builder import graphviz_available, write_diagrams
 
             for path in write_diagrams(args.folder, render=not args.no_render):
                 print(f"wrote {path}")
+            if not args.no_render and graphviz_available() is None:
+                print("Graphviz's dot is not on the PATH: no .svg written")
         elif args.command == "reproduce":
             from vlr_drake.reproduce import format_table, reproduce
 

@@ -67,3 +67,27 @@ def count(least: int):
 
     parse.__name__ = f"integer >= {least}"
     return parse
+
+
+def check_output(flag: str, path, *, folder: bool = False) -> None:
+    """Refuse, before a run, an output path that the run could not write at its end:
+    a file where a folder is wanted or the reverse, a file among its parent folders, or
+    a parent that is not writable. Folders that do not exist yet are fine (they are
+    made). Raises ValueError naming ``flag``."""
+    import os
+    from pathlib import Path
+
+    if path is None or str(path) == "":
+        return
+    p = Path(path)
+    if folder and p.exists() and not p.is_dir():
+        raise ValueError(f"{flag}: '{path}' is a file, not a folder")
+    if not folder and p.is_dir():
+        raise ValueError(f"{flag}: '{path}' is a folder; give a file in it")
+    for parent in ([p] if folder else []) + list(p.parents):
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{flag}: '{parent}' is a file, so '{path}' cannot be written")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ValueError(f"{flag}: '{parent}' is not writable")
+            return

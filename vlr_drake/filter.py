@@ -485,6 +485,14 @@ def _weighted_quantiles(cols, w, levels, absolute):  # pragma: no cover - numba
 # --------------------------------------------------------------------------------------
 
 
+#: Where a plant knows the true grasp (the model plant, the physics plant), the filter's
+#: nominal grasp (its prior's centre) is a guess made from it: the truth displaced by up to
+#: this fraction of the prior's half-widths, uniformly and independently per coordinate
+#: (PriorConfig.guessed_grasp). On hardware the nominal grasp is the scenario's grasp
+#: section: a person's or a grasp planner's guess.
+CENTER_OFFSET_FRACTION = 0.6
+
+
 @dataclass
 class PriorConfig:
     """Where the hypotheses start: uniform boxes around a nominal grasp (documented ranges).
@@ -530,6 +538,21 @@ class PriorConfig:
     contact_limits: tuple[float, float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+
+    def guessed_grasp(self, theta, a, rng: np.random.Generator, fraction: float = CENTER_OFFSET_FRACTION,
+                      angles: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """A nominal grasp guessed from the true one, ``theta`` (N, K) [rad] and ``a`` (N,)
+        [m]: each proximal angle, distal angle and contact displaced uniformly by up to
+        ``fraction`` of its half-width (drawn in that order). ``angles=False`` displaces
+        the contacts only (the physics plant, whose nominal angles, the placed grasp,
+        already differ from where the grasp settles)."""
+        theta_c = np.array(theta, float)
+        N, K = theta_c.shape
+        if angles:
+            theta_c[:, 0] += fraction * self.proximal_half_width * rng.uniform(-1, 1, N)
+            theta_c[:, 1:] += fraction * self.distal_half_width * rng.uniform(-1, 1, (N, K - 1))
+        a_c = np.asarray(a, float) + fraction * self.contact_half_width * rng.uniform(-1, 1, N)
+        return theta_c, a_c
 
     def validate(self, N: int | None = None, K: int | None = None) -> PriorConfig:
         """Check the settings, and with ``N`` and ``K`` that the unknowns name fingers and

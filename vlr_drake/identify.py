@@ -5,7 +5,7 @@ followed by a camera measurement of the POM and one filter iteration (Algorithm 
 the filter has converged (DESIGN.md section 6) or the iteration budget is spent. Errors
 are measured against the plant's ground truth, as the paper measured them against extra
 tags: proximal joint angles, all joint angles, contact points, and the identified physical
-parameters. The result dict carries the fields of DESIGN.md section 11.
+parameters. The result dict carries the fields of docs/result-files.md.
 
 Experiments:
 - ``known_hand``: joint angles and contacts are unknown (Model O, known springs).
@@ -265,11 +265,13 @@ class IdentifyOptions:
     # Pose noise of the model plant's camera stand-in.
     sigma_position: float = 0.2e-3
     sigma_rotation_deg: float = 0.5
-    # Model plant: probability that a measurement is lost, contact roll per action [m],
-    # and the filter's nominal grasp offset (fraction of the prior's half-widths).
+    # Model plant: probability that a measurement is lost, contact roll per action [m].
     dropout: float = 0.0
     contact_drift: float = 0.0
-    center_offset_fraction: float = 0.6
+    # The filter's nominal grasp, a guess made from the plant's truth (PriorConfig.guessed_grasp):
+    # the truth displaced by up to this fraction of the prior's half-widths; on the physics
+    # plant the contacts only (contact_guess_rng), the angles being the placed grasp.
+    center_offset_fraction: float = pf.CENTER_OFFSET_FRACTION
     # Physics plant: the filter's nominal grasp. "placed" (default): the angles that put the
     # pads on the object. "settled": where the model predicts the placement settles under the
     # grasp's tendon commands (grasps.settle_under_command). Measured (10,000 particles, 100
@@ -528,8 +530,20 @@ def _truth_grasp(hand, rng, link_lengths=None):
     return gs.theta[0], gs.a[0]
 
 
+#: Seed offset of the generator of the physics plant's guessed contacts (contact_guess_rng).
+SEED_CONTACT_GUESS = 11
+
+
+def contact_guess_rng(seed: int) -> np.random.Generator:
+    """The generator of a physics run's guessed nominal contacts: its own, from the run's
+    seed, so that every other draw of the run is what it was before the contacts were
+    guessed (the pads' spheres fix the true contacts at PAD_FRACTION of the distal links,
+    and a prior centred there would be centred on the truth)."""
+    return np.random.default_rng((int(seed), SEED_CONTACT_GUESS))
+
+
 def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
-    """Run one identification trial; returns the DESIGN.md section 11 result dict plus the
+    """Run one identification trial; returns the docs/result-files.md result dict plus the
     filter's estimate history (``_estimates``, ``_history``, ``_truths``: not JSON).
 
     ``on_iteration(iteration, filter)`` is called after the initialisation (iteration 0) and
@@ -553,6 +567,9 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera)
     opts.filter.gravity_palm = filter_gravity(plant.physics if opts.link_weight else None)
     theta_c, a_c, R0, t0 = plant.start(prior)
+    if opts.plant == "physics":  # the pads fix the true contacts: the filter gets a guess of them
+        _, a_c = prior.guessed_grasp(theta_c, a_c, contact_guess_rng(opts.seed), opts.center_offset_fraction,
+                                     angles=False)
     if opts.plant == "physics" and opts.nominal_grasp == "settled":
         theta_c = grasps.settle_under_command(filt_hand, theta_c, a_c, plant.tendon_command())
     f = pf.SelfIdentificationFilter(filt_hand, opts.filter, prior, np.random.default_rng(opts.seed + 1))
@@ -655,7 +672,7 @@ def _identified_parameters(hand, prior: pf.PriorConfig):
 
 
 def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict:
-    """The result fields (DESIGN.md section 11) that compare an estimate with the truth:
+    """The result fields (docs/result-files.md) that compare an estimate with the truth:
     joint, contact, stiffness and link-length errors and whether the truth lies inside the
     95% intervals. ``truth``: a plant's truth dict (theta, a, contacts, stiffness, link_lengths)."""
     th_err = np.rad2deg(np.abs(est["theta"] - truth["theta"]))
@@ -665,7 +682,9 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
     res = {
         "proximal_joint_error_deg": th_err[:, 0].tolist(),
         "joint_error_deg_mean": float(th_err.mean()),
-        "contact_error_mm": c_err.tolist(),
+        "contact_error_mm": c_err.tolist(),  # between the contact points (3-D)
+        # along the last links (a_i, the summary table's contact rows)
+        "contact_along_link_error_mm": (1e3 * np.abs(est["a"] - truth["a"])).tolist(),
         "stiffness_error_Nm_per_rad": None,
         "link_length_error_mm": None,
         "interval_half_width_deg_mean": float(np.rad2deg(est["theta_half_width"].mean())),
@@ -750,12 +769,8 @@ class _ModelAdapter:
                                 sigma_position=o.sigma_position, sigma_rotation=np.deg2rad(o.sigma_rotation_deg),
                                 dropout=o.dropout, contact_drift=o.contact_drift, tendon=o.filter.tendon)
         # The filter's nominal grasp: the truth displaced by up to center_offset_fraction
-        # (60%) of the prior's half-widths (on hardware this is the grasp planner's guess).
-        f = o.center_offset_fraction
-        theta_c = theta.copy()
-        theta_c[:, 0] += f * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
-        theta_c[:, 1:] += f * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
-        a_c = a + f * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+        # of the prior's half-widths (on hardware this is the grasp planner's guess).
+        theta_c, a_c = prior.guessed_grasp(theta, a, rng, o.center_offset_fraction)
         R, t, _ = self.plant.measure()
         return theta_c, a_c, R, t
 

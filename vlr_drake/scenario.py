@@ -235,8 +235,9 @@ class ModelPlantSettings:
     # True proximal link lengths per finger [m] (N lists of K-1); empty: the hand's.
     link_lengths: list[list[float]] = field(default_factory=list)
     # The filter's nominal grasp is the true grasp displaced by up to this fraction of the
-    # prior's half-widths (uniform; on hardware it would be the grasp planner's guess).
-    center_offset_fraction: float = 0.6
+    # prior's half-widths (uniform; on hardware it would be the grasp planner's guess). The
+    # physics plant's contacts, which its pads fix, are displaced by the same fraction.
+    center_offset_fraction: float = pf.CENTER_OFFSET_FRACTION
     # Contacts roll along the fingers by this standard deviation per action [m] (0: fixed).
     contact_drift: float = 0.0
 
@@ -318,9 +319,10 @@ class Scenario:
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
     # Whether the filter's model carries the weight of the fingers' links, with gravity from
     # the physics section's mounting (physics plant only). None: the default of the plant and
-    # experiment (vlr_drake.identify.LINK_WEIGHT: on for the physics plant's known hand and
-    # novel fingers; off for its stiffness and for the model plant, whose truth is Eq. 9). A
-    # hardware hand gives its gravity in the palm frame as filter.gravity_palm instead.
+    # experiment (vlr_drake.identify.LINK_WEIGHT: on for every physics experiment, with the
+    # loads held through each move or following the angles as vlr_drake.identify.GRAVITY_LOADS
+    # says; off for the model plant, whose truth is Eq. 9). A hardware hand gives its gravity
+    # in the palm frame as filter.gravity_palm instead.
     link_weight: bool | None = None
     # The filter's prior around the nominal grasp.
     prior: PriorSettings = field(default_factory=PriorSettings)

@@ -283,7 +283,7 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     ``log_evidence_steps`` (one per replayed step), ``steps`` (how many were replayed), ``hand_parameters`` and
     ``weakly_identified`` (the identified springs and links,
     :func:`vlr_drake.identify.hand_parameter_report`) and, where the trace has truths,
-    ``errors`` (the result fields of DESIGN.md section 11 that compare the final estimate with
+    ``errors`` (the result fields of docs/result-files.md that compare the final estimate with
     the truth at that step).
 
     ``stop_at_convergence``: stop where a run with these settings would have stopped, at the

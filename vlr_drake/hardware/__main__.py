@@ -4,7 +4,8 @@
     python -m vlr_drake.hardware zero   --config hw.yaml   # zero_offset_ticks to paste
     python -m vlr_drake.hardware camera --config hw.yaml --frames 30
 
-``--config`` is a hardware section (:class:`vlr_drake.hardware.config.HardwareConfig`);
+``--config`` is a hardware section (:class:`vlr_drake.hardware.config.HardwareConfig`) or a
+scenario file with one (``diagrams/hardware.yaml``);
 ``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. No command enables torque.
 ``zero``: straighten every finger by hand with its tendon just taut, then run it; it prints
 the present positions as ``zero_offset_ticks`` (measure again after a motor power cycle, which
@@ -38,7 +39,7 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
     out = out or sys.stdout
     p = argparse.ArgumentParser(prog="python -m vlr_drake.hardware", description=__doc__.split("\n")[0])
     p.add_argument("command", choices=["status", "zero", "camera"])
-    p.add_argument("--config", help="hardware section YAML file")
+    p.add_argument("--config", help="hardware section YAML file, or a scenario file with a hardware section")
     p.add_argument("--set", default=None, help="YAML text overriding config fields")
     p.add_argument("--frames", type=count(1), default=30, help="camera: frames to read")
     a = p.parse_args(argv)

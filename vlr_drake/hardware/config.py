@@ -242,8 +242,10 @@ class TendonMotorMap:
 
 def load_hardware_config(filename: str | None = None, data: str | None = None) -> HardwareConfig:
     """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file).
-    A missing file raises ``FileNotFoundError``; an unknown or mistyped field ``ValueError``
-    naming the file or the text."""
+    The file is a hardware section, or a scenario file (:class:`vlr_drake.scenario.Scenario`,
+    e.g. ``diagrams/hardware.yaml``) whose ``hardware`` section is taken. A missing file
+    raises ``FileNotFoundError``; an unknown or mistyped field ``ValueError`` naming the
+    file or the text."""
     import yaml
     from pydrake.common.yaml import yaml_load_typed
 
@@ -253,7 +255,11 @@ def load_hardware_config(filename: str | None = None, data: str | None = None) -
         if not Path(filename).is_file():
             raise FileNotFoundError(f"hardware config file '{filename}' not found (or not a file)")
         try:
-            config = yaml_load_typed(schema=HardwareConfig, filename=filename, defaults=config)
+            with open(filename) as f:
+                doc = yaml.safe_load(f)
+            # a scenario (it names its plant): its hardware section
+            child = "hardware" if isinstance(doc, dict) and "plant" in doc and "hardware" in doc else None
+            config = yaml_load_typed(schema=HardwareConfig, filename=filename, child_name=child, defaults=config)
         except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
     if data is not None:

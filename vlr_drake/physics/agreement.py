@@ -64,7 +64,7 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
-from vlr_drake.entry import plain, run
+from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, model_o
 from vlr_drake.identify import EXPLORATION
@@ -285,8 +285,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.agreement", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--object", default="apple", help="object preset (default apple)")
-    ap.add_argument("--actions", type=int, default=40, help="number of actions (default 40)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the random actions (default 0)")
+    ap.add_argument("--actions", type=count(1), default=40, help="number of actions (default 40)")
+    ap.add_argument("--seed", type=count(0), default=0, help="seed of the random actions (default 0)")
     ap.add_argument("--span", type=float, default=EXPLORATION["physics"][0],
                     help="random actions: +-span per tendon [m] (default: the identification's, %(default)s)")
     ap.add_argument("--window", type=float, default=EXPLORATION["physics"][1],
@@ -300,6 +300,7 @@ def main(argv: list[str] | None = None) -> dict:
                     help="physics plant settings, e.g. gravity=0 settle_object_speed=1e-4")
     ap.add_argument("--json", default=None, help="write the result as JSON to this path")
     args = ap.parse_args(argv)
+    check_output("--json", args.json)
     try:
         physics = physics_overrides(args.physics)
     except ValueError as e:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import plain, run
+from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.hand import hand_by_name
 from vlr_drake.objects import PAPER_OBJECTS, ObjectSpec, preset
 from vlr_drake.perception.camera import CameraConfig
@@ -185,8 +185,8 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS), help="object presets")
     ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
-    ap.add_argument("--actions", type=int, default=50)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--actions", type=count(1), default=50, help="random actions per object (default 50)")
+    ap.add_argument("--seed", type=count(0), default=0, help="seed of the random actions (default 0)")
     ap.add_argument("--no-camera", action="store_true", help="skip rendering")
     ap.add_argument("--time-step", type=float, default=None, help="plant time step [s]")
     ap.add_argument("--pretension-mode", default=None, help="auto, thumb_factor or balanced (default: auto)")
@@ -195,6 +195,8 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     )
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
+    check_output("--json", args.json)
+    check_output("--html-dir", args.html_dir, folder=True)
     physics = PhysicsConfig()
     if args.time_step:
         physics.time_step = args.time_step

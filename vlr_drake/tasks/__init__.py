@@ -4,5 +4,5 @@
 - :func:`vlr_drake.tasks.maze.run_maze`: marble maze, orientation control only.
 - :func:`vlr_drake.tasks.stack.run_stack`: cup stacking, SE(3) control with alpha = 9.5.
 
-Each returns the task result dict of DESIGN.md section 11 and writes its plots to ``out``.
+Each returns the task result dict of docs/result-files.md and writes its plots to ``out``.
 """

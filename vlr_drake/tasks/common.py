@@ -1,6 +1,6 @@
 """Shared pieces of the three tasks: the grasp on the model plant, the controller's model
 (the truth or a running self-identification filter) and the error statistics of the result
-files (DESIGN.md section 11)."""
+files (docs/result-files.md)."""
 
 from __future__ import annotations
 
@@ -118,13 +118,10 @@ class TaskPlant:
         }
 
     def nominal(self, rng: np.random.Generator, prior: pf.PriorConfig) -> tuple[np.ndarray, np.ndarray]:
-        """The filter's nominal grasp: the truth displaced by up to 60% of the prior's
-        half-widths (as in the identification experiments)."""
-        h = self.hand
-        theta_c = self.theta0.copy()
-        theta_c[:, 0] += 0.6 * prior.proximal_half_width * rng.uniform(-1, 1, h.N)
-        theta_c[:, 1:] += 0.6 * prior.distal_half_width * rng.uniform(-1, 1, (h.N, h.K - 1))
-        return theta_c, self.a0 + 0.6 * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+        """The filter's nominal grasp: the truth displaced by up to
+        CENTER_OFFSET_FRACTION of the prior's half-widths (as in the identification
+        experiments)."""
+        return prior.guessed_grasp(self.theta0, self.a0, rng)
 
 
 def _possible_fraction(hand: HandModel, theta, a, samples: int = 64) -> float:
@@ -226,7 +223,9 @@ class PhysicsTaskPlant:
         return self.adapter.truth()
 
     def nominal(self, rng, prior) -> tuple[np.ndarray, np.ndarray]:
-        return self.theta0.copy(), self.a0.copy()
+        """The filter's nominal grasp: the placed grasp's angles and a guess of the contacts,
+        which the pads fix (displaced as in the identification experiments)."""
+        return prior.guessed_grasp(self.theta0, self.a0, rng, angles=False)
 
 
 def make_model_fn(

@@ -19,7 +19,7 @@ At release the upper cup k+1 nests in cup k when its bottom fits in the lower mo
 
 with ``lateral`` the horizontal offset of its bottom centre from the lower cup's axis and
 ``tilt`` the angle between the cup axes (the cup body sweeps 0.5 H sin(tilt) sideways
-while it drops in), and tilt <= 20 deg. Errors (DESIGN.md section 11) are the true POM
+while it drops in), and tilt <= 20 deg. Errors (docs/result-files.md) are the true POM
 position and orientation errors against the goal at release.
 
 On the physics plant (``plant="physics"``) each cup is the preset ``cup_k`` (a cylinder),
@@ -111,7 +111,7 @@ def run_stack(
     camera=None,
     meshcat=None,
 ) -> dict:
-    """Stack the four cups; returns the task result dict (DESIGN.md section 11).
+    """Stack the four cups; returns the task result dict (docs/result-files.md).
 
     Each cup: a fresh grasp (seeded), an unknown tilt of ``tilt_range_deg`` (either sign)
     and offset up to ``offset_range`` [m]; aligned with ``alpha``; released. The default

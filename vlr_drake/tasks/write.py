@@ -16,8 +16,8 @@ millimetres wide, so letters come out smaller than the paper's.
 Waypoints are the strokes resampled every ``spacing``; each waypoint is a
 :func:`vlr_drake.control.servo_to` goal (position rows only). Pen-up moves go to a
 stroke's start and are not scored. Errors are of the true POM position against the
-waypoint when the servo ends (the model plant knows the truth), reported as DESIGN.md
-section 11 fields.
+waypoint when the servo ends (the model plant knows the truth), reported as the task fields
+of docs/result-files.md.
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def run_write(
     camera=None,
     meshcat=None,
 ) -> dict:
-    """Write ``word`` with the POM; returns the task result dict (DESIGN.md section 11).
+    """Write ``word`` with the POM; returns the task result dict (docs/result-files.md).
 
     ``model``: "true" (the plant's hidden truth as the controller's model) or "filter"
     (self-identification first, then the filter keeps updating during control).
@@ -283,7 +283,7 @@ def _plot(letters_out, reach, path: str, word: str) -> str:
     import matplotlib.pyplot as plt
 
     n = len(letters_out)
-    fig, axes = plt.subplots(1, n, figsize=(2.2 * n, 2.6), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(max(2.2 * n, 4.4), 3.0), squeeze=False)
     for ax, (c, targets, paths) in zip(axes[0], letters_out, strict=True):
         poly = np.vstack([reach, reach[:1]]) * 1e3
         ax.plot(poly[:, 0], poly[:, 1], ":", color="0.7", lw=0.8)
@@ -311,7 +311,9 @@ def _plot(letters_out, reach, path: str, word: str) -> str:
         ax.set_xlabel("plane x [mm]")
     axes[0, 0].set_ylabel("plane y [mm]")
     axes[0, 0].legend(fontsize=6, loc="lower left")
-    fig.suptitle(f"handwriting '{word}': written path over the target letters (dotted: probed workspace)")
+    # two lines, so that a short word's narrow figure holds the title
+    fig.suptitle(f"handwriting '{word}': written path over the target letters\n(dotted: probed workspace)",
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
