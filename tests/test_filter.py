@@ -585,6 +585,24 @@ def test_contacts_stay_on_each_fingers_own_pad():
     assert reach[0, 2] > 0.039 and reach[0, 0] > 0.041  # the box reached past 40 mm where it may
 
 
+def test_a_guessed_grasp_keeps_its_contacts_in_their_range():
+    """PriorConfig.guessed_grasp: with bounds, a contact guessed past the end of its last
+    link is clipped to it; the other draws, and a guess inside the range, are unchanged."""
+    from vlr_drake.hand import hand_by_name
+
+    h = hand_by_name("NH3").model()
+    prior = pf.PriorConfig()
+    lo, hi = prior.contact_bounds(h)
+    theta = np.full((h.N, h.K), 0.3)
+    a = hi - 0.001  # the truth 1 mm from each pad's end: a guess may land past it
+    free = prior.guessed_grasp(theta, a, np.random.default_rng(4), angles=False)[1]
+    th, clipped = prior.guessed_grasp(theta, a, np.random.default_rng(4), angles=False, bounds=(lo, hi))
+    assert np.any(free > hi)  # this seed pushes some guess past the link ...
+    np.testing.assert_array_equal(clipped, np.clip(free, lo, hi))  # ... and only those move
+    np.testing.assert_array_equal(th, theta)  # angles=False: the angles stay
+    assert np.all(clipped <= hi) and np.all(clipped >= lo)
+
+
 def test_contact_limits_past_a_finger_are_named():
     from vlr_drake.hand import hand_by_name
 

@@ -540,18 +540,22 @@ class PriorConfig:
     min_tension: float = 0.0
 
     def guessed_grasp(self, theta, a, rng: np.random.Generator, fraction: float = CENTER_OFFSET_FRACTION,
-                      angles: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                      angles: bool = True, bounds=None) -> tuple[np.ndarray, np.ndarray]:
         """A nominal grasp guessed from the true one, ``theta`` (N, K) [rad] and ``a`` (N,)
         [m]: each proximal angle, distal angle and contact displaced uniformly by up to
         ``fraction`` of its half-width (drawn in that order). ``angles=False`` displaces
         the contacts only (the physics plant, whose nominal angles, the placed grasp,
-        already differ from where the grasp settles)."""
+        already differ from where the grasp settles). ``bounds``: (lower, upper) contact
+        positions (:meth:`contact_bounds`) the guess is clipped to, where the truth may lie
+        near a bound (the physics plant's pads on a short last link, custom limits)."""
         theta_c = np.array(theta, float)
         N, K = theta_c.shape
         if angles:
             theta_c[:, 0] += fraction * self.proximal_half_width * rng.uniform(-1, 1, N)
             theta_c[:, 1:] += fraction * self.distal_half_width * rng.uniform(-1, 1, (N, K - 1))
         a_c = np.asarray(a, float) + fraction * self.contact_half_width * rng.uniform(-1, 1, N)
+        if bounds is not None:
+            a_c = np.clip(a_c, *bounds)
         return theta_c, a_c
 
     def validate(self, N: int | None = None, K: int | None = None) -> PriorConfig:

@@ -4,8 +4,11 @@ Drake MultibodyPlant of the hand and object (SAP, point contact), tendons as a L
 a rendered palm camera and the AprilTag observer: one action is ramped and settled by
 :meth:`PhysicsHand.apply_action`, then the camera renders and the observer measures the POM.
 The filter's nominal grasp (the centre of its prior) is what the grasp routine *planned*
-(the angles that put the pads on the object at its scenario placement, and contacts at the
-pad's design position), never the settled truth.
+(the angles that put the pads on the object at its scenario placement), never the settled
+truth; :meth:`PhysicsAdapter.start` gives the pads' design position as the contacts, which
+is the truth (the pads are spheres fixed on the last links), and
+:func:`vlr_drake.identify.run_identification` replaces it by a guess
+(``PriorConfig.guessed_grasp``).
 
 Truth for the error figures comes from the plant: joint angles and the contact positions
 along the last links; contact points are compared in the finger planes (the VLR's

@@ -333,7 +333,8 @@ class Scenario:
     filter_action: str = "measured"
     # The random exploration policy.
     exploration: ExplorationSettings = field(default_factory=ExplorationSettings)
-    # The model plant's truth and camera stand-in (plant "model" only).
+    # The model plant's truth and camera stand-in (plant "model" only; its
+    # center_offset_fraction also sizes the physics plant's guess of the contacts).
     model_plant: ModelPlantSettings = field(default_factory=ModelPlantSettings)
     # The nominal grasp for the hardware plant.
     grasp: NominalGrasp = field(default_factory=NominalGrasp)
@@ -660,12 +661,13 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         squeeze_range=s.exploration.squeeze,
         squeeze_window=s.exploration.squeeze_window,
     )
+    # the nominal grasp's guess: the model plant's, and the physics plant's contacts
+    opts["center_offset_fraction"] = s.model_plant.center_offset_fraction
     if opts["plant"] == "model":
         mp = s.model_plant
         opts.update(
             dropout=mp.dropout,
             contact_drift=mp.contact_drift,
-            center_offset_fraction=mp.center_offset_fraction,
             true_stiffness=copy.deepcopy(mp.stiffness) or None,
             true_link_lengths=copy.deepcopy(mp.link_lengths) or None,
         )

@@ -224,8 +224,9 @@ class PhysicsTaskPlant:
 
     def nominal(self, rng, prior) -> tuple[np.ndarray, np.ndarray]:
         """The filter's nominal grasp: the placed grasp's angles and a guess of the contacts,
-        which the pads fix (displaced as in the identification experiments)."""
-        return prior.guessed_grasp(self.theta0, self.a0, rng, angles=False)
+        which the pads fix, displaced by up to CENTER_OFFSET_FRACTION of the contact
+        half-width as in the identification experiments (drawn from the task's ``rng``)."""
+        return prior.guessed_grasp(self.theta0, self.a0, rng, angles=False, bounds=prior.contact_bounds(self.hand))
 
 
 def make_model_fn(
