@@ -176,6 +176,10 @@ tendon_upper: [0.04, 0.04, 0.03]
     cfg = load_hardware_config(filename=str(DIAGRAMS_DIR / "hardware.yaml"), data="baud_rate: 57600\n")
     expected = load_scenario(DIAGRAMS_DIR / "hardware.yaml").hardware
     assert cfg.motor_ids == expected.motor_ids and cfg.direction == expected.direction and cfg.baud_rate == 57600
+    assert cfg.calibration_file == expected.calibration_file  # relative to the scenario file, as the scenario has it
+    (tmp_path / "no_hw.yaml").write_text("name: x\nplant: model\n")
+    with pytest.raises(ValueError, match="no_hw.yaml': a scenario file without a 'hardware' section"):
+        load_hardware_config(filename=str(tmp_path / "no_hw.yaml"))
 
 
 def test_tendon_limits_default_to_the_hand():

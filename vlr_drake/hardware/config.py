@@ -257,9 +257,14 @@ def load_hardware_config(filename: str | None = None, data: str | None = None) -
         try:
             with open(filename) as f:
                 doc = yaml.safe_load(f)
-            # a scenario (it names its plant): its hardware section
-            child = "hardware" if isinstance(doc, dict) and "plant" in doc and "hardware" in doc else None
-            config = yaml_load_typed(schema=HardwareConfig, filename=filename, child_name=child, defaults=config)
+            scenario = isinstance(doc, dict) and "plant" in doc  # a scenario names its plant
+            if scenario and "hardware" not in doc:
+                raise ValueError("a scenario file without a 'hardware' section")
+            config = yaml_load_typed(schema=HardwareConfig, filename=filename,
+                                     child_name="hardware" if scenario else None, defaults=config)
+            cal = Path(config.calibration_file)
+            if scenario and not cal.is_absolute():  # relative to the scenario file, as the scenario loader has it
+                config.calibration_file = str(Path(filename).resolve().parent / cal)
         except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
     if data is not None:
