@@ -545,3 +545,6 @@ def test_demo_refuses_a_scenario_of_another_experiment_before_anything_runs(caps
     assert main(["demo", "--scenario", "stiffness", "--no-progress"]) == 2
     out, err = capsys.readouterr()
     assert "self-check" not in out and "not the experiment 'known_hand'" in err
+    assert main(["demo", "--scenario", "custom_hand_and_object", "--no-progress"]) == 2
+    out, err = capsys.readouterr()
+    assert "self-check" not in out and "holds another hand than the Model O's" in err

@@ -435,7 +435,11 @@ def bench(args) -> dict:
 def demo(args) -> None:
     t0 = time.perf_counter()
     args.experiment, args.hand = "known_hand", "model_o"
-    _identify_options(args)  # a scenario for another experiment or hand is refused before anything runs
+    s = args.loaded
+    if s is not None and (s.hand_spec is not None or s.hand not in (None, "model_o")):
+        raise ValueError(f"demo: scenario '{s.name}' holds another hand than the Model O's (the demo's); "
+                         f"run it with vlr-drake identify --scenario")
+    _identify_options(args)  # a scenario for another experiment is refused before anything runs
     print("== self-check: the motion function, batched vs MathematicalProgram ==")
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
