@@ -59,6 +59,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -354,6 +355,7 @@ def main(argv: list[str] | None = None) -> dict:
               + ", ".join(f"{g} {num(x)}" for g, x in b["commanded_offset_deg_mean_with"].items())
               + f"; largest |residual| {b['residual_mNm_max']:.2f} mN m")
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with open(args.json, "w") as fh:
             json.dump(r, fh, indent=1)
     return r

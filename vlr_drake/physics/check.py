@@ -230,6 +230,7 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
             "camera": bool(camera),
             "results": [r.as_dict() for r in results],
         }
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with open(args.json, "w") as f:
             json.dump(out, f, indent=2)
     return results
