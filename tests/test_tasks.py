@@ -108,6 +108,33 @@ def test_stack_geometry():
     assert not stack.nested(0, 1, R, t, R, t + np.array([0.02, 0.0, 0.0]))[0]
 
 
+def test_a_slipped_tilted_grasp_is_grasped_again():
+    """Physics stacking: a cup that settles further than SLIPPED_GRASP from its goal is
+    grasped again at a new tilt (its own generator), at most REGRASPS times, and counted;
+    the task's generator gives only the first tilt."""
+    from types import SimpleNamespace
+
+    calls = []
+    settled = iter([0.0136, 0.009, 0.002])  # how far each grasp settles from the goal [m]
+
+    def grasp(k, cup_seed, rng, tilt_range_deg, physics, camera, offsets=None):
+        calls.append(float(rng.uniform()))
+        off = next(settled if offsets is None else offsets)
+        return SimpleNamespace(true_pose=lambda: (np.eye(3), np.array([off, 0.0, 0.11]))), np.eye(3), \
+            np.array([0.0, 0.0, 0.11])
+
+    task_rng = np.random.default_rng(5)
+    tp, _, t_goal, regrasps = stack._settled_tilted_grasp(2, 77, task_rng, (3.0, 9.0), None, None, grasp=grasp)
+    assert regrasps == 2 and np.linalg.norm(tp.true_pose()[1] - t_goal) == pytest.approx(0.002)
+    assert calls[1:] == [np.random.default_rng((77, n)).uniform() for n in (1, 2)]
+    expected = np.random.default_rng(5)
+    expected.uniform()  # the first tilt's draw, and no other, came from the task's generator
+    assert task_rng.uniform() == expected.uniform()
+    always = stack._settled_tilted_grasp(2, 77, task_rng, (3.0, 9.0), None, None,
+                                         grasp=lambda *a: grasp(*a, offsets=iter([0.02] * 9)))
+    assert always[3] == stack.REGRASPS  # gives up, and says so
+
+
 def test_stack_on_the_model_plant(tmp_path):
     r = stack.run_stack(seed=0, out=str(tmp_path), progress=False)
     check_fields(r, "stack")
@@ -115,6 +142,7 @@ def test_stack_on_the_model_plant(tmp_path):
     check_stats(r["orientation_error_deg"])
     assert r["alpha"] == pytest.approx(9.5)
     assert len(r["cups"]) == 4
+    assert all(c["regrasps"] == 0 for c in r["cups"])  # the model plant never regrasps
     # control made the cups' poses better than the unknown grasps left them (in the
     # stacking weighting, offset first: a cup may keep some of its tilt) and every cup nests
     for c in r["cups"]:
