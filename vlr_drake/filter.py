@@ -510,14 +510,19 @@ class PriorConfig:
     # Unknown joint stiffness: (finger, joint) pairs, with the range [min, max] [N m/rad].
     stiffness_unknown: list[tuple[int, int]] = field(default_factory=list)
     stiffness_range: tuple[float, float] = (0.05, 0.40)
-    # How the unknown stiffness is drawn in its range: "uniform" (default) or "log_uniform"
-    # (a scale parameter: every factor of 2 as likely). Measured, 5000 particles, 60
-    # iterations: on the model plant (seeds 0-7) uniform 0.0022 N m/rad mean error, 7 of 8
-    # truths inside; log-uniform 0.0043, 8 of 8. On the physics plant, where 0.5 mm actions
-    # pin the stiffness down only weakly, log-uniform lowered the bias a little (offline runs
-    # on recorded toy block and apple trajectories: 0.236 / 0.223 / 0.243 against uniform's
-    # 0.265 / 0.242 / 0.256, truths 0.189 / 0.172 / 0.189 N m/rad).
-    stiffness_prior: str = "uniform"
+    # How the unknown stiffness is drawn in its range: "log_uniform" (default; a scale
+    # parameter: every factor of 2 as likely) or "uniform". A uniform draw over 0.05-0.40
+    # N m/rad puts 46% of the hypotheses above 0.24, stiffer than any spring the experiment
+    # draws, and where the motions tell little (a stiff distal joint barely moves) the
+    # estimate keeps that mass; the log-uniform puts 25% there. Measured (2026-11-27): on
+    # the physics plant (stiffness, toy block, seeds 0-44, replays of fresh 240-iteration
+    # runs) 0.0190 +- 0.0186 N m/rad against uniform's 0.0221 +- 0.0285 at the stiffness's
+    # likelihood width (1.75), 0.0151 +- 0.0145 against 0.0182 +- 0.0218 at 1.5, springs
+    # inside 39-41 of 45 against 38, fewer stiff outliers (seed 10: 0.092 -> 0.024 N m/rad);
+    # on the model plant (identify's defaults, seeds 0-9) 0.0022 +- 0.0025 against 0.0029 +-
+    # 0.0024, every spring inside either way (an older measurement, 5000 particles and 60
+    # iterations, seeds 0-7, had 0.0043 against 0.0022).
+    stiffness_prior: str = "log_uniform"
     # Fingers whose proximal link lengths are unknown, with the range [min, max] [m].
     links_unknown: list[int] = field(default_factory=list)
     link_range: tuple[float, float] = (0.030, 0.075)
@@ -648,7 +653,7 @@ class FilterConfig:
     # Wider, the filter learns less from each measurement and its intervals allow more of the
     # model's mismatch to the plant. None: 1 here; an identification run takes its plant's
     # and experiment's default (vlr_drake.identify.LIKELIHOOD_WIDTH: 1.5 for the known hand
-    # and the stiffness on the physics plant, measured there).
+    # and 1.75 for the stiffness on the physics plant, measured there).
     likelihood_width: float | None = None
     # Shape of the likelihood of each 3-D error (position, rotation): "gaussian" (default)
     # or "student_t", a multivariate t with ``likelihood_dof`` degrees of freedom whose

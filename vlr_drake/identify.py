@@ -135,24 +135,23 @@ ACTION_CHOICES = ("random", "informative")
 #: 3.12, none 0.99 / 3.97 / 1.68. The weight held stays.)
 LINK_WEIGHT = {("physics", "known_hand"): True, ("physics", "novel_fingers"): True, ("physics", "stiffness"): True}
 #: FilterConfig.likelihood_width per (plant, experiment) where it is None; 1 elsewhere
-#: ("physics" stands for hardware too). Replays of the physics traces (20,000 particles,
-#: seeds 0-4 x 4 objects for the known hand, seeds 0-14 for the others; 2026-11-25), the
-#: sigmas 1x / 1.25x / 1.5x (2x: NH1 4.13 mm, spring 0.0448):
-#:   known hand, proximal [deg]   1.32 +- 1.38 / 1.15 +- 0.88 / 1.07 +- 0.71, joints inside 0.93 / 0.95 / 0.97
-#:   spring [N m/rad]             0.0214 / 0.0231 / 0.0258, springs inside 12 / 14 / 15 of 15,
-#:                                joints inside 0.70 / 0.87 / 0.94, mean joint error 1.84 / 1.47 / 1.26 deg
-#:   NH1 / NH2 / NH3 links [mm]   2.54 / 2.25 / 2.76;  2.52 / 2.78 / 3.82;  1.99 / 2.90 / 4.28
-#: Wider, the known hand is nearer and more honest and the stiffness runs honest (the model's
-#: mismatch, which the squeezes load, is what their narrow intervals missed), at a spring
-#: 0.004 N m/rad further off; the novel hands' links, which need all that the camera tells,
-#: come out longer (NH3 past the paper's 3.4 mm), so the novel fingers keep 1.
-#: (The novel hands' figures above were measured with the Model O's thumb-factor tensions.
-#: Re-measured with the balanced tensions, 240 iterations, fifteen seeds: 1.5x gave 1.46 /
-#: 3.05 / 3.15 mm against 1.21 / 2.72 / 1.35 with 1x, so the novel fingers keep 1.)
-#: The known hand again on forty fresh runs (4 objects x seeds 0-9, replays), 1x / 1.25x /
-#: 1.5x / 2x: proximal 1.43 / 1.23 / 1.15 / 1.09 deg, joints inside 0.93 / 0.96 / 0.97 / 1.00;
-#: 2x helps only the flat screwdriver (2.46 -> 2.19 deg), with intervals wider than 95%.
-LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.5}
+#: ("physics" stands for hardware too). Wider, the filter learns less from each measurement
+#: and its intervals make room for the model's mismatch to the plant, which repeats from one
+#: action to the next (docs/results.md, "The likelihood's width" and later sections).
+#: - known hand 1.5: forty fresh runs (4 objects x seeds 0-9, replays), 1x / 1.25x / 1.5x /
+#:   2x: proximal 1.43 / 1.23 / 1.15 / 1.09 deg, joints inside 0.93 / 0.96 / 0.97 / 1.00; 2x
+#:   helps only the flat screwdriver (2.46 -> 2.19 deg), with intervals wider than 95%.
+#: - stiffness 1.75: its squeezes load the grasp, and with it the mismatch. Replays of
+#:   forty-five fresh 240-iteration runs (toy block, seeds 0-44, 2026-11-27), 1.5x -> 1.75x
+#:   with the log-uniform spring prior: spring 0.0151 +- 0.0145 -> 0.0190 +- 0.0186 N m/rad
+#:   (median 0.0111 -> 0.0092), springs inside 39 -> 41 of 45, joints inside 0.78 -> 0.89,
+#:   proximal 1.16 -> 0.98 deg, converged runs 14 -> 7 (with 0.62 / 0.67 of their joints
+#:   inside): at 1.5 the runs that converged were sure and wrong. (The uniform prior: 0.0182
+#:   -> 0.0221, joints inside 0.78 -> 0.87. 2x, seeds 0-29: spring 0.0251, joints 0.93.)
+#: - novel fingers 1: their links need all that the camera tells (1.5x, fifteen
+#:   240-iteration runs with balanced tensions: NH1 / NH2 / NH3 1.46 / 3.05 / 3.15 mm against
+#:   1.21 / 2.72 / 1.35 with 1x).
+LIKELIHOOD_WIDTH = {("physics", "known_hand"): 1.5, ("physics", "stiffness"): 1.75}
 #: FilterConfig.gravity_loads per (plant, experiment) where it is None: "held" elsewhere.
 #: The object's weight (IdentifyOptions.object_weight) always follows.
 GRAVITY_LOADS = {("physics", "stiffness"): "following"}

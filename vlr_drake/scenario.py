@@ -126,8 +126,9 @@ class PriorSettings:
     stiffness_unknown: list[list[int]] = field(default_factory=list)
     # ... searched in [min, max] [N m/rad].
     stiffness_range: list[float] = field(default_factory=lambda: [0.05, 0.40])
-    # ... drawn "uniform" (default) or "log_uniform" in that range.
-    stiffness_prior: str = "uniform"
+    # ... drawn "log_uniform" (default: a scale parameter) or "uniform" in that range
+    # (PriorConfig.stiffness_prior says what each gave).
+    stiffness_prior: str = "log_uniform"
     # Fingers whose proximal link lengths are unknown (empty: all known) ...
     links_unknown: list[int] = field(default_factory=list)
     # ... searched in [min, max] [m].
