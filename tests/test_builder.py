@@ -79,9 +79,7 @@ def test_example_scenario_builds_and_runs(path: Path):
         off = np.abs(b.a_center - pad)
         bound = s.model_plant.center_offset_fraction * s.prior.to_prior().contact_half_width
         assert np.all(off <= bound) and np.all(off > 0)
-        prior = s.prior.to_prior()
-        _, guess = prior.guessed_grasp(b.theta_center, pad, contact_guess_rng(s.seed), angles=False,
-                                       bounds=prior.contact_bounds(b.hand))
+        guess = s.prior.to_prior().guessed_contacts(pad, contact_guess_rng(s.seed), b.hand)
         np.testing.assert_allclose(b.a_center, guess)
         # the policy starts at the placed grasp's commands
         np.testing.assert_allclose(d.GetOutputPort("exploration.tendon_command").Eval(ctx), start["command"])

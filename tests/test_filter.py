@@ -586,21 +586,30 @@ def test_contacts_stay_on_each_fingers_own_pad():
 
 
 def test_a_guessed_grasp_keeps_its_contacts_in_their_range():
-    """PriorConfig.guessed_grasp: with bounds, a contact guessed past the end of its last
-    link is clipped to it; the other draws, and a guess inside the range, are unchanged."""
+    """PriorConfig.guessed_contacts: a contact guessed past the end of its last link is
+    clipped to it; a guess inside the range is the displacement guessed_grasp draws for the
+    contacts (with no angles drawn before them)."""
     from vlr_drake.hand import hand_by_name
 
     h = hand_by_name("NH3").model()
     prior = pf.PriorConfig()
     lo, hi = prior.contact_bounds(h)
-    theta = np.full((h.N, h.K), 0.3)
     a = hi - 0.001  # the truth 1 mm from each pad's end: a guess may land past it
-    free = prior.guessed_grasp(theta, a, np.random.default_rng(4), angles=False)[1]
-    th, clipped = prior.guessed_grasp(theta, a, np.random.default_rng(4), angles=False, bounds=(lo, hi))
+    rng = np.random.default_rng(4)
+    free = a + pf.CENTER_OFFSET_FRACTION * prior.contact_half_width * rng.uniform(-1, 1, h.N)
+    clipped = prior.guessed_contacts(a, np.random.default_rng(4), h)
     assert np.any(free > hi)  # this seed pushes some guess past the link ...
     np.testing.assert_array_equal(clipped, np.clip(free, lo, hi))  # ... and only those move
-    np.testing.assert_array_equal(th, theta)  # angles=False: the angles stay
     assert np.all(clipped <= hi) and np.all(clipped >= lo)
+    # the model plant's guess draws its angles first, then the same contact displacement
+    theta = np.full((h.N, h.K), 0.3)
+    rng = np.random.default_rng(4)
+    th, a_model = prior.guessed_grasp(theta, a, rng)
+    replay = np.random.default_rng(4)
+    replay.uniform(-1, 1, h.N), replay.uniform(-1, 1, (h.N, h.K - 1))
+    np.testing.assert_array_equal(a_model, a + pf.CENTER_OFFSET_FRACTION * prior.contact_half_width
+                                  * replay.uniform(-1, 1, h.N))
+    assert not np.allclose(th, theta)
 
 
 def test_contact_limits_past_a_finger_are_named():

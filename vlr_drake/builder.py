@@ -268,9 +268,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
         # the pads fix the true contacts at PAD_FRACTION of the distal links: a guess of them,
         # as vlr-drake identify makes
-        _, a_c = prior.guessed_grasp(theta_c, np.full(h.N, PAD_FRACTION) * h.distal_length,
-                                     contact_guess_rng(s.seed), s.model_plant.center_offset_fraction, angles=False,
-                                     bounds=prior.contact_bounds(h))
+        a_c = prior.guessed_contacts(np.full(h.N, PAD_FRACTION) * h.distal_length, contact_guess_rng(s.seed), h,
+                                     s.model_plant.center_offset_fraction)
         sensor = TagObserver(
             _observer_config(s),
             vtk_render_intrinsics(s.camera),

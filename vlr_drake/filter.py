@@ -544,24 +544,30 @@ class PriorConfig:
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
 
-    def guessed_grasp(self, theta, a, rng: np.random.Generator, fraction: float = CENTER_OFFSET_FRACTION,
-                      angles: bool = True, bounds=None) -> tuple[np.ndarray, np.ndarray]:
+    def guessed_grasp(self, theta, a, rng: np.random.Generator,
+                      fraction: float = CENTER_OFFSET_FRACTION) -> tuple[np.ndarray, np.ndarray]:
         """A nominal grasp guessed from the true one, ``theta`` (N, K) [rad] and ``a`` (N,)
         [m]: each proximal angle, distal angle and contact displaced uniformly by up to
-        ``fraction`` of its half-width (drawn in that order). ``angles=False`` displaces
-        the contacts only (the physics plant, whose nominal angles, the placed grasp,
-        already differ from where the grasp settles). ``bounds``: (lower, upper) contact
-        positions (:meth:`contact_bounds`) the guess is clipped to, where the truth may lie
-        near a bound (the physics plant's pads on a short last link, custom limits)."""
+        ``fraction`` of its half-width (drawn in that order; the model plant)."""
         theta_c = np.array(theta, float)
         N, K = theta_c.shape
-        if angles:
-            theta_c[:, 0] += fraction * self.proximal_half_width * rng.uniform(-1, 1, N)
-            theta_c[:, 1:] += fraction * self.distal_half_width * rng.uniform(-1, 1, (N, K - 1))
-        a_c = np.asarray(a, float) + fraction * self.contact_half_width * rng.uniform(-1, 1, N)
-        if bounds is not None:
-            a_c = np.clip(a_c, *bounds)
-        return theta_c, a_c
+        theta_c[:, 0] += fraction * self.proximal_half_width * rng.uniform(-1, 1, N)
+        theta_c[:, 1:] += fraction * self.distal_half_width * rng.uniform(-1, 1, (N, K - 1))
+        return theta_c, self._displaced_contacts(a, rng, fraction)
+
+    def guessed_contacts(self, a, rng: np.random.Generator, hand: HandModel,
+                         fraction: float = CENTER_OFFSET_FRACTION) -> np.ndarray:
+        """The contacts of a nominal grasp guessed from the true ones ``a`` (N,) [m], each
+        displaced uniformly by up to ``fraction`` of the contact half-width and clipped to
+        :meth:`contact_bounds` (a truth may lie near a bound: pads on a short last link,
+        custom limits). The physics plant's guess, whose nominal angles, the placed grasp,
+        already differ from where the grasp settles; the same draws as
+        :meth:`guessed_grasp`'s contacts would be with no angles before them."""
+        return np.clip(self._displaced_contacts(a, rng, fraction), *self.contact_bounds(hand))
+
+    def _displaced_contacts(self, a, rng: np.random.Generator, fraction: float) -> np.ndarray:
+        a = np.asarray(a, float)
+        return a + fraction * self.contact_half_width * rng.uniform(-1, 1, a.shape[0])
 
     def validate(self, N: int | None = None, K: int | None = None) -> PriorConfig:
         """Check the settings, and with ``N`` and ``K`` that the unknowns name fingers and

@@ -567,8 +567,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     opts.filter.gravity_palm = filter_gravity(plant.physics if opts.link_weight else None)
     theta_c, a_c, R0, t0 = plant.start(prior)
     if opts.plant == "physics":  # the pads fix the true contacts: the filter gets a guess of them
-        _, a_c = prior.guessed_grasp(theta_c, a_c, contact_guess_rng(opts.seed), opts.center_offset_fraction,
-                                     angles=False, bounds=prior.contact_bounds(filt_hand))
+        a_c = prior.guessed_contacts(a_c, contact_guess_rng(opts.seed), filt_hand, opts.center_offset_fraction)
     if opts.plant == "physics" and opts.nominal_grasp == "settled":
         theta_c = grasps.settle_under_command(filt_hand, theta_c, a_c, plant.tendon_command())
     f = pf.SelfIdentificationFilter(filt_hand, opts.filter, prior, np.random.default_rng(opts.seed + 1))

@@ -8,7 +8,7 @@ The filter's nominal grasp (the centre of its prior) is what the grasp routine *
 truth; :meth:`PhysicsAdapter.start` gives the pads' design position as the contacts, which
 is the truth (the pads are spheres fixed on the last links), and
 :func:`vlr_drake.identify.run_identification` replaces it by a guess
-(``PriorConfig.guessed_grasp``).
+(``PriorConfig.guessed_contacts``).
 
 Truth for the error figures comes from the plant: joint angles and the contact positions
 along the last links; contact points are compared in the finger planes (the VLR's

@@ -226,7 +226,7 @@ class PhysicsTaskPlant:
         """The filter's nominal grasp: the placed grasp's angles and a guess of the contacts,
         which the pads fix, displaced by up to CENTER_OFFSET_FRACTION of the contact
         half-width as in the identification experiments (drawn from the task's ``rng``)."""
-        return prior.guessed_grasp(self.theta0, self.a0, rng, angles=False, bounds=prior.contact_bounds(self.hand))
+        return np.array(self.theta0, float), prior.guessed_contacts(self.a0, rng, self.hand)
 
 
 def make_model_fn(
