@@ -113,6 +113,13 @@ def test_model_plant_run_under_the_simulator_reduces_the_interval_width():
     flt = b.filter.filter(b.filter.GetMyContextFromRoot(ctx))
     assert flt.iteration == 14
     assert w1 < 0.8 * w0, (w0, w1)
+    # the truth inside the 95% intervals, compared where the estimate describes it: after
+    # the filter's step at 15.9 s (the plant moved at 15.25 s; at 15.5 s it is an action
+    # ahead). All 6 joints here.
+    sim.AdvanceTo(15.95)
+    error = np.abs(b.diagram.GetOutputPort("self_identification.theta_estimate").Eval(ctx)
+                   - b.diagram.GetOutputPort("hand.theta_true").Eval(ctx))
+    assert np.sum(error <= width.Eval(ctx)) >= 5, (error, width.Eval(ctx))
 
 
 @pytest.mark.parametrize(
@@ -242,6 +249,8 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert r["iterations"] == 3 and r["sim_time"] == pytest.approx(3.95)
     assert r["theta_estimate"].shape == r["theta_true"].shape == (3, 2)
     assert np.all(np.isfinite(r["interval_half_width"]))
+    # three iterations: wide intervals, and they hold the truth (all 6 joints here)
+    assert np.sum(np.abs(r["theta_estimate"] - r["theta_true"]) <= r["interval_half_width"]) >= 5
     assert main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--iterations", "1", "--set", FAST]) == 0
     assert "model_plant: 1 iterations" in capsys.readouterr().out
 

@@ -57,14 +57,16 @@ def test_identify_quick(tmp_path, experiment, extra):
     assert r["experiment"] == experiment and r["plant"] == "model" and r["particles"] == 1500
     assert set(r["timing_s"]) >= {"physics", "render", "detect", "filter", "total"}
     assert len(r["proximal_joint_error_deg"]) == 3 and np.all(np.isfinite(r["proximal_joint_error_deg"]))
-    assert np.all(np.isfinite(r["contact_error_mm"])) and 0.0 <= r["truth_inside_95_theta"] <= 1.0
+    assert np.all(np.isfinite(r["contact_error_mm"]))
+    assert r["truth_inside_95_theta"] >= 5 / 6  # six iterations: wide intervals, and honest ones
     if experiment == "stiffness":
         k, lo_hi = r["stiffness_estimate_Nm_per_rad"], r["stiffness_interval_Nm_per_rad"]
         assert r["stiffness_error_Nm_per_rad"] == pytest.approx(abs(k - r["stiffness_true_Nm_per_rad"]))
-        assert lo_hi[0] <= k <= lo_hi[1]
+        assert lo_hi[0] <= k <= lo_hi[1] and r["stiffness_inside_95"]
     if experiment == "novel_fingers":
         assert set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}
         assert all(np.isfinite(v) and v >= 0 for v in r["link_length_error_mm"].values())
+        assert all(r["link_length_inside_95"].values())
     assert r["stuck_probability"] == 0.0  # the model plant's default: its truth always has an equilibrium
     assert list((tmp_path / "out").glob("*_convergence.png"))
 
@@ -131,7 +133,9 @@ def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "motion", "--particles", "2000")
     _check_fields(r, "Benchmark", BENCH_MOTION_FIELDS)
     assert r["particles"] == 2000
-    assert r["speedup_per_particle"] > 1
+    # the figures are consistent with each other; how fast is the benchmark's to print, not a test's
+    assert r["speedup_per_particle"] == pytest.approx(r["ipopt_solve_s"] / (r["batched_move_s"] / 2000))
+    assert r["batched_success_fraction"] > 0.85  # random grasps and actions: some have no equilibrium
     r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2", "--run-iterations", "3")
     _check_fields(r, "Benchmark", BENCH_FILTER_FIELDS)
     assert {"move", "weigh", "estimate"} <= set(r["iteration_phases_s"])
@@ -174,7 +178,10 @@ def test_identify_with_meshcat_saves_a_recording(tmp_path):
     html = (out / "identify_known_hand_seed0.html").read_text()
     assert r["iterations"] >= 1
     animation = [c for c in _commands(html) if b"set_animation" in c]
-    assert len(animation) == 1 and b"/hypotheses/frame_0001" in animation[0]  # a frame per iteration
+    assert len(animation) == 1
+    n = r["iterations"]  # the prior's frame, then a frame per iteration
+    assert all(b"/hypotheses/frame_%04d" % i in animation[0] for i in range(n + 1))
+    assert b"/hypotheses/frame_%04d" % (n + 1) not in animation[0]
 
 
 def test_reproduce_quick_writes_the_table(tmp_path):

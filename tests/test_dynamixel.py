@@ -140,7 +140,7 @@ def test_goals_reach_motors_as_ticks(emulator):
         assert [emulator.goal_position(i) for i in IDS] == goal.tolist()
         pos, cur = motors.read()
         assert pos.tolist() == goal.tolist()  # the emulated motors follow at once (no lag)
-        assert cur.shape == (3,)
+        assert cur.tolist() == [0, 0, 0]  # at their goals the emulated motors draw no current
 
 
 def test_limits_refused_before_sending(emulator):

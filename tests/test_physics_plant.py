@@ -87,6 +87,19 @@ def test_paper_object_stays_in_hand_through_random_actions(name):
     assert r.pom_motion_per_action_mm_mean > 0.01  # the actions do move the object
 
 
+def _assert_contacts_on_the_pads(ph, root):
+    """The reported true contacts, in each last link's frame, lie a pad offset from the link's
+    axis and near its mid-plane (where the pads' spheres touch the object); returns them."""
+    plant, pctx = ph.plant, ph.plant_context(root)
+    palm = ph.palm_body.body_frame()
+    c = ph.output(root, "contacts_true").reshape(-1, 3)
+    p_L = [plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c[i] for i, link in enumerate(ph.last_links)]
+    for f, p in zip(ph.hand.spec.fingers, p_L, strict=True):
+        assert abs(p[0] - f.pad_offset) < 0.002, (f.name, p)
+        assert abs(p[1]) < 0.007, (f.name, p)
+    return p_L
+
+
 def test_contacts_sit_on_the_pads_and_hold_when_lost():
     _, ph, sim = build_physics_hand(model_o(), preset("gelatin_box"), PhysicsConfig())
     g = ph.grasp(sim)
@@ -96,16 +109,8 @@ def test_contacts_sit_on_the_pads_and_hold_when_lost():
     distal = np.array([f.distal_length for f in ph.hand.spec.fingers])
     np.testing.assert_allclose(a, PAD_FRACTION * distal, atol=0.008)
     # Contacts are mid-way between the pad spheres' surfaces (pad_offset from the link axis).
-    plant, pctx = ph.plant, ph.plant_context(root)
-    palm = ph.palm_body.body_frame()
-    c = ph.output(root, "contacts_true").reshape(-1, 3)
-    p_L = [
-        plant.CalcRelativeTransform(pctx, link.body_frame(), palm) @ c[i]
-        for i, link in enumerate(ph.last_links)
-    ]
-    for i, f in enumerate(ph.hand.spec.fingers):
-        assert abs(p_L[i][0] - f.pad_offset) < 0.002
-        assert abs(p_L[i][1]) < 0.007
+    p_L = _assert_contacts_on_the_pads(ph, root)
+    plant, pctx, palm = ph.plant, ph.plant_context(root), ph.palm_body.body_frame()
     # Take the object away: no finger touches it, the last contacts are held on the links.
     X_far = RigidTransform([0.0, 0.0, -1.0])
     plant.SetFreeBodyPose(pctx, ph.object_body, X_far)
@@ -306,8 +311,7 @@ def test_hydroelastic_contact_option_reports_contacts():
     results = ph.plant.get_contact_results_output_port().Eval(ph.plant_context(root))
     assert results.num_hydroelastic_contacts() >= 3
     assert np.all(g.in_contact)
-    distal = np.array([f.distal_length for f in ph.hand.spec.fingers])
-    np.testing.assert_allclose(ph.output(root, "contact_along_link_true"), PAD_FRACTION * distal, atol=0.008)
+    _assert_contacts_on_the_pads(ph, root)  # from the hydroelastic contact surfaces' centroids
 
 
 def test_hand_inside_a_larger_diagram_driven_by_a_source():

@@ -33,7 +33,8 @@ def test_example_scenario_loads(path: Path):
     assert s.name == path.stem  # names the diagram picture diagrams/<name>.dot
     hand = s.hand_spec_resolved()
     assert hand.num_fingers >= 3
-    assert s.object_spec_resolved().validate() is not None
+    obj = s.object_spec_resolved().validate()  # raises, naming the field, if the object is not valid
+    assert obj.mass > 0 and obj.name
     assert s.period_sec() > 0
     # Every field has a comment in the file or in the dataclass: the file says where.
     assert "vlr_drake.scenario.Scenario" in path.read_text()

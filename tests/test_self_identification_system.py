@@ -101,7 +101,14 @@ def test_identification_loop_under_the_simulator():
     assert 0 < plant.failures <= 3
     np.testing.assert_allclose(d.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx),
                                plant.state.tendon_command)
-    assert np.all(np.isfinite(theta_est.Eval(ctx))) and np.all(np.isfinite(theta_true.Eval(ctx)))
+    # The estimate against the truth it describes: the plant moved at 15.25 s, the filter
+    # steps at 15.9 s (at 15.5 s the truth is an action ahead of the estimate). It is nearer
+    # than the prior's centre (0.04 rad off every joint; 0.018 rad on average here) and its
+    # 95% intervals hold it (all 6 joints here).
+    sim.AdvanceTo(15.95)
+    error = np.abs(theta_est.Eval(ctx) - theta_true.Eval(ctx))
+    assert error.mean() < 0.04
+    assert np.sum(error <= width.Eval(ctx)) >= 5
 
 
 def test_squeeze_exploration_splits_common_and_differential_modes():
