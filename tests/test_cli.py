@@ -2,6 +2,7 @@
 (docs/result-files.md) and bad input fails with a clear message."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -120,6 +121,34 @@ def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
     assert "object mass" not in capsys.readouterr().out
     assert main(["replay", str(trace), "--no-progress", "--prior", "object_mass_range=heavy"]) == 2
     assert "--prior 'object_mass_range=heavy'" in capsys.readouterr().err
+
+
+def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
+    """No pull at the grasp, or a camera that cannot see the tag: one line naming the
+    section to check, exit status 2 (not a traceback)."""
+    for text, message in [("physics: {pretension: 0.0}\n", r"fingers in contact \[False, False, False\]; .*"
+                                                             r"check the physics section: pretension 0.0 N"),
+                          ("camera: {xyz: [0.0, 0.0, 5.0]}\n", r"the palm camera does not see the tag \(check the "
+                                                               r"camera section: xyz \[0.0, 0.0, 5.0\]")]:
+        path = _scenario_file(tmp_path, "name: bad\nplant: physics\n" + text)
+        assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200",
+                     "--no-progress", "--out", str(tmp_path)]) == 2
+        assert re.search(message, capsys.readouterr().err)
+
+
+def test_a_true_hand_with_no_grasp_is_named(tmp_path, capsys):
+    """Model-plant truths no fingertip grasp can reach (5 m proximal links): the run says
+    which settings to check, as the diagram builder does."""
+    path = _scenario_file(tmp_path, "name: far\nplant: model\nmodel_plant: {link_lengths: [[5.0], [5.0], [5.0]]}\n")
+    assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200", "--no-progress",
+                 "--out", str(tmp_path)]) == 2
+    assert "the true hand has no physical fingertip grasp to start from" in capsys.readouterr().err
+
+
+def test_a_particle_count_too_large_for_memory_is_an_error(tmp_path, capsys):
+    assert main(["identify", "--plant", "model", "--iterations", "1", "--particles", "999999999999", "--no-progress",
+                 "--out", str(tmp_path)]) == 2
+    assert "error: out of memory: Unable to allocate" in capsys.readouterr().err
 
 
 def test_demo_has_no_hand_option(capsys):
@@ -320,6 +349,18 @@ def test_tasks_take_a_scenario(tmp_path, command):
         assert r["scenario"] == name and r["scenario_path"].endswith(where) and r["plant"] == "model"
         assert r["seed"] == (2 if name == "quiet" else 0)
         assert list(out.glob("*.png"))
+
+
+def test_a_task_names_what_it_does_not_take_from_a_scenario(tmp_path, capsys):
+    """The tasks hold their own objects, filter and prior: a scenario that sets them is run,
+    with a warning naming those fields, not silently."""
+    path = _scenario_file(tmp_path, "name: mine\nplant: model\nobject: wine_glass\n"
+                                    "filter: {particles: 3000, sigma_position: 0.001}\n")
+    _run(tmp_path, "write", "I", "--model", "true", "--scenario", str(path), "--no-progress", "--out", str(tmp_path))
+    err = capsys.readouterr().err
+    assert "warning: scenario 'mine': the task does not use object, filter.sigma_position (" in err
+    _run(tmp_path, "write", "I", "--model", "true", "--scenario", "model_plant", "--no-progress", "--out", str(tmp_path))
+    assert "warning" not in capsys.readouterr().err  # the model-plant example sets only what the tasks take
 
 
 def test_write_with_meshcat_saves_a_recording(tmp_path):

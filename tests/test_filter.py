@@ -498,6 +498,15 @@ def test_a_bad_measurement_is_refused_and_changes_nothing():
     with pytest.raises(ValueError, match="initial POM pose is not finite"):
         f.initialise(plant.state.theta, plant.state.a, R, np.array([np.nan, 0.0, 0.08]),
                      tendon_command=plant.state.tendon_command)
+    with pytest.raises(ValueError, match=r"not finite \(R \[\[nan"):  # names the rotation, not the position
+        f.step(dl, np.full((3, 3), np.nan), t)
+    # a transposed nominal grasp ((K, N) for (N, K)) would pair angles and joints wrongly;
+    # contacts in mm instead of m would be clipped to the links' ends
+    with pytest.raises(ValueError, match=r"'theta_center' must have shape \(3, 2\) \(or be flat\), got \(2, 3\)"):
+        f.initialise(plant.state.theta.T, plant.state.a, R, t, tendon_command=plant.state.tendon_command)
+    with pytest.raises(ValueError, match="'a_center' must lie along the last links"):
+        f.initialise(plant.state.theta, 1e3 * plant.state.a, R, t, tendon_command=plant.state.tendon_command)
+    f.initialise(plant.state.theta.ravel(), plant.state.a, R, t, tendon_command=plant.state.tendon_command)  # flat
 
 
 def test_a_prior_without_physical_grasps_is_a_prior_error():

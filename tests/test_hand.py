@@ -45,6 +45,13 @@ def test_novel_hands_replace_the_right_fingers():
         ("moment_arms", [0.009], "moment_arms"),
         ("flexion_direction", [0.0, 0.0, 1.0], "flexion_direction"),
         ("tendon_range", [0.01, 0.0], "tendon_range"),
+        # not finite: a NaN passes a "< 0" check, an infinite length reaches Drake's parser
+        ("distal_length", float("inf"), "distal_length"),
+        ("tendon_stiffness", float("inf"), "tendon_stiffness"),
+        ("friction", float("nan"), "friction"),
+        ("tendon_damping", float("nan"), "tendon_damping"),
+        ("pad_offset", float("nan"), "pad_offset"),
+        ("joint_damping", [0.01, -0.01], "joint_damping"),
     ],
 )
 def test_bad_finger_fields_are_named(field, value, message):

@@ -248,6 +248,9 @@ placement_xyz: [0.0, 0.0, 0.08]
         (dict(tag_face="top"), "tag_face"),
         (dict(placement_xyz=[0.0, 0.0]), "placement_xyz"),
         (dict(marble_radius=0.01), "marble"),
+        (dict(friction=float("nan")), "friction"),
+        (dict(tag_size=float("inf")), "tag_size"),
+        (dict(rim_height=float("nan")), "rim_height"),
     ],
 )
 def test_bad_object_spec_names_the_field(changes, field):

@@ -162,7 +162,13 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("hand: model_x\n", "hand"),
         ("object: pear\n", "object"),
         ("hand: NH1\nhand_spec: {name: h}\n", "hand_spec"),  # both a preset and a full spec
-        ("filter: {particles: many}\n", "field 'filter'"),  # wrong type: names the section
+        ("filter: {particles: many}\n", "field 'filter.particles'"),  # wrong type: names the field
+        ("filter: {particles: 500.5}\n", "field 'filter.particles'"),
+        ("model_plant: {stiffness: [[0.08, 0.16], [0.08, 0.16], [0.08, abc]]}\n", "field 'model_plant.stiffness'"),
+        ("prior: {stiffness_unknown: [0, 1]}\n", "field 'prior.stiffness_unknown'"),  # a pair, not a list of pairs
+        ("filter: null\n", "field 'filter' (a section: a mapping of its fields"),
+        ("filter: [1, 2]\n", "field 'filter' (a section"),
+        ("physics: {seed: -1}\n", "'seed' must be an integer >= 0"),
         ("filter: {particles: 0}\n", "particles"),
         ("camera: {width: -640}\n", "width"),
         # non-finite camera values were accepted (NaN xyz: a NaN camera pose, NaN noise: a

@@ -118,6 +118,16 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
     np.save(tmp_path / "one.npy", np.zeros(3))
     with pytest.raises(ValueError, match="a single array"):
         IdentificationTrace.load(tmp_path / "one.npy")
+    # an interrupted copy (truncated) or damaged bytes inside the compressed arrays
+    data = trace.save(tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    damaged = bytearray(data)
+    middle = int(0.6 * len(data))
+    damaged[middle: middle + 64] = bytes(255 - b for b in damaged[middle: middle + 64])
+    (tmp_path / "flipped.npz").write_bytes(bytes(damaged))
+    for name in ("cut.npz", "flipped.npz"):
+        with pytest.raises(ValueError, match=f"{name}: a damaged .npz archive"):
+            IdentificationTrace.load(tmp_path / name)
     actions = trace.actions.copy()
     actions[1, 0] = np.nan
     with pytest.raises(ValueError, match=r"'actions' must be finite numbers \(step 2\)"):
@@ -242,8 +252,12 @@ def test_config_overrides_parse_each_kind_and_name_bad_input():
     assert config_overrides(pf.FilterConfig(), ["stuck_probability=0.5"], "--filter").stuck_probability == 0.5
     with pytest.raises(ValueError, match="--filter 'settle_prior=maybe': 'maybe' is not true or false"):
         config_overrides(pf.FilterConfig(), ["settle_prior=maybe"], "--filter")
-    with pytest.raises(ValueError, match="'particles=many': 'many' is not a number"):
+    with pytest.raises(ValueError, match="'particles=many': 'many' is not an integer"):
         config_overrides(pf.FilterConfig(), ["particles=many"], "--filter")
+    with pytest.raises(ValueError, match="'particles=500.5': '500.5' is not an integer"):
+        config_overrides(pf.FilterConfig(), ["particles=500.5"], "--filter")
+    with pytest.raises(ValueError, match="'sigma_rotation=wide': 'wide' is not a number"):
+        config_overrides(pf.FilterConfig(), ["sigma_rotation=wide"], "--filter")
     with pytest.raises(ValueError, match=r"'likelihood' must be one of .*got 'cauchy'"):
         config_overrides(pf.FilterConfig(), ["likelihood=cauchy"], "--filter")
     # a fixed-length vector: the links' weight, gravity in the palm frame
@@ -279,6 +293,9 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     assert "--statics needs --profile" in capsys.readouterr().err
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2
     assert "--profile needs --values" in capsys.readouterr().err
+    for bad in ("", "0.1,0.2,", "0.1,,0.2", "0.1,nan"):  # empty items are mistakes, not skipped
+        assert main(["replay", str(path), "--profile", "stiffness", "--values", bad]) == 2
+        assert f"--values '{bad}': expected" in capsys.readouterr().err
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2
     assert "--filter 'roughness=2'" in capsys.readouterr().err
 

@@ -174,7 +174,7 @@ def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: floa
             finger.link_lengths = [float(L) for L in mp.link_lengths[i]]
     try:
         theta, a = _truth_grasp(true_spec.model(), rng)
-    except RuntimeError as e:
+    except (RuntimeError, ValueError) as e:
         raise ValueError(
             f"scenario '{s.name}': no stable grasp of the true hand (model_plant section): {e}"
         ) from e

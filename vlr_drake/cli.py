@@ -154,9 +154,14 @@ def _identify_options(args):
 
 
 def _task_settings(args) -> dict:
-    from vlr_drake.scenario import task_settings
+    from vlr_drake.scenario import ignored_by_tasks, task_settings
 
     kw = task_settings(args.loaded, args.scenario_path, seed=args.seed, plant=args.plant, particles=args.particles)
+    ignored = [] if args.loaded is None else ignored_by_tasks(args.loaded)
+    if ignored:  # said, not silently dropped
+        print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': the task does not use "
+              f"{', '.join(ignored)} (it takes the seed, plant, particle count, exploration, the model plant's "
+              f"noise, physics and camera; its objects, filter and prior are its own)", file=sys.stderr)
     return kw if args.loaded is not None else {**kw, "scenario": None}
 
 
@@ -253,12 +258,15 @@ def replay_trace(args) -> dict:
         raise ValueError("--all-steps is for a replay: an evidence profile always replays every step")
     values = None
     if args.profile is not None:
-        if not args.values:
+        if args.values is None:
             raise ValueError("--profile needs --values, e.g. --values 0.13,0.17,0.21")
         try:
-            values = [float(v) for v in args.values.split(",") if v.strip()]
+            values = [float(v) for v in args.values.split(",")]  # an empty item (",,", a trailing comma) too
         except ValueError:
-            raise ValueError(f"--values '{args.values}': expected comma-separated numbers") from None
+            raise ValueError(f"--values '{args.values}': expected comma-separated numbers, e.g. 0.13,0.17,0.21 "
+                             f"(a negative first value as --values=-0.1,0.2)") from None
+        if not all(np.isfinite(values)):
+            raise ValueError(f"--values '{args.values}': expected finite numbers")
     traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
     runs, measured = [], {}
     for path, trace in traces:

@@ -14,9 +14,9 @@ import sys
 from collections.abc import Callable
 
 #: Exceptions that report a problem with the input or the setting, not with the code:
-#: bad values and missing files, and the hardware's own errors (a port or camera that
-#: cannot be opened).
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError)
+#: bad values, missing files and settings too large for the machine's memory, and the
+#: hardware's own errors (a port or camera that cannot be opened).
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, MemoryError)
 
 
 def _hardware_errors() -> tuple[type[BaseException], ...]:
@@ -37,7 +37,10 @@ def plain(doc: str) -> str:
 
 def report(prog: str, error: BaseException) -> int:
     """Print ``prog: error: message`` (on one line) to stderr; returns the exit status 2."""
-    print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
+    message = str(error)
+    if isinstance(error, MemoryError):  # a setting too large for this machine (e.g. --particles)
+        message = f"out of memory: {message or 'an allocation failed'}; ask for less (fewer particles?)"
+    print(f"{prog}: error: {' '.join(message.split())}", file=sys.stderr)
     return 2
 
 

@@ -77,11 +77,12 @@ class PriorError(ValueError):
 
 
 def _shaped(name: str, x, shape: tuple) -> np.ndarray:
-    """``x`` as a finite float array of ``shape`` (any array of that many numbers, e.g. a
-    flat one), or a ValueError that names it."""
+    """``x`` as a finite float array of ``shape`` (or that many numbers in a flat array, in
+    the same order), or a ValueError that names it. Another arrangement of the right count,
+    e.g. a transposed (K, N) for (N, K), is refused: it would pair values and joints wrongly."""
     arr = np.asarray(x, float)
-    if arr.size != int(np.prod(shape)):
-        raise ValueError(f"filter: '{name}' must have shape {shape}, got {arr.shape}")
+    if arr.shape != tuple(shape) and arr.shape != (int(np.prod(shape)),):
+        raise ValueError(f"filter: '{name}' must have shape {tuple(shape)} (or be flat), got {arr.shape}")
     return as_particles(name, arr.reshape(shape), shape)  # its finiteness check and message
 
 
@@ -90,8 +91,9 @@ def _pose(name: str, R, t) -> tuple[np.ndarray, np.ndarray]:
     finite (a lost tag is ``valid=False``, not NaN), and R a rotation to 1e-6."""
     R, t = np.asarray(R, float), np.asarray(t, float)
     if R.size == 9 and t.size == 3 and not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-        raise ValueError(f"filter: the {name} POM pose is not finite (t {t.ravel().tolist()}); "
-                         "pass valid=False for a lost tag")
+        bad = (f"t {t.ravel().tolist()}" if np.all(np.isfinite(R))
+               else f"R {R.reshape(3, 3).round(6).tolist()}")
+        raise ValueError(f"filter: the {name} POM pose is not finite ({bad}); pass valid=False for a lost tag")
     R, t = _shaped(f"{name} rotation", R, (3, 3)), _shaped(f"{name} position", t, (3,))
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
         raise ValueError(f"filter: the {name} rotation is not a rotation matrix: {np.round(R, 6).tolist()}")
@@ -995,6 +997,11 @@ class SelfIdentificationFilter:
                 "tendon_command=(N,) [m] to initialise() (or set tendon_reference='implied')")
         theta_center = _shaped("theta_center", theta_center, (h.N, h.K))
         a_center = _shaped("a_center", a_center, (h.N,))
+        off = (a_center < 0) | (a_center > h.distal_length)
+        if np.any(off):  # it would be clipped to a link's end: say so instead (metres, not mm?)
+            raise ValueError(f"filter: 'a_center' must lie along the last links, 0..{np.round(h.distal_length, 4).tolist()} "
+                             f"[m]; {np.round(a_center, 4).tolist()} is off finger(s) "
+                             f"{[h.names[i] for i in np.flatnonzero(off)]}")
         R_PO, t_PO = _pose("initial", R_PO, t_PO)
         centers = (stiffness_center, link_center, mass_center)
         theta, a, stiff, links, load, stretch = self._grasps(theta_center, a_center, scale, centers)

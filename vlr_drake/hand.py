@@ -169,16 +169,18 @@ class HandSpec:
                 if np.any(v <= 0):
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
             for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
-                if not getattr(f, fname) > 0:
-                    raise ValueError(f"{where}: field '{fname}' must be positive, got {getattr(f, fname)}")
-            if f.pad_offset < 0:
-                raise ValueError(f"{where}: field 'pad_offset' must be >= 0, got {f.pad_offset}")
-            if not 0 < f.pad_radius <= f.pad_offset + f.link_radius:
+                if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) > 0):
+                    raise ValueError(f"{where}: field '{fname}' must be a finite positive number, got {getattr(f, fname)}")
+            for fname in ["pad_offset", "friction", "tendon_damping"]:  # (NaN < 0 is False: said so)
+                if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) >= 0):
+                    raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(f, fname)}")
+            if not (np.isfinite(f.pad_radius) and 0 < f.pad_radius <= f.pad_offset + f.link_radius):
                 raise ValueError(
-                    f"{where}: field 'pad_radius' must be in (0, pad_offset + link_radius], got {f.pad_radius}"
+                    f"{where}: field 'pad_radius' must be in (0, pad_offset + link_radius] = "
+                    f"(0, {f.pad_offset + f.link_radius:g}], got {f.pad_radius}"
                 )
-            if f.friction < 0 or f.tendon_damping < 0 or np.any(np.asarray(f.joint_damping) < 0):
-                raise ValueError(f"{where}: friction and damping must be >= 0")
+            if np.any(np.asarray(f.joint_damping) < 0):
+                raise ValueError(f"{where}: field 'joint_damping' must be >= 0, got {list(f.joint_damping)}")
             u = np.asarray(f.flexion_direction, float)
             if abs(u[2]) > 1e-9 or np.linalg.norm(u) < 1e-9:
                 raise ValueError(f"{where}: 'flexion_direction' must be a nonzero vector in the palm plane (z = 0), got {list(u)}")

@@ -359,7 +359,8 @@ class IdentifyOptions:
         self.action_range = span if self.action_range is None else self.action_range
         self.window = window if self.window is None else self.window
         if not 0 < self.action_range <= self.window:
-            raise ValueError(f"action_range must be in (0, window], got {self.action_range} and window {self.window}")
+            raise ValueError(f"action_range (a scenario's exploration.span) must be in (0, window] "
+                             f"(exploration.window), got {self.action_range} and window {self.window}")
         self.action_choice = ACTION_CHOICE[self.plant] if self.action_choice is None else self.action_choice
         if self.action_choice not in ACTION_CHOICES:
             raise ValueError(f"action_choice must be one of {ACTION_CHOICES}, got '{self.action_choice}'")
@@ -524,8 +525,13 @@ def _truth_grasp(hand, rng, link_lengths=None):
             return gs.theta[0], gs.a[0]
         except RuntimeError:
             continue
-    gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.0, 0.45), distal_range=(0.2, 1.0),
-                              contact_range=(0.018, 0.036), min_tension=1.0)
+    try:
+        gs = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.0, 0.45), distal_range=(0.2, 1.0),
+                                  contact_range=(0.018, 0.036), min_tension=1.0)
+    except RuntimeError as e:  # the true hand's settings, not the code: a ValueError that says so
+        raise ValueError(
+            f"model plant: the true hand has no physical fingertip grasp to start from (check its link lengths, "
+            f"springs and tendon stiffness, e.g. a scenario's model_plant section or hand_spec): {e}") from e
     return gs.theta[0], gs.a[0]
 
 

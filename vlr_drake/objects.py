@@ -116,8 +116,8 @@ class ObjectSpec:
             raise ValueError(
                 f"{where}: field 'tag_id' must be a tag36h11 id in 0..{TAG36H11_COUNT - 1}, got {self.tag_id}"
             )
-        if not self.tag_size > 0:
-            raise ValueError(f"{where}: field 'tag_size' must be positive, got {self.tag_size}")
+        if not (np.isfinite(self.tag_size) and self.tag_size > 0):
+            raise ValueError(f"{where}: field 'tag_size' must be a finite positive number, got {self.tag_size}")
         if self.tag_face not in FACES:
             raise ValueError(f"{where}: field 'tag_face' must be one of {list(FACES)}, got '{self.tag_face}'")
         for fname in ["tag_to_pom_xyz", "tag_to_pom_rpy_deg", "placement_xyz", "placement_rpy_deg"]:
@@ -126,11 +126,9 @@ class ObjectSpec:
                 raise ValueError(f"{where}: field '{fname}' must have 3 finite entries, got {v}")
         if len(self.color) != 4:
             raise ValueError(f"{where}: field 'color' must be RGBA (4 entries), got {self.color}")
-        if self.friction < 0:
-            raise ValueError(f"{where}: field 'friction' must be >= 0, got {self.friction}")
-        for fname in ["marble_radius", "marble_mass", "rim_height"]:
-            if getattr(self, fname) < 0:
-                raise ValueError(f"{where}: field '{fname}' must be >= 0, got {getattr(self, fname)}")
+        for fname in ["friction", "marble_radius", "marble_mass", "rim_height"]:  # (NaN < 0 is False)
+            if not (np.isfinite(getattr(self, fname)) and getattr(self, fname) >= 0):
+                raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(self, fname)}")
         if (self.marble_radius > 0) != (self.marble_mass > 0):
             raise ValueError(
                 f"{where}: fields 'marble_radius' and 'marble_mass' must both be set or both be 0"

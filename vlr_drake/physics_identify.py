@@ -27,7 +27,7 @@ from vlr_drake.models import PAD_FRACTION
 from vlr_drake.objects import preset
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.perception.tag_pose import TagObserverConfig, make_detector, observe_pom, vtk_render_intrinsics
-from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
+from vlr_drake.systems.physics_plant import PhysicsConfig, PlacementError, build_physics_hand
 
 __all__ = ["PhysicsAdapter"]
 
@@ -59,14 +59,21 @@ class PhysicsAdapter:
         g = self.ph.grasp(self.sim)
         self.grasp_result = g
         if not np.all(g.in_contact):
-            raise RuntimeError(f"grasp of '{self.obj.name}' failed: fingers in contact {g.in_contact.tolist()}")
+            raise PlacementError(
+                f"grasp of '{self.obj.name}' failed: fingers in contact {g.in_contact.tolist()}; the pads do not "
+                f"hold the object at the grasp (check the physics section: pretension {self.physics.pretension} N, "
+                f"pretension_mode '{self.physics.pretension_mode}'; and the object's placement)")
         self.grasp_wall_s = time.perf_counter() - t0
         theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
         a_c = PAD_FRACTION * self.hand.distal_length
         timing = {"render": 0.0, "detect": 0.0}
         R, t, valid = self.measure(timing)
         if not valid:
-            raise RuntimeError(f"grasp of '{self.obj.name}': the palm camera does not see the tag")
+            c = self.camera
+            raise PlacementError(
+                f"grasp of '{self.obj.name}': the palm camera does not see the tag (check the camera section: "
+                f"xyz {list(c.xyz)}, rpy_deg {list(c.rpy_deg)}, {c.width} x {c.height} px; and the object's "
+                f"tag_face '{self.obj.tag_face}' and tag_size {self.obj.tag_size} m)")
         return theta_c, a_c, R, t
 
     def tendon_command(self) -> np.ndarray:
@@ -77,7 +84,9 @@ class PhysicsAdapter:
         timing["physics"] += r.wall_physics_s
         self.not_settled += not r.settled
         if self.ph.object_fell(self.root):
-            raise RuntimeError(f"the {self.obj.name} fell out of the hand")
+            raise PlacementError(f"the {self.obj.name} fell out of the hand during the run (a grasp too weak for "
+                                 f"the exploration: check the physics section's pretension and the exploration's "
+                                 f"span and window)")
         return True
 
     def measure(self, timing):

@@ -556,13 +556,34 @@ def _locate_error(text: str, defaults: Scenario) -> str:
     bad = _unknown_fields(data, Scenario, "")
     if bad:
         return f", unknown field '{bad[0]}'"
-    for key, value in data.items():
+    def loads(path: list, value) -> bool:
+        nested = value
+        for key in reversed(path):
+            nested = {key: nested}
         try:
-            yaml_load_typed(
-                schema=Scenario, data=yaml.safe_dump({key: value}), defaults=copy.deepcopy(defaults)
-            )
+            yaml_load_typed(schema=Scenario, data=yaml.safe_dump(nested), defaults=copy.deepcopy(defaults))
         except Exception:
-            return f", field '{key}'"
+            return False
+        return True
+
+    def first_bad(path: list, value) -> list | None:
+        """The deepest path under ``path`` whose value alone fails to load."""
+        if loads(path, value):
+            return None
+        if isinstance(value, dict):
+            for key, sub in value.items():
+                found = first_bad(path + [key], sub)
+                if found is not None:
+                    return found
+        return path
+
+    for key, value in data.items():
+        bad = first_bad([key], value)
+        if bad is not None:
+            section = bad == [key] and dataclasses.is_dataclass(getattr(defaults, key, None))
+            if section and not isinstance(value, dict):  # e.g. "filter: null" or a list
+                return f", field '{key}' (a section: a mapping of its fields, e.g. '{key}: {{...}}')"
+            return f", field '{'.'.join(map(str, bad))}'"
     return ""
 
 
@@ -703,6 +724,37 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
     return {**settings, **given}
 
 
+#: What the tasks take from a scenario (task_settings): the rest is theirs or the task's own.
+TASK_SECTIONS = {"name", "seed", "plant", "hand", "camera", "physics", "meshcat"}
+TASK_FIELDS = {"filter": {"particles"}, "exploration": {"span", "window", "period_sec"},
+               "model_plant": {"sigma_position", "sigma_rotation_deg"}}
+
+
+def ignored_by_tasks(scenario: Scenario) -> list[str]:
+    """The fields of ``scenario`` set away from their defaults that the tasks do not use
+    (they hold their own objects, and build their filter, prior and truth themselves), as
+    dotted names, so that a command can say so rather than ignore them silently."""
+    default = Scenario()
+    out = []
+    for f in dataclasses.fields(Scenario):
+        if f.name in TASK_SECTIONS:
+            continue
+        mine, theirs = getattr(scenario, f.name), getattr(default, f.name)
+        if f.name in TASK_FIELDS and dataclasses.is_dataclass(mine):
+            out += [f"{f.name}.{g.name}" for g in dataclasses.fields(mine)
+                    if g.name not in TASK_FIELDS[f.name] and _differs(getattr(mine, g.name), getattr(theirs, g.name))]
+        elif _differs(mine, theirs):
+            out.append(f.name)
+    return out
+
+
+def _differs(a, b) -> bool:
+    try:
+        return not bool(np.all(np.asarray(a == b)))
+    except (TypeError, ValueError):  # e.g. arrays of other shapes
+        return True
+
+
 def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float, int, bool, str)):
     """A copy of the dataclass ``config`` with ``KEY=VALUE`` overrides of its scalar fields
     (those whose type is one of ``kinds``, optionally ``| None``; "none" sets such a field
@@ -757,6 +809,6 @@ def config_overrides(config, items: list[str], flag: str, kinds: tuple = (float,
             try:
                 v = t(value)
             except ValueError:
-                raise ValueError(f"{flag} '{item}': '{value}' is not a number") from None
+                raise ValueError(f"{flag} '{item}': '{value}' is not {'an integer' if t is int else 'a number'}") from None
         setattr(out, key, v)
     return out.validate() if hasattr(out, "validate") else out

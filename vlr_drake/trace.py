@@ -31,6 +31,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -174,8 +176,12 @@ class IdentificationTrace:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"trace file not found: {path}")
+        # a truncated or damaged archive (an interrupted copy) fails inside zipfile or zlib
+        damaged = (zipfile.BadZipFile, zlib.error, EOFError)
         try:
             z = np.load(path, allow_pickle=False)
+        except damaged as e:
+            raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
         except (ValueError, OSError) as e:  # not a NumPy file (numpy's message speaks of pickles)
             raise ValueError(f"{path}: not an identification trace (not a .npz archive written by "
                              f"vlr-drake identify --trace)") from e
@@ -185,14 +191,18 @@ class IdentificationTrace:
             if "header" not in z.files:
                 raise ValueError(f"{path}: not an identification trace (no header)")
             try:
-                header = json.loads(str(z["header"]))
-            except ValueError:
-                header = None
-            if not isinstance(header, dict):
-                raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
-            if header.get("version") != TRACE_VERSION:
-                raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
-            arrays = {k: z[k] for k in z.files if k != "header"}
+                try:
+                    header = json.loads(str(z["header"]))
+                except ValueError:
+                    header = None
+                if not isinstance(header, dict):
+                    raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
+                if header.get("version") != TRACE_VERSION:
+                    raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads "
+                                     f"{TRACE_VERSION}")
+                arrays = {k: z[k] for k in z.files if k != "header"}
+            except damaged as e:
+                raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
         try:
             truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS if f"truth_{k}" in arrays}
                       if header["has_truths"] else None)

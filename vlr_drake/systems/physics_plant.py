@@ -263,6 +263,9 @@ class PhysicsConfig:
         ]:
             if not getattr(self, name) > 0:
                 raise ValueError(f"physics: '{name}' must be positive, got {getattr(self, name)}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"physics: 'seed' must be an integer >= 0 (it seeds the camera's pixel noise), "
+                             f"got {self.seed!r}")
         return self
 
     def X_WP(self) -> RigidTransform:
