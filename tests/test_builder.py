@@ -146,6 +146,12 @@ def test_seed_changes_the_model_grasp_and_the_run():
     c = build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST + "seed: 5\n"))
     np.testing.assert_array_equal(a.theta_center, b.theta_center)
     assert not np.allclose(a.theta_center, c.theta_center)
+    from vlr_drake.builder import run
+
+    runs = [run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST + extra), iterations=2)
+            for extra in ("", "", "seed: 5\n")]
+    np.testing.assert_array_equal(runs[0]["theta_estimate"], runs[1]["theta_estimate"])  # reproducible
+    assert not np.allclose(runs[0]["theta_estimate"], runs[2]["theta_estimate"])
 
 
 def test_stiffness_scenario_true_hand_differs_from_the_filters():

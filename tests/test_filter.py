@@ -466,9 +466,13 @@ def test_lost_tag_moves_but_does_not_learn():
     h, plant, f = _filter_and_plant(6, particles=2000)
     dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])
     assert plant.apply_action(dl)
-    p_O_before = f.particles.p_O.copy()
+    p_O_before, theta_before = f.particles.p_O.copy(), f.particles.theta.copy()
     rep = f.step(dl, None, None, valid=False)
     assert not rep.measured and rep.ess == 2000
+    # the hypotheses moved with the action (Gamma), as the hand did: all but those with no
+    # equilibrium for it (held where they were; 20% of this first move's prior draws)
+    moved = np.abs(f.particles.theta - theta_before).max(axis=(1, 2)) > 1e-6
+    assert moved.mean() > 0.5 and moved.sum() >= 2000 - rep.solve_failures, (moved.mean(), rep.solve_failures)
     assert set(rep.timing_s) == {"move", "estimate"}  # nothing weighed or resampled
     np.testing.assert_array_equal(f.particles.p_O, p_O_before)  # attachments untouched
     assert np.all(np.isfinite(f.particles.theta))

@@ -99,14 +99,19 @@ def test_ramp_is_linear_and_clamped_to_the_range():
     sim.AdvanceTo(0.25)
     np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), target, atol=1e-12)
     assert np.all(sys.tendon_position_output.Eval(ctx) <= hi)
-    # A new command mid-way ramps from where the pull is, not from the old start.
+    # A new command after the ramp ramps from the reached pull, over ramp_time again ...
     sys.tendon_command_input.FixValue(ctx, l0)
     sim.AdvanceTo(0.35)
-    np.testing.assert_allclose(
-        sys.tendon_position_output.Eval(ctx),
-        target + 0.5 * (l0 - target),
-        atol=0.01 * np.max(np.abs(target - l0)),
-    )
+    middle = target + 0.5 * (l0 - target)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), middle, atol=0.01 * np.max(np.abs(target - l0)))
+    # ... and one that comes mid-ramp ramps from where the pull is then, not from the old start
+    middle = sys.tendon_position_output.Eval(ctx).copy()
+    sys.tendon_command_input.FixValue(ctx, target)
+    sim.AdvanceTo(0.45)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), middle + 0.5 * (target - middle),
+                               atol=0.01 * np.max(np.abs(target - l0)))
+    sim.AdvanceTo(0.56)
+    np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), target, atol=1e-12)
 
 
 def test_clamp_validates_shape():
