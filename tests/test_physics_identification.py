@@ -30,7 +30,9 @@ def test_short_physics_run_lowers_the_error_from_its_prior(obj, seed):
     prior = _proximal_error_deg(r["_estimates"][0], r["_truths"][0])
     final = _proximal_error_deg(r["_estimates"][-1], r["_truths"][-1])
     assert final < 0.6 * prior, (prior, final)
-    assert r["truth_inside_95_theta"] >= 0.66 and r["truth_inside_95_contact"] >= 0.66
+    # honest intervals: at most one of the six joints and one of the three contacts outside
+    # (every truth inside in all three runs, 2026-11-27)
+    assert r["truth_inside_95_theta"] >= 5 / 6 and r["truth_inside_95_contact"] >= 2 / 3
     assert r["lost_measurements"] == 0 and r["reinitialisations"] == 0
     # the pads fix the true contacts; the filter's prior is centred on a guess of them, up to
     # 60% of the contact half-width (4.8 mm) off, never on the truth itself
