@@ -227,15 +227,17 @@ class DynamixelEmulator:
             m.position = float(ticks)
             struct.pack_into("<i", m.table, ADDR_PRESENT_POSITION, int(ticks))
 
-    def instructions(self, instruction: int, address: int | None = None) -> list[tuple[float, int, bytes]]:
-        """Logged packets of one instruction (optionally at one start address)."""
+    def instructions(self, instruction: int, address: int | None = None) -> list[tuple[int, int, bytes]]:
+        """Logged packets of one instruction (optionally at one start address), as (n, id,
+        parameters) with n the packet's place in the log: their order of arrival, which a
+        clock's stamps could tie."""
         with self._lock:
             out = []
-            for t, i, inst, p in self.log:
+            for n, (_, i, inst, p) in enumerate(self.log):
                 if inst == instruction and (
                     address is None or (len(p) >= 2 and p[0] | (p[1] << 8) == address)
                 ):
-                    out.append((t, i, p))
+                    out.append((n, i, p))
             return out
 
     # --- the bus ----------------------------------------------------------------------------

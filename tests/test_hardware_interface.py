@@ -307,10 +307,12 @@ def test_frame_source_plays_a_file_then_reports_no_frame(tag_video):
 @pytest.mark.parametrize("mode", ["sequential", "latest"])
 def test_frame_source_times_out_instead_of_hanging(mode):
     fake = FakeCapture(1)
-    cam = FrameSource(0, timeout_s=0.05, mode=mode, capture_factory=fake).open()
+    # a timeout long enough for a loaded machine to deliver the first frame in time (0.05 s
+    # is within reach of a busy CI runner's scheduling)
+    cam = FrameSource(0, timeout_s=0.3, mode=mode, capture_factory=fake).open()
     assert cam.read()[0]
     if mode == "latest":
-        time.sleep(0.1)  # let the only frame grow older than timeout_s
+        time.sleep(0.4)  # let the only frame grow older than timeout_s
     assert cam.read() == (False, None)
     assert cam.read() == (False, None)
     assert cam.misses == 2 and not cam.ended
