@@ -296,6 +296,8 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     for bad in ("", "0.1,0.2,", "0.1,,0.2", "0.1,nan"):  # empty items are mistakes, not skipped
         assert main(["replay", str(path), "--profile", "stiffness", "--values", bad]) == 2
         assert f"--values '{bad}': expected" in capsys.readouterr().err
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "1000,0.2", "--no-progress"]) == 2
+    assert "evidence profile of stiffness at 1000: prior: only" in capsys.readouterr().err  # the value named
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2
     assert "--filter 'roughness=2'" in capsys.readouterr().err
 

@@ -658,7 +658,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--profile", default=None, metavar="PARAMETER",
                    help="fix this identified hand parameter at each of --values and compare the evidence: "
                         "stiffness [N m/rad] or link_length:<finger> [m]")
-    p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter")
+    p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter "
+                                                  "(a negative first value as --values=-0.1,0.2)")
     p.add_argument("--statics", action="store_true",
                    help="with --profile: no replay; how the VLR's equilibrium under the motors' commands, with the "
                         "parameter at each value, agrees with the plant's true angles along the trace (simulation "

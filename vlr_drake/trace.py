@@ -445,7 +445,10 @@ def evidence_profile(trace: IdentificationTrace, parameter: str, values, config:
         else:
             spec.fingers[fi].link_lengths = [float(v)] + list(spec.fingers[fi].link_lengths[1:])
             prior.links_unknown = [i for i in prior.links_unknown if int(i) != fi]
-        r = replay(trace, config, prior, spec, progress=progress)
+        try:
+            r = replay(trace, config, prior, spec, progress=progress)
+        except ValueError as e:  # e.g. no physical grasp with a spring or link far off: name the value
+            raise ValueError(f"evidence profile of {parameter} at {v:g}: {e}") from e
         rows.append({"value": float(v), "log_evidence": r["log_evidence"], "errors": r.get("errors"), "replay": r})
     best = max(r["log_evidence"] for r in rows)
     for r in rows:
