@@ -259,6 +259,8 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert np.sum(np.abs(r["theta_estimate"] - r["theta_true"]) <= r["interval_half_width"]) >= 5
     assert main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--iterations", "1", "--set", FAST]) == 0
     assert "model_plant: 1 iterations" in capsys.readouterr().out
+    assert main(["--run", "model_plant", "--iterations", "1", "--set", FAST]) == 0  # an example, by name
+    assert "model_plant: 1 iterations" in capsys.readouterr().out
 
 
 def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):

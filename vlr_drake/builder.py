@@ -53,7 +53,14 @@ from vlr_drake.identify import _truth_grasp, contact_guess_rng
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
-from vlr_drake.scenario import DIAGRAMS_DIR, FILTER_ACTIONS, Scenario, example_scenarios, load_scenario
+from vlr_drake.scenario import (
+    DIAGRAMS_DIR,
+    FILTER_ACTIONS,
+    Scenario,
+    example_scenarios,
+    find_scenario,
+    load_scenario,
+)
 from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, build_physics_hand
 from vlr_drake.systems.self_identification import (
     ExplorationPolicy,
@@ -545,7 +552,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<file>.dot (and .svg) beside each scenario file")
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
-    parser.add_argument("--run", metavar="SCENARIO", default=None, help="run a scenario file")
+    parser.add_argument("--run", metavar="SCENARIO", default=None,
+                        help="run a scenario: a file, or an example's name in diagrams/ (e.g. model_plant)")
     parser.add_argument("--iterations", type=int, default=None, help="filter iterations of --run (default 10)")
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
@@ -557,7 +565,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
         iterations = 10 if args.iterations is None else args.iterations
-        r = run(load_scenario(args.run, args.set), iterations, trace=args.trace)
+        # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
+        r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
