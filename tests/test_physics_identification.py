@@ -61,3 +61,28 @@ def test_squeezes_identify_the_thumb_spring_on_the_physics_plant():
     assert max(errors) < 0.09, errors
     assert squeezed[0]["stiffness_inside_95"], squeezed[0]["stiffness_interval_Nm_per_rad"]
     assert errors[0] < 0.6 * plain["stiffness_error_Nm_per_rad"], (errors, plain["stiffness_error_Nm_per_rad"])
+
+
+def test_an_object_that_falls_stops_the_run_and_keeps_its_estimates(monkeypatch, tmp_path):
+    """The object falling out of the hand mid-run (here made to, at the third action) ends
+    the run there: its result holds the estimates so far and says why and when it stopped
+    (a run that raised would lose them)."""
+    import json
+
+    from vlr_drake.cli import main
+    from vlr_drake.systems.physics_plant import PhysicsHand
+
+    calls = {"n": 0}
+
+    def falls_at_third(self, root):
+        calls["n"] += 1
+        return calls["n"] >= 3
+
+    monkeypatch.setattr(PhysicsHand, "object_fell", falls_at_third)
+    path = tmp_path / "r.json"
+    assert main(["identify", "known_hand", "--particles", "300", "--iterations", "10", "--no-progress",
+                 "--out", str(tmp_path), "--json", str(path)]) == 0
+    r = json.loads(path.read_text())
+    assert r["stopped"].startswith("iteration 3: the apple fell out of the hand"), r["stopped"]
+    assert r["iterations"] == 3 and len(r["proximal_joint_error_deg"]) == 3
+    assert np.all(np.isfinite(r["proximal_joint_error_deg"]))

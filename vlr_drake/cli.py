@@ -187,6 +187,8 @@ def print_summary(result: dict) -> None:
     print(f"\n{result['experiment']} on the {result['plant']} plant, seed {result['seed']}, "
           f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
           f"after {result['iterations']} iterations")
+    if result.get("stopped"):
+        print(f"the run stopped early, at {result['stopped']}")
     # the label column fits the longest name (novel fingers: "finger_left_NF2 proximal [deg]")
     w = max([28] + [len(n) + len(" contact along link [mm]") for n in names]
             + [len(name.split(":", 1)[1]) + len(" link [mm]") for name in result.get("hand_parameters", {})])

@@ -597,9 +597,14 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
 
     bar = tqdm(total=opts.max_iterations, disable=not opts.progress, desc=f"identify {opts.experiment}",
                unit="it", leave=False)
+    stopped = None
     for it in range(1, opts.max_iterations + 1):
         dl = explore.next_action()
-        moved = plant.act(dl, timing)
+        try:
+            moved = plant.act(dl, timing)
+        except RunStopped as e:  # the estimates so far are kept and reported, with why it stopped
+            stopped = f"iteration {it}: {e}"
+            break
         if not moved:
             continue
         explore.commit(dl)
@@ -624,6 +629,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     est = f.estimates[-1]
     truth = truths[-1]
     result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, f, lost, plant)
+    result["stopped"] = stopped
     result["_estimates"] = f.estimates
     result["_history"] = f.history
     result["_truths"] = truths
@@ -637,6 +643,11 @@ def _trace_meta(opts: IdentifyOptions) -> dict:
             "object": opts.object_spec.name if opts.object_spec is not None else opts.object,
             "action_choice": opts.action_choice, "scenario": opts.scenario,
             "stops_at_convergence": True, "extra_iterations": int(opts.extra_iterations)}
+
+
+class RunStopped(RuntimeError):
+    """The plant cannot go on (the object fell out of the physics hand): the run stops
+    there and reports what it had identified until then, with the reason in ``stopped``."""
 
 
 #: An identified hand parameter whose 95% interval is still more than half as wide as the

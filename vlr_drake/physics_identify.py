@@ -84,9 +84,10 @@ class PhysicsAdapter:
         timing["physics"] += r.wall_physics_s
         self.not_settled += not r.settled
         if self.ph.object_fell(self.root):
-            raise PlacementError(f"the {self.obj.name} fell out of the hand during the run (a grasp too weak for "
-                                 f"the exploration: check the physics section's pretension and the exploration's "
-                                 f"span and window)")
+            from vlr_drake.identify import RunStopped
+
+            raise RunStopped(f"the {self.obj.name} fell out of the hand (a grasp too weak for the exploration: "
+                             f"check the physics section's pretension and the exploration's span and window)")
         return True
 
     def measure(self, timing):
