@@ -501,7 +501,7 @@ def test_demo_runs_every_step_and_writes_its_outputs(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("module, argv, says", [
-    ("vlr_drake.builder", ["--run", "no_such_scenario.yaml"], "scenario file not found"),
+    ("vlr_drake.builder", ["--run", "no_such_scenario.yaml"], "scenario 'no_such_scenario.yaml' not found"),
     ("vlr_drake.physics.agreement", ["--object", "aple", "--actions", "1"], "unknown object 'aple'"),
     ("vlr_drake.physics.check", ["--objects", "aple", "--actions", "1"], "aple"),
 ])
