@@ -136,6 +136,12 @@ def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
         assert re.search(message, capsys.readouterr().err)
 
 
+def test_hand_presets_are_taken_in_any_case(tmp_path):
+    r = _run(tmp_path, "identify", "novel_fingers", "--hand", "nh2", "--plant", "model", "--particles", "500",
+             "--iterations", "2", "--no-progress", "--out", str(tmp_path))
+    assert r["hand"] == "NH2" and set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}
+
+
 def test_a_true_hand_with_no_grasp_is_named(tmp_path, capsys):
     """Model-plant truths no fingertip grasp can reach (5 m proximal links): the run says
     which settings to check, as the diagram builder does."""

@@ -153,6 +153,15 @@ def _identify_options(args):
     return opts
 
 
+def _preset_hand(text: str) -> str:
+    """A --hand value as the preset's own name whatever its case (``nh2`` -> ``NH2``); other
+    names are left for the run to refuse, with the list of presets."""
+    from vlr_drake.hand import NOVEL_HANDS
+
+    names = {n.lower(): n for n in ("model_o", *NOVEL_HANDS)}
+    return names.get(text.lower(), text)
+
+
 def _task_settings(args) -> dict:
     from vlr_drake.scenario import ignored_by_tasks, task_settings
 
@@ -621,7 +630,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         if name == "identify":  # the demo's hand is the Model O
-            p.add_argument("--hand", default=None,
+            p.add_argument("--hand", default=None, type=_preset_hand,
                            help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
                                 "else model_o)")
 
