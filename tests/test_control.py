@@ -270,6 +270,14 @@ def test_control_step_clip_and_validation():
         control.control_step(J, np.zeros(5))
     with pytest.raises(ValueError, match="alpha"):
         control.control_step(J, np.ones(6), alpha=0.0)
+    with pytest.raises(ValueError, match="damping >= 0"):
+        control.control_step(J, np.ones(6), damping=float("nan"))
+    # undamped on a rank-deficient Jacobian (two tendons with the same effect): the
+    # pseudo-inverse's minimum-norm step, not a singular-matrix error
+    Js = np.zeros((6, 3))
+    Js[0, 0] = Js[0, 1] = 1.0
+    dl = control.control_step(Js, np.array([1e-4, 0, 0, 0, 0, 0]), rows="position", damping=0.0, gain=1.0)
+    np.testing.assert_allclose(dl, [0.5e-4, 0.5e-4, 0.0], atol=1e-15)
 
 
 def test_transpose_form_is_the_scaled_gradient():

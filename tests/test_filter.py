@@ -1191,3 +1191,41 @@ def test_object_weight_result_fields():
     assert len(res["object_load_estimate_kg"]) == h.N
     plain = estimate_errors(h, pf.PriorConfig(), est, truth)
     assert "object_mass_error_kg" not in plain
+
+
+def test_contact_drift_keeps_the_model_plant_physical():
+    """The model plant's contacts roll by contact_drift per action; a roll that would leave a
+    link, need a pushing tendon or a command outside the tendon range does not happen, and the
+    exploration follows the restated commands. Before, 5 mm of drift took contacts to -13 and
+    54 mm, commands out of range and the identification to a TendonLimitError."""
+    h = model_o().model()
+    for seed in range(3):
+        r = run_identification(IdentifyOptions(experiment="known_hand", plant="model", particles=300,
+                                               max_iterations=40, seed=seed, contact_drift=5e-3, progress=False))
+        truths = r["_truths"]
+        a = np.array([t["a"] for t in truths])
+        assert np.all(a >= 0) and np.all(a <= h.distal_length + 1e-12)
+        assert not np.array_equal(a[0], a[-1])  # the contacts did roll
+        commands = r["_trace"].tendon_commands
+        assert h.within_tendon_range(commands).all()
+        assert np.all(np.isfinite(r["proximal_joint_error_deg"]))
+
+
+def test_the_model_plant_starts_from_a_seen_tag(monkeypatch):
+    """The first measurement anchors the hypotheses: on the model plant a lost tag at the grasp
+    is looked for again (it had been used as if seen: the noise-free truth), and a run that
+    never sees it says so. A dropout outside [0, 1) is refused."""
+    import vlr_drake.identify as identify
+
+    for bad in (1.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="dropout must be a probability in"):
+            IdentifyOptions(plant="model", dropout=bad).validate()
+    r = run_identification(IdentifyOptions(plant="model", particles=300, max_iterations=3, seed=0, dropout=0.9,
+                                           progress=False))
+    assert r["iterations"] == 3 and np.all(np.isfinite(r["_trace"].t0))
+    monkeypatch.setattr(identify, "START_LOOKS", 1)
+    # the model plant's camera stand-in draws from default_rng(seed + 3), the dropout first
+    lost_first = [s for s in range(20) if np.random.default_rng(s + 3).random() < 0.9]
+    with pytest.raises(ValueError, match="the tag was lost in all 1 measurements at the grasp"):
+        run_identification(IdentifyOptions(plant="model", particles=300, max_iterations=3, seed=lost_first[0],
+                                           dropout=0.9, progress=False))

@@ -384,6 +384,25 @@ def test_failed_particles_are_flagged_not_nan(model_o_hand):
     np.testing.assert_array_equal(res.theta, gs.theta)
 
 
+def test_coincident_contacts_fail_their_particle_alone(model_o_hand):
+    """A hypothesis whose two contacts coincide (D2 = 0) fails by itself: it had divided by
+    zero in the compiled kernel, which ended its thread's whole share of the batch and left
+    those particles' outputs uninitialised (or, with every particle so, raised SystemError)."""
+    rng = np.random.default_rng(4)
+    gs = grasps.sample_grasps(model_o_hand, rng, 32)
+    D2 = gs.D2.copy()
+    D2[5, 0] = 0.0
+    res = motion.move(model_o_hand, gs.theta, np.array([1e-4, 0.0, 0.0]), a=gs.a, D2=D2, stretch=gs.stretch)
+    good = motion.move(model_o_hand, gs.theta, np.array([1e-4, 0.0, 0.0]), a=gs.a, D2=gs.D2, stretch=gs.stretch)
+    assert not res.ok[5]
+    np.testing.assert_array_equal(res.theta[5], gs.theta[5])  # held where it was
+    others = np.arange(32) != 5
+    np.testing.assert_array_equal(res.ok[others], good.ok[others])
+    np.testing.assert_array_equal(res.theta[others], good.theta[others])
+    res = motion.move(model_o_hand, gs.theta, np.zeros(3), a=gs.a, D2=np.zeros_like(D2), stretch=gs.stretch)
+    assert not res.ok.any() and np.all(np.isfinite(res.theta))
+
+
 def test_reference_solver_reports_failure(model_o_hand):
     rng = np.random.default_rng(4)
     gs = grasps.sample_grasps(model_o_hand, rng, 1)

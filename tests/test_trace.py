@@ -296,8 +296,20 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     for bad in ("", "0.1,0.2,", "0.1,,0.2", "0.1,nan"):  # empty items are mistakes, not skipped
         assert main(["replay", str(path), "--profile", "stiffness", "--values", bad]) == 2
         assert f"--values '{bad}': expected" in capsys.readouterr().err
-    assert main(["replay", str(path), "--profile", "stiffness", "--values", "1000,0.2", "--no-progress"]) == 2
-    assert "evidence profile of stiffness at 1000: prior: only" in capsys.readouterr().err  # the value named
+    # a value whose hand admits no prior grasp is named (the replay's error had blamed the prior alone)
+    import vlr_drake.trace as trace_module
+
+    real_replay = trace_module.replay
+
+    def no_grasp_at_1000(trace, config, prior, spec, **kw):
+        if spec.fingers[0].stiffness[1] == 1000.0:
+            raise ValueError("prior: only 5 of 500 draws are physical grasps")
+        return real_replay(trace, config, prior, spec, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(trace_module, "replay", no_grasp_at_1000)
+        assert main(["replay", str(path), "--profile", "stiffness", "--values", "1000,0.2", "--no-progress"]) == 2
+    assert "evidence profile of stiffness at 1000: prior: only 5 of 500" in capsys.readouterr().err
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2
     assert "--filter 'roughness=2'" in capsys.readouterr().err
 

@@ -275,8 +275,8 @@ def control_step(
         raise ValueError(f"'{bad}' must be finite, got {(e if bad == 'error6' else J).tolist()}")
     if mode not in MODES:
         raise ValueError(f"'mode' must be one of {MODES}, got '{mode}'")
-    if gain <= 0 or clip <= 0 or damping < 0:
-        raise ValueError(f"gain and clip must be positive and damping >= 0, got {gain}, {clip}, {damping}")
+    if not (gain > 0 and clip > 0 and damping >= 0 and np.isfinite([gain, clip, damping]).all()):  # NaN too
+        raise ValueError(f"gain and clip must be positive and damping >= 0 (finite), got {gain}, {clip}, {damping}")
     w = _row_weights(rows, alpha, position_unit, rotation_unit)
     Jw = w[:, None] * J
     ew = w * e
@@ -286,7 +286,10 @@ def control_step(
     if mode == "dls":
         smax = np.linalg.norm(Jw, 2)
         lam2 = (damping * smax) ** 2
-        dl = np.linalg.solve(Jw.T @ Jw + lam2 * np.eye(J.shape[1]), g)
+        if lam2 > 0:
+            dl = np.linalg.solve(Jw.T @ Jw + lam2 * np.eye(J.shape[1]), g)
+        else:  # undamped: the pseudo-inverse's least-squares step, defined where Jw^T Jw is singular
+            dl = np.linalg.lstsq(Jw, ew, rcond=None)[0]
     else:
         Jg = Jw @ g
         dl = g * (g @ g) / max(Jg @ Jg, 1e-300)

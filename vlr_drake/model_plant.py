@@ -110,15 +110,25 @@ class ModelPlant:
         R, t, _ = observation.pom_pose(self.p_O[None], p[None])
         s.R_PO, s.t_PO = R[0], t[0]
         if self.contact_drift > 0:  # contacts roll a little on the fingers (physics does)
-            s.a = s.a + self.contact_drift * self.rng.standard_normal(h.N)
-            self.p_O = observation.attach(self.contacts()[None], s.R_PO[None], s.t_PO[None])[0]
-            eq = motion.equilibrium(h, s.theta[None], a=s.a[None], link_lengths=self.link_lengths[None],
-                                    stiffness=self.stiffness[None], **self.loads)
-            # the joints stay and the tendon state that holds them changes: reported as the
-            # command, so that l = R theta + stretch stays true (a filter reads it)
-            s.tendon_command = s.tendon_command + eq.stretch[0] - s.stretch
-            s.stretch = eq.stretch[0]
+            self._drift_contacts()
         return True
+
+    def _drift_contacts(self) -> None:
+        """Roll the contacts by ``contact_drift`` (SD) along the last links, kept on them; the
+        joints stay and the tendon state that holds them changes, reported as the command so
+        that l = R theta + stretch stays true (a filter reads it). A roll after which the grasp
+        would not hold (no equilibrium, a pushing tendon, a command out of the tendon range)
+        does not happen: the true grasp stays physical."""
+        h, s = self.hand, self.state
+        a = np.clip(s.a + self.contact_drift * self.rng.standard_normal(h.N), 0.0, h.distal_length)
+        p = kinematics.contacts(h, s.theta[None], a[None], self.link_lengths[None])[0]
+        eq = motion.equilibrium(h, s.theta[None], a=a[None], link_lengths=self.link_lengths[None],
+                                stiffness=self.stiffness[None], **self.loads)
+        command = s.tendon_command + eq.stretch[0] - s.stretch
+        if not (eq.ok[0] and np.all(eq.tension[0] >= 0) and h.within_tendon_range(command[None]).all()):
+            return
+        s.a, s.tendon_command, s.stretch = a, command, eq.stretch[0]
+        self.p_O = observation.attach(p[None], s.R_PO[None], s.t_PO[None])[0]
 
     def measure(self) -> tuple[np.ndarray, np.ndarray, bool]:
         """Noisy POM pose (R, t, valid)."""

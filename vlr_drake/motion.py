@@ -848,7 +848,9 @@ def _finish_lanes(
                     lfc[i, r, w] = fc_all[pf, i, r]
         for c in range(m):
             D2[c, w] = D2_all[q, c]
-            sqD[c, w] = np.sqrt(D2_all[q, c])
+            # coincident contacts (D2 = 0): a huge residual that fails this particle alone,
+            # not a division by zero that ends its thread's whole share of the batch
+            sqD[c, w] = np.sqrt(max(D2_all[q, c], 1e-300))
     return nxt
 
 
