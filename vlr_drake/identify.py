@@ -621,15 +621,16 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         if not moved:
             continue
         explore.commit(dl)
-        if not np.array_equal(explore.l, plant.tendon_command()):  # the plant restated its command
-            explore.follow(plant.tendon_command())
+        l_now = plant.tendon_command()
+        if not np.array_equal(explore.l, l_now):  # the plant restated its command
+            explore.follow(l_now)
         R, t, valid = plant.measure(timing)
         lost += not valid
         tf = time.perf_counter()
-        rep = f.step(dl, R, t, valid, tendon_command=plant.tendon_command())
+        rep = f.step(dl, R, t, valid, tendon_command=l_now)
         timing["filter"] += time.perf_counter() - tf
         truths.append(plant.truth())
-        recorder.step(dl, R, t, valid, plant.tendon_command(), truths[-1])
+        recorder.step(dl, R, t, valid, l_now, truths[-1])
         if on_iteration is not None:
             on_iteration(it, f)
         bar.update(1)

@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from vlr_drake import kinematics
+from vlr_drake.identify import RunStopped
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.objects import preset
 from vlr_drake.perception.camera import CameraConfig
@@ -84,8 +85,6 @@ class PhysicsAdapter:
         timing["physics"] += r.wall_physics_s
         self.not_settled += not r.settled
         if self.ph.object_fell(self.root):
-            from vlr_drake.identify import RunStopped
-
             raise RunStopped(f"the {self.obj.name} fell out of the hand (a grasp too weak for the exploration: "
                              f"check the physics section's pretension and the exploration's span and window)")
         return True

@@ -170,18 +170,12 @@ class IdentificationTrace:
             np.savez_compressed(fh, header=np.array(json.dumps(header, default=_json_default)), **arrays)
         return path
 
-    @classmethod
-    def load(cls, path: str | Path) -> IdentificationTrace:
-        """Read a trace written by :meth:`save`; raises ``ValueError`` naming what is wrong."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"trace file not found: {path}")
-        # a truncated or damaged archive (an interrupted copy) fails inside zipfile or zlib
-        damaged = (zipfile.BadZipFile, zlib.error, EOFError)
+    @staticmethod
+    def _read(path: Path) -> tuple[dict, dict]:
+        """The header and the arrays of the archive at ``path``, checked (a ``ValueError``
+        naming what is wrong; a damaged archive's own errors pass through)."""
         try:
             z = np.load(path, allow_pickle=False)
-        except damaged as e:
-            raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
         except (ValueError, OSError) as e:  # not a NumPy file (numpy's message speaks of pickles)
             raise ValueError(f"{path}: not an identification trace (not a .npz archive written by "
                              f"vlr-drake identify --trace)") from e
@@ -191,18 +185,25 @@ class IdentificationTrace:
             if "header" not in z.files:
                 raise ValueError(f"{path}: not an identification trace (no header)")
             try:
-                try:
-                    header = json.loads(str(z["header"]))
-                except ValueError:
-                    header = None
-                if not isinstance(header, dict):
-                    raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
-                if header.get("version") != TRACE_VERSION:
-                    raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads "
-                                     f"{TRACE_VERSION}")
-                arrays = {k: z[k] for k in z.files if k != "header"}
-            except damaged as e:
-                raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
+                header = json.loads(str(z["header"]))
+            except ValueError:
+                header = None
+            if not isinstance(header, dict):
+                raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
+            if header.get("version") != TRACE_VERSION:
+                raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
+            return header, {k: z[k] for k in z.files if k != "header"}
+
+    @classmethod
+    def load(cls, path: str | Path) -> IdentificationTrace:
+        """Read a trace written by :meth:`save`; raises ``ValueError`` naming what is wrong."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"trace file not found: {path}")
+        try:
+            header, arrays = cls._read(path)
+        except (zipfile.BadZipFile, zlib.error, EOFError) as e:  # truncated or damaged (an interrupted copy)
+            raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
         try:
             truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS if f"truth_{k}" in arrays}
                       if header["has_truths"] else None)
