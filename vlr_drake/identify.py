@@ -329,10 +329,6 @@ class IdentifyOptions:
         if self.object_spec is None and self.object not in preset_names():
             raise ValueError(f"unknown object '{self.object}': use one of {', '.join(preset_names())}, "
                              f"or a scenario with an object_spec")
-        if self.plant == "physics" and self.object_spec is not None:
-            raise ValueError(f"object_spec '{self.object_spec.name}': the identify loop's physics plant holds "
-                             f"preset objects only; run this scenario as a diagram "
-                             f"(python -m vlr_drake.builder --run SCENARIO) or on the model plant (--plant model)")
         if self.max_iterations is None:
             self.max_iterations = default_iterations(self.plant, self.experiment)
         if not is_count(self.max_iterations, 1):
