@@ -255,6 +255,32 @@ def test_servo_never_loops_forever_with_zero_budget(grasp):
     assert rep.iterations == 0 and rep.reason == "budget"
 
 
+def test_a_lost_tag_reports_the_held_pose_not_the_truth(grasp):
+    """The model plant's dropout is a lost tag: valid False with its last valid measurement,
+    as the physics plant and the tag observer hold theirs, never the noise-free truth (which
+    servo_to would have used as its first measurement)."""
+    pl = fresh(grasp, sigma_position=0.3e-3, sigma_rotation_deg=1.0, seed=3)
+    pl.dropout = 0.5
+    held, lost = None, 0
+    for k in range(40):
+        if k % 5 == 4:
+            assert pl.apply_action(np.full(pl.hand.N, 0.2e-3 * (-1) ** k))
+        R, t, valid = pl.measure()
+        if valid:
+            held = (R, t)
+        elif held is not None:
+            lost += 1
+            np.testing.assert_array_equal(R, held[0])
+            np.testing.assert_array_equal(t, held[1])
+            assert np.linalg.norm(t - pl.state.t_PO) > 1e-6  # the held pose is a noisy measurement
+    assert lost >= 10
+    # before any valid measurement the plant holds the pose it was made with
+    pl = fresh(grasp, seed=3)
+    pl.dropout = 0.99
+    R, t, valid = pl.measure()
+    assert not valid and np.allclose(t, grasp.plant.state.t_PO)
+
+
 def test_control_step_clip_and_validation():
     J = np.vstack([np.eye(3), np.eye(3)]) * 2.0
     dl = control.control_step(J, np.array([1.0, 0, 0, 0, 0, 0]), rows="position", clip=0.5e-3)

@@ -403,6 +403,8 @@ def servo_to(
     A step for which the plant finds no equilibrium (e.g. the grip would loosen) is
     halved up to ``backoff`` times before the run ends with ``"no_equilibrium"``.
     ``on_step(i, R, t)`` is called after every measurement (progress, marble simulation).
+    A lost tag (``valid`` False) leaves the pose where the plant holds it, its last valid
+    measurement, and the model is told the measurement is not valid.
     """
     if max_steps < 0:
         raise ValueError(f"'max_steps' must be >= 0, got {max_steps}")

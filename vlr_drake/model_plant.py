@@ -62,6 +62,8 @@ class ModelPlant:
         self.state = ModelPlantState(theta, a, eq.stretch[0], l0, np.asarray(R_PO, float), np.asarray(t_PO, float))
         p = self.contacts()
         self.p_O = observation.attach(p[None], self.state.R_PO[None], self.state.t_PO[None])[0]
+        # what a lost tag reports: the last valid measurement (the pose given here before the first)
+        self._held = (self.state.R_PO.copy(), self.state.t_PO.copy())
 
     def contacts(self) -> np.ndarray:
         s = self.state
@@ -131,10 +133,15 @@ class ModelPlant:
         self.p_O = observation.attach(p[None], s.R_PO[None], s.t_PO[None])[0]
 
     def measure(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """Noisy POM pose (R, t, valid)."""
+        """Noisy POM pose (R, t, valid). A dropout (probability ``dropout``) is a lost tag:
+        valid False with the held pose, the last valid measurement (before the first, the
+        pose the plant was made with), as the physics plant and the tag observer hold theirs;
+        never the noise-free truth."""
         s = self.state
         if self.dropout > 0 and self.rng.random() < self.dropout:
-            return s.R_PO.copy(), s.t_PO.copy(), False
+            return self._held[0].copy(), self._held[1].copy(), False
         t = s.t_PO + self.sigma_position * self.rng.standard_normal(3)
         dR = observation.rotvec_to_matrix(self.sigma_rotation * self.rng.standard_normal(3))[0]
-        return s.R_PO @ dR, t, True
+        R = s.R_PO @ dR
+        self._held = (R.copy(), t.copy())
+        return R, t, True
