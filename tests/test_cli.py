@@ -326,6 +326,20 @@ def test_identify_loads_a_scenario_file_and_flags_override_it(tmp_path):
     assert (r["experiment"], r["seed"], r["particles"], r["hand"]) == ("known_hand", 1, 500, "model_o")
 
 
+def test_a_small_cloud_is_named_in_one_line(tmp_path, capsys):
+    """The filter's FewParticlesWarning reaches a command's user as one line on stderr."""
+    import warnings
+
+    from vlr_drake.filter import FewParticlesWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", FewParticlesWarning)  # the suite ignores it elsewhere
+        _run(tmp_path, "identify", "--plant", "model", "--particles", "400", "--iterations", "1", "--no-progress",
+             "--out", str(tmp_path / "out"))
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert err == [err[0]] and err[0].startswith("vlr-drake identify: warning: 400 particles: fewer than 3,000")
+
+
 def test_identify_a_custom_hand_from_its_scenario(tmp_path):
     r = _run(tmp_path, "identify", "--scenario", "custom_hand_and_object", "--plant", "model", "--particles", "500",
              "--iterations", "2", "--no-progress", "--out", str(tmp_path / "out"))

@@ -816,6 +816,20 @@ def test_held_hypotheses_move_elastically_from_their_own_equilibrium():
         pf.FilterConfig(held_motion="sliding").validate()
 
 
+def test_a_small_cloud_says_its_intervals_are_too_narrow():
+    """Fewer than CALIBRATED_PARTICLES hypotheses give overconfident intervals (measured in
+    its comment): such a filter warns, once, and a calibrated one does not."""
+    import warnings
+
+    h = model_o().model()
+    with pytest.warns(pf.FewParticlesWarning, match="500 particles: fewer than 3,000 hypotheses"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), pf.PriorConfig(), np.random.default_rng(0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pf.FewParticlesWarning)
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=pf.CALIBRATED_PARTICLES), pf.PriorConfig(),
+                                    np.random.default_rng(0))
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

@@ -9,6 +9,7 @@ names follow docs/result-files.md.
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
@@ -114,8 +115,11 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     # warm-up (compilation) on a tiny filter
     # (resampling every step and a tight ESS target, so that every kernel of an iteration is
     # compiled or loaded from numba's cache before the timed ones)
-    small = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=100, resample_fraction=1.0, ess_fraction=0.99),
-                                        pf.PriorConfig(), np.random.default_rng(0))
+    with warnings.catch_warnings():  # a warm-up, not an estimate
+        warnings.simplefilter("ignore", pf.FewParticlesWarning)
+        small = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=100, resample_fraction=1.0,
+                                                               ess_fraction=0.99),
+                                            pf.PriorConfig(), np.random.default_rng(0))
     small.initialise(theta, a, R, t, tendon_command=plant.state.tendon_command)
     for _ in range(2):
         small.step(np.zeros(h.N), R, t)

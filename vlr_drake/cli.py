@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, count, report
+from vlr_drake.entry import USER_ERRORS, count, report, warning_lines
 
 
 def _json_default(o):
@@ -697,6 +697,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
 
     args = parser.parse_args(argv)
+    with warning_lines(f"vlr-drake {args.command}"):
+        return _command(args)
+
+
+def _command(args) -> int:
+    """Run the parsed command: 0, or 2 after :func:`report` on a user's error."""
     try:
         _check_outputs(args)
         _load_scenario(args)

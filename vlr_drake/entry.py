@@ -9,9 +9,11 @@ traceback. Errors that are bugs still show their traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 import sys
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 
 #: Exceptions that report a problem with the input or the setting, not with the code:
 #: bad values, missing files and settings too large for the machine's memory, and the
@@ -44,13 +46,27 @@ def report(prog: str, error: BaseException) -> int:
     return 2
 
 
+@contextlib.contextmanager
+def warning_lines(prog: str) -> Iterator[None]:
+    """Within it, a warning is one line on stderr, ``prog: warning: message`` (Python's own
+    form adds the file, line and source of the call; a command's user wants what it says)."""
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     """Run ``main()``; 0 when it returns (whatever it returns, unless an int status), 2
     after :func:`report` when it raises one of :data:`USER_ERRORS` (with ``hardware``,
     also the hardware's errors)."""
     errors = USER_ERRORS + (_hardware_errors() if hardware else ())
     try:
-        status = main()
+        with warning_lines(prog):
+            status = main()
     except errors as e:
         return report(prog, e)
     return status if isinstance(status, int) else 0
