@@ -464,8 +464,10 @@ def test_end_to_end_with_tag_observer(emulator, tag_video):
         return EventStatus.Succeeded()
 
     duration = (len(poses) + 4) * cfg.period_s
+    start = time.perf_counter()
     sim = run_hardware(diagram, hw, duration, realtime_rate=1.0, monitor=monitor)
-    assert sim.get_target_realtime_rate() == 1.0 and sim.get_context().get_time() == pytest.approx(duration)
+    # in real time: the run took the clock's time, not less
+    assert time.perf_counter() - start >= 0.9 * duration and sim.get_context().get_time() == pytest.approx(duration)
     assert hw.closed and not any(emulator.torque_enabled(i) for i in IDS)
 
     # ticks: the command, clipped to the limits, through spool radius, offset and direction

@@ -37,6 +37,7 @@ import re
 import shutil
 import subprocess
 import sys
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -491,8 +492,10 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     iterations (to (iterations + 0.95) T: the filter starts at 0.9 T). Returns the filter's
     last estimate and the truth (``theta_estimate``, ``theta_true`` (N, K) [rad],
     ``interval_half_width`` [rad], ``converged``, ``iterations``, ``sim_time`` [s],
-    ``wall_s``; ``trace``: where the filter's trace was saved, for ``vlr-drake replay``, when
-    ``trace`` names a file). A hardware interface is closed (torque off) at the end."""
+    ``wall_s``, ``realtime_rate`` (sim time over wall time; a hardware scenario runs in real
+    time, at most 1, and warns below 0.9); ``trace``: where the filter's trace was saved, for
+    ``vlr-drake replay``, when ``trace`` names a file). A hardware interface is closed
+    (torque off) at the end."""
     import time
 
     if iterations < 0:
@@ -502,10 +505,16 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     t0 = time.perf_counter()
     built = build_diagram(scenario, meshcat)
     simulator = Simulator(built.diagram)
+    if scenario.plant == "hardware":  # the motors and the camera keep the clock's time
+        simulator.set_target_realtime_rate(1.0)
     try:
         initialize(built, simulator)
         simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
         ctx = simulator.get_context()
+        if scenario.plant == "hardware" and simulator.get_actual_realtime_rate() < 0.9:
+            warnings.warn(f"scenario '{scenario.name}': the hardware run kept {simulator.get_actual_realtime_rate():.2f} "
+                          f"of real time (each action period of {built.period_sec} s took longer: fewer particles, "
+                          f"or a longer exploration period_sec)", stacklevel=2)
         d, h = built.diagram, built.hand
         sys_ctx = built.filter.GetMyContextFromRoot(ctx)
         flt = built.filter.filter(sys_ctx)
@@ -538,6 +547,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "converged": bool(d.GetOutputPort("self_identification.converged").Eval(ctx)[0] > 0.5),
             "sim_time": ctx.get_time(),
             "wall_s": time.perf_counter() - t0,
+            "realtime_rate": simulator.get_actual_realtime_rate(),
         }
     finally:
         if hasattr(built.plant, "close"):
