@@ -95,3 +95,44 @@ def test_a_hardware_scenario_runs_in_real_time(tmp_path):
         assert r["sim_time"] == pytest.approx(3.95 * 0.25)
         assert r["wall_s"] >= 0.9 * r["sim_time"] and 0.0 < r["realtime_rate"] <= 1.05
         assert not any(emu.torque_enabled(i) for i in ids)  # closed at the end
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_killed_hardware_run_switches_the_torque_off(tmp_path, sig):
+    """A kill or a closed terminal (SIGTERM, SIGHUP) had ended the process at once with the
+    motors holding their goals; now they unwind the run as Ctrl-C does, its clean-up switches
+    the torque off, and the command ends with one line and the shell's status."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from dynamixel_emulator import DynamixelEmulator
+
+    intr = read_intrinsics(DIAGRAMS_DIR / "hardware" / "camera_intrinsics.yaml")
+    obj = preset("apple")
+    video = tmp_path / "tag.avi"
+    _tag_video(video, intr.K, (intr.width, intr.height), obj.tag_id, obj.tag_size, frames=60)
+    ids = [1, 2, 3]
+    with DynamixelEmulator(ids, initial_positions={i: 2048 for i in ids}, lag_s=0.1) as emu:
+        over = (f"filter: {{particles: 500}}\nhardware: {{port: '{emu.port_name}', camera: '{video}', "
+                "latency_timer_ms: 30.0}\n")
+        p = subprocess.Popen([sys.executable, "-m", "vlr_drake.builder", "--run", str(DIAGRAMS_DIR / "hardware.yaml"),
+                              "--iterations", "100000", "--set", over], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+        try:
+            deadline = time.monotonic() + 120
+            while not all(emu.torque_enabled(i) for i in ids):
+                assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+                time.sleep(0.05)
+            time.sleep(1.0)  # running: actions and frames
+            p.send_signal(getattr(signal, sig))
+            _, err = p.communicate(timeout=60)
+        finally:
+            p.kill()
+        assert not any(emu.torque_enabled(i) for i in ids)
+        assert p.returncode == 128 + int(getattr(signal, sig)), err
+        assert err.strip().splitlines()[-1] == (
+            f"python -m vlr_drake.builder: stopped by {sig} (the run was closed: torque off)")

@@ -59,16 +59,67 @@ def warning_lines(prog: str) -> Iterator[None]:
         yield
 
 
+#: Signals that end a hardware command by unwinding it, so that its ``finally`` blocks switch
+#: the motors' torque off (Python's defaults end the process at once, torque on): a kill, a
+#: closed terminal. Ctrl-C (SIGINT) already unwinds, as KeyboardInterrupt.
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+class Stopped(Exception):
+    """A hardware command ended by a signal (:data:`STOP_SIGNALS`) or Ctrl-C."""
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.name = name
+
+
+@contextlib.contextmanager
+def unwinding_signals() -> Iterator[None]:
+    """Within it (in the main thread), :data:`STOP_SIGNALS` raise :class:`Stopped`; the
+    previous handlers come back on the way out."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise Stopped(signal.Signals(signum).name)
+
+    previous = {}
+    for name in STOP_SIGNALS:
+        if hasattr(signal, name):  # SIGHUP is POSIX only
+            sig = getattr(signal, name)
+            previous[sig] = signal.signal(sig, stop)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     """Run ``main()``; 0 when it returns (whatever it returns, unless an int status), 2
     after :func:`report` when it raises one of :data:`USER_ERRORS` (with ``hardware``,
-    also the hardware's errors)."""
+    also the hardware's errors). With ``hardware``, a kill, a closed terminal or Ctrl-C
+    unwinds ``main`` (its ``finally`` blocks switch the torque off) and ends it with one
+    line and the shell's status for the signal (128 + its number)."""
+    import signal
+
     errors = USER_ERRORS + (_hardware_errors() if hardware else ())
+    stops = contextlib.nullcontext() if not hardware else unwinding_signals()
     try:
-        with warning_lines(prog):
+        with warning_lines(prog), stops:
             status = main()
     except errors as e:
         return report(prog, e)
+    except (Stopped, KeyboardInterrupt) as e:
+        if not hardware:
+            raise
+        name = e.name if isinstance(e, Stopped) else "SIGINT"
+        print(f"{prog}: stopped by {name} (the run was closed: torque off)", file=sys.stderr)
+        return 128 + int(getattr(signal, name))
     return status if isinstance(status, int) else 0
 
 
