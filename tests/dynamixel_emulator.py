@@ -5,7 +5,9 @@ handed to the Dynamixel SDK, which then talks to the emulated motors through pys
 as it would through a U2D2 adapter. A thread reads instruction packets from the master side,
 checks their CRC, removes byte stuffing and answers like X-series servos:
 
-- instructions PING (0x01), READ (0x02), WRITE (0x03), SYNC READ (0x82), SYNC WRITE (0x83);
+- instructions PING (0x01), READ (0x02), WRITE (0x03), REBOOT (0x08), SYNC READ (0x82),
+  SYNC WRITE (0x83); a reboot clears the hardware error and the torque and, taken as the
+  cautious case, the multi-turn count (the present position within one turn);
 - status packets (0x55) with CRC-16 (polynomial 0x8005, table driven, as in the protocol
   2.0 specification) and byte stuffing (FF FF FD -> FF FF FD FD);
 - a control table per motor id (X-series addresses: model number 0, operating mode 11,
@@ -36,7 +38,7 @@ import tty
 __all__ = ["DynamixelEmulator", "crc16", "CRC_TABLE"]
 
 # Instructions and addresses (Dynamixel protocol 2.0, X-series control table).
-PING, READ, WRITE, STATUS, SYNC_READ, SYNC_WRITE = 0x01, 0x02, 0x03, 0x55, 0x82, 0x83
+PING, READ, WRITE, REBOOT, STATUS, SYNC_READ, SYNC_WRITE = 0x01, 0x02, 0x03, 0x08, 0x55, 0x82, 0x83
 BROADCAST_ID = 0xFE
 ERR_CRC, ERR_INSTRUCTION, ERR_DATA_LENGTH, ERR_ACCESS = 3, 2, 5, 7
 ADDR_MODEL_NUMBER, ADDR_FIRMWARE, ADDR_ID, ADDR_OPERATING_MODE = 0, 6, 7, 11
@@ -143,6 +145,8 @@ class DynamixelEmulator:
         self.log: list[tuple[float, int, int, bytes]] = []
         #: Number of instruction packets received with a bad CRC.
         self.bad_crc_count = 0
+        #: Ids of the motors rebooted, in order.
+        self.reboots: list[int] = []
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._master, self._slave = os.openpty()
@@ -346,6 +350,17 @@ class DynamixelEmulator:
             addr = params[0] | (params[1] << 8)
             error = self._write(dxl_id, addr, params[2:])
             return self._status(dxl_id, error)
+        if inst == REBOOT:
+            if not self._answers(dxl_id):
+                return b""
+            reply = self._status(dxl_id, 0)
+            m = self.motors[dxl_id]
+            m.table[ADDR_HARDWARE_ERROR_STATUS] = 0
+            m.table[ADDR_TORQUE_ENABLE] = 0
+            m.position = float(int(round(m.position)) % 4096)
+            struct.pack_into("<i", m.table, ADDR_PRESENT_POSITION, int(m.position))
+            self.reboots.append(dxl_id)
+            return reply
         if inst == SYNC_READ:
             addr, length = struct.unpack_from("<HH", params)
             out = b""

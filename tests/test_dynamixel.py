@@ -239,6 +239,44 @@ def test_hardware_error_is_named(emulator):
         assert not any(emulator.torque_enabled(i) for i in IDS)
 
 
+def test_a_hardware_error_from_before_is_named_and_rebooted_away(emulator):
+    """A motor that stopped on an overload keeps the error (and its torque off) until it is
+    rebooted: the start names it instead of failing its ping with the SDK's generic text,
+    nothing gets torque, and a reboot clears it."""
+    emulator.set_hardware_error(2, 0x20)
+    motors = make_motors(emulator)
+    with pytest.raises(DynamixelError, match=r"motor id 2 .* still reports a hardware error: overload "
+                                             r"\(status 0x20\).*python -m vlr_drake.hardware reboot"):
+        motors.open()
+    assert not motors.is_open and not any(emulator.torque_enabled(i) for i in IDS)
+    # stopped before the mode and the goals were written: only the clean-up's torque-off writes
+    assert {p[2] for _, _, p in emulator.instructions(WRITE, ADDR_TORQUE_ENABLE)} == {0}
+    assert emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION) == []
+    assert motors.reboot() == [0, 0x20, 0] and emulator.reboots == IDS
+    assert not motors.is_open
+    try:  # starts again (the emulator resets the multi-turn count: 1200, 3796, 5)
+        ticks = motors.open()
+        assert ticks.tolist() == [1200, (-300) % 4096, 5] and all(emulator.torque_enabled(i) for i in IDS)
+        with pytest.raises(DynamixelError, match="already open"):
+            motors.reboot()
+    finally:
+        motors.close()
+
+
+def test_bring_up_reboot_command(emulator):
+    import io
+
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    emulator.set_hardware_error(3, 0x04)
+    out = io.StringIO()
+    over = f"port: {emulator.port_name}\nlatency_timer_ms: 30.0\nmotor_ids: [1, 2, 3]\n"
+    assert bring_up(["reboot", "--set", over], out=out) == 0
+    text = out.getvalue()
+    assert "motor 3: had overheating; rebooted, torque off" in text and "motor 1: had no hardware error" in text
+    assert emulator.reboots == IDS
+
+
 def test_silent_bus_does_not_hang(emulator):
     with make_motors(emulator) as motors:
         emulator.silent = True

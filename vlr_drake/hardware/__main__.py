@@ -3,13 +3,16 @@
     python -m vlr_drake.hardware status --config hw.yaml   # ping, read, torque stays off
     python -m vlr_drake.hardware zero   --config hw.yaml   # zero_offset_ticks to paste
     python -m vlr_drake.hardware camera --config hw.yaml --frames 30
+    python -m vlr_drake.hardware reboot --config hw.yaml   # clear a motor's hardware error
 
 ``--config`` is a hardware section (:class:`vlr_drake.hardware.config.HardwareConfig`) or a
 scenario file with one (``diagrams/hardware.yaml``);
 ``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. No command enables torque.
 ``zero``: straighten every finger by hand with its tendon just taut, then run it; it prints
 the present positions as ``zero_offset_ticks`` (measure again after a motor power cycle, which
-resets the multi-turn count).
+resets the multi-turn count). ``reboot``: a motor that stopped on a hardware error
+(overload, overheating) keeps it, and its torque off, until it is rebooted; find the cause
+first, then reboot, then ``zero`` again (a reboot may reset the multi-turn count as well).
 """
 
 import argparse
@@ -38,12 +41,23 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
     """Command line entry (see the module docstring). Returns the exit status."""
     out = out or sys.stdout
     p = argparse.ArgumentParser(prog="python -m vlr_drake.hardware", description=__doc__.split("\n")[0])
-    p.add_argument("command", choices=["status", "zero", "camera"])
+    p.add_argument("command", choices=["status", "zero", "camera", "reboot"])
     p.add_argument("--config", help="hardware section YAML file, or a scenario file with a hardware section")
     p.add_argument("--set", default=None, help="YAML text overriding config fields")
     p.add_argument("--frames", type=count(1), default=30, help="camera: frames to read")
     a = p.parse_args(argv)
     config = load_hardware_config(filename=a.config, data=a.set).validate()
+
+    if a.command == "reboot":
+        from vlr_drake.hardware.dynamixel import hardware_error_text
+
+        had = _motors(config).reboot()
+        for i, status in zip(config.motor_ids, had, strict=True):
+            cause = f"had {hardware_error_text(status)}" if status else "had no hardware error"
+            print(f"  motor {i}: {cause}; rebooted, torque off", file=out)
+        print("measure zero_offset_ticks again (python -m vlr_drake.hardware zero): a reboot may reset the "
+              "multi-turn count", file=out)
+        return 0
 
     if a.command in ("status", "zero"):
         from vlr_drake.hardware.config import TendonMotorMap

@@ -7,7 +7,11 @@ conversion and the tendon limits live in :class:`vlr_drake.hardware.config.Tendo
 
 Safe start (:meth:`TendonMotors.open`):
   1. open the port at the configured baud rate (a missing device is a clear error);
-  2. ping every motor (an id that does not answer is named in the error);
+  2. ping every motor (an id that does not answer is named in the error) and read its
+     hardware error status (address 70): a motor still holding an error from an earlier
+     run (overload, overheating; kept until it is rebooted) stops the start, named, with
+     the way to reboot it (:meth:`TendonMotors.reboot`,
+     ``python -m vlr_drake.hardware reboot``);
   3. torque off, then set the operating mode (address 11; 4 = extended position,
      5 = current-based position) and, in mode 5, the goal current (address 102);
   4. read all present positions with one sync read (address 132); a motor far outside its
@@ -50,6 +54,8 @@ ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
 ADDR_TORQUE_ENABLE = 64  # 1 byte
 ADDR_HARDWARE_ERROR_STATUS = 70  # 1 byte, bits below
 ADDR_GOAL_CURRENT = 102  # 2 bytes
+#: How long a motor takes to answer again after a REBOOT instruction [s].
+REBOOT_WAIT_S = 0.5
 ADDR_GOAL_POSITION = 116  # 4 bytes
 ADDR_PRESENT_CURRENT = 126  # 2 bytes, signed
 ADDR_PRESENT_POSITION = 132  # 4 bytes, signed
@@ -190,28 +196,13 @@ class TendonMotors:
 
         if self.is_open:
             raise DynamixelError(f"port {self.port_name} is already open")
-        latency = self.latency_timer_ms
-
-        class _Port(sdk.PortHandler):
-            # The SDK's status timeout uses a fixed 16 ms USB latency; make it configurable.
-            def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
-                self.packet_start_time = self.getCurrentTime()
-                self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency + 2.0
-
-        self._port = _Port(self.port_name)
-        self._ph = sdk.PacketHandler(2.0)
+        self._open_port()
         try:
-            ok = self._port.setBaudRate(self.baud_rate)
-        except Exception as e:  # serial.SerialException, OSError
-            self._port = None
-            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}': {e}") from e
-        if not ok:
-            self._port = None
-            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}' at {self.baud_rate} baud")
-        self.is_open = True
-        try:
+            for dxl_id in self.motor_ids:  # a motor with a hardware error answers with the alert bit
+                self._call(f"ping motor id {dxl_id}", lambda i=dxl_id: self._ph.ping(self._port, i), dxl_id,
+                           allow_alert=True)
             for dxl_id in self.motor_ids:
-                self._call(f"ping motor id {dxl_id}", lambda i=dxl_id: self._ph.ping(self._port, i), dxl_id)
+                self._refuse_hardware_error(dxl_id)
             for dxl_id in self.motor_ids:
                 self._write1(dxl_id, ADDR_TORQUE_ENABLE, 0, "torque off")
                 mode = self._call(
@@ -261,6 +252,77 @@ class TendonMotors:
             "on" if self.torque_on else "off",
         )
         return ticks
+
+    def _open_port(self) -> None:
+        import dynamixel_sdk as sdk
+
+        latency = self.latency_timer_ms
+
+        class _Port(sdk.PortHandler):
+            # The SDK's status timeout uses a fixed 16 ms USB latency; make it configurable.
+            def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
+                self.packet_start_time = self.getCurrentTime()
+                self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency + 2.0
+
+        self._port = _Port(self.port_name)
+        self._ph = sdk.PacketHandler(2.0)
+        try:
+            ok = self._port.setBaudRate(self.baud_rate)
+        except Exception as e:  # serial.SerialException, OSError
+            self._port = None
+            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}': {e}") from e
+        if not ok:
+            self._port = None
+            raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}' at {self.baud_rate} baud")
+        self.is_open = True
+
+    def _refuse_hardware_error(self, dxl_id: int) -> None:
+        """Raise naming the error when the motor still holds a hardware error (address 70; an
+        overload or overheating of an earlier run is kept until the motor is rebooted)."""
+        status = self._call(
+            f"read hardware error status of motor id {dxl_id}",
+            lambda: self._ph.read1ByteTxRx(self._port, dxl_id, ADDR_HARDWARE_ERROR_STATUS),
+            dxl_id,
+            allow_alert=True,
+        )
+        if status:
+            raise DynamixelError(
+                f"motor id {dxl_id} on '{self.port_name}' still reports a hardware error: "
+                f"{hardware_error_text(status)} (status 0x{status:02x}); it keeps its torque off until it is "
+                "rebooted (python -m vlr_drake.hardware reboot --config ...; find the cause first)"
+            )
+
+    def reboot(self) -> list[int]:
+        """Reboot every motor (the Dynamixel REBOOT instruction), which clears a hardware
+        error; torque is off after it. The port must not be open; it is opened and closed
+        here. Returns the hardware error status each motor had (address 70). A reboot may
+        reset a motor's multi-turn count, as a power cycle does: ``open`` then finds the
+        motors far outside their limits until ``zero_offset_ticks`` are measured again."""
+        import time
+
+        if self.is_open:
+            raise DynamixelError(f"port {self.port_name} is already open")
+        self._open_port()
+        had = []
+        try:
+            for dxl_id in self.motor_ids:
+                had.append(int(self._call(
+                    f"read hardware error status of motor id {dxl_id}",
+                    lambda i=dxl_id: self._ph.read1ByteTxRx(self._port, i, ADDR_HARDWARE_ERROR_STATUS),
+                    dxl_id, allow_alert=True)))
+                self._call(f"reboot motor id {dxl_id}", lambda i=dxl_id: self._ph.reboot(self._port, i), dxl_id,
+                           allow_alert=True)
+            time.sleep(REBOOT_WAIT_S)  # the motors start again
+            for dxl_id in self.motor_ids:
+                self._call(f"ping motor id {dxl_id} after its reboot", lambda i=dxl_id: self._ph.ping(self._port, i),
+                           dxl_id)
+        finally:
+            try:
+                self._port.closePort()
+            except Exception:
+                pass
+            self.is_open = False
+        return had
 
     def close(self) -> None:
         """Torque off (best effort: one broadcast sync write, then confirmed writes) and close
@@ -427,7 +489,7 @@ class TendonMotors:
                 raise DynamixelError(
                     f"motor id {dxl_id} on '{self.port_name}' reports a hardware error: "
                     f"{hardware_error_text(status)} (status 0x{status:02x}); the motor has shut its "
-                    "torque off and needs a reboot"
+                    "torque off and needs a reboot (python -m vlr_drake.hardware reboot)"
                 )
 
     def _read_once(self) -> tuple[np.ndarray, np.ndarray]:
