@@ -313,7 +313,7 @@ def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
     """hardware.yaml with the bus on the emulator and a video file for the camera: the
     policy's commands reach the motors; without a tag in view the filter waits."""
     import cv2
-    from dynamixel_emulator import DynamixelEmulator
+    from dynamixel_emulator import ADDR_GOAL_POSITION, SYNC_WRITE, DynamixelEmulator
 
     video = tmp_path / "blank.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (640, 480))
@@ -346,6 +346,14 @@ def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
                 2048 + d * int(np.round(x * ticks_per_m)) for d, x in zip([1, -1, 1], command, strict=True)
             ]
             assert [emu.goal_position(i) for i in ids] == want
+            # before the clock started the hand closed on the grasp (31 mm of thumb pull from
+            # the straight fingers) at max_tendon_speed, one step per update
+            hw = b.plant
+            step = s.hardware.max_tendon_speed * s.hardware.period_s
+            assert hw.grasp_report["reached"] and hw.grasp_report["updates"] == int(np.ceil(b.l_grasp.max() / step))
+            thumb = np.array([2048] + [int.from_bytes(p[5:9], "little", signed=True) for _, _, p in
+                                       emu.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)])  # id 1's goals
+            assert np.max(np.abs(np.diff(thumb))) <= step * ticks_per_m + 1  # never a jump
         finally:
             b.plant.close()
 

@@ -109,6 +109,9 @@ def make_config(emu: DynamixelEmulator, camera, **kw) -> HardwareConfig:
         camera_timeout_s=0.5,
         latency_timer_ms=30.0,
         period_s=0.05,
+        # commands are sent as asked (the ramp towards a far command has its own test:
+        # test_system_ports_with_fixed_input_and_forced_update)
+        max_tendon_speed=10.0,
     )
     for k, v in kw.items():
         setattr(cfg, k, v)
@@ -377,7 +380,8 @@ def test_frame_source_errors(tmp_path):
 # --- the system ----------------------------------------------------------------------------
 def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
     path, poses = tag_video
-    hw = HardwareInterface(model_o(), make_config(emulator, str(path)), intrinsics=intrinsics())
+    cfg = make_config(emulator, str(path), max_tendon_speed=HardwareConfig().max_tendon_speed)  # the default ramp
+    hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics())
     try:
         names = {hw.get_output_port(i).get_name() for i in range(hw.num_output_ports())}
         assert names == {
@@ -399,15 +403,25 @@ def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
         assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 0.0  # no frame yet
         command = np.array([0.012, 0.03, 0.02])
         hw.get_tendon_command_input_port().FixValue(ctx, command)
-        hw.ExecuteForcedEvents(ctx)
-        emulator.wait_idle()
+        # the command is approached at max_tendon_speed, one update at a time, not jumped to
+        sent0 = hw.GetOutputPort("tendon_command_sent").Eval(ctx).copy()
+        step = hw.config.max_tendon_speed * hw.config.period_s
+        updates = int(np.ceil(np.max(np.abs(command - sent0)) / step - 1e-9))
+        assert updates >= 3
+        for k in range(1, updates + 1):
+            hw.ExecuteForcedEvents(ctx)
+            emulator.wait_idle()
+            want = np.clip(command, sent0 - k * step, sent0 + k * step)
+            assert [emulator.goal_position(i) for i in IDS] == expected_ticks(want)
+            if k == 1:  # the update's camera frame
+                assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 1.0
+                image = hw.get_rgb_image_output_port().Eval(ctx)
+                assert (image.width(), image.height()) == (W, H)
+                rgba = np.asarray(image.data)
+                assert rgba[..., 3].min() == 255 and rgba[..., :3].max() > 150  # a real frame
         assert [emulator.goal_position(i) for i in IDS] == expected_ticks(command)
+        assert hw.num_ramped == updates - 1  # the last update sends the command itself
         assert np.allclose(hw.get_tendon_position_measured_output_port().Eval(ctx), command, atol=1e-5)
-        assert hw.get_camera_valid_output_port().Eval(ctx)[0] == 1.0
-        image = hw.get_rgb_image_output_port().Eval(ctx)
-        assert (image.width(), image.height()) == (W, H)
-        rgba = np.asarray(image.data)
-        assert rgba[..., 3].min() == 255 and rgba[..., :3].max() > 150  # a real frame
     finally:
         hw.close()
     assert not any(emulator.torque_enabled(i) for i in IDS)
@@ -693,6 +707,7 @@ def test_example_files_load_and_build(emulator, tmp_path):
     assert cfg.calibration_file == "camera_intrinsics.yaml" and cfg.camera == 0
     # run it against the emulator with a stand-in camera
     cfg.port, cfg.motor_ids, cfg.latency_timer_ms = emulator.port_name, list(IDS), 30.0
+    cfg.max_tendon_speed = 1.0  # one update reaches the command (the ramp has its own test)
     for i in IDS:
         emulator.set_present_position(i, 2048)  # taut and straight: at the zero offsets
     builder = DiagramBuilder()
@@ -734,6 +749,29 @@ def test_measured_position_lags_the_goal():
             assert np.all(measured > 0.0) and np.all(measured < 0.02)
             assert np.allclose(hw.GetOutputPort("tendon_command_sent").Eval(ctx), 0.02)
             assert np.all(hw.GetOutputPort("motor_current").Eval(ctx) > 0.0)  # pulling towards the goal
+        finally:
+            hw.close()
+
+
+def test_closing_on_the_grasp_that_the_motors_cannot_reach_in_time_warns():
+    """Motors too slow for grasp_timeout_s: the start says how far the tendons are and the
+    run starts there; a grasp_command of the wrong size is refused by name."""
+    with DynamixelEmulator(IDS, lag_s=5.0) as emu:
+        cfg = make_config(emu, 0, zero_offset_ticks=[0, 0, 0], direction=[1, 1, 1], max_tendon_speed=0.02,
+                          grasp_timeout_s=0.3)
+        camera = FrameSource(0, timeout_s=0.05, expected_size=(W, H), capture_factory=FakeCapture(5))
+        with pytest.raises(ValueError, match="'grasp_command' must be 3 finite tendon commands"):
+            HardwareInterface(model_o(), cfg, intrinsics=intrinsics(), camera=camera, grasp_command=[0.01, 0.01])
+        hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics(), camera=camera, grasp_command=[0.01] * 3)
+        try:
+            ctx = hw.CreateDefaultContext()
+            with pytest.warns(UserWarning, match=r"after 0.3 s the tendons are .* mm from the grasp's commands"):
+                hw.ExecuteInitializationEvents(ctx)
+            rep = hw.grasp_report
+            assert not rep["reached"] and rep["seconds"] >= 0.3 and rep["largest_offset_m"] > cfg.grasp_tolerance
+            measured = hw.get_tendon_position_measured_output_port().Eval(ctx)
+            assert np.all(measured < 0.01 - cfg.grasp_tolerance)  # where the motors got to
+            assert all(emu.torque_enabled(i) for i in IDS)  # and the run goes on from there
         finally:
             hw.close()
 

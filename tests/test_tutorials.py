@@ -129,6 +129,7 @@ def test_06_hardware_mapping_calibration_and_emulated_bus(tmp_path, monkeypatch)
     assert s["fx_relative_error"] < 0.01
     assert s["calibration_rms_px"] < 0.5
     assert s["goal_ticks"] == s["expected_ticks"]  # the command reached the motors as ticks
+    assert s["updates_to_reach"] == 30  # 30 mm of pull at 20 mm/s in 50 ms updates: a ramp
     assert s["measured_tendon_m"] == pytest.approx([0.010, 0.020, 0.030], abs=s["one_tick_m"])
     assert s["camera_valid"]
     # the frame from the interface, through the tag observer: tag 0.12 m ahead, on the axis

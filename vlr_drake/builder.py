@@ -292,7 +292,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         from vlr_drake.systems.hardware_interface import add_hardware_interface
 
         theta_c, a_c, l0 = _nominal_grasp(s, h)
-        plant = add_hardware_interface(builder, spec, s.hardware, name="hand")
+        plant = add_hardware_interface(builder, spec, s.hardware, name="hand", grasp_command=l0)
         sensor = TagObserver(
             _observer_config(s),
             plant.camera_matrix(),
@@ -403,11 +403,14 @@ def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | No
     the grasp's commands, which the policy already outputs: checked), ``Initialize``, then
     simulate ``settle_sec`` (default: the smaller of ``physics.grasp_settle_max`` and 0.8 T,
     before the filter's first update at 0.9 T) so the grasp settles under the object's
-    weight. Other plants: ``Initialize`` only. Returns ``{"theta_placed", "command",
+    weight. Hardware: ``Initialize``, in which the interface opens the motors and closes the
+    hand on the grasp's commands, then the real-time clock starts. The model plant:
+    ``Initialize`` only. Returns ``{"theta_placed", "command",
     "in_contact"}`` (the last two None/all-True off the physics plant)."""
     root = simulator.get_mutable_context()
     if built.physics_hand is None:
-        simulator.Initialize()
+        simulator.Initialize()  # hardware: the motors open and close on the grasp (HardwareInterface)
+        simulator.ResetStatistics()  # a real-time run's clock starts after that
         return {"theta_placed": None, "command": built.l_grasp.copy(), "in_contact": None}
     ph = built.physics_hand
     theta0, l = ph.place(root)

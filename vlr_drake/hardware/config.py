@@ -89,6 +89,20 @@ class HardwareConfig:
     start_tolerance_ticks: int = 256
     # Period of the hardware interface's update: send commands, read motors and camera [s].
     period_s: float = 0.05
+    # Fastest the interface moves a tendon's goal [m/s]: a command further from the last one
+    # sent is approached at this speed, one update at a time. The first command (the grasp)
+    # is otherwise a jump from where the motors start, at the motors' full speed (their
+    # profile velocity is left at 0, no limit). 20 mm/s takes a tendon through the Model O's
+    # grasp (about 31 mm of pull) in 1.6 s and through an exploration action (0.5 mm) within
+    # one update. The filter reads the pull the motors reached (tendon_position_measured).
+    max_tendon_speed: float = 0.02
+    # Closing on the grasp before the run's clock starts (HardwareInterface's grasp_command,
+    # which the scenario builder sets to the grasp section's commands): the tendons are
+    # ramped there at max_tendon_speed until every one is within grasp_tolerance [m] of its
+    # command, or for at most grasp_timeout_s [s] (then a warning names how far they are: an
+    # object that stops the fingers short under the goal current, or a motor that cannot).
+    grasp_tolerance: float = 0.5e-3
+    grasp_timeout_s: float = 10.0
 
     @property
     def num_motors(self) -> int:
@@ -149,7 +163,8 @@ class HardwareConfig:
             raise ValueError(
                 f"{where}: 'camera_mode' must be auto, sequential or latest, got {self.camera_mode!r}"
             )
-        for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a"):
+        for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a", "max_tendon_speed",
+                     "grasp_tolerance", "grasp_timeout_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{where}: '{name}' must be positive, got {v}")

@@ -12,7 +12,9 @@ has the simulated hand's ports plus the camera's:
     output motor_current             (N,) present motor current [A]
 
 A periodic unrestricted update (``config.period_s``) clips the command to the tendon limits
-(the config's or the hand's ``tendon_range``), converts it to motor ticks
+(the config's or the hand's ``tendon_range``), moves it at most ``config.max_tendon_speed``
+x ``period_s`` from the command sent before (so the grasp's first command is a ramp from
+where the motors start, not a jump), converts it to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
 positions with one sync read, and takes a camera frame (a device or stream: the newest frame
 if it is fresher than ``config.camera_timeout_s``, without waiting; a video file: the next
@@ -23,6 +25,13 @@ re-using a stale frame.
 
 Safe start and stop: the motors are opened by an initialization event (ping, first read, goal
 = present position, then torque on: :class:`vlr_drake.hardware.dynamixel.TendonMotors`).
+Given a ``grasp_command``, the same event then closes the hand on the grasp before the run's
+clock starts: the tendons are ramped there at ``config.max_tendon_speed`` until each is
+within ``config.grasp_tolerance`` of its command (at most ``config.grasp_timeout_s``; then
+a warning says how far they are), so that the first action and the filter's first
+measurement find the grasp made. A Simulator's real-time pacing should start after it
+(``Simulator.ResetStatistics`` after ``Initialize``, as :func:`run_hardware` and the
+scenario builder do).
 A bus failure or a non-finite command switches torque off and raises. :meth:`close` (called by
 :func:`run_hardware` on the way out, also on errors and Ctrl-C, and by a finalizer as a last
 resort) switches torque off and releases the camera.
@@ -84,6 +93,8 @@ class HardwareInterface(LeafSystem):
         motors: a motor driver with ``open/read/write_goal_ticks/close`` (default
             :class:`TendonMotors` from the config).
         camera: a frame source with ``open/read/release`` (default :class:`FrameSource`).
+        grasp_command: tendon commands (N,) [m] to close the hand on before the run starts
+            (module doc); None: the run starts where the motors are.
     """
 
     def __init__(
@@ -93,6 +104,7 @@ class HardwareInterface(LeafSystem):
         intrinsics: CameraIntrinsics | None = None,
         motors=None,
         camera=None,
+        grasp_command=None,
     ):
         super().__init__()
         N = hand.num_fingers
@@ -101,6 +113,15 @@ class HardwareInterface(LeafSystem):
         self.num_tendons = N
         lower, upper = config.tendon_limits(hand)
         self.motor_map = TendonMotorMap(config, lower, upper)
+        if grasp_command is not None:
+            grasp_command = np.asarray(grasp_command, float)
+            if grasp_command.shape != (N,) or not np.all(np.isfinite(grasp_command)):
+                raise ValueError(f"hardware interface: 'grasp_command' must be {N} finite tendon commands [m], "
+                                 f"got {grasp_command.tolist()}")
+        self.grasp_command = grasp_command
+        #: How the start's closing on the grasp went: updates, seconds, the largest distance
+        #: of a tendon from its command at the end [m], and whether it got within tolerance.
+        self.grasp_report: dict | None = None
         self.intrinsics = (intrinsics or read_intrinsics(config.calibration_file)).validate()
         w, h = self.intrinsics.width, self.intrinsics.height
         self.motors = (
@@ -139,9 +160,11 @@ class HardwareInterface(LeafSystem):
             period_sec=config.period_s, offset_sec=0.0, update=self._update
         )
         self.DeclareForcedUnrestrictedUpdateEvent(update=self._update)
-        #: Updates done, and how many of them had a command clipped at a limit.
+        #: Updates done, how many of them had a command clipped at a limit, and how many sent
+        #: a command ramped towards the one asked for (config.max_tendon_speed).
         self.num_updates = 0
         self.num_clipped = 0
+        self.num_ramped = 0
 
     # --- the camera's calibration, for the AprilTag observer ----------------------------------
     def camera_matrix(self) -> np.ndarray:
@@ -180,15 +203,48 @@ class HardwareInterface(LeafSystem):
         try:
             ticks = self.motors.open()
             self.camera.open()
+            l = self.motor_map.to_tendon(ticks)
+            sent = np.clip(l, self.motor_map.lower, self.motor_map.upper)
+            if self.grasp_command is not None:
+                l, sent = self._close_on_grasp(l, sent)
         except BaseException:
             self.close()
             raise
-        l = self.motor_map.to_tendon(ticks)
         state.get_mutable_discrete_state(self._measured_index).set_value(l)
-        state.get_mutable_discrete_state(self._sent_index).set_value(
-            np.clip(l, self.motor_map.lower, self.motor_map.upper)
-        )
+        state.get_mutable_discrete_state(self._sent_index).set_value(sent)
         log.info("hardware interface started: tendons %s m", np.round(l, 5))
+
+    def _close_on_grasp(self, l: np.ndarray, sent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ramp the tendons from ``sent`` to the grasp's commands (module doc); returns the
+        measured and the sent tendons at the end."""
+        import time
+        import warnings
+
+        cfg = self.config
+        target, _ = self.motor_map.clip(self.grasp_command)
+        step = cfg.max_tendon_speed * cfg.period_s
+        start = time.monotonic()
+        updates = 0
+        while True:
+            sent = np.clip(target, sent - step, sent + step)
+            self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
+            ticks, _ = self.motors.read()
+            l = self.motor_map.to_tendon(ticks)
+            updates += 1
+            off = float(np.max(np.abs(l - target)))
+            reached = bool(np.all(sent == target) and off <= cfg.grasp_tolerance)
+            if reached or time.monotonic() - start >= cfg.grasp_timeout_s:
+                break
+            time.sleep(cfg.period_s)
+        self.grasp_report = {"updates": updates, "seconds": time.monotonic() - start, "largest_offset_m": off,
+                             "reached": reached}
+        if not reached:
+            warnings.warn(
+                f"hardware interface: after {cfg.grasp_timeout_s} s the tendons are {np.round(1e3 * (l - target), 2).tolist()} "
+                f"mm from the grasp's commands (grasp_tolerance {1e3 * cfg.grasp_tolerance} mm): an object that stops "
+                f"the fingers short under the goal current, or a motor that cannot follow; the run starts there",
+                stacklevel=2)
+        return l, sent
 
     def _update(self, context, state) -> None:
         if self.closed:
@@ -199,6 +255,11 @@ class HardwareInterface(LeafSystem):
             else:  # nothing connected: hold the last command
                 command = np.array(context.get_discrete_state(self._sent_index).get_value())
             sent, clipped = self.motor_map.clip(command)
+            last = np.asarray(context.get_discrete_state(self._sent_index).get_value())
+            step = self.config.max_tendon_speed * self.config.period_s
+            ramped = np.clip(sent, last - step, last + step)
+            self.num_ramped += bool(np.any(ramped != sent))
+            sent = ramped
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
             ticks, current = self.motors.read()
             ok, frame = self.camera.read()
@@ -296,6 +357,7 @@ def run_hardware(
         simulator.set_monitor(monitor)
     try:
         simulator.Initialize()
+        simulator.ResetStatistics()  # real time from here: the start (opening, the grasp) took its own
         simulator.AdvanceTo(duration)
     finally:
         interface.close()
