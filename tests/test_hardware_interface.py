@@ -322,6 +322,27 @@ def test_frame_source_times_out_instead_of_hanging(mode):
     cam.release()
 
 
+def test_a_stalled_camera_gives_no_frame_once_its_last_is_too_old(emulator):
+    """latest mode: a frame counts while it is at most max_age_s old, however long the read
+    may wait (timeout_s), so a camera that stalls gives no frame instead of one from before
+    the hand's last action; the config's camera_max_frame_age_s reaches the interface."""
+    cam = FrameSource(0, timeout_s=5.0, mode="latest", capture_factory=FakeCapture(1), max_age_s=0.3).open()
+    try:
+        assert cam.read()[0]
+        time.sleep(0.4)
+        assert cam.read() == (False, None) and cam.misses == 1
+    finally:
+        cam.release()
+    with pytest.raises(ValueError, match="'max_age_s' must be positive"):
+        FrameSource(0, max_age_s=0.0)
+    with pytest.raises(ValueError, match="'camera_max_frame_age_s' must be positive"):
+        HardwareConfig(camera_max_frame_age_s=-1.0).validate()
+    hw = HardwareInterface(model_o(), make_config(emulator, 0, camera_max_frame_age_s=0.15),
+                           intrinsics=intrinsics())
+    assert hw.camera.max_age_s == 0.15 and hw.camera.timeout_s == 0.5
+    hw.close()
+
+
 class CountingCapture:
     """A VideoCapture stand-in whose k-th frame carries k (blue: k mod 256, green: k // 256),
     one frame per ~2 ms."""

@@ -95,7 +95,8 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
         )
     except (FileNotFoundError, RuntimeError) as e:
         print(f"calibration: {e}", file=out)
-    with FrameSource(config.camera, config.camera_timeout_s, mode=config.camera_mode) as cam:
+    with FrameSource(config.camera, config.camera_timeout_s, mode=config.camera_mode,
+                     max_age_s=config.camera_max_frame_age_s) as cam:
         shapes = set()
         for _ in range(a.frames):
             ok, frame = cam.read()

@@ -7,8 +7,8 @@ worker thread, and a frame that does not arrive in time, or the end of a file, i
 Two modes: "sequential" (every frame in order, one capture read per :meth:`FrameSource.read`,
 waiting up to ``timeout_s``; for video files) and "latest" (a grabber thread reads
 continuously and :meth:`FrameSource.read` returns at once the newest frame if it is at most
-``timeout_s`` old, so the control loop never waits on the camera and never reads a stale
-buffer; for devices and streams). "auto" picks sequential for an existing file, latest
+``max_age_s`` old (default ``timeout_s``), so the control loop never waits on the camera and
+never reads a stale buffer; for devices and streams). "auto" picks sequential for an existing file, latest
 otherwise.
 
 Intrinsics use OpenCV's own YAML format (``cv2.FileStorage``), the one ``calibrateCamera``
@@ -159,6 +159,9 @@ class FrameSource:
         expected_size: (width, height) that frames must have (from the calibration);
             another size raises :class:`CameraError` (the intrinsics would be wrong).
         mode: "sequential", "latest" or "auto" (module docstring).
+        max_age_s: latest mode: the oldest a frame may be and still be returned [s] (a
+            camera that stalled for longer gives no frame, not a frame from before the
+            hand's last move); None: ``timeout_s``.
         capture_factory: builds the capture object from ``source`` (default
             ``cv2.VideoCapture``); tests pass a stand-in.
     """
@@ -170,9 +173,12 @@ class FrameSource:
         expected_size: tuple[int, int] | None = None,
         mode: str = "auto",
         capture_factory=None,
+        max_age_s: float | None = None,
     ):
         if timeout_s <= 0:
             raise ValueError(f"camera: 'timeout_s' must be positive, got {timeout_s}")
+        if max_age_s is not None and not max_age_s > 0:
+            raise ValueError(f"camera: 'max_age_s' must be positive, got {max_age_s}")
         if mode not in CAMERA_MODES:
             raise ValueError(f"camera: 'mode' must be one of {CAMERA_MODES}, got {mode!r}")
         if mode == "auto":
@@ -180,6 +186,7 @@ class FrameSource:
         self.mode = mode
         self.source = source
         self.timeout_s = float(timeout_s)
+        self.max_age_s = self.timeout_s if max_age_s is None else float(max_age_s)
         self.expected_size = expected_size
         self._factory = capture_factory
         self._cap = None
@@ -243,10 +250,10 @@ class FrameSource:
                 time.sleep(0.01)  # a dead device fails at once: do not spin
 
     def _read_latest(self) -> tuple[bool, np.ndarray | None]:
-        """latest mode, without waiting: the newest frame if it arrived within ``timeout_s``
+        """latest mode, without waiting: the newest frame if it arrived within ``max_age_s``
         (a frame already returned is returned again while it is that fresh)."""
         with self._cond:
-            fresh = self._latest is not None and time.monotonic() - self._latest_time <= self.timeout_s
+            fresh = self._latest is not None and time.monotonic() - self._latest_time <= self.max_age_s
             if fresh:
                 self.repeats += self._seq == self._taken
                 self._taken = self._seq

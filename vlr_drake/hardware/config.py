@@ -76,6 +76,10 @@ class HardwareConfig:
     calibration_file: str = "camera_intrinsics.yaml"
     # Longest wait for one camera frame before the frame is reported invalid [s].
     camera_timeout_s: float = 1.0
+    # "latest" mode: the oldest a frame may be and still count [s]. A camera that stalled for
+    # longer gives camera_valid 0, not a frame from before the hand's last action (the filter
+    # measures 0.9 of an action period after it). A 30 fps camera's frames are 33 ms apart.
+    camera_max_frame_age_s: float = 0.2
     # "sequential" (every frame in order: video files), "latest" (newest frame from a
     # grabber thread: devices and streams) or "auto" (sequential for an existing file).
     camera_mode: str = "auto"
@@ -163,7 +167,7 @@ class HardwareConfig:
             raise ValueError(
                 f"{where}: 'camera_mode' must be auto, sequential or latest, got {self.camera_mode!r}"
             )
-        for name in ("camera_timeout_s", "latency_timer_ms", "period_s", "current_unit_a", "max_tendon_speed",
+        for name in ("camera_timeout_s", "camera_max_frame_age_s", "latency_timer_ms", "period_s", "current_unit_a", "max_tendon_speed",
                      "grasp_tolerance", "grasp_timeout_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):

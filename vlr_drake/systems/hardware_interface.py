@@ -17,7 +17,7 @@ x ``period_s`` from the command sent before (so the grasp's first command is a r
 where the motors start, not a jump), converts it to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
 positions with one sync read, and takes a camera frame (a device or stream: the newest frame
-if it is fresher than ``config.camera_timeout_s``, without waiting; a video file: the next
+if it is fresher than ``config.camera_max_frame_age_s``, without waiting; a video file: the next
 frame, waiting at most that long; :class:`vlr_drake.hardware.camera.FrameSource`). Without a
 frame (a stalled camera, the end of a video), ``camera_valid`` is 0 and ``rgb_image`` is a
 black frame, so an AprilTag observer that only sees the image reports "no tag" instead of
@@ -131,7 +131,8 @@ class HardwareInterface(LeafSystem):
             camera
             if camera is not None
             else FrameSource(
-                config.camera, config.camera_timeout_s, expected_size=(w, h), mode=config.camera_mode
+                config.camera, config.camera_timeout_s, expected_size=(w, h), mode=config.camera_mode,
+                max_age_s=config.camera_max_frame_age_s,
             )
         )
         self._finalizer = weakref.finalize(self, _shutdown, self.motors, self.camera)
