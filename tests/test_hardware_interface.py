@@ -13,7 +13,7 @@ import time
 import cv2
 import numpy as np
 import pytest
-from dynamixel_emulator import ADDR_GOAL_POSITION, SYNC_WRITE, DynamixelEmulator
+from dynamixel_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, SYNC_WRITE, WRITE, DynamixelEmulator
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
@@ -30,7 +30,7 @@ from vlr_drake.hardware.camera import (
     write_intrinsics,
 )
 from vlr_drake.hardware.config import HardwareConfig, TendonMotorMap, load_hardware_config
-from vlr_drake.hardware.dynamixel import DynamixelError
+from vlr_drake.hardware.dynamixel import DynamixelError, TendonMotors
 from vlr_drake.perception.apriltag import tag_image
 from vlr_drake.systems.hardware_interface import (
     HardwareInterface,
@@ -221,6 +221,10 @@ def test_tendon_limits_may_narrow_the_hand_s_range_not_widen_it():
         ("camera", ""),
         ("period_s", 0.0),
         ("protocol_version", 1.0),
+        ("goal_current_raw", 0),  # mode 5 needs one: the motor's own is near the stall current
+        ("goal_current_raw", 4000),
+        ("max_tendon_speed", 0.0),
+        ("grasp_timeout_s", float("nan")),
     ],
 )
 def test_config_validate_names_bad_field(field, value):
@@ -228,6 +232,18 @@ def test_config_validate_names_bad_field(field, value):
     setattr(cfg, field, value)
     with pytest.raises(ValueError, match=f"'{field}'"):
         cfg.validate()
+
+
+def test_the_goal_current_is_written_by_default(emulator):
+    """Current-based position mode with the config's goal current (300 by default), which
+    limits the tendons' pull; extended position mode (4) has none to give."""
+    from dynamixel_emulator import ADDR_GOAL_CURRENT
+
+    assert HardwareConfig(operating_mode=4, goal_current_raw=0).validate().goal_current_raw == 0
+    cfg = make_config(emulator, 0)
+    assert (cfg.operating_mode, cfg.goal_current_raw) == (5, 300)
+    with TendonMotors.from_config(cfg, (np.full(3, -99999), np.full(3, 99999))):
+        assert [emulator.motors[i].get(ADDR_GOAL_CURRENT, "<h") for i in IDS] == [300] * 3
 
 
 def test_config_loader_errors_name_the_file(tmp_path):
@@ -795,6 +811,43 @@ def test_closing_on_the_grasp_that_the_motors_cannot_reach_in_time_warns():
             assert all(emu.torque_enabled(i) for i in IDS)  # and the run goes on from there
         finally:
             hw.close()
+
+
+def test_a_camera_that_cannot_open_stops_the_start_before_any_torque(emulator, tmp_path):
+    cfg = make_config(emulator, str(tmp_path / "missing.avi"))
+    hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics())
+    with pytest.raises(CameraError, match="cannot open camera"):
+        hw.ExecuteInitializationEvents(hw.CreateDefaultContext())
+    assert hw.closed and emulator.instructions(WRITE, ADDR_TORQUE_ENABLE) == []
+
+
+class SizedCapture(FakeCapture):
+    """A device stand-in that starts at 640 x 480 and takes the size it is set to."""
+
+    def __init__(self, n):
+        super().__init__(n, size=(640, 480))
+        self.asked = {}
+
+    def set(self, prop, value):
+        import cv2
+
+        self.asked[prop] = value
+        w, h = self.size
+        self.size = (int(value), h) if prop == cv2.CAP_PROP_FRAME_WIDTH else (w, int(value))
+        return True
+
+
+def test_a_device_is_asked_for_the_calibrated_size():
+    import cv2
+
+    fake = SizedCapture(2)
+    cam = FrameSource(0, timeout_s=0.5, expected_size=(W, H), mode="sequential", capture_factory=fake).open()
+    try:
+        assert fake.asked == {cv2.CAP_PROP_FRAME_WIDTH: W, cv2.CAP_PROP_FRAME_HEIGHT: H}
+        ok, frame = cam.read()
+        assert ok and frame.shape[:2] == (H, W)
+    finally:
+        cam.release()
 
 
 def test_bring_up_tool(emulator, tag_video, tmp_path):

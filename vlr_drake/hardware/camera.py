@@ -225,6 +225,12 @@ class FrameSource:
             self._pool.shutdown(wait=False)
             raise CameraError(f"cannot open camera '{self.source}' (device index, file or URL)")
         self._cap = cap
+        if isinstance(self.source, int) and self.expected_size is not None and hasattr(cap, "set"):
+            # a device: ask for the calibration's size (a camera may start in another mode;
+            # read() still refuses frames of another size)
+            w, h = self.expected_size
+            self._pool.submit(lambda: (cap.set(cv2.CAP_PROP_FRAME_WIDTH, w),
+                                       cap.set(cv2.CAP_PROP_FRAME_HEIGHT, h))).result(timeout=max(self.timeout_s, 5.0))
         if self.mode == "latest":
             self._pool.submit(self._grab_loop, cap)
             with self._cond:  # give the first frame up to timeout_s to arrive

@@ -65,8 +65,12 @@ class HardwareConfig:
     tendon_upper: list[float] = field(default_factory=list)
     # Operating mode written to address 11: 4 extended position, 5 current-based position.
     operating_mode: int = 5
-    # Goal current (address 102) in current-based position mode [raw units, 0 = leave as is].
-    goal_current_raw: int = 0
+    # Goal current (address 102) in current-based position mode [raw units]: what limits the
+    # tendon's pull, and so the grip. Required (1..2047) in mode 5: the motor's own value is
+    # its current limit after a power cycle, close to the stall current (XM430-W350: 1193,
+    # 3.2 A). 300 (0.8 A on an XM430) as diagrams/hardware.yaml. Mode 4 has no current limit
+    # at all (the ROBOTIS e-manual's Current Limit applies to the current modes only).
+    goal_current_raw: int = 300
     # Size of one raw current unit [A] (XM430: 2.69 mA), for the motor_current output.
     current_unit_a: float = 0.00269
     # Camera: an int device index, or a str file path or stream URL (OpenCV VideoCapture).
@@ -157,8 +161,11 @@ class HardwareConfig:
             raise ValueError(
                 f"{where}: 'operating_mode' must be 4 (extended position) or 5 (current-based position), got {self.operating_mode}"
             )
-        if not 0 <= self.goal_current_raw <= 32767:
-            raise ValueError(f"{where}: 'goal_current_raw' must be in 0..32767, got {self.goal_current_raw}")
+        least = 1 if self.operating_mode == 5 else 0
+        if not least <= self.goal_current_raw <= 2047:
+            raise ValueError(f"{where}: 'goal_current_raw' must be in {least}..2047"
+                             + (" in current-based position mode (5): it limits the tendon's pull" if least else "")
+                             + f", got {self.goal_current_raw}")
         if not isinstance(self.camera, int | str) or (isinstance(self.camera, str) and not self.camera):
             raise ValueError(
                 f"{where}: 'camera' must be an int device index or a non-empty path/URL, got {self.camera!r}"

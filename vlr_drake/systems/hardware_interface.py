@@ -23,8 +23,10 @@ frame (a stalled camera, the end of a video), ``camera_valid`` is 0 and ``rgb_im
 black frame, so an AprilTag observer that only sees the image reports "no tag" instead of
 re-using a stale frame.
 
-Safe start and stop: the motors are opened by an initialization event (ping, first read, goal
-= present position, then torque on: :class:`vlr_drake.hardware.dynamixel.TendonMotors`).
+Safe start and stop: an initialization event opens the camera, then the motors (ping, first
+read, goal = present position, then torque on:
+:class:`vlr_drake.hardware.dynamixel.TendonMotors`), so a camera that cannot open stops the
+start before any motor has torque.
 Given a ``grasp_command``, the same event then closes the hand on the grasp before the run's
 clock starts: the tendons are ramped there at ``config.max_tendon_speed`` until each is
 within ``config.grasp_tolerance`` of its command (at most ``config.grasp_timeout_s``; then
@@ -202,8 +204,8 @@ class HardwareInterface(LeafSystem):
         if self.closed:
             raise RuntimeError("hardware interface: already closed; build a new one to run again")
         try:
+            self.camera.open()  # first: a camera that cannot open stops the start before any torque
             ticks = self.motors.open()
-            self.camera.open()
             l = self.motor_map.to_tendon(ticks)
             sent = np.clip(l, self.motor_map.lower, self.motor_map.upper)
             if self.grasp_command is not None:
