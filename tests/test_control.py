@@ -257,8 +257,8 @@ def test_servo_never_loops_forever_with_zero_budget(grasp):
 
 def test_a_lost_tag_reports_the_held_pose_not_the_truth(grasp):
     """The model plant's dropout is a lost tag: valid False with its last valid measurement,
-    as the physics plant and the tag observer hold theirs, never the noise-free truth (which
-    servo_to would have used as its first measurement)."""
+    as the physics plant and the tag observer hold theirs, not the noise-free truth of now
+    (which servo_to had used as its first measurement after a move)."""
     pl = fresh(grasp, sigma_position=0.3e-3, sigma_rotation_deg=1.0, seed=3)
     pl.dropout = 0.5
     held, lost = None, 0

@@ -299,3 +299,35 @@ def test_bad_constructor_arguments():
         TendonMotors("/dev/null", 1000000, IDS, (np.zeros(2), np.zeros(2)))
     with pytest.raises(ValueError, match="lo <= hi"):
         TendonMotors("/dev/null", 1000000, IDS, (np.ones(3), np.zeros(3)))
+    with pytest.raises(ValueError, match=r"goal_current_raw must be in 1..2047"):
+        TendonMotors("/dev/null", 1000000, IDS, LIMITS, goal_current_raw=0)
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_stop_signal_in_the_middle_of_bus_io_stops_the_command(emulator, sig):
+    """A signal that lands inside a bus transaction is a stop, not a bus error: the command
+    ends with 'stopped by' and 128 + the signal's number, torque off (the driver's handlers of
+    failed I/O had turned it into a DynamixelError, exit status 2)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from vlr_drake.entry import run
+
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), getattr(signal, sig)))
+
+    def main():
+        with make_motors(emulator, tick_limits=(np.full(3, -99999), np.full(3, 99999))) as motors:
+            timer.start()
+            start = time.monotonic()
+            while time.monotonic() - start < 10.0:  # only bus I/O, no sleep: the signal lands in it
+                motors.read()
+        return 0
+
+    try:
+        status = run("demo", main, hardware=True)
+    finally:
+        timer.cancel()
+    assert status == 128 + int(getattr(signal, sig))
+    assert not any(emulator.torque_enabled(i) for i in IDS)

@@ -790,10 +790,13 @@ def test_measured_position_lags_the_goal():
             hw.close()
 
 
-def test_closing_on_the_grasp_that_the_motors_cannot_reach_in_time_warns():
+@pytest.mark.parametrize("lag_s", [0.0, 5.0])
+def test_closing_on_the_grasp_that_the_motors_cannot_reach_in_time_warns(lag_s):
     """Motors too slow for grasp_timeout_s: the start says how far the tendons are and the
-    run starts there; a grasp_command of the wrong size is refused by name."""
-    with DynamixelEmulator(IDS, lag_s=5.0) as emu:
+    run starts there; motors that follow reach the grasp, however long the ramp takes
+    (10 updates of 50 ms here, longer than the 0.3 s timeout, which counts from the ramp's
+    end); a grasp_command of the wrong size is refused by name."""
+    with DynamixelEmulator(IDS, lag_s=lag_s) as emu:
         cfg = make_config(emu, 0, zero_offset_ticks=[0, 0, 0], direction=[1, 1, 1], max_tendon_speed=0.02,
                           grasp_timeout_s=0.3)
         camera = FrameSource(0, timeout_s=0.05, expected_size=(W, H), capture_factory=FakeCapture(5))
@@ -802,12 +805,18 @@ def test_closing_on_the_grasp_that_the_motors_cannot_reach_in_time_warns():
         hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics(), camera=camera, grasp_command=[0.01] * 3)
         try:
             ctx = hw.CreateDefaultContext()
-            with pytest.warns(UserWarning, match=r"after 0.3 s the tendons are .* mm from the grasp's commands"):
+            measured = hw.get_tendon_position_measured_output_port()
+            if lag_s == 0.0:
+                hw.ExecuteInitializationEvents(ctx)
+                assert hw.grasp_report["reached"] and hw.grasp_report["updates"] == 10
+                assert np.allclose(measured.Eval(ctx), 0.01, atol=cfg.grasp_tolerance)
+                return
+            with pytest.warns(UserWarning, match=r"0.3 s after the grasp's commands were sent the tendons are "):
                 hw.ExecuteInitializationEvents(ctx)
             rep = hw.grasp_report
-            assert not rep["reached"] and rep["seconds"] >= 0.3 and rep["largest_offset_m"] > cfg.grasp_tolerance
-            measured = hw.get_tendon_position_measured_output_port().Eval(ctx)
-            assert np.all(measured < 0.01 - cfg.grasp_tolerance)  # where the motors got to
+            assert not rep["reached"] and rep["seconds"] >= 0.3 + 9 * 0.05
+            assert rep["largest_offset_m"] > cfg.grasp_tolerance
+            assert np.all(measured.Eval(ctx) < 0.01 - cfg.grasp_tolerance)  # where the motors got to
             assert all(emu.torque_enabled(i) for i in IDS)  # and the run goes on from there
         finally:
             hw.close()
@@ -848,6 +857,26 @@ def test_a_device_is_asked_for_the_calibrated_size():
         assert ok and frame.shape[:2] == (H, W)
     finally:
         cam.release()
+
+
+def test_a_device_that_hangs_while_opening_or_taking_its_size_is_named(monkeypatch):
+    import vlr_drake.hardware.camera as camera_module
+
+    monkeypatch.setattr(camera_module, "OPEN_WAIT_S", 0.2)
+    release = threading.Event()
+
+    class Hanging(SizedCapture):
+        def set(self, prop, value):
+            release.wait(5.0)
+            return True
+
+    try:
+        with pytest.raises(CameraError, match=r"camera '0' did not take the frame size 320 x 240 within 0.2 s"):
+            FrameSource(0, timeout_s=0.1, expected_size=(W, H), capture_factory=Hanging(1)).open()
+        with pytest.raises(CameraError, match=r"camera '0' did not open within 0.2 s"):
+            FrameSource(0, timeout_s=0.1, capture_factory=lambda source: release.wait(5.0)).open()
+    finally:
+        release.set()
 
 
 def test_bring_up_tool(emulator, tag_video, tmp_path):

@@ -36,6 +36,20 @@ def _fixed_filter_system(particles: int, valid: float):
     return h, th, a, plant, sys, ctx
 
 
+def test_a_small_cloud_is_named_when_the_system_is_made_not_mid_run():
+    """The system makes its filter at the first valid measurement, in the middle of a run;
+    a FewParticlesWarning comes when the system is made, once."""
+    import warnings
+
+    with pytest.warns(pf.FewParticlesWarning, match="500 particles") as record:
+        h, th, a, plant, sys, ctx = _fixed_filter_system(500, valid=1.0)
+    assert len(record) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pf.FewParticlesWarning)
+        sys.ExecuteForcedEvents(ctx)  # the filter is made here, without a second warning
+    assert sys.filter(ctx) is not None
+
+
 def test_filter_system_ports_with_fixvalue():
     # an invalid measurement: the filter waits
     h, th, a, plant, sys, ctx = _fixed_filter_system(500, valid=0.0)

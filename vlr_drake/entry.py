@@ -51,22 +51,27 @@ def warning_lines(prog: str) -> Iterator[None]:
     """Within it, a warning is one line on stderr, ``prog: warning: message`` (Python's own
     form adds the file, line and source of the call; a command's user wants what it says)."""
 
-    def show(message, category, filename, lineno, file=None, line=None):
-        print(f"{prog}: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
+    def line(message, category, filename, lineno, line=None):
+        return f"{prog}: warning: {' '.join(str(message).split())}\n"
 
-    with warnings.catch_warnings():
-        warnings.showwarning = show
+    saved = warnings.formatwarning
+    warnings.formatwarning = line  # not showwarning: a recording catch_warnings still records
+    try:
         yield
+    finally:
+        warnings.formatwarning = saved
 
 
 #: Signals that end a hardware command by unwinding it, so that its ``finally`` blocks switch
-#: the motors' torque off (Python's defaults end the process at once, torque on): a kill, a
-#: closed terminal. Ctrl-C (SIGINT) already unwinds, as KeyboardInterrupt.
-STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+#: the motors' torque off: Ctrl-C, a kill, a closed terminal (Python's defaults for the last
+#: two end the process at once, torque on).
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
-class Stopped(Exception):
-    """A hardware command ended by a signal (:data:`STOP_SIGNALS`) or Ctrl-C."""
+class Stopped(BaseException):
+    """A hardware command ended by one of :data:`STOP_SIGNALS`. A BaseException, as
+    KeyboardInterrupt is: the drivers' handlers of failed I/O (``except Exception``) let it
+    through instead of reporting it as a bus error."""
 
     def __init__(self, name: str):
         super().__init__(name)
@@ -75,23 +80,23 @@ class Stopped(Exception):
 
 @contextlib.contextmanager
 def unwinding_signals() -> Iterator[None]:
-    """Within it (in the main thread), :data:`STOP_SIGNALS` raise :class:`Stopped`; the
-    previous handlers come back on the way out."""
+    """Within it (in the main thread), the first of :data:`STOP_SIGNALS` raises
+    :class:`Stopped` and the ones after it are ignored, so that nothing interrupts the
+    clean-up it starts; the previous handlers come back on the way out."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    sigs = [getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)]  # SIGHUP: POSIX only
 
     def stop(signum, frame):
+        for sig in sigs:
+            signal.signal(sig, signal.SIG_IGN)
         raise Stopped(signal.Signals(signum).name)
 
-    previous = {}
-    for name in STOP_SIGNALS:
-        if hasattr(signal, name):  # SIGHUP is POSIX only
-            sig = getattr(signal, name)
-            previous[sig] = signal.signal(sig, stop)
+    previous = {sig: signal.signal(sig, stop) for sig in sigs}
     try:
         yield
     finally:
@@ -102,9 +107,10 @@ def unwinding_signals() -> Iterator[None]:
 def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     """Run ``main()``; 0 when it returns (whatever it returns, unless an int status), 2
     after :func:`report` when it raises one of :data:`USER_ERRORS` (with ``hardware``,
-    also the hardware's errors). With ``hardware``, a kill, a closed terminal or Ctrl-C
-    unwinds ``main`` (its ``finally`` blocks switch the torque off) and ends it with one
-    line and the shell's status for the signal (128 + its number)."""
+    also the hardware's errors). With ``hardware`` (a command that may drive a real hand),
+    Ctrl-C, a kill or a closed terminal unwinds ``main`` (its ``finally`` blocks switch the
+    torque off) and ends it with one line and the shell's status for the signal (128 + its
+    number)."""
     import signal
 
     errors = USER_ERRORS + (_hardware_errors() if hardware else ())
@@ -114,12 +120,10 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
             status = main()
     except errors as e:
         return report(prog, e)
-    except (Stopped, KeyboardInterrupt) as e:
-        if not hardware:
-            raise
-        name = e.name if isinstance(e, Stopped) else "SIGINT"
-        print(f"{prog}: stopped by {name} (the run was closed: torque off)", file=sys.stderr)
-        return 128 + int(getattr(signal, name))
+    except Stopped as e:
+        print(f"{prog}: stopped by {e.name} (closed on the way out: a real hand's torque is off)",
+              file=sys.stderr)
+        return 128 + int(getattr(signal, e.name))
     return status if isinstance(status, int) else 0
 
 

@@ -61,6 +61,7 @@ __all__ = [
     "SelfIdentificationFilter",
     "CALIBRATED_PARTICLES",
     "FewParticlesWarning",
+    "warn_if_few_particles",
     "systematic_resample",
     "effective_sample_size",
     "temper",
@@ -964,6 +965,18 @@ class FewParticlesWarning(UserWarning):
     intervals are too narrow to be trusted (quick checks and tests, not results)."""
 
 
+def warn_if_few_particles(config: FilterConfig, stacklevel: int = 2) -> None:
+    """A :class:`FewParticlesWarning` when ``config`` asks for fewer than
+    :data:`CALIBRATED_PARTICLES` (a filter does it when it is made; a system that makes its
+    filter later, at its first measurement, when the system is made)."""
+    if config.particles < CALIBRATED_PARTICLES:
+        warnings.warn(FewParticlesWarning(
+            f"{config.particles:,} particles: fewer than {CALIBRATED_PARTICLES:,} hypotheses give 95% "
+            f"intervals that are too narrow (0.81 of the truths inside at 1,000, 0.40 at 100; "
+            f"vlr_drake.filter.CALIBRATED_PARTICLES): use them for quick checks, not for results"),
+            stacklevel=stacklevel + 1)
+
+
 class SelfIdentificationFilter:
     """Algorithm 1 on the VLR model. The math only; ``systems/`` wraps it for Drake."""
 
@@ -971,14 +984,10 @@ class SelfIdentificationFilter:
         self.hand = hand
         self.config = config.validate()
         self.prior = prior
-        if self.config.particles < CALIBRATED_PARTICLES:
-            warnings.warn(FewParticlesWarning(
-                f"{self.config.particles:,} particles: fewer than {CALIBRATED_PARTICLES:,} hypotheses give 95% "
-                f"intervals that are too narrow (0.81 of the truths inside at 1,000, 0.40 at 100; "
-                f"vlr_drake.filter.CALIBRATED_PARTICLES): use them for quick checks, not for results"), stacklevel=2)
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"filter: 'rng' must be a numpy.random.Generator (np.random.default_rng(seed)), "
                             f"got {type(rng).__name__}")
+        warn_if_few_particles(self.config)
         self.rng = rng
         self.particles: ParticleSet | None = None
         self._first_move = False

@@ -134,9 +134,10 @@ class ModelPlant:
 
     def measure(self) -> tuple[np.ndarray, np.ndarray, bool]:
         """Noisy POM pose (R, t, valid). A dropout (probability ``dropout``) is a lost tag:
-        valid False with the held pose, the last valid measurement (before the first, the
-        pose the plant was made with), as the physics plant and the tag observer hold theirs;
-        never the noise-free truth."""
+        valid False with the held pose, the last valid measurement, as the physics plant and
+        the tag observer hold theirs, not the truth of now. Before the first valid
+        measurement nothing has been seen, and the held pose is the one the plant was made
+        with (a caller that needs a measurement looks again: identify does)."""
         s = self.state
         if self.dropout > 0 and self.rng.random() < self.dropout:
             return self._held[0].copy(), self._held[1].copy(), False

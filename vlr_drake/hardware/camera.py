@@ -33,6 +33,9 @@ __all__ = ["CameraError", "CameraIntrinsics", "FrameSource", "read_intrinsics", 
 
 #: Frame source modes (:class:`FrameSource`).
 CAMERA_MODES = ("auto", "sequential", "latest")
+#: The least time a capture gets to open, or to take a setting, before a CameraError [s]
+#: (a device may take a few seconds; ``timeout_s`` if that is longer).
+OPEN_WAIT_S = 5.0
 
 log = logging.getLogger(__name__)
 
@@ -213,14 +216,7 @@ class FrameSource:
 
         factory = self._factory or cv2.VideoCapture
         self._pool = _Worker(name=f"camera-{self.source}")
-        fut = self._pool.submit(factory, self.source)
-        try:
-            cap = fut.result(timeout=max(self.timeout_s, 5.0))
-        except cf.TimeoutError as e:
-            self._pool.shutdown(wait=False)
-            raise CameraError(
-                f"camera '{self.source}' did not open within {max(self.timeout_s, 5.0)} s"
-            ) from e
+        cap = self._on_worker(lambda: factory(self.source), "did not open")
         if cap is None or not cap.isOpened():
             self._pool.shutdown(wait=False)
             raise CameraError(f"cannot open camera '{self.source}' (device index, file or URL)")
@@ -229,13 +225,24 @@ class FrameSource:
             # a device: ask for the calibration's size (a camera may start in another mode;
             # read() still refuses frames of another size)
             w, h = self.expected_size
-            self._pool.submit(lambda: (cap.set(cv2.CAP_PROP_FRAME_WIDTH, w),
-                                       cap.set(cv2.CAP_PROP_FRAME_HEIGHT, h))).result(timeout=max(self.timeout_s, 5.0))
+            self._on_worker(lambda: (cap.set(cv2.CAP_PROP_FRAME_WIDTH, w), cap.set(cv2.CAP_PROP_FRAME_HEIGHT, h)),
+                            f"did not take the frame size {w} x {h}")
         if self.mode == "latest":
             self._pool.submit(self._grab_loop, cap)
             with self._cond:  # give the first frame up to timeout_s to arrive
                 self._cond.wait_for(lambda: self._seq > 0 or self._grab_failed, timeout=self.timeout_s)
         return self
+
+    def _on_worker(self, fn, failure: str):
+        """``fn()`` on the capture's worker thread, waiting at most max(timeout_s,
+        :data:`OPEN_WAIT_S`); a CameraError "camera '...' <failure> within ... s" (and the
+        worker let go) if it takes longer."""
+        wait = max(self.timeout_s, OPEN_WAIT_S)
+        try:
+            return self._pool.submit(fn).result(timeout=wait)
+        except cf.TimeoutError as e:
+            self._pool.shutdown(wait=False)
+            raise CameraError(f"camera '{self.source}' {failure} within {wait} s") from e
 
     def _grab_loop(self, cap) -> None:
         """latest mode: read frames continuously, keep the newest (runs on the worker)."""

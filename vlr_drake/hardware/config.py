@@ -106,9 +106,9 @@ class HardwareConfig:
     max_tendon_speed: float = 0.02
     # Closing on the grasp before the run's clock starts (HardwareInterface's grasp_command,
     # which the scenario builder sets to the grasp section's commands): the tendons are
-    # ramped there at max_tendon_speed until every one is within grasp_tolerance [m] of its
-    # command, or for at most grasp_timeout_s [s] (then a warning names how far they are: an
-    # object that stops the fingers short under the goal current, or a motor that cannot).
+    # ramped there at max_tendon_speed, then the motors get up to grasp_timeout_s [s] to come
+    # within grasp_tolerance [m] of them (else a warning names how far they are: an object
+    # that stops the fingers short under the goal current, or a motor that cannot).
     grasp_tolerance: float = 0.5e-3
     grasp_timeout_s: float = 10.0
 

@@ -121,7 +121,8 @@ class TendonMotors:
         tick_limits: (lowest, highest) allowed goal ticks per motor, each (N,); goals outside
             them are refused before anything is sent.
         operating_mode: 4 (extended position) or 5 (current-based position).
-        goal_current_raw: goal current written in mode 5 (0: leave the motor's value).
+        goal_current_raw: goal current written in mode 5 (1..2047 raw units; it limits the
+            tendon's pull: the motor's own value is its current limit, near the stall current).
         latency_timer_ms: status-packet timeout slack of the adapter [ms].
         comm_retries: retries of a failed transaction before :class:`DynamixelError`.
         start_tolerance_ticks: how far outside its limits a motor may start (it is then
@@ -135,7 +136,7 @@ class TendonMotors:
         motor_ids: list[int],
         tick_limits: tuple[np.ndarray, np.ndarray],
         operating_mode: int = 5,
-        goal_current_raw: int = 0,
+        goal_current_raw: int = 300,
         latency_timer_ms: float = 16.0,
         comm_retries: int = 2,
         start_tolerance_ticks: int = 256,
@@ -158,6 +159,9 @@ class TendonMotors:
         self.tick_lower, self.tick_upper = lo, hi
         self.operating_mode = int(operating_mode)
         self.goal_current_raw = int(goal_current_raw)
+        if self.operating_mode == 5 and not 1 <= self.goal_current_raw <= 2047:
+            raise ValueError(f"goal_current_raw must be in 1..2047 in current-based position mode (5), "
+                             f"got {self.goal_current_raw}")
         self.latency_timer_ms = float(latency_timer_ms)
         self.comm_retries = int(comm_retries)
         self.start_tolerance_ticks = int(start_tolerance_ticks)
@@ -212,7 +216,7 @@ class TendonMotors:
                 )
                 if mode != self.operating_mode:
                     self._write1(dxl_id, ADDR_OPERATING_MODE, self.operating_mode, "set operating mode")
-                if self.operating_mode == 5 and self.goal_current_raw > 0:
+                if self.operating_mode == 5:
                     self._call(
                         f"set goal current of motor id {dxl_id}",
                         lambda i=dxl_id: self._ph.write2ByteTxRx(
@@ -279,18 +283,22 @@ class TendonMotors:
     def _refuse_hardware_error(self, dxl_id: int) -> None:
         """Raise naming the error when the motor still holds a hardware error (address 70; an
         overload or overheating of an earlier run is kept until the motor is rebooted)."""
-        status = self._call(
-            f"read hardware error status of motor id {dxl_id}",
-            lambda: self._ph.read1ByteTxRx(self._port, dxl_id, ADDR_HARDWARE_ERROR_STATUS),
-            dxl_id,
-            allow_alert=True,
-        )
+        status = self._hardware_error_status(dxl_id)
         if status:
             raise DynamixelError(
                 f"motor id {dxl_id} on '{self.port_name}' still reports a hardware error: "
                 f"{hardware_error_text(status)} (status 0x{status:02x}); it keeps its torque off until it is "
                 "rebooted (python -m vlr_drake.hardware reboot --config ...; find the cause first)"
             )
+
+    def _hardware_error_status(self, dxl_id: int) -> int:
+        """The motor's hardware error status byte (address 70; 0: none)."""
+        return int(self._call(
+            f"read hardware error status of motor id {dxl_id}",
+            lambda: self._ph.read1ByteTxRx(self._port, dxl_id, ADDR_HARDWARE_ERROR_STATUS),
+            dxl_id,
+            allow_alert=True,
+        ))
 
     def reboot(self) -> list[int]:
         """Reboot every motor (the Dynamixel REBOOT instruction), which clears a hardware
@@ -306,10 +314,7 @@ class TendonMotors:
         had = []
         try:
             for dxl_id in self.motor_ids:
-                had.append(int(self._call(
-                    f"read hardware error status of motor id {dxl_id}",
-                    lambda i=dxl_id: self._ph.read1ByteTxRx(self._port, i, ADDR_HARDWARE_ERROR_STATUS),
-                    dxl_id, allow_alert=True)))
+                had.append(self._hardware_error_status(dxl_id))
                 self._call(f"reboot motor id {dxl_id}", lambda i=dxl_id: self._ph.reboot(self._port, i), dxl_id,
                            allow_alert=True)
             time.sleep(REBOOT_WAIT_S)  # the motors start again
@@ -404,16 +409,18 @@ class TendonMotors:
             raise DynamixelError(f"Dynamixel port '{self.port_name}' is not open")
 
     def _guarded(self, fn):
-        """Run ``fn``; on any failure switch torque off, close the port and raise."""
+        """Run ``fn``; on any failure switch torque off, close the port and raise: a bus
+        error as :class:`DynamixelError`, an interruption (Ctrl-C, a stop signal: not an
+        Exception) as itself."""
         try:
             return fn()
         except BaseException as e:
-            log.error("Dynamixel failure on %s: %s; switching torque off", self.port_name, e)
+            log.error("Dynamixel failure on %s: %r; switching torque off", self.port_name, e)
             try:
                 self.close()
             except Exception:
                 pass
-            if isinstance(e, DynamixelError):
+            if isinstance(e, DynamixelError) or not isinstance(e, Exception):
                 raise
             raise DynamixelError(f"Dynamixel bus '{self.port_name}' failed: {e}") from e
 
@@ -480,12 +487,7 @@ class TendonMotors:
         status packet of the last sync read had the alert bit set."""
         for dxl_id in self.motor_ids:
             if self._sync_read.errors.get(dxl_id, 0) & ERRBIT_ALERT:
-                status = self._call(
-                    f"read hardware error status of motor id {dxl_id}",
-                    lambda i=dxl_id: self._ph.read1ByteTxRx(self._port, i, ADDR_HARDWARE_ERROR_STATUS),
-                    dxl_id,
-                    allow_alert=True,
-                )
+                status = self._hardware_error_status(dxl_id)
                 raise DynamixelError(
                     f"motor id {dxl_id} on '{self.port_name}' reports a hardware error: "
                     f"{hardware_error_text(status)} (status 0x{status:02x}); the motor has shut its "

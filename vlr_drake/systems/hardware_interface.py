@@ -29,9 +29,9 @@ read, goal = present position, then torque on:
 start before any motor has torque.
 Given a ``grasp_command``, the same event then closes the hand on the grasp before the run's
 clock starts: the tendons are ramped there at ``config.max_tendon_speed`` until each is
-within ``config.grasp_tolerance`` of its command (at most ``config.grasp_timeout_s``; then
-a warning says how far they are), so that the first action and the filter's first
-measurement find the grasp made. A Simulator's real-time pacing should start after it
+within ``config.grasp_tolerance`` of its command (waiting at most ``config.grasp_timeout_s``
+once the ramp has sent it; then a warning says how far they are), so that the first action
+and the filter's first measurement find the grasp made. A Simulator's real-time pacing should start after it
 (``Simulator.ResetStatistics`` after ``Initialize``, as :func:`run_hardware` and the
 scenario builder do).
 A bus failure or a non-finite command switches torque off and raises. :meth:`close` (called by
@@ -217,36 +217,42 @@ class HardwareInterface(LeafSystem):
         state.get_mutable_discrete_state(self._sent_index).set_value(sent)
         log.info("hardware interface started: tendons %s m", np.round(l, 5))
 
+    def _ramped(self, command: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """``command`` moved at most ``max_tendon_speed * period_s`` from ``last`` [m]."""
+        step = self.config.max_tendon_speed * self.config.period_s
+        return np.clip(command, last - step, last + step)
+
     def _close_on_grasp(self, l: np.ndarray, sent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ramp the tendons from ``sent`` to the grasp's commands (module doc); returns the
-        measured and the sent tendons at the end."""
+        """Ramp the tendons from ``sent`` to the grasp's commands, then wait up to
+        ``grasp_timeout_s`` for the motors to get within ``grasp_tolerance`` of them (module
+        doc); returns the measured and the sent tendons at the end."""
         import time
         import warnings
 
         cfg = self.config
         target, _ = self.motor_map.clip(self.grasp_command)
-        step = cfg.max_tendon_speed * cfg.period_s
-        start = time.monotonic()
-        updates = 0
+        updates, start, arrived = 0, time.monotonic(), None
         while True:
-            sent = np.clip(target, sent - step, sent + step)
+            sent = self._ramped(target, sent)
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
             ticks, _ = self.motors.read()
             l = self.motor_map.to_tendon(ticks)
             updates += 1
             off = float(np.max(np.abs(l - target)))
-            reached = bool(np.all(sent == target) and off <= cfg.grasp_tolerance)
-            if reached or time.monotonic() - start >= cfg.grasp_timeout_s:
+            if arrived is None and np.all(sent == target):  # the ramp is done; the motors follow
+                arrived = time.monotonic()
+            reached = arrived is not None and off <= cfg.grasp_tolerance
+            if reached or (arrived is not None and time.monotonic() - arrived >= cfg.grasp_timeout_s):
                 break
             time.sleep(cfg.period_s)
         self.grasp_report = {"updates": updates, "seconds": time.monotonic() - start, "largest_offset_m": off,
                              "reached": reached}
         if not reached:
             warnings.warn(
-                f"hardware interface: after {cfg.grasp_timeout_s} s the tendons are {np.round(1e3 * (l - target), 2).tolist()} "
-                f"mm from the grasp's commands (grasp_tolerance {1e3 * cfg.grasp_tolerance} mm): an object that stops "
-                f"the fingers short under the goal current, or a motor that cannot follow; the run starts there",
-                stacklevel=2)
+                f"hardware interface: {cfg.grasp_timeout_s} s after the grasp's commands were sent the tendons "
+                f"are {np.round(1e3 * (l - target), 2).tolist()} mm from them (grasp_tolerance "
+                f"{1e3 * cfg.grasp_tolerance} mm): an object that stops the fingers short under the goal current, "
+                f"or a motor that cannot follow; the run starts there", stacklevel=2)
         return l, sent
 
     def _update(self, context, state) -> None:
@@ -258,9 +264,7 @@ class HardwareInterface(LeafSystem):
             else:  # nothing connected: hold the last command
                 command = np.array(context.get_discrete_state(self._sent_index).get_value())
             sent, clipped = self.motor_map.clip(command)
-            last = np.asarray(context.get_discrete_state(self._sent_index).get_value())
-            step = self.config.max_tendon_speed * self.config.period_s
-            ramped = np.clip(sent, last - step, last + step)
+            ramped = self._ramped(sent, np.asarray(context.get_discrete_state(self._sent_index).get_value()))
             self.num_ramped += bool(np.any(ramped != sent))
             sent = ramped
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))

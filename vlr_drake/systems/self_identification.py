@@ -18,6 +18,8 @@ settled. The filter stores the command of its previous update, so its action is
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
@@ -72,6 +74,7 @@ class SelfIdentificationSystem(LeafSystem):
         super().__init__()
         period_sec, offset_sec = _timing(period_sec, offset_sec)
         self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
+        pf.warn_if_few_particles(self._config)  # now, not at the first measurement mid-run
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
         self._a_center = pf._shaped("a_center", a_center, (hand.N,))
         n = hand.N * hand.K
@@ -126,7 +129,10 @@ class SelfIdentificationSystem(LeafSystem):
         if box.filter is None:
             if not valid:
                 return  # wait for the first valid measurement
-            flt = pf.SelfIdentificationFilter(self._hand, self._config, self._prior, np.random.default_rng(self._seed))
+            with warnings.catch_warnings():  # said when the system was made
+                warnings.simplefilter("ignore", pf.FewParticlesWarning)
+                flt = pf.SelfIdentificationFilter(self._hand, self._config, self._prior,
+                                                  np.random.default_rng(self._seed))
             flt.initialise(self._theta_center, self._a_center, X.rotation().matrix(), X.translation(),
                            tendon_command=l_now)
             box.filter = flt
