@@ -34,20 +34,29 @@ def _tag_video(path: Path, K, size, tag_id: int, tag_size: float, frames: int = 
     writer.release()
 
 
-def test_identification_diagram_runs_on_the_hardware_interface(tmp_path):
-    from dynamixel_emulator import DynamixelEmulator
-
+def _apple_tag_video(tmp_path: Path, frames: int = 200) -> Path:
+    """The apple's tag, seen by hardware.yaml's calibrated camera, as a video file."""
     intr = read_intrinsics(DIAGRAMS_DIR / "hardware" / "camera_intrinsics.yaml")
     obj = preset("apple")
     video = tmp_path / "tag.avi"
-    _tag_video(video, intr.K, (intr.width, intr.height), obj.tag_id, obj.tag_size)
+    _tag_video(video, intr.K, (intr.width, intr.height), obj.tag_id, obj.tag_size, frames=frames)
+    return video
+
+
+def _hardware_overrides(emu, video, period_sec: float | None = 0.25) -> str:
+    """hardware.yaml's overrides for the emulated bus and the video camera, 500 particles."""
+    exploration = "" if period_sec is None else f"exploration: {{period_sec: {period_sec}}}\n"
+    return ("filter: {particles: 500}\n" + exploration
+            + f"hardware: {{port: '{emu.port_name}', camera: '{video}', latency_timer_ms: 30.0}}\n")
+
+
+def test_identification_diagram_runs_on_the_hardware_interface(tmp_path):
+    from dynamixel_emulator import DynamixelEmulator
+
+    video = _apple_tag_video(tmp_path)
     ids = [1, 2, 3]
     with DynamixelEmulator(ids, initial_positions={i: 2048 for i in ids}) as emu:
-        s = load_scenario(
-            DIAGRAMS_DIR / "hardware.yaml",
-            "filter: {particles: 500}\nexploration: {period_sec: 0.25}\n"
-            f"hardware: {{port: '{emu.port_name}', camera: '{video}', latency_timer_ms: 30.0}}\n",
-        )
+        s = load_scenario(DIAGRAMS_DIR / "hardware.yaml", _hardware_overrides(emu, video))
         b = build_diagram(s)
         sim = Simulator(b.diagram)
         ctx = sim.get_mutable_context()
@@ -79,18 +88,10 @@ def test_a_hardware_scenario_runs_in_real_time(tmp_path):
     hand's time in 0.4 s, the filter reading tendons that had not moved yet)."""
     from dynamixel_emulator import DynamixelEmulator
 
-    intr = read_intrinsics(DIAGRAMS_DIR / "hardware" / "camera_intrinsics.yaml")
-    obj = preset("apple")
-    video = tmp_path / "tag.avi"
-    _tag_video(video, intr.K, (intr.width, intr.height), obj.tag_id, obj.tag_size, frames=60)
+    video = _apple_tag_video(tmp_path, frames=60)
     ids = [1, 2, 3]
     with DynamixelEmulator(ids, initial_positions={i: 2048 for i in ids}) as emu:
-        s = load_scenario(
-            DIAGRAMS_DIR / "hardware.yaml",
-            "filter: {particles: 500}\nexploration: {period_sec: 0.25}\n"
-            f"hardware: {{port: '{emu.port_name}', camera: '{video}', latency_timer_ms: 30.0}}\n",
-        )
-        r = run(s, iterations=3)
+        r = run(load_scenario(DIAGRAMS_DIR / "hardware.yaml", _hardware_overrides(emu, video)), iterations=3)
         assert r["iterations"] >= 2
         assert r["sim_time"] == pytest.approx(3.95 * 0.25)
         assert 0.0 < r["realtime_rate"] <= 1.05  # sim time over wall time, from the end of the grasp
@@ -113,16 +114,12 @@ def test_a_killed_hardware_run_switches_the_torque_off(tmp_path, sig, when):
 
     from dynamixel_emulator import DynamixelEmulator
 
-    intr = read_intrinsics(DIAGRAMS_DIR / "hardware" / "camera_intrinsics.yaml")
-    obj = preset("apple")
-    video = tmp_path / "tag.avi"
-    _tag_video(video, intr.K, (intr.width, intr.height), obj.tag_id, obj.tag_size, frames=60)
+    video = _apple_tag_video(tmp_path, frames=60)
     ids = [1, 2, 3]
     with DynamixelEmulator(ids, initial_positions={i: 2048 for i in ids}, lag_s=0.1) as emu:
-        over = (f"filter: {{particles: 500}}\nhardware: {{port: '{emu.port_name}', camera: '{video}', "
-                "latency_timer_ms: 30.0}\n")
         p = subprocess.Popen([sys.executable, "-m", "vlr_drake.builder", "--run", str(DIAGRAMS_DIR / "hardware.yaml"),
-                              "--iterations", "100000", "--set", over], stdout=subprocess.PIPE,
+                              "--iterations", "100000", "--set", _hardware_overrides(emu, video, None)],
+                             stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
         try:
             deadline = time.monotonic() + 120

@@ -322,12 +322,15 @@ class TendonMotors:
                 self._call(f"ping motor id {dxl_id} after its reboot", lambda i=dxl_id: self._ph.ping(self._port, i),
                            dxl_id)
         finally:
-            try:
-                self._port.closePort()
-            except Exception:
-                pass
-            self.is_open = False
+            self._close_port()
         return had
+
+    def _close_port(self) -> None:
+        try:
+            self._port.closePort()
+        except Exception:
+            pass
+        self.is_open = False
 
     def close(self) -> None:
         """Torque off (best effort: one broadcast sync write, then confirmed writes) and close
@@ -337,11 +340,7 @@ class TendonMotors:
         try:
             self.torque_off()
         finally:
-            try:
-                self._port.closePort()
-            except Exception:
-                pass
-            self.is_open = False
+            self._close_port()
             log.info("Dynamixel bus %s closed", self.port_name)
 
     def torque_off(self) -> bool:
