@@ -331,3 +331,19 @@ def test_a_stop_signal_in_the_middle_of_bus_io_stops_the_command(emulator, sig):
         timer.cancel()
     assert status == 128 + int(getattr(signal, sig))
     assert not any(emulator.torque_enabled(i) for i in IDS)
+
+
+def test_a_model_without_current_control_is_named_in_current_mode():
+    """An XL430 has no current-based position mode: named at the start, before any write; in
+    extended position mode it starts."""
+    from dynamixel_emulator import DynamixelEmulator
+
+    with DynamixelEmulator(IDS, model_number=1060) as emu:
+        motors = make_motors(emu)
+        with pytest.raises(DynamixelError, match=r"id 1 is an XL430-W250, id 2 is an XL430-W250, id 3 is an "
+                                                 r"XL430-W250, which has no current-based position mode"):
+            motors.open()
+        # nothing written but the clean-up's torque off (address 64, value 0)
+        assert all(p == bytes([ADDR_TORQUE_ENABLE, 0, 0]) for _, _, p in emu.instructions(WRITE))
+        with make_motors(emu, operating_mode=4) as motors:
+            assert motors.model_numbers == [1060] * 3 and all(emu.torque_enabled(i) for i in IDS)

@@ -7,7 +7,8 @@ conversion and the tendon limits live in :class:`vlr_drake.hardware.config.Tendo
 
 Safe start (:meth:`TendonMotors.open`):
   1. open the port at the configured baud rate (a missing device is a clear error);
-  2. ping every motor (an id that does not answer is named in the error) and read its
+  2. ping every motor (an id that does not answer is named in the error; a model without
+     current sensing in current-based position mode is refused by name) and read its
      hardware error status (address 70): a motor still holding an error from an earlier
      run (overload, overheating; kept until it is rebooted) stops the start, named, with
      the way to reboot it (:meth:`TendonMotors.reboot`,
@@ -54,6 +55,10 @@ ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
 ADDR_TORQUE_ENABLE = 64  # 1 byte
 ADDR_HARDWARE_ERROR_STATUS = 70  # 1 byte, bits below
 ADDR_GOAL_CURRENT = 102  # 2 bytes
+#: Model numbers (address 0, what a ping returns) of X-series servos without current
+#: sensing: their operating modes are velocity, position, extended position and PWM
+#: (ROBOTIS e-manual, each model's specifications), so no current-based position mode.
+NO_CURRENT_MODELS = {1060: "XL430-W250", 1070: "XC430-W150", 1080: "XC430-W240", 1160: "2XC430-W250"}
 #: How long a motor takes to answer again after a REBOOT instruction [s].
 REBOOT_WAIT_S = 0.5
 ADDR_GOAL_POSITION = 116  # 4 bytes
@@ -167,6 +172,8 @@ class TendonMotors:
         self.start_tolerance_ticks = int(start_tolerance_ticks)
         self.is_open = False
         self.torque_on = False
+        #: The motors' model numbers, read by :meth:`open`'s pings.
+        self.model_numbers: list[int] = []
         self._port = None
         self._ph = None
         self._sync_write = None
@@ -202,9 +209,11 @@ class TendonMotors:
             raise DynamixelError(f"port {self.port_name} is already open")
         self._open_port()
         try:
-            for dxl_id in self.motor_ids:  # a motor with a hardware error answers with the alert bit
-                self._call(f"ping motor id {dxl_id}", lambda i=dxl_id: self._ph.ping(self._port, i), dxl_id,
-                           allow_alert=True)
+            self.model_numbers = [  # a motor with a hardware error answers with the alert bit
+                int(self._call(f"ping motor id {dxl_id}", lambda i=dxl_id: self._ph.ping(self._port, i), dxl_id,
+                               allow_alert=True))
+                for dxl_id in self.motor_ids]
+            self._refuse_models_without_current()
             for dxl_id in self.motor_ids:
                 self._refuse_hardware_error(dxl_id)
             for dxl_id in self.motor_ids:
@@ -279,6 +288,22 @@ class TendonMotors:
             self._port = None
             raise DynamixelError(f"cannot open Dynamixel port '{self.port_name}' at {self.baud_rate} baud")
         self.is_open = True
+
+    def _refuse_models_without_current(self) -> None:
+        """Current-based position mode (5) on a model that has none (:data:`NO_CURRENT_MODELS`)
+        is refused by name, before anything is written (the motor would refuse the mode
+        with the SDK's generic "data value exceeds the limit")."""
+        if self.operating_mode != 5:
+            return
+        bad = [(i, NO_CURRENT_MODELS[m]) for i, m in zip(self.motor_ids, self.model_numbers, strict=True)
+               if m in NO_CURRENT_MODELS]
+        if bad:
+            names = ", ".join(f"id {i} is an {name}" for i, name in bad)
+            raise DynamixelError(
+                f"motors on '{self.port_name}': {names}, which has no current-based position mode "
+                "(operating_mode 5: the goal current that limits the tendon's pull); use a model with current "
+                "control (XM430, XM540, XH430, XL330, XC330), or operating_mode 4 knowing that nothing then limits "
+                "the pull and that motor_current reads the motor's load, not its current")
 
     def _refuse_hardware_error(self, dxl_id: int) -> None:
         """Raise naming the error when the motor still holds a hardware error (address 70; an
