@@ -149,6 +149,7 @@ def test_stack_on_the_model_plant(tmp_path):
         assert c["position_error_mm"] < c["initial_position_error_mm"]
     assert np.mean([c["orientation_error_deg"] for c in r["cups"]]) < np.mean(
         [c["initial_orientation_error_deg"] for c in r["cups"]])
+    assert r["position_error_mm"]["mean"] < 0.5 * r["initial_position_error_mm"]["mean"]  # the baseline
     assert r["success"]
     assert os.path.getsize(r["plots"][0]) > 1000
 

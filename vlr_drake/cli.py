@@ -503,17 +503,17 @@ apple on the physics plant seen by the rendered camera (summary table, convergen
 JSON; --plant model for the fast model plant), then a short handwriting task on the model
 plant with its identified model (plot and JSON). Outputs go to --out; --meshcat prints the Meshcat URL and
 saves HTML recordings of the hypotheses and of the writing.""",
-    "write": """Handwriting (the paper's Fig. 9): the Model O moves the POM of the grasped object along the
+    "write": """Handwriting (the paper's Fig. 6A): the Model O moves the POM of the grasped object along the
 strokes of the letters, by the Jacobian controller (Eq. 10-12, position rows) with camera
 feedback. --model filter self-identifies the grasp first (--particles, --iterations) and
 keeps updating the filter during control; --model true uses the plant's hidden truth.
 Writes write_path.png and the JSON result (position error, success) to --out; --meshcat
 shows the target strokes beside the object and saves write.html.""",
-    "maze": """Marble maze (the paper's Fig. 10): the hand tilts a maze plate (orientation control only)
+    "maze": """Marble maze (the paper's Fig. 6B): the hand tilts a maze plate (orientation control only)
 through a precomputed sequence of plate orientations so that a simulated marble rolls from
 start to goal. Writes maze.png and the JSON result (orientation error, success) to --out;
 --meshcat shows the goal orientation beside the plate and saves maze.html.""",
-    "stack": """Cup stacking (the paper's Fig. 11): each of four cups is grasped at an unknown tilt and
+    "stack": """Cup stacking (the paper's Fig. 7): each of four cups is grasped at an unknown tilt and
 offset and aligned over the cup below in SE(3) by the Jacobian controller with the
 rotational weight alpha (Eq. 12), then released; success when every cup nests. Writes
 stack.png and the JSON result (position and orientation error) to --out; --meshcat shows

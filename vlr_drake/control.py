@@ -337,7 +337,7 @@ class ServoReport:
     """Outcome of :func:`servo_to` (errors of the measured pose against the goal)."""
 
     reached: bool  # the error came under tolerance
-    reason: str  # "reached" | "budget" | "stalled" | "tendon_limit" | "no_equilibrium"
+    reason: str  # "reached" | "budget" | "stalled" | "tendon_limit" | "no_equilibrium" | "lost_tag"
     iterations: int  # actions applied
     position_error: float  # final |dt| [m]
     rotation_error: float  # final angle [rad]
@@ -347,6 +347,7 @@ class ServoReport:
     closest_rotation_error: float  # [rad]
     at_limit: bool  # some tendon ended at its range limit
     history: list = field(default_factory=list)  # per iteration: (position_error, rotation_error, dl)
+    lost: int = 0  # measurements that came without the tag (the pose was predicted instead)
 
     def summary(self) -> str:
         return (
@@ -381,6 +382,7 @@ def servo_to(
     max_steps: int = 30,
     stall_steps: int = 6,
     backoff: int = 3,
+    max_lost: int = 5,
     limits=None,
     position_unit: float = POSITION_UNIT,
     rotation_unit: float = ROTATION_UNIT,
@@ -403,11 +405,17 @@ def servo_to(
     A step for which the plant finds no equilibrium (e.g. the grip would loosen) is
     halved up to ``backoff`` times before the run ends with ``"no_equilibrium"``.
     ``on_step(i, R, t)`` is called after every measurement (progress, marble simulation).
-    A lost tag (``valid`` False) leaves the pose where the plant holds it, its last valid
-    measurement, and the model is told the measurement is not valid.
+    A lost tag (``valid`` False) is not a measurement: the pose is predicted from the last one
+    through the model, pose + J dl (Eq. 10; stepping again on the stale error had overshot
+    the goal), the model is told the measurement is not valid, the closest pose and the
+    stall count consider measured poses only, and ``max_lost`` lost tags in a row end the
+    run with ``"lost_tag"``. The first measurement, if lost, is the plant's held pose (its
+    last valid one).
     """
     if max_steps < 0:
         raise ValueError(f"'max_steps' must be >= 0, got {max_steps}")
+    if not max_lost >= 1:
+        raise ValueError(f"'max_lost' must be >= 1, got {max_lost}")
     R_goal = _shaped("R_goal", R_goal, (3, 3))
     t_goal = _shaped("t_goal", t_goal, (3,))
     w = _row_weights(rows, alpha, position_unit, rotation_unit)
@@ -421,6 +429,8 @@ def servo_to(
     history: list = []
     reason = "budget"
     it = 0
+    lost = lost_in_a_row = 0
+    measured = True  # the pose at the top of the loop was measured (not predicted)
     step = functools.partial(control_step, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
                              position_unit=position_unit, rotation_unit=rotation_unit)
 
@@ -430,13 +440,27 @@ def servo_to(
 
     while True:
         e, ep, er, ew = errors(R_last, t_last)
-        if best is None or ew < best[0] - 1e-9:
+        if best is None or (measured and ew < best[0] - 1e-9):
             best, since_best = (ew, R_last.copy(), t_last.copy(), ep, er), 0
-        else:
+        elif measured:
             since_best += 1
         if (not ctrl_pos or ep <= tol_position) and (not ctrl_rot or er <= tol_rotation):
-            reason = "reached"
-            break
+            if measured:
+                reason = "reached"
+                break
+            # predicted there: look again before calling it reached
+            R, t, valid = plant.measure()
+            measured = bool(valid)
+            if valid:
+                R_last, t_last, lost_in_a_row = np.asarray(R, float), np.asarray(t, float), 0
+                model = model_fn(np.zeros(hand.N), R_last, t_last, valid)
+            else:
+                lost += 1
+                lost_in_a_row += 1
+                if lost_in_a_row >= max_lost:
+                    reason = "lost_tag"
+                    break
+            continue
         if it >= max_steps:
             reason = "budget"
             break
@@ -476,12 +500,24 @@ def servo_to(
             break
         it += 1
         R, t, valid = plant.measure()
+        measured = bool(valid)
         if valid:
             R_last, t_last = np.asarray(R, float), np.asarray(t, float)
+            lost_in_a_row = 0
+        else:  # dead reckoning through the model's Jacobian
+            d = J @ dl_lim
+            t_last = t_last + d[:3]
+            R_last = observation.rotvec_to_matrix(d[3:])[0] @ R_last
+            lost += 1
+            lost_in_a_row += 1
         model = model_fn(dl_lim, R_last, t_last, valid)
         history.append((ep, er, dl_lim))
         if on_step is not None:
             on_step(it, R_last, t_last)
+        if lost_in_a_row >= max_lost:
+            e, ep, er, ew = errors(R_last, t_last)
+            reason = "lost_tag"
+            break
     l_now = _tendon_command(plant)
     at_limit = bool(
         np.any(
@@ -501,6 +537,7 @@ def servo_to(
         closest_rotation_error=best[4],
         at_limit=at_limit,
         history=history,
+        lost=lost,
     )
 
 

@@ -148,8 +148,10 @@ class JacobianController(LeafSystem):
         l_now = np.array(context.get_discrete_state(self._command_state).get_value())
         valid = bool(self._valid.Eval(context)[0] > 0.5)
         est = self._estimate.Eval(context)
-        if not valid or not est:
-            return  # hold the command
+        if not valid or not est:  # hold the command; the goal is not known to be reached
+            status = discrete_state.get_mutable_vector(self._status_state)
+            status.SetAtIndex(0, 0.0)  # (at_goal held at 1 had let a trajectory skip its goals)
+            return
         X = self._X_PO.Eval(context)
         G = self._goal.Eval(context)
         R, t = X.rotation().matrix(), X.translation()

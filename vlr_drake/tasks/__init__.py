@@ -1,4 +1,4 @@
-"""The paper's three manipulation tasks with the Jacobian controller (its Fig. 9-11).
+"""The paper's three manipulation tasks with the Jacobian controller (its Fig. 6A, 6B and 7).
 
 - :func:`vlr_drake.tasks.write.run_write`: handwriting, position control only.
 - :func:`vlr_drake.tasks.maze.run_maze`: marble maze, orientation control only.

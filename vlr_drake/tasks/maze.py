@@ -1,4 +1,4 @@
-"""Marble maze (the paper's Fig. 10): tilt a maze plate so a marble rolls to the goal.
+"""Marble maze (the paper's Fig. 6B): tilt a maze plate so a marble rolls to the goal.
 
 The grasped object is a maze plate whose frame is the POM frame O (plate in the O x-y
 plane, normal z_O). Orientation control only: a precomputed sequence of plate orientations

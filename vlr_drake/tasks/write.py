@@ -1,4 +1,4 @@
-"""Handwriting (the paper's Fig. 9): the POM writes a word through waypoints, position only.
+"""Handwriting (the paper's Fig. 6A): the POM writes a word through waypoints, position only.
 
 The grasped object is a pen whose tip is the POM origin. Each letter (stroke font of
 :mod:`vlr_drake.tasks.font`, A-Z) is written in the plane in which the grasp can move the
@@ -179,8 +179,9 @@ def run_write(
     )
     view = common.task_view(meshcat)
     pl = common.followed(view, tp)
-    R0, t0, _ = pl.measure()
-    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
+    R0, t0, valid0 = pl.measure()
+    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, valid0)
+    R_true0 = tp.true_pose()[0]  # the drift is the truth's: the measurement's noise is not a turn
     x, y, n = writing_plane(control.jacobian(m0))
     t_home = t0.copy()
     l_home = tp.tendon_command()
@@ -222,7 +223,7 @@ def run_write(
                 R_true, t_true = tp.true_pose()
                 wp_err.append(np.linalg.norm(t_true - goal))
                 wp_err_meas.append(rep.position_error)
-                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R0[None], R_true[None])[0]))
+                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R_true0[None], R_true[None])[0]))
                 d = t_true - t_home
                 path.append([d @ x, d @ y])
                 bar.update(1)
