@@ -216,3 +216,27 @@ def test_non_finite_letter_sizes_are_refused():
         font.letter_strokes("A", float("nan"))
     with pytest.raises(ValueError, match="letter_height"):
         write.run_write("A", plant="model", letter_height=float("nan"), progress=False)
+
+
+def test_a_task_that_cannot_start_is_named_in_one_line(monkeypatch, capsys):
+    """No grasp away from a fold, or a model with no equilibrium about the grasp, is a
+    TaskSetupError, which a command reports in one line (a RuntimeError traceback before)."""
+    from vlr_drake import control
+    from vlr_drake.cli import main
+    from vlr_drake.tasks import common
+
+    def no_equilibrium(model, eps=0.2e-3, retries=2):
+        raise RuntimeError("no equilibrium for a column")
+
+    monkeypatch.setattr(control, "jacobian", no_equilibrium)
+    with pytest.raises(common.TaskSetupError, match="no grasp away from a fold in 50 draws"):
+        maze.run_maze(seed=3, progress=False)
+    assert main(["write", "--plant", "model", "--seed", "2", "--no-progress", "--out", "/tmp/unused-vlr-write"]) == 2
+    assert "no grasp away from a fold" in capsys.readouterr().err
+
+    class Plant:
+        def measure(self):
+            return np.eye(3), np.zeros(3), False
+
+    with pytest.raises(common.TaskSetupError, match=r"write, seed 2: the controller's model has no equilibrium"):
+        common.start_model(Plant(), lambda dl, R, t, valid: None, common.model_o().model(), "write", 2)

@@ -15,6 +15,8 @@ from vlr_drake.hand import HandModel, model_o
 from vlr_drake.model_plant import ModelPlant
 
 __all__ = [
+    "TaskSetupError",
+    "start_model",
     "MODELS",
     "grip_window",
     "object_fell",
@@ -29,6 +31,26 @@ __all__ = [
     "followed",
     "save_view",
 ]
+
+class TaskSetupError(ValueError):
+    """A task that cannot start from its seed's draw (no grasp away from a fold, a grasp that
+    cannot make the task's motions): a command says so in one line; another seed may do."""
+
+
+def start_model(pl, model_fn, hand, task: str, seed: int):
+    """The task's first measurement and the controller's model there: ``(R, t, model, J)``
+    (J: the model's Jacobian, Eq. 10). A lost first tag is passed on as not valid (the pose
+    is the plant's held one); a model with no equilibrium about the grasp is a
+    :class:`TaskSetupError` naming the task and seed."""
+    R, t, valid = pl.measure()
+    model = model_fn(np.zeros(hand.N), R, t, valid)
+    try:
+        J = control.jacobian(model)
+    except RuntimeError as e:
+        raise TaskSetupError(f"{task}, seed {seed}: the controller's model has no equilibrium about the grasp "
+                             f"({e}); try another seed") from e
+    return np.asarray(R, float), np.asarray(t, float), model, J
+
 
 #: The tasks' identification exploration: (action range, window) [m]; the window is also
 #: the control's grip window (``grip_window``).
@@ -84,7 +106,7 @@ def grasp_config(
             and (min_possible <= 0 or _possible_fraction(hand, theta, a) >= min_possible)
         ):
             return theta, a
-    raise RuntimeError(f"no grasp away from a fold in {max_draws} draws")
+    raise TaskSetupError(f"no grasp away from a fold in {max_draws} draws (the task's seed draws them; try another)")
 
 
 @dataclass

@@ -253,18 +253,17 @@ def run_maze(
     )
     view = common.task_view(meshcat)
     pl = common.followed(view, tp)
-    R0, t0, _ = pl.measure()
+    _, _, _, J = common.start_model(pl, model_fn, tp.hand, "maze", seed)
     R_PO0 = tp.true_pose()[0]  # the plate's level orientation (arm's frame of reference)
-    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, True)
     limits = common.grip_window(tp.hand, tp.tendon_command(), window)
-    J = control.jacobian(m0)
     U, S, _ = np.linalg.svd(J[3:])
     k_P = U[:, 0]
     k = R_PO0.T @ k_P  # tilt axis in the plate frame
     z = np.array([0.0, 0.0, 1.0])
     s_ax = np.cross(k, z)
     if np.linalg.norm(s_ax) < 0.3:
-        raise RuntimeError("the grasp cannot tilt the plate (its rotation axis is the plate normal)")
+        raise common.TaskSetupError(f"maze, seed {seed}: the grasp cannot tilt the plate (its rotation axis is "
+                                    f"the plate normal); try another seed")
     s_ax /= np.linalg.norm(s_ax)
     f_ax = np.cross(z, s_ax)
     k = f_ax  # the in-plane part of the tilt axis: tilting by phi about it steers along s

@@ -179,10 +179,9 @@ def run_write(
     )
     view = common.task_view(meshcat)
     pl = common.followed(view, tp)
-    R0, t0, valid0 = pl.measure()
-    m0 = model_fn(np.zeros(tp.hand.N), R0, t0, valid0)
+    R0, t0, m0, J0 = common.start_model(pl, model_fn, tp.hand, "write", seed)
     R_true0 = tp.true_pose()[0]  # the drift is the truth's: the measurement's noise is not a turn
-    x, y, n = writing_plane(control.jacobian(m0))
+    x, y, n = writing_plane(J0)
     t_home = t0.copy()
     l_home = tp.tendon_command()
     limits = common.grip_window(tp.hand, l_home, window)
