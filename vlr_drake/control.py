@@ -20,8 +20,10 @@ observation function Lambda (:func:`vlr_drake.observation.pom_pose`):
 
 Units of the weighted error (Eq. 12): positions are measured in ``position_unit`` (default
 1 mm) and rotations in ``rotation_unit`` (default 1 degree) before alpha weights the
-rotational rows, so alpha = 1 trades 1 mm against 1 degree and the paper's alpha = 9.5
-(cup stacking) trades 1 degree against 9.5 mm.
+rotational rows, so alpha = 1 trades 1 mm against 1 degree. The paper's alpha = 9.5 (cup
+stacking) does not say its units; :mod:`vlr_drake.tasks.stack` measures rotations in
+radians for it (1 rad against 9.5 mm, about 0.17 mm a degree), as the cups' nesting weighs
+tilt against offset.
 """
 
 from __future__ import annotations

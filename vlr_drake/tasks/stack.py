@@ -4,7 +4,7 @@ A moving base (standing in for the arm) carries the hand; it brings the palm to 
 that puts a *nominally* grasped cup right over the target cup, planned before the grasp.
 Each cup is actually grasped at an unknown tilt and offset: its POM pose in the palm
 differs from the nominal one. The Jacobian controller (:func:`vlr_drake.control.servo_to`,
-all six rows, the paper's alpha = 9.5 favouring orientation, Eq. 12) moves the cup to the
+all six rows, the paper's alpha = 9.5 in mm and rad, Eq. 12, below) moves the cup to the
 nominal pose with camera feedback; then it is released. The unknown tilt is drawn about
 the axis the grasp can rotate (the strongest rotation direction of the Jacobian; the
 Model O's fingers flex in parallel planes, so a cup slipping while grasped turns about
