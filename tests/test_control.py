@@ -403,6 +403,47 @@ def test_controller_at_goal_is_not_held_through_a_lost_tag(grasp):
     assert ctrl.at_goal_output_port().Eval(ctx)[0] == 1.0
 
 
+def test_controller_system_keeps_a_grip_window_and_the_task_units(grasp):
+    """The LeafSystem takes the servo's grip window (limits) and Eq. 12's units, as the
+    tasks' servo_to does: a far goal drives the commands to the window's edge, not past it,
+    and the units change the step as they do in control_step."""
+    pl = fresh(grasp)
+    l0 = pl.state.tendon_command.copy()
+    window = np.column_stack([l0 - 0.2e-3, l0 + 0.2e-3])
+    R_goal, t_goal = reachable_goal(grasp, np.array([1.5e-3, -1.0e-3, 1.0e-3]))
+    ctrl = JacobianController(grasp.hand, l0, 0.1, rows="full", limits=window, clip=0.5e-3)
+    ctx = ctrl.CreateDefaultContext()
+    ctrl.X_PO_goal_input_port().FixValue(ctx, _X(R_goal, t_goal))
+    ctrl.X_PO_measured_input_port().FixValue(ctx, _X(pl.state.R_PO, pl.state.t_PO))
+    ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta, "a": pl.state.a})
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    for _ in range(3):
+        ctrl.ExecuteForcedEvents(ctx)
+    l = ctrl.tendon_command_output_port().Eval(ctx)
+    assert np.all(l >= window[:, 0] - 1e-12) and np.all(l <= window[:, 1] + 1e-12)
+    assert np.any(np.isclose(l, window[:, 0]) | np.isclose(l, window[:, 1]))  # at the edge
+    steps = []
+    for unit in (np.deg2rad(1.0), 1.0):  # degrees, then radians: the rotation rows weigh less
+        c = JacobianController(grasp.hand, l0, 0.1, rows="full", alpha=9.5, rotation_unit=unit, clip=1.0)
+        cx = c.CreateDefaultContext()
+        for port, value in ((c.X_PO_goal_input_port(), _X(R_goal, t_goal)),
+                            (c.X_PO_measured_input_port(), _X(pl.state.R_PO, pl.state.t_PO)),
+                            (c.estimate_input_port(), {"theta": pl.state.theta, "a": pl.state.a}),
+                            (c.X_PO_valid_input_port(), [1.0])):
+            port.FixValue(cx, value)
+        c.ExecuteForcedEvents(cx)
+        steps.append(c.tendon_command_output_port().Eval(cx) - l0)
+    m = control.ControlModel.from_plant_truth(pl)
+    J = control.jacobian(m)
+    e = control.pose_error6(R_goal, t_goal, pl.state.R_PO, pl.state.t_PO)
+    assert np.max(np.abs(steps[0] - steps[1])) > 1e-5  # the units matter here
+    for unit, dl in zip((np.deg2rad(1.0), 1.0), steps, strict=True):
+        want = control.control_step(J, e, alpha=9.5, rotation_unit=unit, clip=1.0)
+        np.testing.assert_allclose(dl, want, atol=2e-6)
+    with pytest.raises(ValueError, match="'tol_position'"):
+        JacobianController(grasp.hand, l0, 0.1, tol_position=float("nan"))
+
+
 def test_trajectory_source_advances_on_at_goal():
     goals = [(np.eye(3), np.array([0.0, 0.0, z])) for z in (0.1, 0.11, 0.12)]
     src = TaskTrajectorySource(goals, 0.1, max_periods=3)

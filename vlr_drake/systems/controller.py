@@ -42,6 +42,10 @@ class JacobianController(LeafSystem):
         period_sec, offset_sec: action period T and when in it the command changes.
         rows, mode, alpha, gain, damping, clip, eps: see :func:`vlr_drake.control.control_step`
             and :func:`vlr_drake.control.jacobian`.
+        position_unit [m], rotation_unit [rad]: the units of Eq. 12's weighted error
+            (:func:`vlr_drake.control.control_step`; the cup stacking's are mm and rad).
+        limits (N, 2) [m]: a window narrower than the hand's tendon range that the commands
+            never leave (a grip window, as the tasks' servo keeps); None: the range.
         tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
         tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
 
@@ -65,6 +69,9 @@ class JacobianController(LeafSystem):
         tol_position: float = 0.1e-3,
         tol_rotation: float = np.deg2rad(0.3),
         tendon: str = "elastic",
+        position_unit: float = control.POSITION_UNIT,
+        rotation_unit: float = control.ROTATION_UNIT,
+        limits=None,
     ):
         super().__init__()
         if not period_sec > 0:
@@ -83,11 +90,18 @@ class JacobianController(LeafSystem):
             gain=gain,
             damping=damping,
             clip=clip,
+            position_unit=position_unit,
+            rotation_unit=rotation_unit,
         )  # validates the settings
+        for name, v in (("tol_position", tol_position), ("tol_rotation", tol_rotation)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"'{name}' must be a finite number >= 0, got {v}")
+        self._limits = None if limits is None else control.tendon_limits(hand, limits)
         if not (np.isfinite(eps) and eps > 0):  # jacobian's error would be taken for "no usable model"
             raise ValueError(f"'eps' must be a positive finite number [m], got {eps}")
         self._hand = hand
-        self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip)
+        self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip,
+                        position_unit=position_unit, rotation_unit=rotation_unit)
         self._eps, self._tendon = eps, tendon
         self._tol = (tol_position, tol_rotation)
         self._rows = rows
@@ -99,7 +113,8 @@ class JacobianController(LeafSystem):
         )
         self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
         self._estimate = self.DeclareAbstractInputPort(name="estimate", model_value=AbstractValue.Make({}))
-        l0 = np.clip(l_initial, hand.tendon_range[:, 0], hand.tendon_range[:, 1])
+        lim = hand.tendon_range if self._limits is None else self._limits
+        l0 = np.clip(l_initial, lim[:, 0], lim[:, 1])
         self._command_state = self.DeclareDiscreteState(l0)
         self._status_state = self.DeclareDiscreteState(
             np.array([0.0, np.inf, np.inf])
@@ -173,7 +188,7 @@ class JacobianController(LeafSystem):
         except (RuntimeError, ValueError):
             return  # the estimate has no usable model here: hold
         dl = control.control_step(J, e, **self._kw)
-        dl = control.limit_action(self._hand, l_now, dl)
+        dl = control.limit_action(self._hand, l_now, dl, self._limits)
         discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now + dl)
 
     def _calc_at_goal(self, context, output: BasicVector):
