@@ -316,11 +316,19 @@ class FrameSource:
         return True, frame
 
     def release(self) -> None:
-        """Release the capture on its worker thread (after any pending read) without waiting."""
+        """Release the capture on its worker thread (after any pending read), waiting for it
+        at most ``timeout_s``: a process that exits while its capture is still being read or
+        released can abort in OpenCV's teardown ("terminate called without an active
+        exception", seen when a hardware run was stopped), while a hung capture must not
+        hold the exit either."""
         self._stop.set()
         if self._cap is not None and self._pool is not None:
-            self._pool.submit(self._cap.release)
+            done = self._pool.submit(self._cap.release)
             self._pool.shutdown(wait=False)
+            try:
+                done.result(timeout=self.timeout_s)
+            except Exception:  # timed out, or the release failed: the capture is let go either way
+                pass
         self._cap = None
 
     def __enter__(self) -> FrameSource:
