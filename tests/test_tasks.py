@@ -240,3 +240,17 @@ def test_a_task_that_cannot_start_is_named_in_one_line(monkeypatch, capsys):
 
     with pytest.raises(common.TaskSetupError, match=r"write, seed 2: the controller's model has no equilibrium"):
         common.start_model(Plant(), lambda dl, R, t, valid: None, common.model_o().model(), "write", 2)
+
+
+def test_pooled_stats_are_those_of_all_the_values():
+    """The reproduce table pools a task's trials over their samples, as the paper's figures
+    are: the pooled mean and SD equal those of the concatenated values."""
+    from vlr_drake.tasks import common
+
+    rng = np.random.default_rng(0)
+    parts = [rng.normal(0.5 + 0.1 * k, 0.2, size=n) for k, n in enumerate((7, 30, 12))]
+    got = common.pooled([common.stats(p, 1.0) for p in parts])
+    every = np.concatenate(parts)
+    assert got["n"] == every.size and got["max"] == pytest.approx(every.max())
+    assert got["mean"] == pytest.approx(every.mean(), rel=1e-12)
+    assert got["sd"] == pytest.approx(every.std(), rel=1e-12)

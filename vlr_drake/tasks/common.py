@@ -25,6 +25,7 @@ __all__ = [
     "make_model_plant",
     "make_model_fn",
     "stats",
+    "pooled",
     "grasp_config",
     "TASK_EXPLORATION",
     "task_view",
@@ -331,11 +332,24 @@ def object_fell(tp) -> bool:
 
 
 def stats(values_m_or_rad, scale: float) -> dict | None:
-    """{"mean", "sd", "max"} of the values times ``scale`` (1e3 for mm, rad2deg for deg)."""
+    """{"mean", "sd", "max", "n"} of the values times ``scale`` (1e3 for mm, rad2deg for deg);
+    ``n`` (how many) lets trials be pooled (:func:`pooled`)."""
     v = np.asarray(values_m_or_rad, float) * scale
     if v.size == 0:
         return None
-    return {"mean": float(v.mean()), "sd": float(v.std()), "max": float(v.max())}
+    return {"mean": float(v.mean()), "sd": float(v.std()), "max": float(v.max()), "n": int(v.size)}
+
+
+def pooled(runs: list[dict]) -> dict:
+    """The :func:`stats` of all the values of several runs together (mean, SD over every
+    waypoint, sample or cup of every run, as the paper gives its task figures), from each
+    run's mean, SD and n."""
+    n = np.array([r["n"] for r in runs], float)
+    m = np.array([r["mean"] for r in runs], float)
+    sd = np.array([r["sd"] for r in runs], float)
+    mean = float(np.sum(n * m) / np.sum(n))
+    var = float(np.sum(n * (sd**2 + (m - mean) ** 2)) / np.sum(n))
+    return {"mean": mean, "sd": float(np.sqrt(var)), "max": float(max(r["max"] for r in runs)), "n": int(n.sum())}
 
 
 def task_view(meshcat):
