@@ -20,8 +20,8 @@ def check_fields(result, task):
 
 
 def check_stats(s):
-    assert set(s) == {"mean", "sd", "max"}
-    assert 0 <= s["mean"] <= s["max"] and s["sd"] >= 0
+    assert set(s) == {"mean", "sd", "max", "n"}
+    assert 0 <= s["mean"] <= s["max"] and s["sd"] >= 0 and isinstance(s["n"], int) and s["n"] >= 1
 
 
 # ------------------------------------------------------------------ font

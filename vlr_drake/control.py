@@ -431,8 +431,8 @@ def servo_to(
     history: list = []
     reason = "budget"
     it = 0
-    lost = lost_in_a_row = 0
-    measured = True  # the pose at the top of the loop was measured (not predicted)
+    lost = lost_in_a_row = int(not valid)
+    measured = bool(valid)  # the pose at the top of the loop was measured (not held or predicted)
     step = functools.partial(control_step, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
                              position_unit=position_unit, rotation_unit=rotation_unit)
 
