@@ -514,8 +514,9 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         initialize(built, simulator)
         simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
         ctx = simulator.get_context()
-        if scenario.plant == "hardware" and simulator.get_actual_realtime_rate() < 0.9:
-            warnings.warn(f"scenario '{scenario.name}': the hardware run kept {simulator.get_actual_realtime_rate():.2f} "
+        rate = simulator.get_actual_realtime_rate()
+        if scenario.plant == "hardware" and rate < 0.9:
+            warnings.warn(f"scenario '{scenario.name}': the hardware run kept {rate:.2f} "
                           f"of real time (each action period of {built.period_sec} s took longer: fewer particles, "
                           f"or a longer exploration period_sec)", stacklevel=2)
         d, h = built.diagram, built.hand
@@ -550,7 +551,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "converged": bool(d.GetOutputPort("self_identification.converged").Eval(ctx)[0] > 0.5),
             "sim_time": ctx.get_time(),
             "wall_s": time.perf_counter() - t0,
-            "realtime_rate": simulator.get_actual_realtime_rate(),
+            "realtime_rate": rate,
         }
     finally:
         if hasattr(built.plant, "close"):

@@ -7,9 +7,9 @@ worker thread, and a frame that does not arrive in time, or the end of a file, i
 Two modes: "sequential" (every frame in order, one capture read per :meth:`FrameSource.read`,
 waiting up to ``timeout_s``; for video files) and "latest" (a grabber thread reads
 continuously and :meth:`FrameSource.read` returns at once the newest frame if it is at most
-``max_age_s`` old (default ``timeout_s``), so the control loop never waits on the camera and
-never reads a stale buffer; for devices and streams). "auto" picks sequential for an existing file, latest
-otherwise.
+``max_age_s`` old (default ``timeout_s``), so the control loop never waits on the camera
+and never reads a stale buffer; for devices and streams). "auto" picks sequential for an
+existing file, latest otherwise.
 
 Intrinsics use OpenCV's own YAML format (``cv2.FileStorage``), the one ``calibrateCamera``
 tools write: nodes ``camera_matrix`` (3 x 3), ``distortion_coefficients`` (1 x n, OpenCV's

@@ -17,8 +17,8 @@ x ``period_s`` from the command sent before (so the grasp's first command is a r
 where the motors start, not a jump), converts it to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
 positions with one sync read, and takes a camera frame (a device or stream: the newest frame
-if it is fresher than ``config.camera_max_frame_age_s``, without waiting; a video file: the next
-frame, waiting at most that long; :class:`vlr_drake.hardware.camera.FrameSource`). Without a
+if it is fresher than ``config.camera_max_frame_age_s``, without waiting; a video file: the
+next frame, waiting at most ``config.camera_timeout_s``; :class:`vlr_drake.hardware.camera.FrameSource`). Without a
 frame (a stalled camera, the end of a video), ``camera_valid`` is 0 and ``rgb_image`` is a
 black frame, so an AprilTag observer that only sees the image reports "no tag" instead of
 re-using a stale frame.
@@ -31,9 +31,9 @@ Given a ``grasp_command``, the same event then closes the hand on the grasp befo
 clock starts: the tendons are ramped there at ``config.max_tendon_speed`` until each is
 within ``config.grasp_tolerance`` of its command (waiting at most ``config.grasp_timeout_s``
 once the ramp has sent it; then a warning says how far they are), so that the first action
-and the filter's first measurement find the grasp made. A Simulator's real-time pacing should start after it
-(``Simulator.ResetStatistics`` after ``Initialize``, as :func:`run_hardware` and the
-scenario builder do).
+and the filter's first measurement find the grasp made. A Simulator's real-time pacing
+should start after it (``Simulator.ResetStatistics`` after ``Initialize``, as
+:func:`run_hardware` and the scenario builder do).
 A bus failure or a non-finite command switches torque off and raises. :meth:`close` (called by
 :func:`run_hardware` on the way out, also on errors and Ctrl-C, and by a finalizer as a last
 resort) switches torque off and releases the camera.
@@ -44,6 +44,8 @@ The hardware is a single resource: one context per :class:`HardwareInterface` at
 from __future__ import annotations
 
 import logging
+import time
+import warnings
 import weakref
 from pathlib import Path
 
@@ -226,9 +228,6 @@ class HardwareInterface(LeafSystem):
         """Ramp the tendons from ``sent`` to the grasp's commands, then wait up to
         ``grasp_timeout_s`` for the motors to get within ``grasp_tolerance`` of them (module
         doc); returns the measured and the sent tendons at the end."""
-        import time
-        import warnings
-
         cfg = self.config
         target, _ = self.motor_map.clip(self.grasp_command)
         updates, start, arrived = 0, time.monotonic(), None
@@ -259,12 +258,13 @@ class HardwareInterface(LeafSystem):
         if self.closed:
             raise RuntimeError("hardware interface: closed (torque is off); the run cannot continue")
         try:
+            last = np.array(context.get_discrete_state(self._sent_index).get_value())
             if self._command_port.HasValue(context):
                 command = np.asarray(self._command_port.Eval(context), float)
             else:  # nothing connected: hold the last command
-                command = np.array(context.get_discrete_state(self._sent_index).get_value())
+                command = last
             sent, clipped = self.motor_map.clip(command)
-            ramped = self._ramped(sent, np.asarray(context.get_discrete_state(self._sent_index).get_value()))
+            ramped = self._ramped(sent, last)
             self.num_ramped += bool(np.any(ramped != sent))
             sent = ramped
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
