@@ -664,3 +664,38 @@ def test_controller_system_names_a_malformed_estimate(grasp):
     ctrl.estimate_input_port().FixValue(ctx, {"theta": pl.state.theta * np.nan, "a": pl.state.a})
     ctrl.ExecuteForcedEvents(ctx)
     np.testing.assert_array_equal(ctrl.tendon_command_output_port().Eval(ctx), pl.state.tendon_command)
+
+
+def test_servo_a_step_at_a_time_carries_the_predicted_pose(grasp):
+    """One action per call (as the maze servos): given the call before's report
+    (``resume``), a lost tag's pose is that call's predicted pose, not the plant's held one,
+    so the steps do not repeat on a stale error, and lost tags in a row count across calls."""
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    x = np.linalg.svd(control.jacobian(m)[:3])[0][:, 0]
+    for seed in range(6):
+        pl = fresh(grasp, seed=seed)
+        pl.dropout = 0.5
+        t0 = pl.state.t_PO.copy()
+        goal = t0 + 1.0e-3 * x
+        rep, lost, overshoot = None, 0, 0.0
+        for _ in range(40):
+            rep = control.servo_to(np.eye(3), goal, pl, control.true_model_fn(pl), rows="position",
+                                   tol_position=0.02e-3, max_steps=1, max_lost=12, resume=rep)
+            lost += rep.lost
+            overshoot = max(overshoot, (pl.state.t_PO - t0) @ x - 1.0e-3)
+            assert rep.reason != "lost_tag"
+            if rep.reached:
+                break
+        # without resume, steps on the held pose's error went 0.04-0.4 mm past the goal on three seeds of six
+        assert overshoot < 0.01e-3, seed
+        assert rep.reached and lost > 0, seed
+        assert np.linalg.norm(pl.state.t_PO - goal) < 0.05e-3, seed
+        assert rep.R_final is not None and rep.lost_in_a_row == 0
+    pl = fresh(grasp)
+    pl.dropout = 0.999
+    reps = [None]
+    for _ in range(3):
+        reps.append(control.servo_to(np.eye(3), pl.state.t_PO + 1.0e-3 * x, pl, control.true_model_fn(pl),
+                                     rows="position", max_steps=1, max_lost=3, resume=reps[-1]))
+    assert [r.lost_in_a_row for r in reps[1:]] == [2, 3, 4]  # the first call steps once; then no step
+    assert [r.reason for r in reps[1:]] == ["budget", "lost_tag", "lost_tag"] and reps[-1].iterations == 0

@@ -341,7 +341,7 @@ def test_a_model_without_current_control_is_named_in_current_mode():
     with DynamixelEmulator(IDS, model_number=1060) as emu:
         motors = make_motors(emu)
         with pytest.raises(DynamixelError, match=r"id 1 is an XL430-W250, id 2 is an XL430-W250, id 3 is an "
-                                                 r"XL430-W250, which has no current-based position mode"):
+                                                 r"XL430-W250; that model has no current-based position mode"):
             motors.open()
         # nothing written but the clean-up's torque off (address 64, value 0)
         assert all(p == bytes([ADDR_TORQUE_ENABLE, 0, 0]) for _, _, p in emu.instructions(WRITE))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vlr_drake import observation
-from vlr_drake.tasks import font, maze, stack, write
+from vlr_drake.tasks import common, font, maze, stack, write
 
 SECTION_11 = ("task", "scenario", "seed", "plant", "position_error_mm", "orientation_error_deg", "success")
 
@@ -98,6 +98,28 @@ def test_maze_on_the_model_plant(tmp_path):
     assert r["marble_reached_goal"] and r["success"]
     assert r["orientation_error_deg"]["mean"] < 1.5  # the paper: 1.20 deg
     assert os.path.getsize(r["plots"][0]) > 1000
+
+
+@pytest.mark.parametrize("dropout", [0.2, 0.999])
+def test_maze_through_lost_tags(monkeypatch, dropout):
+    """A camera that loses the plate: the maze servos a step per call, carrying the predicted
+    pose across calls, and still brings the marble home with a fifth of the tags lost; a tag
+    lost for good ends the run as "lost_tag" instead of steering on a stale pose."""
+    make = common.make_model_plant
+
+    def lossy(*args, **kwargs):
+        tp = make(*args, **kwargs)
+        tp.plant.dropout = dropout
+        return tp
+
+    monkeypatch.setattr(common, "make_model_plant", lossy)
+    r = maze.run_maze(seed=0, progress=False)
+    check_fields(r, "maze")
+    assert r["lost_measurements"] > 0
+    if dropout < 0.5:
+        assert r["success"] and r["stopped"] is None and r["orientation_error_deg"]["mean"] < 1.5
+    else:
+        assert not r["success"] and r["stopped"] == "lost_tag" and r["control_iterations"] < 5
 
 
 def test_stack_geometry():

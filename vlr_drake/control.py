@@ -350,6 +350,9 @@ class ServoReport:
     at_limit: bool  # some tendon ended at its range limit
     history: list = field(default_factory=list)  # per iteration: (position_error, rotation_error, dl)
     lost: int = 0  # measurements that came without the tag (the pose was predicted instead)
+    R_final: np.ndarray | None = None  # the pose at the end: measured, else predicted (for ``resume``)
+    t_final: np.ndarray | None = None
+    lost_in_a_row: int = 0  # lost tags since the last measured pose, at the end
 
     def summary(self) -> str:
         return (
@@ -389,6 +392,7 @@ def servo_to(
     position_unit: float = POSITION_UNIT,
     rotation_unit: float = ROTATION_UNIT,
     on_step: Callable[[int, np.ndarray, np.ndarray], None] | None = None,
+    resume: ServoReport | None = None,
 ) -> ServoReport:
     """Drive the POM to (R_goal, t_goal) with camera feedback (DESIGN.md section 7).
 
@@ -412,7 +416,9 @@ def servo_to(
     the goal), the model is told the measurement is not valid, the closest pose and the
     stall count consider measured poses only, and ``max_lost`` lost tags in a row end the
     run with ``"lost_tag"``. The first measurement, if lost, is the plant's held pose (its
-    last valid one).
+    last valid one), or, given ``resume`` (the report of the call before, for a caller that
+    servos a step at a time, e.g. the maze), that call's final pose, measured or predicted,
+    with its lost tags in a row counting on.
     """
     if max_steps < 0:
         raise ValueError(f"'max_steps' must be >= 0, got {max_steps}")
@@ -424,6 +430,10 @@ def servo_to(
     ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
     R, t, valid = plant.measure()
     R_last, t_last = np.asarray(R, float), np.asarray(t, float)
+    lost = lost_in_a_row = int(not valid)
+    if not valid and resume is not None and resume.R_final is not None:
+        R_last, t_last = np.array(resume.R_final, float), np.array(resume.t_final, float)
+        lost_in_a_row += resume.lost_in_a_row
     model = model_fn(np.zeros(plant.hand.N), R_last, t_last, valid)
     hand = model.hand
     best = None
@@ -431,7 +441,6 @@ def servo_to(
     history: list = []
     reason = "budget"
     it = 0
-    lost = lost_in_a_row = int(not valid)
     measured = bool(valid)  # the pose at the top of the loop was measured (not held or predicted)
     step = functools.partial(control_step, mode=mode, rows=rows, alpha=alpha, damping=damping, gain=gain, clip=clip,
                              position_unit=position_unit, rotation_unit=rotation_unit)
@@ -446,6 +455,9 @@ def servo_to(
             best, since_best = (ew, R_last.copy(), t_last.copy(), ep, er), 0
         elif measured:
             since_best += 1
+        if lost_in_a_row >= max_lost:
+            reason = "lost_tag"
+            break
         if (not ctrl_pos or ep <= tol_position) and (not ctrl_rot or er <= tol_rotation):
             if measured:
                 reason = "reached"
@@ -459,9 +471,6 @@ def servo_to(
             else:
                 lost += 1
                 lost_in_a_row += 1
-                if lost_in_a_row >= max_lost:
-                    reason = "lost_tag"
-                    break
             continue
         if it >= max_steps:
             reason = "budget"
@@ -516,10 +525,6 @@ def servo_to(
         history.append((ep, er, dl_lim))
         if on_step is not None:
             on_step(it, R_last, t_last)
-        if lost_in_a_row >= max_lost:
-            e, ep, er, ew = errors(R_last, t_last)
-            reason = "lost_tag"
-            break
     l_now = _tendon_command(plant)
     at_limit = bool(
         np.any(
@@ -540,6 +545,9 @@ def servo_to(
         at_limit=at_limit,
         history=history,
         lost=lost,
+        R_final=R_last.copy(),
+        t_final=t_last.copy(),
+        lost_in_a_row=lost_in_a_row,
     )
 
 

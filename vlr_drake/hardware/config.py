@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.hardware.dynamixel import GOAL_CURRENT_MAX
+
 __all__ = ["HardwareConfig", "TendonMotorMap", "load_hardware_config"]
 
 #: Baud rates accepted by the Dynamixel SDK's PortHandler.
@@ -162,8 +164,8 @@ class HardwareConfig:
                 f"{where}: 'operating_mode' must be 4 (extended position) or 5 (current-based position), got {self.operating_mode}"
             )
         least = 1 if self.operating_mode == 5 else 0
-        if not least <= self.goal_current_raw <= 2047:
-            raise ValueError(f"{where}: 'goal_current_raw' must be in {least}..2047"
+        if not least <= self.goal_current_raw <= GOAL_CURRENT_MAX:
+            raise ValueError(f"{where}: 'goal_current_raw' must be in {least}..{GOAL_CURRENT_MAX}"
                              + (" in current-based position mode (5): it limits the tendon's pull" if least else "")
                              + f", got {self.goal_current_raw}")
         if not isinstance(self.camera, int | str) or (isinstance(self.camera, str) and not self.camera):

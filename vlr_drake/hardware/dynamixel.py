@@ -55,6 +55,7 @@ ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
 ADDR_TORQUE_ENABLE = 64  # 1 byte
 ADDR_HARDWARE_ERROR_STATUS = 70  # 1 byte, bits below
 ADDR_GOAL_CURRENT = 102  # 2 bytes
+GOAL_CURRENT_MAX = 2047  # the register's range, raw units (about 2.69 mA each on an XM430)
 #: Model numbers (address 0, what a ping returns) of X-series servos without current
 #: sensing: their operating modes are velocity, position, extended position and PWM
 #: (ROBOTIS e-manual, each model's specifications), so no current-based position mode.
@@ -164,8 +165,8 @@ class TendonMotors:
         self.tick_lower, self.tick_upper = lo, hi
         self.operating_mode = int(operating_mode)
         self.goal_current_raw = int(goal_current_raw)
-        if self.operating_mode == 5 and not 1 <= self.goal_current_raw <= 2047:
-            raise ValueError(f"goal_current_raw must be in 1..2047 in current-based position mode (5), "
+        if self.operating_mode == 5 and not 1 <= self.goal_current_raw <= GOAL_CURRENT_MAX:
+            raise ValueError(f"goal_current_raw must be in 1..{GOAL_CURRENT_MAX} in current-based position mode (5), "
                              f"got {self.goal_current_raw}")
         self.latency_timer_ms = float(latency_timer_ms)
         self.comm_retries = int(comm_retries)
@@ -300,7 +301,8 @@ class TendonMotors:
         if bad:
             names = ", ".join(f"id {i} is an {name}" for i, name in bad)
             raise DynamixelError(
-                f"motors on '{self.port_name}': {names}, which has no current-based position mode "
+                f"motors on '{self.port_name}': {names}; {'these models have' if len({n for _, n in bad}) > 1 else 'that model has'} "
+                "no current-based position mode "
                 "(operating_mode 5: the goal current that limits the tendon's pull); use a model with current "
                 "control (XM430, XM540, XH430, XL330, XC330), or operating_mode 4 knowing that nothing then limits "
                 "the pull and that motor_current reads the motor's load, not its current")

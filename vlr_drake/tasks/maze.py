@@ -281,7 +281,9 @@ def run_maze(
     time_s = 0.0
     success = True
     bar = tqdm(total=len(runs), disable=not progress, desc="maze", unit="run", leave=False)
-    iterations = 0
+    iterations = lost = 0
+    rep = None  # the last servo call's report: one step per call, so a lost tag's predicted pose carries on
+    stopped = None
     for run in runs:
         R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
         if view is not None:
@@ -292,7 +294,7 @@ def run_maze(
         run_samples = 0
         while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
             if t_run > segment_time or common.object_fell(tp):
-                success = False
+                success, stopped = False, "object_fell" if common.object_fell(tp) else "timeout"
                 break
             rep = control.servo_to(
                 R_goal,
@@ -304,8 +306,13 @@ def run_maze(
                 tol_rotation=np.deg2rad(tol_rotation_deg),
                 stall_steps=100,
                 limits=limits,
+                resume=rep,
             )
             iterations += rep.iterations
+            lost += rep.lost
+            if rep.reason == "lost_tag":  # the camera lost the plate for good: nothing to steer by
+                success, stopped = False, "lost_tag"
+                break
             settled = settled or rep.reached or rep.reason != "budget"
             marble.step(g_plate(), period)
             time_s += period
@@ -339,6 +346,8 @@ def run_maze(
         "marble_cell": list(marble.cell_of()),
         "time_s": time_s,
         "control_iterations": int(iterations),
+        "lost_measurements": int(lost),
+        "stopped": stopped,  # why the run ended early: "timeout", "object_fell" or "lost_tag"; null if it did not
         "runs": len(runs),
         "tilt_deg": tilt_deg,
         "orientation_error_all_deg": common.stats(np.deg2rad(errs), np.rad2deg(1.0)),
