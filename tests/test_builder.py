@@ -20,6 +20,7 @@ from vlr_drake.identify import _truth_grasp, contact_guess_rng
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.scenario import DIAGRAMS_DIR, example_scenarios, load_scenario
+from vlr_drake.systems.physics_plant import placed_grasp
 
 EXAMPLES = example_scenarios()
 # Small filters under test: the runs check the wiring, not the identification.
@@ -74,7 +75,19 @@ def test_example_scenario_builds_and_runs(path: Path):
         assert d.HasOutputPort("hand.rgb_image")
         # the prior's centre: the placed angles, and a guess of the contacts, which the pads
         # fix at PAD_FRACTION of the distal link (not the truth itself), as identify guesses
-        np.testing.assert_allclose(b.theta_center.ravel(), start["theta_placed"])
+        prior = s.prior.to_prior()
+        if prior.links_unknown:
+            # a replaced finger's true link does not reach the filter: the angles are placed
+            # with the hand it believes in, whose unknown links are their range's middle
+            believed = prior.believed_hand(spec)
+            middle = 0.5 * sum(prior.link_range)
+            assert all(believed.fingers[fi].link_lengths[0] == middle for fi in prior.links_unknown)
+            np.testing.assert_allclose(b.theta_center.ravel(), placed_grasp(believed, s.object_spec_resolved(),
+                                                                            s.physics)[0])
+            assert not np.allclose(b.theta_center.ravel(), start["theta_placed"])  # placed with the true links
+            np.testing.assert_array_equal(b.filter._hand.link_lengths, believed.model().link_lengths)
+        else:
+            np.testing.assert_allclose(b.theta_center.ravel(), start["theta_placed"])
         pad = PAD_FRACTION * b.hand.distal_length
         off = np.abs(b.a_center - pad)
         bound = s.model_plant.center_offset_fraction * s.prior.to_prior().contact_half_width

@@ -62,7 +62,7 @@ from vlr_drake.scenario import (
     find_scenario,
     load_scenario,
 )
-from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, build_physics_hand
+from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, placed_grasp
 from vlr_drake.systems.self_identification import (
     ExplorationPolicy,
     ModelPlantSystem,
@@ -222,13 +222,6 @@ def _observer_config(s: Scenario) -> TagObserverConfig:
     return cfg.validate()
 
 
-def _placed_grasp(s: Scenario) -> tuple[np.ndarray, np.ndarray]:
-    """(theta placed (N*K), tendon commands (N)) of the physics grasp, from a camera-less
-    copy of the physics hand (placement is geometry only, so the full diagram gets the same)."""
-    _, ph, sim = build_physics_hand(s.hand_spec_resolved(), s.object_spec_resolved(), s.physics, None, None)
-    return ph.place(sim.get_mutable_context())
-
-
 def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hardware: (theta (N, K), a (N,), tendon commands (N,)) of the scenario's grasp section,
     or of a stable model grasp sampled with the seed; commands from the model's equilibrium."""
@@ -269,8 +262,10 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     elif s.plant == "physics":
         if s.meshcat and meshcat is None:
             meshcat = Meshcat()
-        theta0, l0 = _placed_grasp(s)
         obj = s.object_spec_resolved()
+        theta0, l0 = placed_grasp(spec, obj, s.physics)
+        if prior.links_unknown:  # the grasp placed with the hand the filter believes in, as vlr-drake identify
+            theta0 = placed_grasp(prior.believed_hand(spec), obj, s.physics)[0]
         ph = add_physics_hand(builder, spec, obj, s.physics, s.camera, meshcat)
         plant = ph.diagram
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
@@ -325,14 +320,15 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         from vlr_drake.identify import default_likelihood_width
 
         config = replace(config, likelihood_width=default_likelihood_width(s.plant, s.experiment()))
-    flt = SelfIdentificationSystem(h, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
+    h_filter = prior.believed_hand(spec).model() if prior.links_unknown else h  # no replaced link's true length
+    flt = SelfIdentificationSystem(h_filter, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")
     return BuiltDiagram(
         diagram,
         s,
-        h,
+        h_filter,
         policy,
         plant,
         sensor,

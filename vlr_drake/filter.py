@@ -39,6 +39,7 @@ away, or every solve failed), the filter re-initialises around its last estimate
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 import warnings
@@ -48,7 +49,7 @@ import numpy as np
 from numba import njit, prange
 
 from vlr_drake import kinematics, motion, observation
-from vlr_drake.hand import HandModel
+from vlr_drake.hand import HandModel, HandSpec
 from vlr_drake.kinematics import as_particles
 
 __all__ = [
@@ -549,6 +550,20 @@ class PriorConfig:
     contact_limits: tuple[float, float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+
+    def believed_hand(self, spec: HandSpec) -> HandSpec:
+        """The hand the filter believes in before any measurement: a copy of ``spec`` whose
+        unknown proximal links (``links_unknown``) are the middle of ``link_range``, for
+        whatever is computed from the hand's geometry before the particles are drawn (the
+        nominal grasp's placed angles), so that no true length of a replaced finger reaches
+        the filter."""
+        believed = copy.deepcopy(spec)
+        middle = 0.5 * (self.link_range[0] + self.link_range[1])
+        for fi in self.links_unknown:
+            lengths = list(believed.fingers[fi].link_lengths)
+            lengths[0] = middle
+            believed.fingers[fi].link_lengths = lengths
+        return believed
 
     def guessed_grasp(self, theta, a, rng: np.random.Generator,
                       fraction: float = CENTER_OFFSET_FRACTION) -> tuple[np.ndarray, np.ndarray]:

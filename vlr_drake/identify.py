@@ -490,10 +490,11 @@ def _hand_name(opts: IdentifyOptions) -> str:
 def _hands(opts: IdentifyOptions, rng):
     """(true hand spec, filter's hand spec, prior config).
 
-    The filter's hand is the nominal one (``hand_spec`` or the preset); the true hand is
-    that with the stiffness and link lengths of ``true_stiffness`` / ``true_link_lengths``
-    and, for the stiffness experiment without them, a thumb distal spring drawn from
-    ``STIFFNESS_RANGE``."""
+    The filter's hand is the nominal one (``hand_spec`` or the preset), with the replaced
+    fingers' unknown links at their range's middle (:meth:`PriorConfig.believed_hand`); the
+    true hand is the nominal one with the stiffness and link lengths of ``true_stiffness`` /
+    ``true_link_lengths`` and, for the stiffness experiment without them, a thumb distal
+    spring drawn from ``STIFFNESS_RANGE``."""
     prior = pf.PriorConfig() if opts.prior is None else copy.deepcopy(opts.prior)
     nominal = copy.deepcopy(opts.hand_spec) if opts.hand_spec is not None else hand_by_name(opts.hand)
     true_spec = copy.deepcopy(nominal)
@@ -521,7 +522,7 @@ def _hands(opts: IdentifyOptions, rng):
         names = nominal.finger_names()  # replaced fingers are named "<old>_<NFx>"
         prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
         prior.link_range = (0.030, 0.075)
-    return true_spec, nominal, prior
+    return true_spec, prior.believed_hand(nominal), prior
 
 
 def _truth_grasp(hand, rng, link_lengths=None):

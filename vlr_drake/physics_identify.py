@@ -28,7 +28,7 @@ from vlr_drake.models import PAD_FRACTION
 from vlr_drake.objects import preset
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.perception.tag_pose import TagObserverConfig, make_detector, observe_pom, vtk_render_intrinsics
-from vlr_drake.systems.physics_plant import PhysicsConfig, PlacementError, build_physics_hand
+from vlr_drake.systems.physics_plant import PhysicsConfig, PlacementError, build_physics_hand, placed_grasp
 
 __all__ = ["PhysicsAdapter"]
 
@@ -66,6 +66,11 @@ class PhysicsAdapter:
                 f"pretension_mode '{self.physics.pretension_mode}'; and the object's placement)")
         self.grasp_wall_s = time.perf_counter() - t0
         theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
+        if prior.links_unknown:
+            # placed with the true links; the filter's nominal angles are those of the hand it
+            # believes in (a replaced finger's unknown link at its range's middle)
+            believed = placed_grasp(prior.believed_hand(self.spec), self.obj, self.physics)[0]
+            theta_c = believed.reshape(self.hand.N, self.hand.K)
         a_c = PAD_FRACTION * self.hand.distal_length
         timing = {"render": 0.0, "detect": 0.0}
         R, t, valid = self.measure(timing)

@@ -109,6 +109,7 @@ __all__ = [
     "ActionResult",
     "add_physics_hand",
     "build_physics_hand",
+    "placed_grasp",
     "grasp",
     "apply_action",
     "ImageDownsampler",
@@ -1127,6 +1128,16 @@ def build_physics_hand(
     ph.set_command(root, ph.hand.tendon_range[:, 0])
     simulator.Initialize()
     return diagram, ph, simulator
+
+
+def placed_grasp(hand: HandSpec, obj: ObjectSpec, physics: PhysicsConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(theta placed (N*K), tendon commands (N)) of ``hand`` closing on ``obj`` at its
+    placement (:meth:`PhysicsHand.place`), from a camera-less copy of the physics hand:
+    placement is geometry only, so a full diagram of the same hand places the same. Also the
+    nominal grasp of a hand the filter only believes in
+    (:meth:`vlr_drake.filter.PriorConfig.believed_hand`)."""
+    _, ph, sim = build_physics_hand(hand, obj, physics, None, None)
+    return ph.place(sim.get_mutable_context())
 
 
 def grasp(simulator: Simulator, physics_hand: PhysicsHand) -> GraspResult:
