@@ -66,7 +66,7 @@ class PhysicsAdapter:
                 f"pretension_mode '{self.physics.pretension_mode}'; and the object's placement)")
         self.grasp_wall_s = time.perf_counter() - t0
         theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
-        if prior.links_unknown:
+        if prior is not None and prior.links_unknown:
             # placed with the true links; the filter's nominal angles are those of the hand it
             # believes in (a replaced finger's unknown link at its range's middle)
             believed = placed_grasp(prior.believed_hand(self.spec), self.obj, self.physics)[0]
