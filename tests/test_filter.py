@@ -706,6 +706,71 @@ def test_swapped_object_triggers_reinitialisation():
     assert np.isfinite(rep.mean_interval_deg)
 
 
+def test_reinitialisation_centres_on_the_moved_cloud_then_on_the_whole_prior(monkeypatch):
+    """A re-initialisation draws around the estimate of the cloud as this iteration moved
+    it (not the last estimate, one action old); another within REINIT_RECENT iterations
+    draws from the whole prior around the nominal grasp again (a box around an estimate
+    that was lost again at once may not hold the truth); the nominal grasp is kept."""
+    h, plant, f = _filter_and_plant(5, particles=2000)
+    nominal = f._theta_center.copy()
+    centres = []
+    initialise = pf.SelfIdentificationFilter.initialise
+
+    def spy(self, theta_center, *args, **kwargs):
+        centres.append(np.array(theta_center))
+        return initialise(self, theta_center, *args, **kwargs)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "initialise", spy)
+    dl = np.array([1.0e-3, 0.5e-3, -0.8e-3])
+    for _ in range(3):
+        assert plant.apply_action(dl)
+        f.step(dl, *plant.measure()[:2])
+    before = f.estimates[-1]["theta"]
+    from vlr_drake.observation import rotvec_to_matrix
+
+    assert plant.apply_action(dl)
+    R, t, _ = plant.measure()
+    R_far = rotvec_to_matrix(np.array([0.0, np.deg2rad(30), 0.0]))[0] @ R  # the object swapped
+    assert f.step(dl, R_far, t + np.array([0.02, 0.0, 0.0])).reinitialised
+    moved = centres[-1] - before  # centred on the cloud the action moved, not on the estimate before
+    assert 1e-3 < np.abs(moved).max() < 0.2
+    f.iteration += REINIT_GAP
+    f._reinitialise(R, t)
+    np.testing.assert_array_equal(centres[-1], nominal)
+    np.testing.assert_array_equal(f._theta_center, nominal)
+    assert f.reinitialisations == 2
+
+
+REINIT_GAP = pf.REINIT_RECENT
+
+
+def test_centred_draws_fold_back_at_the_prior_bounds():
+    """Draws centred near a bound (re-initialisation) fold back into the range instead of
+    piling onto the bound (clipped, 28% of the links centred at 40 mm sat exactly at 30 mm);
+    a log-uniform spring is drawn in log k, symmetric there about its centre."""
+    from vlr_drake.hand import hand_by_name
+
+    h = hand_by_name("NH2").model()
+    prior = pf.PriorConfig(links_unknown=[0, 1], stiffness_unknown=[(0, 1)])
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=3000), prior, np.random.default_rng(0))
+    n = 50_000
+    L = f._draw_links(n, np.full((3, 1), 0.040), 1.0)[:, :2, 0]
+    lo, hi = prior.link_range
+    assert L.min() >= lo and L.max() <= hi and np.mean(L == lo) == 0.0
+    near = np.mean(L < lo + 1e-3) / (1e-3 / (hi - lo))  # density at the bound, relative to uniform
+    assert 1.5 < near < 2.5  # folded: the box's mass past the bound lands just inside it
+    centre = np.full((3, 2), 0.08)
+    k = f._draw_stiffness(n, centre, 1.0)[:, 0, 1]
+    klo, khi = prior.stiffness_range
+    assert k.min() >= klo and k.max() <= khi and np.mean(k == klo) == 0.0
+    half = 0.5 * np.log(khi / klo)  # the box's half-width in log k
+    x = np.log(k / 0.08)
+    assert x.max() == pytest.approx(half, abs=1e-3)
+    # uniform in log k above the fold (which reaches 0.1 above the centre): density 1 / (2 half)
+    assert np.mean((x > 0.2) & (x < 1.0)) == pytest.approx(0.8 / (2 * half), abs=0.01)
+    np.testing.assert_allclose(pf._reflect_into(np.array([0.5, 1.2, -0.3, 2.7]), 0.0, 1.0), [0.5, 0.8, 0.3, 0.7])
+
+
 def test_tendon_state_follows_the_commanded_pull():
     """tendon_reference "commanded": every hypothesis' stretch is l - R theta for the motors'
     absolute pull l, after initialisation, moves, resampling and roughening alike (so the
@@ -1243,3 +1308,11 @@ def test_the_model_plant_starts_from_a_seen_tag(monkeypatch):
     with pytest.raises(ValueError, match="the tag was lost in all 1 measurements at the grasp"):
         run_identification(IdentifyOptions(plant="model", particles=300, max_iterations=3, seed=lost_first[0],
                                            dropout=0.9, progress=False))
+
+
+@pytest.mark.parametrize("w", [np.zeros(4), np.array([1.0, np.nan, 1.0, 1.0]), np.array([1.0, -0.5, 1.0, 1.0]),
+                               np.ones(3)])
+def test_interval95_refuses_weights_that_are_no_distribution(w):
+    """All-zero weights had given unweighted quantiles, a NaN or negative one garbage."""
+    with pytest.raises(ValueError, match="interval95: the weights"):
+        pf.interval95(np.arange(4.0), w)

@@ -386,6 +386,10 @@ def interval95(x: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, 
     w = np.asarray(w, float)
     if not np.isfinite(flat).all():
         raise ValueError("interval95: the samples must be finite")
+    if w.shape != (flat.shape[0],):
+        raise ValueError(f"interval95: the weights must have shape ({flat.shape[0]},), got {w.shape}")
+    if not (np.isfinite(w).all() and (w >= 0).all() and w.sum() > 0):
+        raise ValueError("interval95: the weights must be finite, non-negative and not all zero")
     cols = np.ascontiguousarray(flat.T)
     if w.size and np.all(w == w[0]):  # equal weights (after resampling): order statistics
         # the k-th smallest value is the smallest whose count reaches k + 1: with unit
@@ -720,7 +724,18 @@ class FilterConfig:
     # 95% joint intervals 85% of the time with 0 and 89% with 16 (model plant, 12 seeds).
     # With the commanded tendon state 4 is enough (12 seeds: coverage 1.00 with 4, 0.97 with
     # 16) and cheaper: a particle with no equilibrium costs up to 7 + 4 x 7 Newton steps
-    # instead of 147 (60,000 particles: 0.43 s per iteration instead of 0.48).
+    # instead of 147 (60,000 particles: 0.43 s per iteration instead of 0.48). A review
+    # (2026-11-27) found the truth itself failing to move with 4, and killed: a filter of ten
+    # copies of the truth stepped beside the run (model plant, whose truth moves with 64; NH2,
+    # 5,000 particles, seeds 0-23) lost them on seeds 11 and 19, never with 16 or 64 (seed 19's
+    # cloud then re-initialised 11-23 times and ended 18 deg off). But 16 was measured the
+    # less honest: the spring inside its 95% interval in 35 of 40 runs against 39 of 40
+    # (stiffness, 5,000 particles, 60 iterations, seeds 0-39; the same error, 0.0116 N m/rad),
+    # and at 20,000 particles 4 and 64 gave the same rows (NH2 seeds 0-35: links 1.40 / 1.38
+    # mm, 69 of 72 inside either way; known hand seeds 0-23: proximal joints 0.62 / 0.57 deg,
+    # joints inside 0.99 / 0.97), 64 at a third more time (16: median iteration 143 against
+    # 122 ms at 60,000 particles). So 4 stays; a run that loses its truth so re-initialises,
+    # from the whole prior once it does so twice within REINIT_RECENT iterations.
     max_substeps: int = 4
     # ``max_substeps`` of the first move after (re)initialisation, which carries each prior
     # draw from its own equilibrium to the one under the motors' command; None (default):
@@ -974,6 +989,21 @@ class StepReport:
 #: fingers, more fingers) need more. A filter with fewer says so (FewParticlesWarning).
 CALIBRATED_PARTICLES = 3000
 
+#: A re-initialisation within this many iterations of the last one draws from the whole
+#: prior again, around the nominal grasp, not around the last estimate: the estimate the
+#: last one centred on was lost again at once, and a box around it may no longer hold the
+#: truth (a review found a cloud re-initialised 23 times in 60 iterations around estimates
+#: 11-25 deg off, its box +-8.6 deg).
+REINIT_RECENT = 5
+
+
+def _reflect_into(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``x`` folded back into [lo, hi] at its bounds (as often as needed): a centred draw
+    that reaches past a bound stays a density, where clipping would pile it on the bound."""
+    w = hi - lo
+    y = np.mod(np.asarray(x, float) - lo, 2.0 * w)
+    return lo + np.where(y > w, 2.0 * w - y, y)
+
 
 class FewParticlesWarning(UserWarning):
     """A filter with fewer than :data:`CALIBRATED_PARTICLES` hypotheses: it runs, but its
@@ -1010,6 +1040,7 @@ class SelfIdentificationFilter:
         self.history: list[StepReport] = []
         self.estimates: list[dict] = []
         self.reinitialisations = 0
+        self._last_reinit: int | None = None  # the iteration of the last re-initialisation
         self.resamples = 0
         self.tendon_command: np.ndarray | None = None  # absolute tendon pull l (N,) [m]
         N, K = hand.N, hand.K
@@ -1148,13 +1179,19 @@ class SelfIdentificationFilter:
         k = np.broadcast_to(h.stiffness, (n, h.N, h.K)).copy()
         lo, hi = pr.stiffness_range
         for fi, j in pr.stiffness_unknown:
+            # centred (re-initialisation): a box of ``scale`` times the range's half-width in
+            # the prior's own space (log k for the log-uniform prior), folded back at the bounds
             if center is None and pr.stiffness_prior == "log_uniform":
                 k[:, fi, j] = np.exp(self.rng.uniform(np.log(lo), np.log(hi), n))
             elif center is None:
                 k[:, fi, j] = self.rng.uniform(lo, hi, n)
+            elif pr.stiffness_prior == "log_uniform":
+                half = 0.5 * scale * (np.log(hi) - np.log(lo))
+                c = np.log(np.clip(center[fi, j], lo, hi))
+                k[:, fi, j] = np.exp(_reflect_into(c + half * self.rng.uniform(-1, 1, n), np.log(lo), np.log(hi)))
             else:
                 half = 0.5 * scale * (hi - lo)
-                k[:, fi, j] = np.clip(center[fi, j] + half * self.rng.uniform(-1, 1, n), lo, hi)
+                k[:, fi, j] = _reflect_into(center[fi, j] + half * self.rng.uniform(-1, 1, n), lo, hi)
         return k
 
     def _draw_links(self, n, center, scale):
@@ -1166,9 +1203,9 @@ class SelfIdentificationFilter:
         for fi in pr.links_unknown:
             if center is None:
                 L[:, fi, 0] = self.rng.uniform(lo, hi, n)
-            else:
+            else:  # centred, folded back at the bounds as the stiffness
                 half = 0.5 * scale * (hi - lo)
-                L[:, fi, 0] = np.clip(center[fi, 0] + half * self.rng.uniform(-1, 1, n), lo, hi)
+                L[:, fi, 0] = _reflect_into(center[fi, 0] + half * self.rng.uniform(-1, 1, n), lo, hi)
         return L
 
     def _draw_load(self, n, mass_center, scale):
@@ -1182,7 +1219,7 @@ class SelfIdentificationFilter:
         if mass_center is None:
             mass = self.rng.uniform(lo, hi, n)
         else:
-            mass = np.clip(mass_center + 0.5 * scale * (hi - lo) * self.rng.uniform(-1, 1, n), lo, hi)
+            mass = _reflect_into(mass_center + 0.5 * scale * (hi - lo) * self.rng.uniform(-1, 1, n), lo, hi)
         return mass[:, None] * self.rng.dirichlet(np.ones(self.hand.N), n)
 
     def _loads(self, theta, a, link_lengths, load) -> dict:
@@ -1471,16 +1508,24 @@ class SelfIdentificationFilter:
             ps.theta, ps.stretch = eq.theta, eq.stretch
 
     def _reinitialise(self, R_meas, t_meas) -> None:
-        est = self.estimates[-1] if self.estimates else None
+        """Draw the cloud again (every hypothesis implausible): around the estimate of the
+        cloud as this iteration moved it (the last estimate is one action old), or, within
+        ``REINIT_RECENT`` iterations of the last re-initialisation, from the whole prior
+        around the nominal grasp."""
+        nominal = self._theta_center, self._a_center  # the first initialise's, kept
+        recent = self._last_reinit is not None and self.iteration - self._last_reinit <= REINIT_RECENT
         self.reinitialisations += 1
-        if est is None:
-            theta_c, a_c, k_c, L_c, m_c = self._theta_center, self._a_center, None, None, None
+        self._last_reinit = self.iteration
+        if recent or self.particles is None:
+            theta_c, a_c, k_c, L_c, m_c = *nominal, None, None, None
         else:
+            est = self.estimate()
             theta_c, a_c = est["theta"], est["a"]
             k_c = est["stiffness"] if self.prior.stiffness_unknown else None
             L_c = est["link_lengths"] if self.prior.links_unknown else None
             m_c = float(est["object_mass"]) if self.prior.object_mass_unknown else None
         self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0, mass_center=m_c)
+        self._theta_center, self._a_center = nominal
         self.estimates.pop()  # initialise appended one; the report below appends the current
 
     def _report(self, measured, ess, beta, res, feasible, reinit, best, evidence=np.nan, lap=None) -> StepReport:

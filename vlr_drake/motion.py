@@ -271,6 +271,13 @@ def _ridge_solve(A, f0, M, rhs):  # pragma: no cover - numba
     """Least squares min |A x + f0| (A: equations x unknowns) by the normal equations, with a
     1e-12-relative ridge that picks the minimum-norm x where A loses rank (multipliers that
     are statically indeterminate). The solution is left in ``rhs``; False if singular.
+    The normal equations square A's condition number, so near a singular grasp the
+    solution is not exact: a review (2026-11-27) found residuals above 1e-3 N m in 976 of
+    200,000 random NH2 grasps, where a pivoted solve is exact. Those grasps ask kilonewtons
+    of their tendons either way (max |T| median 2.2 kN here, 3.4 kN exact): neither is a
+    physical grasp. Kept, because the ridge is what keeps a grasp near the Model O's
+    mirror-image pose usable (the exact tensions 1e-4 rad from it are +-88 kN, with which
+    no move succeeds; ``test_symmetric_model_o_grasp_moves``).
     Written as loops: numba's ``@`` on these small arrays costs more than the arithmetic."""
     n_eq, nb = A.shape
     scale = 0.0

@@ -410,7 +410,7 @@ def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[
         else:
             L[:, fi, 0] = v
         r = motion.move(h, theta, np.zeros(h.N), a=a, D2=D2, stretch=stretch, stiffness=k, link_lengths=L,
-                        tendon=trace.filter.tendon, max_substeps=4)
+                        tendon=trace.filter.tendon, max_substeps=trace.filter.max_substeps)
         off = np.rad2deg(np.abs(r.theta - theta))[r.ok]
         mine = off[:, fi, j] if parameter == "stiffness" else off[:, fi, :]
         both = r.ok[1:] & r.ok[:-1]
