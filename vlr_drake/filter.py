@@ -734,8 +734,8 @@ class FilterConfig:
     # and at 20,000 particles 4 and 64 gave the same rows (NH2 seeds 0-35: links 1.40 / 1.38
     # mm, 69 of 72 inside either way; known hand seeds 0-23: proximal joints 0.62 / 0.57 deg,
     # joints inside 0.99 / 0.97), 64 at a third more time (16: median iteration 143 against
-    # 122 ms at 60,000 particles). So 4 stays; a run that loses its truth so re-initialises,
-    # from the whole prior once it does so twice within REINIT_RECENT iterations.
+    # 122 ms at 60,000 particles). So 4 stays: a run that loses its truth re-initialises, and
+    # draws from the whole prior when it does so again within REINIT_RECENT iterations.
     max_substeps: int = 4
     # ``max_substeps`` of the first move after (re)initialisation, which carries each prior
     # draw from its own equilibrium to the one under the motors' command; None (default):
