@@ -86,3 +86,25 @@ def test_an_object_that_falls_stops_the_run_and_keeps_its_estimates(monkeypatch,
     assert r["stopped"].startswith("iteration 3: the apple fell out of the hand"), r["stopped"]
     assert r["iterations"] == 3 and len(r["proximal_joint_error_deg"]) == 3
     assert np.all(np.isfinite(r["proximal_joint_error_deg"]))
+
+
+def test_no_replaced_finger_s_true_length_reaches_the_filter():
+    """Novel fingers on the physics plant: the plant places its grasp with the true hand, the
+    filter's prior is centred on the grasp placed with the hand it believes in (each unknown
+    link at its range's middle), and the filter's hand carries those lengths. A review found
+    the centre placed with the true NF1 length (0.003 rad off here; up to 0.02 on NH2/NH3)."""
+    from vlr_drake.hand import hand_by_name
+    from vlr_drake.objects import preset
+    from vlr_drake.systems.physics_plant import PhysicsConfig, placed_grasp
+
+    r = run_identification(IdentifyOptions(experiment="novel_fingers", plant="physics", hand="NH1", particles=3000,
+                                           max_iterations=2, seed=0, progress=False))
+    trace, spec = r["_trace"], hand_by_name("NH1")
+    believed = trace.prior.believed_hand(spec)
+    middle = 0.5 * sum(trace.prior.link_range)
+    assert trace.prior.links_unknown == [0] and believed.fingers[0].link_lengths[0] == middle
+    assert trace.hand.fingers[0].link_lengths[0] == middle != spec.fingers[0].link_lengths[0]
+    centre = placed_grasp(believed, preset("apple"), PhysicsConfig())[0].reshape(3, 2)
+    true_centre = placed_grasp(spec, preset("apple"), PhysicsConfig())[0].reshape(3, 2)
+    np.testing.assert_array_equal(trace.theta_center, centre)
+    assert not np.allclose(centre, true_centre)
