@@ -1316,3 +1316,23 @@ def test_interval95_refuses_weights_that_are_no_distribution(w):
     """All-zero weights had given unweighted quantiles, a NaN or negative one garbage."""
     with pytest.raises(ValueError, match="interval95: the weights"):
         pf.interval95(np.arange(4.0), w)
+
+
+def test_implied_roughening_drops_hypotheses_without_an_equilibrium(monkeypatch):
+    """tendon_reference "implied": a roughened hypothesis whose equilibrium fails has no
+    tendon state (stretch 0) to be moved by, so it loses its weight instead of staying in
+    the cloud as a slack hand (a review found it kept); the others keep theirs."""
+    h, plant, f = _filter_and_plant(6, particles=1000, tendon_reference="implied")
+    ps = f.particles.take(np.arange(f.particles.size))
+    real = pf.motion.equilibrium
+
+    def failing_half(*args, **kwargs):
+        eq = real(*args, **kwargs)
+        eq.ok[::2] = False
+        return eq
+
+    monkeypatch.setattr(pf.motion, "equilibrium", failing_half)
+    f._roughen(ps)
+    assert np.all(np.isneginf(ps.log_w[::2])) and np.all(ps.log_w[1::2] == 0.0)
+    w = pf.normalise(ps.log_w)
+    assert w[::2].sum() == 0.0 and w.sum() == pytest.approx(1.0)

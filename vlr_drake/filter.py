@@ -1506,6 +1506,8 @@ class SelfIdentificationFilter:
             eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness,
                                     **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
             ps.theta, ps.stretch = eq.theta, eq.stretch
+            if eq.ok.any() and not eq.ok.all():  # no implied tendon state (stretch 0): nothing to move it by
+                ps.log_w = np.where(eq.ok, ps.log_w, -np.inf)
 
     def _reinitialise(self, R_meas, t_meas) -> None:
         """Draw the cloud again (every hypothesis implausible): around the estimate of the
