@@ -253,6 +253,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     spec = s.hand_spec_resolved()
     h = spec.model()
     prior = s.prior.to_prior()
+    believed = prior.believed_hand(spec)  # the filter's hand: a replaced finger's unknown link at its range's middle
     T = s.period_sec()
     builder = DiagramBuilder()
     ph = None
@@ -265,7 +266,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         obj = s.object_spec_resolved()
         theta0, l0 = placed_grasp(spec, obj, s.physics)
         if prior.links_unknown:  # the grasp placed with the hand the filter believes in, as vlr-drake identify
-            theta0 = placed_grasp(prior.believed_hand(spec), obj, s.physics)[0]
+            theta0 = placed_grasp(believed, obj, s.physics)[0]
         ph = add_physics_hand(builder, spec, obj, s.physics, s.camera, meshcat)
         plant = ph.diagram
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
@@ -320,7 +321,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         from vlr_drake.identify import default_likelihood_width
 
         config = replace(config, likelihood_width=default_likelihood_width(s.plant, s.experiment()))
-    h_filter = prior.believed_hand(spec).model() if prior.links_unknown else h  # no replaced link's true length
+    h_filter = believed.model() if prior.links_unknown else h  # no replaced link's true length
     flt = SelfIdentificationSystem(h_filter, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
     diagram = builder.Build()

@@ -1518,7 +1518,7 @@ class SelfIdentificationFilter:
         recent = self._last_reinit is not None and self.iteration - self._last_reinit <= REINIT_RECENT
         self.reinitialisations += 1
         self._last_reinit = self.iteration
-        if recent or self.particles is None:
+        if recent:
             theta_c, a_c, k_c, L_c, m_c = *nominal, None, None, None
         else:
             est = self.estimate()

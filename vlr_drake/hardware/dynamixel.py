@@ -300,9 +300,9 @@ class TendonMotors:
                if m in NO_CURRENT_MODELS]
         if bad:
             names = ", ".join(f"id {i} is an {name}" for i, name in bad)
+            models = "these models have" if len({name for _, name in bad}) > 1 else "that model has"
             raise DynamixelError(
-                f"motors on '{self.port_name}': {names}; {'these models have' if len({n for _, n in bad}) > 1 else 'that model has'} "
-                "no current-based position mode "
+                f"motors on '{self.port_name}': {names}; {models} no current-based position mode "
                 "(operating_mode 5: the goal current that limits the tendon's pull); use a model with current "
                 "control (XM430, XM540, XH430, XL330, XC330), or operating_mode 4 knowing that nothing then limits "
                 "the pull and that motor_current reads the motor's load, not its current")
