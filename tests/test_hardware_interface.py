@@ -109,9 +109,9 @@ def make_config(emu: DynamixelEmulator, camera, **kw) -> HardwareConfig:
         camera_timeout_s=0.5,
         latency_timer_ms=30.0,
         period_s=0.05,
-        # commands are sent as asked (the ramp towards a far command has its own test:
+        # the fastest ramp allowed, 1 mm per update (its own test:
         # test_system_ports_with_fixed_input_and_forced_update)
-        max_tendon_speed=10.0,
+        max_tendon_speed=0.02,
     )
     for k, v in kw.items():
         setattr(cfg, k, v)
@@ -225,6 +225,10 @@ def test_tendon_limits_may_narrow_the_hand_s_range_not_widen_it():
         ("goal_current_raw", 4000),
         ("max_tendon_speed", 0.0),
         ("grasp_timeout_s", float("nan")),
+        ("period_s", 1.0),  # 20 mm per update, each at the motors' full speed: not a speed limit
+        ("max_tendon_speed", 0.05),  # 2.5 mm per 50 ms update
+        ("start_tolerance_ticks", 100_000),  # 767 mm of tendon clamped in one jump at start
+        ("zero_offset_ticks", [2_000_000, 0, 0]),  # past the motors' multi-turn range
     ],
 )
 def test_config_validate_names_bad_field(field, value):
@@ -477,6 +481,9 @@ def test_end_to_end_with_tag_observer(emulator, tag_video):
     cfg = make_config(emulator, str(path))
     lo, hi = cfg.tendon_limits(hand)
     command = np.array([0.01, -0.005, hi[2] + 0.01])  # finger 1 below, finger 2 above its limit
+    # the motors start within 4 mm of the clipped command: the interface ramps at 1 mm per update
+    for i, t in zip(IDS, expected_ticks(np.clip(command - 0.004, lo, hi)), strict=True):
+        emulator.set_present_position(i, t)
     builder = DiagramBuilder()
     hw = add_hardware_interface(builder, hand, cfg, intrinsics=intrinsics())
     src = builder.AddNamedSystem("command", ConstantVectorSource(command))
@@ -649,6 +656,8 @@ def test_camera_that_stops_delivering_gives_invalid_frames(emulator, mode):
     gate = threading.Event() if latest else None
     fake = FakeCapture(3, gate=gate)
     cfg = make_config(emulator, 0, camera_timeout_s=0.1 if latest else 0.03)
+    for i, t in zip(IDS, expected_ticks([0.018] * 3), strict=True):  # 2 mm from the command: two updates
+        emulator.set_present_position(i, t)
     camera = FrameSource(
         0, timeout_s=cfg.camera_timeout_s, expected_size=(W, H), mode=mode, capture_factory=fake
     )
@@ -744,7 +753,6 @@ def test_example_files_load_and_build(emulator, tmp_path):
     assert cfg.calibration_file == "camera_intrinsics.yaml" and cfg.camera == 0
     # run it against the emulator with a stand-in camera
     cfg.port, cfg.motor_ids, cfg.latency_timer_ms = emulator.port_name, list(IDS), 30.0
-    cfg.max_tendon_speed = 1.0  # one update reaches the command (the ramp has its own test)
     for i in IDS:
         emulator.set_present_position(i, 2048)  # taut and straight: at the zero offsets
     builder = DiagramBuilder()
@@ -758,11 +766,11 @@ def test_example_files_load_and_build(emulator, tmp_path):
         assert hw.distortion_coefficients().tolist() == pytest.approx([0.082, -0.154, 0.0007, -0.0011, 0.061])
         ctx = hw.CreateDefaultContext()
         hw.ExecuteInitializationEvents(ctx)
-        hw.get_tendon_command_input_port().FixValue(ctx, [0.01, 0.01, 0.01])
+        hw.get_tendon_command_input_port().FixValue(ctx, [0.001, 0.001, 0.001])  # one update's step
         hw.ExecuteForcedEvents(ctx)
         emulator.wait_idle()
         # direction [1, -1, 1] and zero offsets 2048 from the file
-        ticks = int(np.round(0.01 * 4096 / (2 * np.pi * 0.005)))
+        ticks = int(np.round(0.001 * 4096 / (2 * np.pi * 0.005)))
         assert [emulator.goal_position(i) for i in IDS] == [2048 + ticks, 2048 - ticks, 2048 + ticks]
     finally:
         hw.close()
@@ -772,19 +780,20 @@ def test_example_files_load_and_build(emulator, tmp_path):
 
 def test_measured_position_lags_the_goal():
     """With a first-order motor lag the measured tendon trails the command."""
-    with DynamixelEmulator(IDS, lag_s=1.0) as emu:
+    with DynamixelEmulator(IDS, lag_s=0.5) as emu:
         cfg = make_config(emu, 0, zero_offset_ticks=[0, 0, 0], direction=[1, 1, 1])
         camera = FrameSource(0, timeout_s=0.05, expected_size=(W, H), capture_factory=FakeCapture(5))
         hw = HardwareInterface(model_o(), cfg, intrinsics=intrinsics(), camera=camera)
         try:
             ctx = hw.CreateDefaultContext()
             hw.ExecuteInitializationEvents(ctx)
-            hw.get_tendon_command_input_port().FixValue(ctx, [0.02, 0.02, 0.02])
+            hw.get_tendon_command_input_port().FixValue(ctx, [0.002, 0.002, 0.002])  # two updates' steps
             hw.ExecuteForcedEvents(ctx)
+            time.sleep(0.1)  # the motors follow 1 mm with a 0.5 s lag: about 0.18 mm by now
             hw.ExecuteForcedEvents(ctx)
             measured = hw.get_tendon_position_measured_output_port().Eval(ctx)
-            assert np.all(measured > 0.0) and np.all(measured < 0.02)
-            assert np.allclose(hw.GetOutputPort("tendon_command_sent").Eval(ctx), 0.02)
+            assert np.all(measured > 0.0) and np.all(measured < 0.002)
+            assert np.allclose(hw.GetOutputPort("tendon_command_sent").Eval(ctx), 0.002)
             assert np.all(hw.GetOutputPort("motor_current").Eval(ctx) > 0.0)  # pulling towards the goal
         finally:
             hw.close()

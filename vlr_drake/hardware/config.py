@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.hardware.dynamixel import GOAL_CURRENT_MAX
+from vlr_drake.hardware.dynamixel import EXTENDED_POSITION_LIMIT, GOAL_CURRENT_MAX
 
 __all__ = ["HardwareConfig", "TendonMotorMap", "load_hardware_config"]
 
@@ -35,6 +35,13 @@ SUPPORTED_BAUD_RATES = (
 )  # fmt: skip
 #: X-series operating modes that allow a tendon to wind more than one turn.
 MULTI_TURN_MODES = (4, 5)  # 4: extended position, 5: current-based position
+#: The largest tendon step one update of the hardware interface may send [m]: the motors
+#: take each step at their full speed (their profile velocity is left at 0), so
+#: ``max_tendon_speed * period_s`` is a speed limit only while each step is small.
+MAX_UPDATE_STEP = 1.0e-3
+#: The farthest a motor may start outside its tendon limits [m] (``start_tolerance_ticks``
+#: in tendon pull): the first goal clamps it into the limits in one jump at full speed.
+MAX_START_OFFSET = 5.0e-3
 
 
 @dataclass
@@ -181,9 +188,29 @@ class HardwareConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{where}: '{name}' must be positive, got {v}")
+        step = self.max_tendon_speed * self.period_s
+        if step > MAX_UPDATE_STEP * (1 + 1e-9):
+            raise ValueError(
+                f"{where}: 'max_tendon_speed' * 'period_s' = {1e3 * step:.3g} mm per update is more than "
+                f"{1e3 * MAX_UPDATE_STEP:g} mm: each update's step is taken at the motors' full speed, so lower "
+                "'period_s' or 'max_tendon_speed'"
+            )
         if self.start_tolerance_ticks < 0:
             raise ValueError(
                 f"{where}: 'start_tolerance_ticks' must be >= 0, got {self.start_tolerance_ticks}"
+            )
+        ticks_per_m = self.ticks_per_rev / (2.0 * math.pi * self.spool_radius)
+        if self.start_tolerance_ticks > MAX_START_OFFSET * ticks_per_m:
+            raise ValueError(
+                f"{where}: 'start_tolerance_ticks' {self.start_tolerance_ticks} is "
+                f"{1e3 * self.start_tolerance_ticks / ticks_per_m:.3g} mm of tendon, more than "
+                f"{1e3 * MAX_START_OFFSET:g} mm: a motor that far outside its limits would be clamped into them in "
+                "one jump at full speed when torque comes on"
+            )
+        if any(abs(int(z)) > EXTENDED_POSITION_LIMIT for z in self.zero_offset_ticks):
+            raise ValueError(
+                f"{where}: 'zero_offset_ticks' must be within +-{EXTENDED_POSITION_LIMIT:,} (the motors' "
+                f"multi-turn range), got {self.zero_offset_ticks}"
             )
         if self.comm_retries < 0:
             raise ValueError(f"{where}: 'comm_retries' must be >= 0, got {self.comm_retries}")
