@@ -117,3 +117,21 @@ def test_bad_targets_and_images_are_named():
     for image in (np.zeros((0, 0), np.uint8), np.zeros(10, np.uint8), np.zeros((10, 10, 2), np.uint8)):
         with pytest.raises(ValueError, match="calibration images must be"):
             calibrate_chessboard([image], (9, 6), 0.025)
+
+
+def test_an_unwritable_out_is_refused_before_the_calibration(tmp_path):
+    """``--out`` a folder, or under a missing parent that cannot be made, is refused before
+    any image is read (it had been found only after the calibration, whose work was lost,
+    with an OSError traceback); saving to a folder names the file."""
+    from vlr_drake.hardware.camera import CameraIntrinsics, write_intrinsics
+
+    missing = tmp_path / "none.png"  # never read: the check comes first
+    with pytest.raises(ValueError, match="--out: .* is a folder"):
+        main(["--pattern", "9x6", "--square", "0.024", "--out", str(tmp_path), str(missing)])
+    blocked = tmp_path / "a_file"
+    blocked.write_text("")
+    with pytest.raises(ValueError, match="--out"):
+        main(["--pattern", "9x6", "--square", "0.024", "--out", str(blocked / "cam.yaml"), str(missing)])
+    intr = CameraIntrinsics(width=SIZE[0], height=SIZE[1], K=K_TRUE.tolist(), dist=[0.0] * 5)
+    with pytest.raises(ValueError, match="cannot write intrinsics file"):
+        write_intrinsics(tmp_path, intr)

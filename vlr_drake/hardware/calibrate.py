@@ -255,6 +255,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", required=True, help="output OpenCV YAML file")
     p.add_argument("images", nargs="+")
     a = p.parse_args(argv)
+    from vlr_drake.entry import check_output
+
+    check_output("--out", a.out)  # before the calibration, not after it
     if a.charuco:
         if a.marker is None:
             p.error("--charuco needs --marker")

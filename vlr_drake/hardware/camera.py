@@ -84,7 +84,7 @@ def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, rms_px: flo
     intrinsics.validate()
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     if not fs.isOpened():
-        raise OSError(f"cannot write intrinsics file '{path}'")
+        raise ValueError(f"cannot write intrinsics file '{path}' (a folder, or not writable)")
     try:
         fs.write("image_width", int(intrinsics.width))
         fs.write("image_height", int(intrinsics.height))
