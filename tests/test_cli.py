@@ -129,11 +129,39 @@ def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
     for text, message in [("physics: {pretension: 0.0}\n", r"fingers in contact \[False, False, False\]; .*"
                                                              r"check the physics section: pretension 0.0 N"),
                           ("camera: {xyz: [0.0, 0.0, 5.0]}\n", r"the palm camera does not see the tag \(check the "
-                                                               r"camera section: xyz \[0.0, 0.0, 5.0\]")]:
+                                                               r"camera section: xyz \[0.0, 0.0, 5.0\]"),
+                          # the scenario's observer is the run's (it had been the defaults' whatever it said)
+                          ("observer: {min_tag_side_px: 5000}\n", r"does not see the tag .*observer section: "
+                                                                  r"min_tag_side_px 5000")]:
         path = _scenario_file(tmp_path, "name: bad\nplant: physics\n" + text)
         assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200",
                      "--no-progress", "--out", str(tmp_path)]) == 2
         assert re.search(message, capsys.readouterr().err)
+
+
+def test_identify_names_what_it_does_not_take_from_a_scenario(tmp_path, capsys, monkeypatch):
+    """The diagram's own settings (filter_action, grasp, exploration.period_sec) are named in a
+    warning by vlr-drake identify, not dropped silently; the scenario's meshcat: true opens
+    Meshcat unless --no-meshcat says otherwise."""
+    from vlr_drake import cli
+
+    path = _scenario_file(tmp_path, "name: diag\nplant: model\nfilter_action: commanded\n"
+                                    "exploration: {period_sec: 5.0}\nmeshcat: true\n")
+    opened = []
+    monkeypatch.setattr(cli, "_meshcat_hypotheses", lambda meshcat, html: (opened.append(meshcat), (None, None))[1])
+    _run(tmp_path, "identify", "--scenario", str(path), "--particles", "300", "--iterations", "1", "--no-progress",
+         "--out", str(tmp_path))
+    captured = capsys.readouterr()
+    assert ("warning: scenario 'diag': an identification run does not use filter_action, exploration.period_sec"
+            in captured.err)
+    assert len(opened) == 1 and "Meshcat: http" in captured.out  # the scenario asked for it
+    _run(tmp_path, "identify", "--scenario", str(path), "--particles", "300", "--iterations", "1", "--no-progress",
+         "--no-meshcat", "--out", str(tmp_path))
+    assert len(opened) == 1  # the flag wins
+    capsys.readouterr()
+    _run(tmp_path, "identify", "--scenario", "model_plant", "--particles", "300", "--iterations", "1",
+         "--no-progress", "--out", str(tmp_path))
+    assert "does not use" not in capsys.readouterr().err  # the example sets nothing identify ignores
 
 
 def test_hand_presets_are_taken_in_any_case(tmp_path):

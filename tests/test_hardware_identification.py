@@ -96,6 +96,54 @@ def test_a_hardware_scenario_runs_in_real_time(tmp_path):
         assert r["sim_time"] == pytest.approx(3.95 * 0.25)
         assert 0.0 < r["realtime_rate"] <= 1.05  # sim time over wall time, from the end of the grasp
         assert not any(emu.torque_enabled(i) for i in ids)  # closed at the end
+        hw = r["hardware"]  # the interface's counts: every update, none clipped, the grasp ramped in
+        assert hw["updates"] >= 3 * 0.25 / 0.05 and hw["clipped"] == 0 and hw["grasp"]["reached"]
+
+
+def test_a_grasp_the_hand_cannot_make_is_refused_before_any_motor_moves(tmp_path):
+    """A hardware grasp past the joint limits, with contacts in millimetres, or needing more
+    tendon than the limits allow is an error that names the grasp section before the
+    interface exists (it had been clipped to the limits and closed on, 'reached'); the
+    interface itself refuses a grasp command outside the limits instead of clipping it."""
+    from vlr_drake.hand import model_o
+    from vlr_drake.hardware.config import HardwareConfig
+    from vlr_drake.systems.hardware_interface import HardwareInterface
+
+    base = DIAGRAMS_DIR / "hardware.yaml"
+    with pytest.raises(ValueError, match=r"grasp: 'theta_deg' of finger 0 \(thumb\) joint 1, 300.0 deg, is outside"):
+        load_scenario(base, "grasp: {theta_deg: [[10, 300], [12, 35], [12, 35]]}")
+    with pytest.raises(ValueError, match=r"grasp: 'contact' of finger 0 \(thumb\), 29.0 m, is past its last link"):
+        load_scenario(base, "grasp: {contact: [29, 29, 29]}")
+    s = load_scenario(base, "hardware: {tendon_lower: [0, 0, 0], tendon_upper: [0.025, 0.045, 0.045]}")
+    with pytest.raises(ValueError, match=r"grasp: the grasp needs finger 0 \(thumb\)'s tendon at 3\d\.\d\d mm, "
+                                         r"outside its limits \[0.00, 25.00\] mm"):
+        build_diagram(s)
+    cfg = HardwareConfig(tendon_lower=[0.0] * 3, tendon_upper=[0.025, 0.045, 0.045])
+    with pytest.raises(ValueError, match=r"'grasp_command' \[31.0, 18.0, 18.0\] mm is outside the tendon limits"):
+        HardwareInterface(model_o(), cfg, grasp_command=[0.031, 0.018, 0.018])
+
+
+def test_a_hardware_update_period_too_long_for_the_actions_is_refused():
+    """An interface that updates once a second under 0.25 s actions sent only one action in
+    four to the motors, and the filter stepped on the rest as if they had moved."""
+    with pytest.raises(ValueError, match=r"hardware: 'period_s' 0.1 s must be at most 1/4 of the action period "
+                                         r"\(0.25 s\)"):
+        load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.25}\n"
+                                                      "hardware: {period_s: 0.1, max_tendon_speed: 0.01}")
+    load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.4}\n"
+                                                  "hardware: {period_s: 0.1, max_tendon_speed: 0.01}")
+
+
+def test_the_commanded_action_on_hardware_is_what_the_motors_were_sent(tmp_path):
+    """filter_action 'commanded' on hardware reads the interface's tendon_command_sent (after
+    its clipping and ramp), not the policy's command, which a limit may have cut short
+    (building opens no motor or camera)."""
+    b = build_diagram(load_scenario(DIAGRAMS_DIR / "hardware.yaml", "filter_action: commanded"))
+    try:
+        assert b.diagram.AreConnected(b.plant.GetOutputPort("tendon_command_sent"), b.filter.tendon_command_input_port())
+        assert not b.diagram.AreConnected(b.policy.GetOutputPort("tendon_command"), b.filter.tendon_command_input_port())
+    finally:
+        b.plant.close()
 
 
 @pytest.mark.slow

@@ -137,8 +137,10 @@ def wire_identification(
     """Add the four parts by name (``exploration``, ``hand`` unless already added,
     ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter,
     and the filter's action input to the hand's ``tendon_position_measured``
-    (``filter_action="measured"``) or to the policy's ``tendon_command`` ("commanded"), and
-    export their outputs as ``<system>.<signal>``."""
+    (``filter_action="measured"``) or to the commands ("commanded": the hardware interface's
+    ``tendon_command_sent``, the commands after its clipping at the limits and its ramp, where
+    the plant has one; else the policy's ``tendon_command``), and export their outputs as
+    ``<system>.<signal>``."""
     if filter_action not in FILTER_ACTIONS:
         raise ValueError(f"'filter_action' must be one of {list(FILTER_ACTIONS)}, got '{filter_action}'")
     builder.AddNamedSystem("exploration", policy)
@@ -151,11 +153,12 @@ def wire_identification(
         builder.Connect(plant.GetOutputPort("X_PO_true"), sensor.GetInputPort("X_PO_true"))
     else:
         builder.Connect(plant.GetOutputPort("rgb_image"), sensor.GetInputPort("rgb_image"))
-    action = (
-        plant.GetOutputPort("tendon_position_measured")
-        if filter_action == "measured"
-        else policy.GetOutputPort("tendon_command")
-    )
+    if filter_action == "measured":
+        action = plant.GetOutputPort("tendon_position_measured")
+    elif plant.HasOutputPort("tendon_command_sent"):  # hardware: what went to the motors, clipped and ramped
+        action = plant.GetOutputPort("tendon_command_sent")
+    else:
+        action = policy.GetOutputPort("tendon_command")
     builder.Connect(action, flt.tendon_command_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_measured"), flt.X_PO_measured_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_valid"), flt.X_PO_valid_input_port())
@@ -236,10 +239,24 @@ def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, n
         theta, a = _truth_grasp(h, np.random.default_rng((s.seed, SEED_PLANT)))
         if s.grasp.contact:
             a = np.asarray(s.grasp.contact, float)
-    mp = ModelPlant(
-        h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon
-    )
-    return mp.state.theta.copy(), mp.state.a.copy(), mp.state.tendon_command.copy()
+    try:
+        mp = ModelPlant(
+            h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon
+        )
+    except ValueError as e:
+        raise ValueError(f"grasp: 'theta_deg' and 'contact' are not a grasp the model can hold ({e})") from e
+    l0 = mp.state.tendon_command.copy()
+    if s.hardware is not None:  # the real hand closes on these commands: refuse them before any motor moves
+        lower, upper = s.hardware.tendon_limits(s.hand_spec_resolved())
+        bad = np.flatnonzero((l0 < lower - 1e-9) | (l0 > upper + 1e-9))
+        if len(bad):
+            i = bad[0]
+            raise ValueError(
+                f"grasp: the grasp needs finger {i} ({h.names[i]})'s tendon at {1e3 * l0[i]:.2f} mm, outside its "
+                f"limits [{1e3 * lower[i]:.2f}, {1e3 * upper[i]:.2f}] mm (hardware tendon_lower/tendon_upper or the "
+                "hand's tendon_range): change 'theta_deg' or 'contact'"
+            )
+    return mp.state.theta.copy(), mp.state.a.copy(), l0
 
 
 def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDiagram:
@@ -487,13 +504,24 @@ def write_diagrams(folder: str | Path | None = None, render: bool = True) -> lis
     return written
 
 
+def _hardware_summary(plant) -> dict | None:
+    """A hardware run's interface counts (None on other plants): its updates, how many sent a
+    command clipped at a tendon limit or ramped towards a far one, and how closing on the grasp
+    went (``HardwareInterface.grasp_report``)."""
+    if not hasattr(plant, "num_clipped"):
+        return None
+    return {"updates": int(plant.num_updates), "clipped": int(plant.num_clipped), "ramped": int(plant.num_ramped),
+            "grasp": plant.grasp_report}
+
+
 def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, trace: str | Path | None = None) -> dict:
     """Build ``scenario``'s diagram, :func:`initialize` it and simulate ``iterations`` filter
     iterations (to (iterations + 0.95) T: the filter starts at 0.9 T). Returns the filter's
     last estimate and the truth (``theta_estimate``, ``theta_true`` (N, K) [rad],
     ``interval_half_width`` [rad], ``converged``, ``iterations``, ``sim_time`` [s],
     ``wall_s``, ``realtime_rate`` (sim time over wall time; a hardware scenario runs in real
-    time, at most 1, and warns below 0.9); ``trace``: where the filter's trace was saved, for
+    time, at most 1, and warns below 0.9); ``hardware``: the interface's counts of updates,
+    clipped and ramped commands and its grasp report (None on the simulated plants); ``trace``: where the filter's trace was saved, for
     ``vlr-drake replay``, when ``trace`` names a file). A hardware interface is closed
     (torque off) at the end."""
     import time
@@ -549,6 +577,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "sim_time": ctx.get_time(),
             "wall_s": time.perf_counter() - t0,
             "realtime_rate": rate,
+            "hardware": _hardware_summary(built.plant),
         }
     finally:
         if hasattr(built.plant, "close"):
@@ -586,6 +615,10 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
+        if r["hardware"] is not None:
+            hw = r["hardware"]
+            print(f"hardware: {hw['updates']} updates, {hw['clipped']} with a command clipped at a tendon limit, "
+                  f"{hw['ramped']} ramped towards a far command")
         if r["trace"]:
             print(f"wrote {r['trace']}")
         return 0

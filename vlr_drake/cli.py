@@ -135,13 +135,19 @@ def _load_scenario(args) -> None:
 
 
 def _identify_options(args):
-    from vlr_drake.scenario import options_from_scenario
+    from vlr_drake.scenario import ignored_by_identify, options_from_scenario
 
     opts = options_from_scenario(
         args.loaded, args.scenario_path, experiment=args.experiment, plant=args.plant, object=args.object,
         hand=args.hand, seed=args.seed, particles=args.particles, max_iterations=args.iterations,
         progress=not args.no_progress, action_choice=getattr(args, "actions", None),
     )
+    ignored = [] if args.loaded is None or getattr(args, "told_ignored", False) else ignored_by_identify(args.loaded)
+    args.told_ignored = True  # once per command (the demo builds the options twice)
+    if ignored:  # said, not silently dropped (once the scenario is known to run)
+        print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': an identification run does not use "
+              f"{', '.join(ignored)} (the diagram's settings: python -m vlr_drake.builder --run takes them)",
+              file=sys.stderr)
     if args.loaded is None:
         opts.scenario = None  # described by the flags alone
     if getattr(args, "stuck_probability", None) is not None:
@@ -175,8 +181,13 @@ def _task_settings(args) -> dict:
 
 
 def _meshcat(args):
-    """A Meshcat instance (its URL printed) when ``--meshcat`` is given, else None."""
-    if not getattr(args, "meshcat", False):
+    """A Meshcat instance (its URL printed) when ``--meshcat`` is given, or when neither
+    ``--meshcat`` nor ``--no-meshcat`` is and the scenario says ``meshcat: true``; else None."""
+    wanted = getattr(args, "meshcat", None)
+    if wanted is None:
+        loaded = getattr(args, "loaded", None)
+        wanted = bool(loaded is not None and loaded.meshcat)
+    if not wanted:
         return None
     if getattr(args, "meshcat_instance", None) is None:
         from pydrake.geometry import Meshcat
@@ -574,8 +585,9 @@ def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, 
                    help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant with the "
                         "rendered camera (default: the scenario's, else physics)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=False,
-                   help="show the run in Meshcat (URL printed) and save an HTML recording in --out")
+    p.add_argument("--meshcat", action=argparse.BooleanOptionalAction, default=None,
+                   help="show the run in Meshcat (URL printed) and save an HTML recording in --out "
+                        "(default: the scenario's meshcat, else no)")
 
 
 def _parser(name: str, sub, help_text: str) -> argparse.ArgumentParser:

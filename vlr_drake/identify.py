@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from vlr_drake.hand import HandSpec
     from vlr_drake.objects import ObjectSpec
     from vlr_drake.perception.camera import CameraConfig
+    from vlr_drake.perception.tag_pose import TagObserverConfig
     from vlr_drake.systems.physics_plant import PhysicsConfig
 
 __all__ = ["EXPERIMENTS", "IdentifyOptions", "run_identification", "Exploration", "InformativeExploration"]
@@ -309,6 +310,9 @@ class IdentifyOptions:
     # Physics plant settings and palm camera; None: their defaults.
     physics: PhysicsConfig | None = None
     camera: CameraConfig | None = None
+    # The physics plant's AprilTag observer (its tag_id and tag_size are the object's); None:
+    # the defaults.
+    observer: TagObserverConfig | None = None
     progress: bool = True
     # The scenario's name and the file it was loaded from (recorded in the result).
     scenario: str | None = "default"
@@ -581,7 +585,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     else:
         from vlr_drake.physics_identify import PhysicsAdapter
 
-        plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera)
+        plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera, observer=opts.observer)
     opts.filter.gravity_palm = filter_gravity(plant.physics if opts.link_weight else None)
     theta_c, a_c, R0, t0 = plant.start(prior)
     if opts.plant == "physics":  # the pads fix the true contacts: the filter gets a guess of them

@@ -18,6 +18,7 @@ fingers' pad spheres slightly off their flexion planes.
 
 from __future__ import annotations
 
+import copy
 import time
 
 import numpy as np
@@ -37,7 +38,7 @@ class PhysicsAdapter:
     """Physics plant + rendered camera + AprilTag observer for :func:`run_identification`."""
 
     def __init__(self, opts, hand_spec, rng, physics: PhysicsConfig | None = None, camera: CameraConfig | None = None,
-                 meshcat=None):
+                 meshcat=None, observer: TagObserverConfig | None = None):
         self.opts = opts
         self.spec = hand_spec
         self.hand = hand_spec.model()
@@ -47,7 +48,10 @@ class PhysicsAdapter:
         self.physics = physics or PhysicsConfig()
         self.diagram, self.ph, self.sim = build_physics_hand(hand_spec, self.obj, self.physics, self.camera, meshcat)
         self.root = self.sim.get_mutable_context()
-        self.observer = TagObserverConfig(tag_id=self.obj.tag_id, tag_size=self.obj.tag_size).validate()
+        # the scenario's observer settings, with the object's tag
+        self.observer = copy.deepcopy(observer) if observer is not None else TagObserverConfig()
+        self.observer.tag_id, self.observer.tag_size = int(self.obj.tag_id), float(self.obj.tag_size)
+        self.observer.validate()
         self.detector = make_detector(self.observer.corner_refinement, self.observer.detector_overrides)
         self.K = vtk_render_intrinsics(self.camera)
         self.X_PC, self.X_TO = self.camera.X_PC(), self.obj.X_TO()
@@ -79,7 +83,9 @@ class PhysicsAdapter:
             raise PlacementError(
                 f"grasp of '{self.obj.name}': the palm camera does not see the tag (check the camera section: "
                 f"xyz {list(c.xyz)}, rpy_deg {list(c.rpy_deg)}, {c.width} x {c.height} px; and the object's "
-                f"tag_face '{self.obj.tag_face}' and tag_size {self.obj.tag_size} m)")
+                f"tag_face '{self.obj.tag_face}' and tag_size {self.obj.tag_size} m; and the observer section: "
+                f"min_tag_side_px {self.observer.min_tag_side_px}, max_reprojection_error_px "
+                f"{self.observer.max_reprojection_error_px})")
         return theta_c, a_c, R, t
 
     def tendon_command(self) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 from pydrake.common.yaml import yaml_load_typed
 
 from vlr_drake import filter as pf
-from vlr_drake.hand import HandSpec, hand_by_name
+from vlr_drake.hand import HandModel, HandSpec, hand_by_name
 from vlr_drake.hardware.config import HardwareConfig
 from vlr_drake.kinematics import is_count
 from vlr_drake.objects import ObjectSpec, preset, preset_names
@@ -60,6 +60,7 @@ __all__ = [
     "find_scenario",
     "options_from_scenario",
     "task_settings",
+    "ignored_by_identify",
     "config_overrides",
 ]
 
@@ -67,6 +68,9 @@ __all__ = [
 PLANTS = ("model", "physics", "hardware")
 #: What the filter takes as its action (see ``Scenario.filter_action``).
 FILTER_ACTIONS = ("measured", "commanded")
+#: The hardware interface updates (sends the command, reads motors and camera) at least this
+#: many times per action period (``hardware.period_s`` at most T / 4).
+HARDWARE_UPDATES_PER_ACTION_MIN = 4
 #: Hand preset names accepted by ``Scenario.hand`` (see :func:`vlr_drake.hand.hand_by_name`).
 HAND_PRESETS = ("model_o", "NH1", "NH2", "NH3")
 #: The folder of the example scenarios and their rendered diagrams.
@@ -279,7 +283,9 @@ class NominalGrasp:
     # Contact positions along the last links [m] (N); empty: PAD_FRACTION * distal length.
     contact: list[float] = field(default_factory=list)
 
-    def validate(self, N: int, K: int) -> "NominalGrasp":
+    def validate(self, N: int, K: int, hand: HandModel | None = None) -> "NominalGrasp":
+        """Shapes and finite values; with the ``hand``, also angles within its joint limits and
+        contacts on its last links (a hardware run closes the real hand on this grasp)."""
         if self.theta_deg and _shape_of(self.theta_deg) != (N, K):
             raise ValueError(f"grasp: 'theta_deg' must be {N} lists of {K}, got {self.theta_deg}")
         if self.theta_deg and not np.all(np.isfinite(self.theta_deg)):
@@ -288,6 +294,27 @@ class NominalGrasp:
             raise ValueError(f"grasp: 'contact' must have {N} entries, got {self.contact}")
         if self.contact and not np.all(np.isfinite(self.contact) & (np.asarray(self.contact) > 0)):
             raise ValueError(f"grasp: 'contact' must be positive and finite [m], got {self.contact}")
+        if hand is None:
+            return self
+        if self.theta_deg:
+            theta = np.deg2rad(np.asarray(self.theta_deg, float))
+            bad = np.argwhere((theta < hand.joint_lower) | (theta > hand.joint_upper))
+            if len(bad):
+                i, k = bad[0]
+                raise ValueError(
+                    f"grasp: 'theta_deg' of finger {i} ({hand.names[i]}) joint {k}, {self.theta_deg[i][k]} deg, is "
+                    f"outside the hand's joint limits [{np.rad2deg(hand.joint_lower[i, k]):.1f}, "
+                    f"{np.rad2deg(hand.joint_upper[i, k]):.1f}] deg"
+                )
+        if self.contact:
+            a = np.asarray(self.contact, float)
+            bad = np.flatnonzero(a > hand.distal_length)
+            if len(bad):
+                i = bad[0]
+                raise ValueError(
+                    f"grasp: 'contact' of finger {i} ({hand.names[i]}), {a[i]} m, is past its last link "
+                    f"({hand.distal_length[i]} m; contacts are in metres along the link)"
+                )
         return self
 
 
@@ -404,7 +431,7 @@ class Scenario:
         _with_section("prior", lambda: self.prior.to_prior().contact_bounds(hand.model()))
         self.exploration.validate()
         self.model_plant.validate(N, K)
-        self.grasp.validate(N, K)
+        self.grasp.validate(N, K, hand.model())
         if self.link_weight and self.plant != "physics":
             raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
                              "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
@@ -412,6 +439,13 @@ class Scenario:
             if self.hardware is None:
                 raise ValueError("'hardware': plant 'hardware' needs a hardware section")
             _with_section("hardware", lambda: self.hardware.validate(num_fingers=N))
+            T = self.period_sec()
+            if self.hardware.period_s * HARDWARE_UPDATES_PER_ACTION_MIN > T * (1 + 1e-9):
+                raise ValueError(
+                    f"hardware: 'period_s' {self.hardware.period_s} s must be at most 1/"
+                    f"{HARDWARE_UPDATES_PER_ACTION_MIN} of the action period ({T} s): the motors get each action's "
+                    "command at the interface's next update, and the filter measures 0.9 of a period after it"
+                )
         return self
 
 
@@ -682,6 +716,7 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         link_weight=s.link_weight,
         squeeze_range=s.exploration.squeeze,
         squeeze_window=s.exploration.squeeze_window,
+        observer=copy.deepcopy(s.observer),
     )
     # the nominal grasp's guess: the model plant's, and the physics plant's contacts
     opts["center_offset_fraction"] = s.model_plant.center_offset_fraction
@@ -726,7 +761,7 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
 
 #: What the tasks take from a scenario (task_settings): the rest is theirs or the task's own.
 TASK_SECTIONS = {"name", "seed", "plant", "hand", "camera", "physics", "meshcat"}
-TASK_FIELDS = {"filter": {"particles"}, "exploration": {"span", "window", "period_sec"},
+TASK_FIELDS = {"filter": {"particles"}, "exploration": {"span", "window"},
                "model_plant": {"sigma_position", "sigma_rotation_deg"}}
 
 
@@ -745,6 +780,26 @@ def ignored_by_tasks(scenario: Scenario) -> list[str]:
                     if g.name not in TASK_FIELDS[f.name] and _differs(getattr(mine, g.name), getattr(theirs, g.name))]
         elif _differs(mine, theirs):
             out.append(f.name)
+    return out
+
+
+#: What an identification run (``vlr-drake identify``) does not take from a scenario: the
+#: diagram's own settings (the filter's action input, the action period in simulated time,
+#: the hardware's grasp section; :func:`vlr_drake.builder.run` takes them).
+IDENTIFY_IGNORES = ("filter_action", "grasp", "exploration.period_sec")
+
+
+def ignored_by_identify(scenario: Scenario) -> list[str]:
+    """The fields of ``scenario`` set away from their defaults that an identification run
+    does not use (:data:`IDENTIFY_IGNORES`), as dotted names, so that the command can say so."""
+    default = Scenario()
+    out = []
+    for name in IDENTIFY_IGNORES:
+        mine, theirs = scenario, default
+        for part in name.split("."):
+            mine, theirs = getattr(mine, part), getattr(theirs, part)
+        if _differs(mine, theirs):
+            out.append(name)
     return out
 
 

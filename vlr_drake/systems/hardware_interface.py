@@ -122,6 +122,10 @@ class HardwareInterface(LeafSystem):
             if grasp_command.shape != (N,) or not np.all(np.isfinite(grasp_command)):
                 raise ValueError(f"hardware interface: 'grasp_command' must be {N} finite tendon commands [m], "
                                  f"got {grasp_command.tolist()}")
+            if np.any(self.motor_map.clip(grasp_command)[1]):  # never close on a grasp cut short at a limit
+                raise ValueError(
+                    f"hardware interface: 'grasp_command' {np.round(1e3 * grasp_command, 3).tolist()} mm is outside "
+                    f"the tendon limits [{np.round(1e3 * lower, 3).tolist()}, {np.round(1e3 * upper, 3).tolist()}] mm")
         self.grasp_command = grasp_command
         #: How the start's closing on the grasp went: updates, seconds, the largest distance
         #: of a tendon from its command at the end [m], and whether it got within tolerance.
@@ -229,7 +233,7 @@ class HardwareInterface(LeafSystem):
         ``grasp_timeout_s`` for the motors to get within ``grasp_tolerance`` of them (module
         doc); returns the measured and the sent tendons at the end."""
         cfg = self.config
-        target, _ = self.motor_map.clip(self.grasp_command)
+        target = self.grasp_command  # within the limits (checked when the interface was made)
         updates, start, arrived = 0, time.monotonic(), None
         while True:
             sent = self._ramped(target, sent)
