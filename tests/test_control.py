@@ -699,3 +699,62 @@ def test_servo_a_step_at_a_time_carries_the_predicted_pose(grasp):
                                      rows="position", max_steps=1, max_lost=3, resume=reps[-1]))
     assert [r.lost_in_a_row for r in reps[1:]] == [2, 3, 4]  # the first call steps once; then no step
     assert [r.reason for r in reps[1:]] == ["budget", "lost_tag", "lost_tag"] and reps[-1].iterations == 0
+
+
+def test_a_command_outside_its_window_moves_into_it_one_step_at_a_time(grasp):
+    """A tendon that starts outside the grip window had been clamped into it in one jump (2 mm
+    where the servo had clipped its step to 0.5 mm); it now moves towards the window by its
+    own step, and never further out. The controller system refuses a start outside the range."""
+    h = grasp.hand
+    l0 = grasp.plant.state.tendon_command.copy()
+    window = np.column_stack([l0 + 2e-3, l0 + 4e-3])
+    step = control.limit_action(h, l0, np.full(3, 0.5e-3), window)
+    assert step == pytest.approx(np.full(3, 0.5e-3))  # inwards, by the step asked for
+    assert control.limit_action(h, l0, np.full(3, -0.5e-3), window) == pytest.approx(np.zeros(3))  # never out
+    inside = l0 + 3e-3
+    assert control.limit_action(h, inside, np.full(3, 2e-3), window) == pytest.approx(np.full(3, 1e-3))  # clamped
+    pl = fresh(grasp)
+    rep = control.servo_to(pl.state.R_PO, pl.state.t_PO + [0.3e-3, 0.0, 0.0], pl, control.true_model_fn(pl),
+                           rows="position", limits=window, clip=0.5e-3, max_steps=3)
+    steps = np.diff(np.array([l0] + [pl.state.tendon_command]), axis=0)
+    assert np.max(np.abs(steps)) <= 3 * 0.5e-3 + 1e-12 and rep.iterations <= 3
+    with pytest.raises(ValueError, match="'l_initial' .* is outside the hand's tendon range"):
+        JacobianController(h, h.tendon_range[:, 1] + 1e-3, 0.1)
+
+
+def test_the_controller_system_falls_back_to_a_hypothesis_and_says_when_it_has_no_model(grasp):
+    """The weighted mean of a cloud can be no grasp (the side fingers mirrored, a pushing
+    tendon): the system had held its command forever without a word. It now tries the
+    estimate's fallbacks (the filter's hypotheses nearest the mean, which the
+    self-identification system's estimate port carries) and reads has_model 0 while none is
+    usable."""
+    from vlr_drake import filter as pf
+    from vlr_drake.systems.self_identification import SelfIdentificationSystem
+
+    h, pl = grasp.hand, fresh(grasp)
+    mirror = {"theta": np.array([[-0.0799, 0.3909], [0.0946, 0.2374], [0.0918, 0.2188]]),
+              "a": np.array([0.0265, 0.0264, 0.0274])}
+    truth = {"theta": pl.state.theta.copy(), "a": pl.state.a.copy()}
+    l0 = pl.state.tendon_command.copy()
+    R, t = pl.state.R_PO, pl.state.t_PO
+    for est, moves in ((mirror, False), ({**mirror, "fallbacks": [mirror, truth]}, True)):
+        c = JacobianController(h, l0, 0.1)
+        cx = c.CreateDefaultContext()
+        c.X_PO_goal_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t + [0.5e-3, 0.0, 0.0]))
+        c.X_PO_measured_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t))
+        c.X_PO_valid_input_port().FixValue(cx, [1.0])
+        c.estimate_input_port().FixValue(cx, est)
+        c.ExecuteForcedEvents(cx)
+        changed = np.any(c.tendon_command_output_port().Eval(cx) != l0)
+        assert changed == moves and c.has_model_output_port().Eval(cx)[0] == float(moves)
+    # the self-identification system's estimate carries the fallbacks, nearest the mean first
+    sid = SelfIdentificationSystem(h, pf.FilterConfig(particles=500), pf.PriorConfig(), pl.state.theta, pl.state.a, 1.0)
+    sx = sid.CreateDefaultContext()
+    sid.tendon_command_input_port().FixValue(sx, l0)
+    sid.X_PO_measured_input_port().FixValue(sx, RigidTransform(RotationMatrix(R), t))
+    sid.X_PO_valid_input_port().FixValue(sx, [1.0])
+    sid.ExecuteForcedEvents(sx)
+    est = sid.GetOutputPort("estimate").Eval(sx)
+    f = sid.filter(sx)
+    assert len(est["fallbacks"]) == control.FALLBACKS
+    assert np.array_equal(est["fallbacks"][0]["theta"], f.nearest_hypothesis()["theta"])

@@ -53,6 +53,8 @@ __all__ = [
     "servo_to",
     "true_model_fn",
     "filter_model_fn",
+    "usable_model",
+    "FALLBACKS",
     "PredictedPlant",
 ]
 
@@ -311,14 +313,19 @@ def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
 
 def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
     """dl with every tendon kept inside ``limits`` (N, 2) (default ``hand.tendon_range``;
-    always within it), per tendon clamp."""
+    always within it), per tendon clamp. A tendon that starts outside ``limits`` (but inside
+    the range) moves towards them by at most its own dl, never further out: it is not pulled
+    into them in one jump past the step the caller clipped dl to."""
     lim = tendon_limits(hand, limits)
     l_now = np.asarray(l_now, float).reshape(hand.N)
     dl = np.asarray(dl, float).reshape(hand.N)
     for name, x in (("l_now", l_now), ("dl", dl)):
         if not np.all(np.isfinite(x)):  # np.clip keeps NaN: it would leave the range
             raise ValueError(f"'{name}' must be finite, got {x.tolist()}")
-    l_new = np.clip(l_now + dl, lim[:, 0], lim[:, 1])
+    rng = hand.tendon_range
+    lo = np.maximum(np.minimum(lim[:, 0], l_now), rng[:, 0])
+    hi = np.minimum(np.maximum(lim[:, 1], l_now), rng[:, 1])
+    l_new = np.clip(l_now + dl, lo, hi)
     return l_new - l_now
 
 
@@ -561,7 +568,28 @@ def true_model_fn(plant) -> Callable[[np.ndarray, np.ndarray, np.ndarray, bool],
     return fn
 
 
-def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks: int = 8):
+#: How many live hypotheses nearest the filter's mean a controller tries when the mean is no
+#: usable model (:func:`filter_model_fn`, the JacobianController's ``estimate["fallbacks"]``).
+FALLBACKS = 8
+
+
+def usable_model(hand: HandModel, est: dict, R, t, *, tendon: str = "elastic", eps: float | None = None):
+    """The :class:`ControlModel` of ``est`` anchored at the measured pose (R, t) when it is a
+    physical grasp whose Jacobian exists, else of the first of ``est["fallbacks"]`` (estimate
+    dicts, e.g. the filter's nearest hypotheses) that is; None when none is."""
+    kw = {} if eps is None else {"eps": eps}
+    for candidate in [est, *est.get("fallbacks", [])]:
+        try:
+            model = ControlModel.from_estimate(hand, candidate, R, t, tendon=tendon)
+            if model.physical:
+                jacobian(model, **kw)
+                return model
+        except (RuntimeError, ValueError):
+            continue
+    return None
+
+
+def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks: int = FALLBACKS):
     """``model_fn`` for :func:`servo_to` backed by a
     :class:`vlr_drake.filter.SelfIdentificationFilter`: every control action (non-zero dl)
     is also one filter iteration (evidence), so rolling contacts are tracked.

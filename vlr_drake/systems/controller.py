@@ -5,8 +5,11 @@
   (1) and ``estimate`` (abstract dict, e.g. the ``estimate`` port of
   :class:`vlr_drake.systems.self_identification.SelfIdentificationSystem`); outputs
   ``tendon_command`` (N, absolute pulls [m], always inside the tendon range), ``at_goal``
-  (1: 1.0 when the measured error is under tolerance on the controlled rows) and
-  ``pose_error`` (2: position [m], rotation [rad] of the last measurement).
+  (1: 1.0 when the measured error is under tolerance on the controlled rows),
+  ``pose_error`` (2: position [m], rotation [rad] of the last measurement) and ``has_model``
+  (1: 1.0 when the last step found a usable model in the estimate: its weighted mean, else
+  one of its ``fallbacks``, the filter's hypotheses nearest the mean; 0.0 while it holds the
+  command for want of one).
 - :class:`TaskTrajectorySource`: a sequence of goal poses; ``at_goal`` in, ``X_PO_goal``,
   ``waypoint_index`` and ``done`` out. It moves to the next goal once the controller is at
   the current one, or after ``max_periods`` action periods.
@@ -49,7 +52,9 @@ class JacobianController(LeafSystem):
         tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
         tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
 
-    Without a valid measurement or with an empty estimate the command is held.
+    Without a valid measurement or with an empty estimate the command is held; so it is when
+    neither the estimate nor any of its ``fallbacks`` is a physical grasp with a Jacobian
+    (``has_model`` then reads 0).
     """
 
     def __init__(
@@ -113,12 +118,15 @@ class JacobianController(LeafSystem):
         )
         self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
         self._estimate = self.DeclareAbstractInputPort(name="estimate", model_value=AbstractValue.Make({}))
-        lim = hand.tendon_range if self._limits is None else self._limits
-        l0 = np.clip(l_initial, lim[:, 0], lim[:, 1])
-        self._command_state = self.DeclareDiscreteState(l0)
+        rng = hand.tendon_range
+        if np.any((l_initial < rng[:, 0] - 1e-12) | (l_initial > rng[:, 1] + 1e-12)):
+            raise ValueError(f"'l_initial' {np.round(1e3 * l_initial, 3).tolist()} mm is outside the hand's tendon "
+                             f"range {np.round(1e3 * rng, 3).tolist()} mm")
+        # a start outside a narrower window moves into it one clipped step at a time (limit_action)
+        self._command_state = self.DeclareDiscreteState(l_initial.copy())
         self._status_state = self.DeclareDiscreteState(
-            np.array([0.0, np.inf, np.inf])
-        )  # at_goal, |dt|, angle
+            np.array([0.0, np.inf, np.inf, 0.0])
+        )  # at_goal, |dt|, angle, whether the last step had a usable model
         self._command_out = self.DeclareStateOutputPort("tendon_command", self._command_state)
         self._at_goal_out = self.DeclareVectorOutputPort(
             name="at_goal",
@@ -130,6 +138,12 @@ class JacobianController(LeafSystem):
             name="pose_error",
             size=2,
             calc=self._calc_error,
+            prerequisites_of_calc={self.discrete_state_ticket(self._status_state)},
+        )
+        self._model_out = self.DeclareVectorOutputPort(
+            name="has_model",
+            size=1,
+            calc=self._calc_has_model,
             prerequisites_of_calc={self.discrete_state_ticket(self._status_state)},
         )
         self.DeclarePeriodicDiscreteUpdateEvent(
@@ -159,6 +173,9 @@ class JacobianController(LeafSystem):
     def pose_error_output_port(self):
         return self._error_out
 
+    def has_model_output_port(self):
+        return self._model_out
+
     def _update(self, context, discrete_state):
         l_now = np.array(context.get_discrete_state(self._command_state).get_value())
         valid = bool(self._valid.Eval(context)[0] > 0.5)
@@ -178,15 +195,19 @@ class JacobianController(LeafSystem):
         at_goal = (self._rows == "orientation" or ep <= self._tol[0]) and (
             self._rows == "position" or er <= self._tol[1]
         )
-        discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(at_goal), ep, er])
+        status = discrete_state.get_mutable_vector(self._status_state)
+        status.SetFromVector([float(at_goal), ep, er, status.GetAtIndex(3)])
         if at_goal:
             return
         _check_estimate(self._hand, est)  # a malformed one is a wiring mistake, not "no model here"
-        try:
-            model = control.ControlModel.from_estimate(self._hand, est, R, t, tendon=self._tendon)
-            J = control.jacobian(model, self._eps)
-        except (RuntimeError, ValueError):
-            return  # the estimate has no usable model here: hold
+        for fallback in est.get("fallbacks", []):
+            _check_estimate(self._hand, fallback)
+        # the mean, else the first fallback hypothesis that is a physical grasp with a Jacobian
+        model = control.usable_model(self._hand, est, R, t, tendon=self._tendon, eps=self._eps)
+        status.SetAtIndex(3, float(model is not None))
+        if model is None:
+            return  # no usable model here: hold, and say so (has_model 0)
+        J = control.jacobian(model, self._eps)
         dl = control.control_step(J, e, **self._kw)
         dl = control.limit_action(self._hand, l_now, dl, self._limits)
         discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now + dl)
@@ -195,7 +216,10 @@ class JacobianController(LeafSystem):
         output.SetFromVector([context.get_discrete_state(self._status_state).GetAtIndex(0)])
 
     def _calc_error(self, context, output: BasicVector):
-        output.SetFromVector(np.array(context.get_discrete_state(self._status_state).get_value())[1:])
+        output.SetFromVector(np.array(context.get_discrete_state(self._status_state).get_value())[1:3])
+
+    def _calc_has_model(self, context, output: BasicVector):
+        output.SetFromVector([context.get_discrete_state(self._status_state).GetAtIndex(3)])
 
 
 def _check_estimate(hand: HandModel, est: dict) -> None:

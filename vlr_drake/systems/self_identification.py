@@ -1,8 +1,10 @@
 """LeafSystems of the self-identification loop (DESIGN.md section 8).
 
 - :class:`SelfIdentificationSystem` wraps :class:`vlr_drake.filter.SelfIdentificationFilter`:
-  ``tendon_command``, ``X_PO_measured`` and ``X_PO_valid`` in; ``estimate`` (abstract dict),
-  ``theta_estimate``, ``interval_half_width``, ``converged`` and ``particles`` out.
+  ``tendon_command``, ``X_PO_measured`` and ``X_PO_valid`` in; ``estimate`` (abstract dict:
+  the filter's estimate, the weighted mean, with ``fallbacks``, the :data:`FALLBACKS` live
+  hypotheses nearest it, for a controller), ``theta_estimate``, ``interval_half_width``,
+  ``converged`` and ``particles`` out.
 - :class:`ExplorationPolicy`: random exploratory tendon commands (``tendon_command`` out).
 - :class:`ModelPlantSystem`: the model plant (the VLR model with hidden truth) with the
   physics plant's truth ports: ``tendon_command`` in; ``X_PO_true``, ``theta_true``,
@@ -26,6 +28,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from vlr_drake import filter as pf
+from vlr_drake.control import FALLBACKS
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
 from vlr_drake.model_plant import ModelPlant
@@ -155,7 +158,9 @@ class SelfIdentificationSystem(LeafSystem):
 
     def _calc_estimate(self, context, output):
         f = self._current(context)
-        output.set_value({} if f is None else f.estimates[-1])
+        # the weighted mean, and the live hypotheses nearest it for a controller whose model
+        # the mean cannot be (control.filter_model_fn; the JacobianController tries them in turn)
+        output.set_value({} if f is None else {**f.estimates[-1], "fallbacks": f.nearest_hypotheses(FALLBACKS)})
 
     def _calc_theta(self, context, output: BasicVector):
         f = self._current(context)
