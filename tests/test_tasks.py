@@ -2,6 +2,7 @@
 
 import json
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -134,7 +135,6 @@ def test_a_slipped_tilted_grasp_is_grasped_again():
     """Physics stacking: a cup that settles further than SLIPPED_GRASP from its goal is
     grasped again at a new tilt (its own generator), at most REGRASPS times, and counted;
     the task's generator gives only the first tilt."""
-    from types import SimpleNamespace
 
     calls = []
     settled = iter([0.0136, 0.009, 0.002])  # how far each grasp settles from the goal [m]
@@ -276,3 +276,16 @@ def test_pooled_stats_are_those_of_all_the_values():
     assert got["n"] == every.size and got["max"] == pytest.approx(every.max())
     assert got["mean"] == pytest.approx(every.mean(), rel=1e-12)
     assert got["sd"] == pytest.approx(every.std(), rel=1e-12)
+
+
+def test_the_letters_origin_is_the_mean_of_the_resting_frames():
+    """The letters' origin averages HOME_FRAMES frames of the resting grasp, lost tags
+    skipped: from one frame, noise along the writing plane's normal, which the hand cannot
+    correct, stayed in every waypoint's error."""
+    frames = iter([(None, np.array([0.0, 3.0, 0.0]), True), (None, np.array([9.0, 9.0, 9.0]), False)]
+                  + [(None, np.array([0.0, 1.0, 0.0]), True)] * 7)
+    pl = SimpleNamespace(measure=lambda: next(frames))
+    home = write.home_position(pl, np.array([0.0, 2.0, 0.0]), frames=10)
+    assert home == pytest.approx([0.0, (2.0 + 3.0 + 7 * 1.0) / 9, 0.0])  # the lost frame left out
+    with pytest.raises(StopIteration):
+        next(frames)  # nine more frames were read, no more
