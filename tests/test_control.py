@@ -758,3 +758,69 @@ def test_the_controller_system_falls_back_to_a_hypothesis_and_says_when_it_has_n
     f = sid.filter(sx)
     assert len(est["fallbacks"]) == control.FALLBACKS
     assert np.array_equal(est["fallbacks"][0]["theta"], f.nearest_hypothesis()["theta"])
+
+
+def test_relative_goals_are_anchored_on_the_mean_of_the_first_frames():
+    """With relative_start_sec the goals are offsets from the mean of the first anchor_frames
+    valid measurements at or after that time; before it and on a lost tag nothing is read,
+    and the goals' count starts once anchored."""
+    from pydrake.math import RollPitchYaw
+
+    src = TaskTrajectorySource([(np.eye(3), [1e-3, 0.0, 0.0]), (np.eye(3), [0.0, 0.0, 0.0])], 0.1, max_periods=2,
+                               relative_start_sec=1.0, anchor_frames=2)
+    ctx = src.CreateDefaultContext()
+    src.at_goal_input_port().FixValue(ctx, [1.0])
+    R1 = RollPitchYaw(0.02, 0.0, 0.0).ToRotationMatrix()
+    for time, t, valid in ((0.5, [9.0, 9.0, 9.0], 1.0),  # before the start: ignored
+                           (1.0, [0.0, 0.0, 0.110], 1.0),
+                           (1.1, [5.0, 5.0, 5.0], 0.0),  # a lost tag: ignored
+                           (1.2, [0.0, 0.0, 0.112], 1.0)):
+        ctx.SetTime(time)
+        src.X_PO_measured_input_port().FixValue(ctx, RigidTransform(R1, t))
+        src.X_PO_valid_input_port().FixValue(ctx, [valid])
+        assert not src.anchored(ctx)
+        src.ExecuteForcedEvents(ctx)
+    assert src.anchored(ctx) and src.waypoint_index_output_port().Eval(ctx)[0] == 0  # not counted yet
+    goal = src.X_PO_goal_output_port().Eval(ctx)
+    assert goal.translation() == pytest.approx([1e-3, 0.0, 0.111]) and np.allclose(goal.rotation().matrix(), R1.matrix(), atol=1e-12)
+    src.ExecuteForcedEvents(ctx)
+    assert src.waypoint_index_output_port().Eval(ctx)[0] == 1
+    with pytest.raises(ValueError, match="'anchor_frames' must be an integer >= 1"):
+        TaskTrajectorySource([RigidTransform()], 0.1, relative_start_sec=1.0, anchor_frames=0)
+
+
+def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a_window_about_it(grasp):
+    """Before start_sec the controller system follows its tendon_command_applied input (the
+    command a switch gives the hand) and reads at_goal 0; from then on it steps from the
+    applied command, within +-window of where it started; ControlPhase hands the switch over."""
+    from vlr_drake.systems.controller import ControlPhase
+
+    h, pl = grasp.hand, fresh(grasp)
+    l0 = pl.state.tendon_command.copy()
+    c = JacobianController(h, l0, 0.1, start_sec=1.0, window=0.3e-3, clip=1e-3)
+    cx = c.CreateDefaultContext()
+    R, t = pl.state.R_PO, pl.state.t_PO
+    c.X_PO_goal_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t + [2e-3, 0.0, 0.0]))
+    c.X_PO_measured_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t))
+    c.X_PO_valid_input_port().FixValue(cx, [1.0])
+    c.estimate_input_port().FixValue(cx, {"theta": pl.state.theta.copy(), "a": pl.state.a.copy()})
+    applied = l0 + 0.2e-3
+    c.tendon_command_applied_input_port().FixValue(cx, applied)
+    cx.SetTime(0.5)
+    c.ExecuteForcedEvents(cx)
+    assert np.array_equal(c.tendon_command_output_port().Eval(cx), applied)
+    assert c.at_goal_output_port().Eval(cx)[0] == 0.0
+    cx.SetTime(1.0)
+    for _ in range(5):  # a far goal: the steps pile up against the window about the start
+        c.ExecuteForcedEvents(cx)
+        c.tendon_command_applied_input_port().FixValue(cx, c.tendon_command_output_port().Eval(cx).copy())
+    moved = c.tendon_command_output_port().Eval(cx) - applied
+    assert np.any(moved != 0) and np.max(np.abs(moved)) <= 0.3e-3 + 1e-12
+    with pytest.raises(ValueError, match="'window' must be None or a positive"):
+        JacobianController(h, l0, 0.1, window=0.0)
+    phase = ControlPhase(2.0, "explore", "control")
+    px = phase.CreateDefaultContext()
+    px.SetTime(1.9)
+    assert phase.get_output_port().Eval(px) == "explore"
+    px.SetTime(2.0)
+    assert phase.get_output_port().Eval(px) == "control"

@@ -193,3 +193,22 @@ def test_a_killed_hardware_run_switches_the_torque_off(tmp_path, sig, when):
         assert p.returncode == 128 + int(getattr(signal, sig)), err
         assert err.strip().splitlines()[-1] == (
             f"python -m vlr_drake.builder: stopped by {sig} (closed on the way out: a real hand's torque is off)")
+
+
+def test_a_hardware_scenario_with_a_control_section_wires_the_controller_through_the_switch():
+    """The same control section on hardware: the motors get the switch's command (the
+    exploration's, then the controller's), the controller starts from what was sent, and
+    'commanded' still reads what the motors were sent (building opens no motor or camera)."""
+    b = build_diagram(load_scenario(DIAGRAMS_DIR / "hardware.yaml", "filter_action: commanded\n"
+                                    "control: {after_iterations: 5, goals_mm: [[0.3, 0.0, 0.0]]}"))
+    try:
+        d = b.diagram
+        switch, controller = d.GetSubsystemByName("command_switch"), d.GetSubsystemByName("controller")
+        assert d.AreConnected(switch.get_output_port(), b.plant.get_tendon_command_input_port())
+        assert d.AreConnected(switch.get_output_port(), controller.tendon_command_applied_input_port())
+        assert d.AreConnected(b.policy.GetOutputPort("tendon_command"), switch.GetInputPort("exploration"))
+        assert d.AreConnected(controller.tendon_command_output_port(), switch.GetInputPort("control"))
+        assert d.AreConnected(b.plant.GetOutputPort("tendon_command_sent"), b.filter.tendon_command_input_port())
+        assert d.HasOutputPort("controller.has_model") and d.HasOutputPort("trajectory.done")
+    finally:
+        b.plant.close()

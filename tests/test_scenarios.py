@@ -14,6 +14,7 @@ EXAMPLES = example_scenarios()
 EXPECTED = {
     "default",
     "model_plant",
+    "model_plant_control",
     "stiffness",
     "novel_NH1",
     "novel_NH2",
@@ -204,6 +205,14 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nmodel_plant: {stiffness: [[.inf, 0.2], [0.2, 0.2], [0.2, 0.2]]}\n", "stiffness"),
         ("plant: model\nmodel_plant: {link_lengths: [[-0.05], [0.05], [0.05]]}\n", "link_lengths"),
         ("grasp: {theta_deg: [[.nan, 10], [10, 10], [10, 10]]}\n", "theta_deg"),
+        ("control: {goals_mm: [[0.5, 0.0]]}\n", "control: 'goals_mm' must be lists of 3"),
+        ("control: {goals_mm: [[0.5, 0.0, 0.0], [1.0]]}\n", "control: 'goals_mm' must be lists of 3"),
+        ("control: {goals_mm: [[.nan, 0.0, 0.0]]}\n", "control: 'goals_mm' must be finite"),
+        ("control: {rows: orientation}\n", "control: 'rows'"),
+        ("control: {after_iterations: 0}\n", "control: 'after_iterations'"),
+        ("control: {anchor_frames: 0}\n", "control: 'anchor_frames'"),
+        ("control: {window_mm: -1.0}\n", "control: 'window_mm'"),
+        ("control: {clip_mm: .inf}\n", "control: 'clip_mm'"),
         ("grasp: {contact: [.nan, 0.02, 0.02]}\n", "contact"),
         # ragged lists failed with numpy's "inhomogeneous shape", naming no field
         ("grasp: {theta_deg: [[1, 2], [3]]}\n", "'theta_deg' must be 3 lists of 2"),

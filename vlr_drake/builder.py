@@ -133,14 +133,16 @@ def wire_identification(
     flt: SelfIdentificationSystem,
     sensor_name: str,
     filter_action: str = "measured",
+    command=None,
 ) -> None:
     """Add the four parts by name (``exploration``, ``hand`` unless already added,
     ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter,
     and the filter's action input to the hand's ``tendon_position_measured``
     (``filter_action="measured"``) or to the commands ("commanded": the hardware interface's
     ``tendon_command_sent``, the commands after its clipping at the limits and its ramp, where
-    the plant has one; else the policy's ``tendon_command``), and export their outputs as
-    ``<system>.<signal>``."""
+    the plant has one; else the command the hand is given), and export their outputs as
+    ``<system>.<signal>``. ``command``: the output port that drives the hand (default the
+    policy's ``tendon_command``; the control section's switch between policy and controller)."""
     if filter_action not in FILTER_ACTIONS:
         raise ValueError(f"'filter_action' must be one of {list(FILTER_ACTIONS)}, got '{filter_action}'")
     builder.AddNamedSystem("exploration", policy)
@@ -148,7 +150,9 @@ def wire_identification(
         builder.AddNamedSystem("hand", plant)
     builder.AddNamedSystem(sensor_name, sensor)
     builder.AddNamedSystem("self_identification", flt)
-    builder.Connect(policy.GetOutputPort("tendon_command"), plant.GetInputPort("tendon_command"))
+    if command is None:  # what drives the hand: the policy, or a switch between it and a controller
+        command = policy.GetOutputPort("tendon_command")
+    builder.Connect(command, plant.GetInputPort("tendon_command"))
     if sensor_name == "pose_sensor":
         builder.Connect(plant.GetOutputPort("X_PO_true"), sensor.GetInputPort("X_PO_true"))
     else:
@@ -158,7 +162,7 @@ def wire_identification(
     elif plant.HasOutputPort("tendon_command_sent"):  # hardware: what went to the motors, clipped and ramped
         action = plant.GetOutputPort("tendon_command_sent")
     else:
-        action = policy.GetOutputPort("tendon_command")
+        action = command
     builder.Connect(action, flt.tendon_command_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_measured"), flt.X_PO_measured_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_valid"), flt.X_PO_valid_input_port())
@@ -171,6 +175,55 @@ def wire_identification(
         for port in _EXPORTS[name]:
             if system.HasOutputPort(port):
                 builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
+
+
+def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: float, window: float) -> dict:
+    """The control section's systems, added by name: ``command_switch`` (a PortSwitch of the
+    exploration's and the controller's commands), its ``control_phase`` selector,
+    ``controller`` (JacobianController, from the section's start, within the exploration's
+    window around the grasp's commands) and ``trajectory`` (the goals, relative to the pose
+    measured when control starts)."""
+    from pydrake.systems.primitives import PortSwitch
+
+    from vlr_drake.systems.controller import ControlPhase, JacobianController, TaskTrajectorySource
+
+    c = s.control
+    start = c.start_sec(T)  # the switch to the controller; it holds the tendons for the anchor's frames
+    switch = builder.AddNamedSystem("command_switch", PortSwitch(h.N))
+    explore_in, control_in = switch.DeclareInputPort("exploration"), switch.DeclareInputPort("control")
+    phase = builder.AddNamedSystem("control_phase", ControlPhase(start, explore_in.get_index(), control_in.get_index()))
+    builder.Connect(phase.get_output_port(), switch.get_port_selector_input_port())
+    l0 = np.asarray(l0, float)
+    w = window if c.window_mm is None else 1e-3 * c.window_mm
+    controller = builder.AddNamedSystem("controller", JacobianController(
+        h, l0, T, offset_sec=0.05 * T, rows=c.rows, clip=1e-3 * c.clip_mm, tol_position=1e-3 * c.tol_position_mm,
+        tol_rotation=np.deg2rad(c.tol_rotation_deg), tendon=s.filter.tendon, window=w,
+        start_sec=start + c.anchor_frames * T))
+    goals = [(np.eye(3), 1e-3 * np.asarray(g, float)) for g in c.goals_mm]
+    trajectory = builder.AddNamedSystem("trajectory", TaskTrajectorySource(
+        goals, T, max_periods=c.max_periods, relative_start_sec=start, anchor_frames=c.anchor_frames))
+    return {"switch": switch, "explore_in": explore_in, "control_in": control_in, "controller": controller,
+            "trajectory": trajectory, "start_sec": start}
+
+
+def _wire_control(builder: DiagramBuilder, c: dict, policy, sensor, flt) -> None:
+    """Connect the control section's systems (:func:`_add_control`) to the exploration,
+    the sensor and the filter, and export their outputs as ``controller.<signal>`` and
+    ``trajectory.<signal>``."""
+    ctrl, traj, switch = c["controller"], c["trajectory"], c["switch"]
+    builder.Connect(policy.GetOutputPort("tendon_command"), c["explore_in"])
+    builder.Connect(ctrl.tendon_command_output_port(), c["control_in"])
+    builder.Connect(switch.get_output_port(), ctrl.tendon_command_applied_input_port())
+    for dest in (ctrl, traj):
+        builder.Connect(sensor.GetOutputPort("X_PO_measured"), dest.GetInputPort("X_PO_measured"))
+        builder.Connect(sensor.GetOutputPort("X_PO_valid"), dest.GetInputPort("X_PO_valid"))
+    builder.Connect(flt.GetOutputPort("estimate"), ctrl.estimate_input_port())
+    builder.Connect(traj.X_PO_goal_output_port(), ctrl.X_PO_goal_input_port())
+    builder.Connect(ctrl.at_goal_output_port(), traj.at_goal_input_port())
+    for name, system, ports in (("controller", ctrl, ("at_goal", "pose_error", "has_model", "tendon_command")),
+                                ("trajectory", traj, ("waypoint_index", "done"))):
+        for port in ports:
+            builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
 
 
 def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: float):
@@ -340,7 +393,11 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         config = replace(config, likelihood_width=default_likelihood_width(s.plant, s.experiment()))
     h_filter = believed.model() if prior.links_unknown else h  # no replaced link's true length
     flt = SelfIdentificationSystem(h_filter, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
-    wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action)
+    ctrl = _add_control(builder, s, h_filter, l0, T, window) if s.control.goals_mm else None
+    wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action,
+                        command=None if ctrl is None else ctrl["switch"].get_output_port())
+    if ctrl is not None:
+        _wire_control(builder, ctrl, policy, sensor, flt)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")
     return BuiltDiagram(
@@ -504,6 +561,47 @@ def write_diagrams(folder: str | Path | None = None, render: bool = True) -> lis
     return written
 
 
+class _GoalRecorder:
+    """A Simulator monitor for a diagram with a control section: each time the trajectory
+    leaves a goal (reached, or its periods spent), that goal's measured error and, where the
+    plant has its truth, the true POM's distance from it."""
+
+    def __init__(self, built: BuiltDiagram):
+        self.d = built.diagram
+        self.traj = built.diagram.GetSubsystemByName("trajectory")
+        self.goals: list[dict] = []
+        self._last = (0, 0.0)
+
+    def __call__(self, root):
+        from pydrake.systems.framework import EventStatus
+
+        index = int(self.d.GetOutputPort("trajectory.waypoint_index").Eval(root)[0])
+        done = float(self.d.GetOutputPort("trajectory.done").Eval(root)[0])
+        if (index, done) != self._last and len(self.goals) < self.traj.num_goals:
+            left = self._last[0]  # the goal just left: the previous index's (or the last one, once done)
+            reached = bool(self.d.GetOutputPort("controller.at_goal").Eval(root)[0] > 0.5)
+            entry = {"goal": left, "time_s": root.get_time(), "reached": reached,
+                     "measured_error_mm": 1e3 * float(self.d.GetOutputPort("controller.pose_error").Eval(root)[0])}
+            if self.d.HasOutputPort("hand.X_PO_true"):
+                t_goal = self.traj.goal(self.traj.GetMyContextFromRoot(root), left).translation()
+                t_true = self.d.GetOutputPort("hand.X_PO_true").Eval(root).translation()
+                entry["true_error_mm"] = 1e3 * float(np.linalg.norm(t_true - t_goal))
+            self.goals.append(entry)
+            self._last = (index, done)
+        return EventStatus.Succeeded()
+
+    def report(self) -> dict:
+        """``goals`` (one entry per goal left), ``total`` (the goals' count), ``done`` (every
+        goal left), ``reached`` (how many within tolerance) and ``error_mm``: the mean and
+        largest true (else measured) error over them [mm]."""
+        key = "true_error_mm" if self.goals and "true_error_mm" in self.goals[0] else "measured_error_mm"
+        errors = [g[key] for g in self.goals]
+        return {"goals": self.goals, "total": self.traj.num_goals, "done": len(self.goals) == self.traj.num_goals,
+                "reached": sum(g["reached"] for g in self.goals),
+                "error_mm": {"mean": float(np.mean(errors)), "max": float(np.max(errors)), "of": key}
+                if errors else None}
+
+
 def _hardware_summary(plant) -> dict | None:
     """A hardware run's interface counts (None on other plants): its updates, how many sent a
     command clipped at a tendon limit or ramped towards a far one, and how closing on the grasp
@@ -535,6 +633,9 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     simulator = Simulator(built.diagram)
     if scenario.plant == "hardware":  # the motors and the camera keep the clock's time
         simulator.set_target_realtime_rate(1.0)
+    goals = _GoalRecorder(built) if scenario.control.goals_mm else None
+    if goals is not None:
+        simulator.set_monitor(goals)
     try:
         initialize(built, simulator)
         simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
@@ -578,6 +679,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "wall_s": time.perf_counter() - t0,
             "realtime_rate": rate,
             "hardware": _hardware_summary(built.plant),
+            "control": None if goals is None else goals.report(),
         }
     finally:
         if hasattr(built.plant, "close"):
@@ -615,6 +717,13 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
+        if r["control"] is not None:
+            c = r["control"]
+            print(f"control: {len(c['goals'])} goals left ({c['reached']} reached within tolerance)"
+                  + ("" if c["done"] else f" of {c['total']}: the run ended first, give more --iterations")
+                  + ("" if c["error_mm"] is None else
+                     f"; {c['error_mm']['of'].replace('_mm', '').replace('_', ' ')} {c['error_mm']['mean']:.3f} mm mean, "
+                     f"{c['error_mm']['max']:.3f} mm at most"))
         if r["hardware"] is not None:
             hw = r["hardware"]
             print(f"hardware: {hw['updates']} updates, {hw['clipped']} with a command clipped at a tendon limit, "

@@ -319,6 +319,66 @@ class NominalGrasp:
 
 
 @dataclass
+class ControlSettings:
+    """Control after identification, in the same diagram (DESIGN.md sections 7 and 8): after
+    ``after_iterations`` action periods of exploration a switch hands the tendons to the
+    Jacobian controller (:class:`vlr_drake.systems.controller.JacobianController`), which
+    takes the POM through ``goals_mm`` with the filter's estimate while the filter keeps
+    identifying from the control actions. No goals: identification only."""
+
+    # POM position goals [mm] in the palm frame, relative to the pose measured when control
+    # starts (offsets, one list of 3 per goal); empty: no control.
+    goals_mm: list[list[float]] = field(default_factory=list)
+    # Action periods of exploration (identification) before control starts.
+    after_iterations: int = 60
+    # Frames of the held grasp (one per action period) whose mean pose the goals are offsets
+    # from: a single frame's noise along a direction the hand cannot move the object in
+    # would stay in every goal.
+    anchor_frames: int = 5
+    # The controlled rows of Eq. 12: "position" (the goals' positions) or "full" (also hold
+    # the orientation measured when control starts).
+    rows: str = "position"
+    # A goal is reached within these tolerances ...
+    tol_position_mm: float = 0.1
+    tol_rotation_deg: float = 0.5
+    # ... or given up after this many action periods.
+    max_periods: int = 20
+    # Largest tendon step per action period [mm] ...
+    clip_mm: float = 0.5
+    # ... and the window that the controller's commands stay in: +-window_mm [mm] about the
+    # commands control starts from; None: the exploration's window.
+    window_mm: float | None = None
+
+    def validate(self) -> "ControlSettings":
+        shape = _shape_of(self.goals_mm)
+        if self.goals_mm and (shape is None or len(shape) != 2 or shape[1] != 3):
+            raise ValueError(f"control: 'goals_mm' must be lists of 3 offsets [mm], got {self.goals_mm}")
+        if self.goals_mm and not np.all(np.isfinite(self.goals_mm)):
+            raise ValueError(f"control: 'goals_mm' must be finite, got {self.goals_mm}")
+        if not is_count(self.after_iterations, 1):
+            raise ValueError(f"control: 'after_iterations' must be an integer >= 1, got {self.after_iterations!r}")
+        if self.rows not in ("position", "full"):
+            raise ValueError(f"control: 'rows' must be 'position' or 'full', got '{self.rows}'")
+        for name in ("tol_position_mm", "tol_rotation_deg", "clip_mm", "window_mm"):
+            v = getattr(self, name)
+            if name == "window_mm" and v is None:
+                continue
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"control: '{name}' must be positive and finite, got {v}")
+        if not is_count(self.anchor_frames, 1):
+            raise ValueError(f"control: 'anchor_frames' must be an integer >= 1, got {self.anchor_frames!r}")
+        if not is_count(self.max_periods, 1):
+            raise ValueError(f"control: 'max_periods' must be an integer >= 1, got {self.max_periods!r}")
+        return self
+
+    def start_sec(self, period_sec: float) -> float:
+        """When the switch hands the tendons to the controller: the period after the last
+        exploration action [s] (the controller holds them for ``anchor_frames`` periods, then
+        controls)."""
+        return (self.after_iterations + 1) * period_sec
+
+
+@dataclass
 class Scenario:
     """One self-identification run (DESIGN.md section 8): plant, hand, object and settings."""
 
@@ -371,6 +431,8 @@ class Scenario:
     hardware: HardwareConfig | None = None
     # Show the physics plant in Meshcat (the builder then needs a Meshcat instance).
     meshcat: bool = False
+    # Control after identification (python -m vlr_drake.builder --run); no goals: none.
+    control: ControlSettings = field(default_factory=ControlSettings)
 
     # -- resolved parts ----------------------------------------------------------------------
 
@@ -432,6 +494,7 @@ class Scenario:
         self.exploration.validate()
         self.model_plant.validate(N, K)
         self.grasp.validate(N, K, hand.model())
+        self.control.validate()
         if self.link_weight and self.plant != "physics":
             raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
                              "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
@@ -785,8 +848,9 @@ def ignored_by_tasks(scenario: Scenario) -> list[str]:
 
 #: What an identification run (``vlr-drake identify``) does not take from a scenario: the
 #: diagram's own settings (the filter's action input, the action period in simulated time,
-#: the hardware's grasp section; :func:`vlr_drake.builder.run` takes them).
-IDENTIFY_IGNORES = ("filter_action", "grasp", "exploration.period_sec")
+#: the hardware's grasp section, the control after identification; :func:`vlr_drake.builder.run`
+#: takes them).
+IDENTIFY_IGNORES = ("filter_action", "grasp", "exploration.period_sec", "control")
 
 
 def ignored_by_identify(scenario: Scenario) -> list[str]:

@@ -12,7 +12,11 @@
   command for want of one).
 - :class:`TaskTrajectorySource`: a sequence of goal poses; ``at_goal`` in, ``X_PO_goal``,
   ``waypoint_index`` and ``done`` out. It moves to the next goal once the controller is at
-  the current one, or after ``max_periods`` action periods.
+  the current one, or after ``max_periods`` action periods. With ``relative_start_sec`` the
+  goals are offsets from the POM pose measured when control starts (``X_PO_measured`` and
+  ``X_PO_valid`` in), as the scenario builder's control section wires it.
+- :class:`ControlPhase`: the selector of a PortSwitch that hands the tendons from the
+  exploration policy to the controller at a given time (the scenario builder's control).
 - :class:`EstimateFromTruth`: packs a plant's truth ports (``theta_true``,
   ``contact_along_link_true``) into an ``estimate`` dict (control with the true model).
 
@@ -33,7 +37,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from vlr_drake import control
 from vlr_drake.hand import HandModel
 
-__all__ = ["JacobianController", "TaskTrajectorySource", "EstimateFromTruth"]
+__all__ = ["JacobianController", "TaskTrajectorySource", "EstimateFromTruth", "ControlPhase"]
 
 
 class JacobianController(LeafSystem):
@@ -49,8 +53,12 @@ class JacobianController(LeafSystem):
             (:func:`vlr_drake.control.control_step`; the cup stacking's are mm and rad).
         limits (N, 2) [m]: a window narrower than the hand's tendon range that the commands
             never leave (a grip window, as the tasks' servo keeps); None: the range.
+        window [m]: also keep the commands within +-window of the command the controller
+            starts controlling from (where exploration left the tendons); None: no such window.
         tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
         tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
+        start_sec: before this time the controller does not control: it follows the
+            ``tendon_command_applied`` input (when connected) and reads ``at_goal`` 0.
 
     Without a valid measurement or with an empty estimate the command is held; so it is when
     neither the estimate nor any of its ``fallbacks`` is a physical grasp with a Jacobian
@@ -77,10 +85,15 @@ class JacobianController(LeafSystem):
         position_unit: float = control.POSITION_UNIT,
         rotation_unit: float = control.ROTATION_UNIT,
         limits=None,
+        start_sec: float = 0.0,
+        window: float | None = None,
     ):
         super().__init__()
         if not period_sec > 0:
             raise ValueError(f"'period_sec' must be positive, got {period_sec}")
+        if not (np.isfinite(start_sec) and start_sec >= 0):
+            raise ValueError(f"'start_sec' must be a finite time >= 0 [s], got {start_sec}")
+        self._start = float(start_sec)
         l_initial = np.asarray(l_initial, float).reshape(-1)
         if l_initial.shape != (hand.N,):
             raise ValueError(f"'l_initial' must have {hand.N} entries, got {l_initial.shape}")
@@ -102,6 +115,9 @@ class JacobianController(LeafSystem):
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"'{name}' must be a finite number >= 0, got {v}")
         self._limits = None if limits is None else control.tendon_limits(hand, limits)
+        if window is not None and not (np.isfinite(window) and window > 0):
+            raise ValueError(f"'window' must be None or a positive finite length [m], got {window}")
+        self._window = window
         if not (np.isfinite(eps) and eps > 0):  # jacobian's error would be taken for "no usable model"
             raise ValueError(f"'eps' must be a positive finite number [m], got {eps}")
         self._hand = hand
@@ -118,12 +134,20 @@ class JacobianController(LeafSystem):
         )
         self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
         self._estimate = self.DeclareAbstractInputPort(name="estimate", model_value=AbstractValue.Make({}))
+        # optional: the command the plant is given (a switch between this controller and the
+        # exploration policy); connected, each step starts from it and, before start_sec, the
+        # controller follows it so that control starts where exploration left the tendons
+        self._applied = self.DeclareVectorInputPort(name="tendon_command_applied", size=hand.N)
         rng = hand.tendon_range
         if np.any((l_initial < rng[:, 0] - 1e-12) | (l_initial > rng[:, 1] + 1e-12)):
             raise ValueError(f"'l_initial' {np.round(1e3 * l_initial, 3).tolist()} mm is outside the hand's tendon "
                              f"range {np.round(1e3 * rng, 3).tolist()} mm")
         # a start outside a narrower window moves into it one clipped step at a time (limit_action)
         self._command_state = self.DeclareDiscreteState(l_initial.copy())
+        # the commands' limits (N x 2, row-major) and whether they are set: ``limits`` (else the
+        # range) from the start, or, with ``window``, +-window about the command control starts from
+        lim0 = hand.tendon_range if self._limits is None else self._limits
+        self._limit_state = self.DeclareDiscreteState(np.concatenate([lim0.ravel(), [float(window is None)]]))
         self._status_state = self.DeclareDiscreteState(
             np.array([0.0, np.inf, np.inf, 0.0])
         )  # at_goal, |dt|, angle, whether the last step had a usable model
@@ -164,6 +188,9 @@ class JacobianController(LeafSystem):
     def estimate_input_port(self):
         return self._estimate
 
+    def tendon_command_applied_input_port(self):
+        return self._applied
+
     def tendon_command_output_port(self):
         return self._command_out
 
@@ -178,9 +205,26 @@ class JacobianController(LeafSystem):
 
     def _update(self, context, discrete_state):
         l_now = np.array(context.get_discrete_state(self._command_state).get_value())
+        if self._applied.HasValue(context):
+            l_now = np.asarray(self._applied.Eval(context), float).copy()
+            if not np.all(np.isfinite(l_now)):
+                raise ValueError(f"controller: input 'tendon_command_applied' is not finite: {l_now.tolist()}")
+        if context.get_time() < self._start - 1e-9:  # not controlling yet: follow the applied command
+            discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)
+            discrete_state.get_mutable_vector(self._status_state).SetAtIndex(0, 0.0)
+            return
+        packed = np.array(context.get_discrete_state(self._limit_state).get_value())
+        if packed[-1] < 0.5:  # the first step in control: the window about where it starts
+            lim0 = packed[:-1].reshape(self._hand.N, 2)
+            about = np.column_stack([l_now - self._window, l_now + self._window])
+            packed = np.concatenate([control.tendon_limits(self._hand, np.column_stack(
+                [np.maximum(about[:, 0], lim0[:, 0]), np.minimum(about[:, 1], lim0[:, 1])])).ravel(), [1.0]])
+            discrete_state.get_mutable_vector(self._limit_state).SetFromVector(packed)
+        lim = packed[:-1].reshape(self._hand.N, 2)
         valid = bool(self._valid.Eval(context)[0] > 0.5)
         est = self._estimate.Eval(context)
         if not valid or not est:  # hold the command; the goal is not known to be reached
+            discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)
             status = discrete_state.get_mutable_vector(self._status_state)
             status.SetAtIndex(0, 0.0)  # (at_goal held at 1 had let a trajectory skip its goals)
             return
@@ -197,6 +241,7 @@ class JacobianController(LeafSystem):
         )
         status = discrete_state.get_mutable_vector(self._status_state)
         status.SetFromVector([float(at_goal), ep, er, status.GetAtIndex(3)])
+        discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)  # held unless a step follows
         if at_goal:
             return
         _check_estimate(self._hand, est)  # a malformed one is a wiring mistake, not "no model here"
@@ -209,7 +254,7 @@ class JacobianController(LeafSystem):
             return  # no usable model here: hold, and say so (has_model 0)
         J = control.jacobian(model, self._eps)
         dl = control.control_step(J, e, **self._kw)
-        dl = control.limit_action(self._hand, l_now, dl, self._limits)
+        dl = control.limit_action(self._hand, l_now, dl, lim)
         discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now + dl)
 
     def _calc_at_goal(self, context, output: BasicVector):
@@ -238,28 +283,45 @@ class TaskTrajectorySource(LeafSystem):
 
     Moves to the next goal at k T + ``offset_sec`` when ``at_goal`` (input) is 1, or after
     ``max_periods`` periods on one goal; ``done`` becomes 1 after the last goal was reached
-    (or timed out); the last goal is held.
+    (or timed out); the last goal is held. With ``relative_start_sec`` each goal (R_rel,
+    t_rel) is taken relative to the first valid measured pose (R0, t0) at or after that time:
+    the goal is (R_rel R0, t0 + t_rel), and the goals' count starts once it is anchored.
+    (R0, t0) is the mean of the first ``anchor_frames`` such measurements, one per update
+    (the hand held still meanwhile): the camera's noise along a direction the hand cannot
+    move the object in would otherwise stay in every goal.
     """
 
     def __init__(
-        self, goals: list, period_sec: float, *, offset_sec: float | None = None, max_periods: int = 20
+        self, goals: list, period_sec: float, *, offset_sec: float | None = None, max_periods: int = 20,
+        relative_start_sec: float | None = None, anchor_frames: int = 1,
     ):
         super().__init__()
         if not goals:
             raise ValueError("'goals' must hold at least one pose")
         self._goals = [_goal_pose(i, g) for i, g in enumerate(goals)]
+        if relative_start_sec is not None and not (np.isfinite(relative_start_sec) and relative_start_sec >= 0):
+            raise ValueError(f"'relative_start_sec' must be None or a finite time >= 0 [s], got {relative_start_sec}")
+        if isinstance(anchor_frames, bool) or not isinstance(anchor_frames, int | np.integer) or anchor_frames < 1:
+            raise ValueError(f"'anchor_frames' must be an integer >= 1, got {anchor_frames!r}")
+        self._relative, self._frames = relative_start_sec, int(anchor_frames)
         if (isinstance(max_periods, bool) or not np.isfinite(max_periods) or max_periods != int(max_periods)
                 or max_periods < 1):
             raise ValueError(f"'max_periods' must be an integer >= 1, got {max_periods}")
         self._max = int(max_periods)
         self._at_goal = self.DeclareVectorInputPort(name="at_goal", size=1)
         self._state = self.DeclareDiscreteState(np.array([0.0, 0.0, 0.0]))  # index, periods on it, done
+        # relative goals: the sums of the anchor frames' R (row-major) and t, and their count
+        self._anchor = self.DeclareDiscreteState(np.zeros(13))
+        if relative_start_sec is not None:
+            self._X_PO = self.DeclareAbstractInputPort(
+                name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
+            self._valid = self.DeclareVectorInputPort(name="X_PO_valid", size=1)
         ticket = {self.discrete_state_ticket(self._state)}
         self._goal_out = self.DeclareAbstractOutputPort(
             name="X_PO_goal",
             alloc=lambda: AbstractValue.Make(RigidTransform()),
             calc=self._calc_goal,
-            prerequisites_of_calc=ticket,
+            prerequisites_of_calc={self.discrete_state_ticket(self._state), self.discrete_state_ticket(self._anchor)},
         )
         self._index_out = self.DeclareVectorOutputPort(
             name="waypoint_index", size=1, calc=self._calc_index, prerequisites_of_calc=ticket
@@ -274,6 +336,13 @@ class TaskTrajectorySource(LeafSystem):
     def at_goal_input_port(self):
         return self._at_goal
 
+    def X_PO_measured_input_port(self):
+        """Relative goals only: the measured POM pose, read once to anchor the goals."""
+        return self._X_PO
+
+    def X_PO_valid_input_port(self):
+        return self._valid
+
     def X_PO_goal_output_port(self):
         return self._goal_out
 
@@ -284,6 +353,14 @@ class TaskTrajectorySource(LeafSystem):
         return self._done_out
 
     def _update(self, context, discrete_state):
+        if not self.anchored(context):
+            # not anchored yet: the valid measurements at or after relative_start_sec, one per update
+            if context.get_time() >= self._relative - 1e-9 and self._valid.Eval(context)[0] > 0.5:
+                X = self._X_PO.Eval(context)
+                sums = np.asarray(context.get_discrete_state(self._anchor).get_value())
+                discrete_state.get_mutable_vector(self._anchor).SetFromVector(
+                    sums + np.concatenate([X.rotation().matrix().ravel(), X.translation(), [1.0]]))
+            return
         i, n, done = context.get_discrete_state(self._state).get_value()
         i, n = int(i), int(n) + 1
         if done < 0.5 and (self._at_goal.Eval(context)[0] > 0.5 or n >= self._max):
@@ -293,15 +370,51 @@ class TaskTrajectorySource(LeafSystem):
                 done = 1.0
         discrete_state.get_mutable_vector(self._state).SetFromVector([i, n, done])
 
+    @property
+    def num_goals(self) -> int:
+        return len(self._goals)
+
+    def goal(self, context, i: int) -> RigidTransform:
+        """Goal ``i`` in the palm frame: as given, or, with relative goals, (R_rel R0, t0 +
+        t_rel) about the anchor (before anchoring, about the identity)."""
+        goal = self._goals[i]
+        if self._relative is None:
+            return goal
+        from pydrake.math import RotationMatrix
+
+        sums = np.asarray(context.get_discrete_state(self._anchor).get_value())
+        n = max(sums[12], 1.0)
+        U, _, Vt = np.linalg.svd(sums[:9].reshape(3, 3) / n if sums[12] > 0 else np.eye(3))
+        R0 = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt  # the frames' mean rotation
+        return RigidTransform(RotationMatrix(goal.rotation().matrix() @ R0), sums[9:12] / n + goal.translation())
+
     def _calc_goal(self, context, output):
-        i = int(context.get_discrete_state(self._state).GetAtIndex(0))
-        output.set_value(self._goals[i])
+        output.set_value(self.goal(context, int(context.get_discrete_state(self._state).GetAtIndex(0))))
+
+    def anchored(self, context) -> bool:
+        """Whether relative goals have their anchor (always True for absolute goals)."""
+        return self._relative is None or context.get_discrete_state(self._anchor).GetAtIndex(12) >= self._frames
 
     def _calc_index(self, context, output: BasicVector):
         output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(0)])
 
     def _calc_done(self, context, output: BasicVector):
         output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(2)])
+
+
+class ControlPhase(LeafSystem):
+    """The selector of a PortSwitch: its ``exploration`` input before ``start_sec``, its
+    ``control`` input from then on (an abstract InputPortIndex output, a function of time)."""
+
+    def __init__(self, start_sec: float, exploration, control):
+        super().__init__()
+        if not (np.isfinite(start_sec) and start_sec >= 0):
+            raise ValueError(f"'start_sec' must be a finite time >= 0 [s], got {start_sec}")
+        self._start, self._ports = float(start_sec), (exploration, control)
+        self.DeclareAbstractOutputPort("selector", lambda: AbstractValue.Make(exploration), self._calc)
+
+    def _calc(self, context, output) -> None:
+        output.set_value(self._ports[int(context.get_time() >= self._start - 1e-9)])
 
 
 def _goal_pose(i: int, g) -> RigidTransform:
