@@ -337,11 +337,11 @@ class TaskTrajectorySource(LeafSystem):
         return self._at_goal
 
     def X_PO_measured_input_port(self):
-        """Relative goals only: the measured POM pose, read once to anchor the goals."""
-        return self._X_PO
+        """Relative goals only: the measured POM pose, read to anchor the goals."""
+        return self.GetInputPort("X_PO_measured")  # absolute goals: a RuntimeError naming the port
 
     def X_PO_valid_input_port(self):
-        return self._valid
+        return self.GetInputPort("X_PO_valid")
 
     def X_PO_goal_output_port(self):
         return self._goal_out
