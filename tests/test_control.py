@@ -778,9 +778,10 @@ def test_relative_goals_are_anchored_on_the_mean_of_the_first_frames():
         ctx.SetTime(time)
         src.X_PO_measured_input_port().FixValue(ctx, RigidTransform(R1, t))
         src.X_PO_valid_input_port().FixValue(ctx, [valid])
-        assert not src.anchored(ctx)
+        assert not src.anchored(ctx) and src.ready_output_port().Eval(ctx)[0] == 0.0
         src.ExecuteForcedEvents(ctx)
     assert src.anchored(ctx) and src.waypoint_index_output_port().Eval(ctx)[0] == 0  # not counted yet
+    assert src.ready_output_port().Eval(ctx)[0] == 1.0
     goal = src.X_PO_goal_output_port().Eval(ctx)
     assert goal.translation() == pytest.approx([1e-3, 0.0, 0.111]) and np.allclose(goal.rotation().matrix(), R1.matrix(), atol=1e-12)
     src.ExecuteForcedEvents(ctx)
@@ -790,9 +791,10 @@ def test_relative_goals_are_anchored_on_the_mean_of_the_first_frames():
 
 
 def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a_window_about_it(grasp):
-    """Before start_sec the controller system follows its tendon_command_applied input (the
-    command a switch gives the hand) and reads at_goal 0; from then on it steps from the
-    applied command, within +-window of where it started; ControlPhase hands the switch over."""
+    """Before start_sec, and while its enabled input is 0 (the trajectory's goals not yet
+    anchored), the controller system follows its tendon_command_applied input (the command a
+    switch gives the hand) and reads at_goal 0; then it steps from the applied command,
+    within +-window of where it started; ControlPhase hands the switch over."""
     from vlr_drake.systems.controller import ControlPhase
 
     h, pl = grasp.hand, fresh(grasp)
@@ -811,6 +813,10 @@ def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a
     assert np.array_equal(c.tendon_command_output_port().Eval(cx), applied)
     assert c.at_goal_output_port().Eval(cx)[0] == 0.0
     cx.SetTime(1.0)
+    c.enabled_input_port().FixValue(cx, [0.0])  # the goals not anchored yet (a lost frame): still waiting
+    c.ExecuteForcedEvents(cx)
+    assert np.array_equal(c.tendon_command_output_port().Eval(cx), applied)
+    c.enabled_input_port().FixValue(cx, [1.0])
     for _ in range(5):  # a far goal: the steps pile up against the window about the start
         c.ExecuteForcedEvents(cx)
         c.tendon_command_applied_input_port().FixValue(cx, c.tendon_command_output_port().Eval(cx).copy())

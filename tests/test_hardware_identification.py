@@ -205,7 +205,10 @@ def test_a_hardware_scenario_with_a_control_section_wires_the_controller_through
         d = b.diagram
         switch, controller = d.GetSubsystemByName("command_switch"), d.GetSubsystemByName("controller")
         assert d.AreConnected(switch.get_output_port(), b.plant.get_tendon_command_input_port())
-        assert d.AreConnected(switch.get_output_port(), controller.tendon_command_applied_input_port())
+        # the controller steps from what the motors were sent (clipped at their limits, ramped)
+        assert d.AreConnected(b.plant.GetOutputPort("tendon_command_sent"),
+                              controller.tendon_command_applied_input_port())
+        assert d.AreConnected(d.GetSubsystemByName("trajectory").ready_output_port(), controller.enabled_input_port())
         assert d.AreConnected(b.policy.GetOutputPort("tendon_command"), switch.GetInputPort("exploration"))
         assert d.AreConnected(controller.tendon_command_output_port(), switch.GetInputPort("control"))
         assert d.AreConnected(b.plant.GetOutputPort("tendon_command_sent"), b.filter.tendon_command_input_port())

@@ -195,10 +195,12 @@ def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: floa
     builder.Connect(phase.get_output_port(), switch.get_port_selector_input_port())
     l0 = np.asarray(l0, float)
     w = window if c.window_mm is None else 1e-3 * c.window_mm
+    # hardware: also within the motors' limits, which may be narrower than the hand's range
+    limits = np.column_stack(s.hardware.tendon_limits(s.hand_spec_resolved())) if s.plant == "hardware" else None
     controller = builder.AddNamedSystem("controller", JacobianController(
         h, l0, T, offset_sec=0.05 * T, rows=c.rows, clip=1e-3 * c.clip_mm, tol_position=1e-3 * c.tol_position_mm,
-        tol_rotation=np.deg2rad(c.tol_rotation_deg), tendon=s.filter.tendon, window=w,
-        start_sec=start + c.anchor_frames * T))
+        tol_rotation=np.deg2rad(c.tol_rotation_deg), tendon=s.filter.tendon, limits=limits, window=w,
+        start_sec=start))
     goals = [(np.eye(3), 1e-3 * np.asarray(g, float)) for g in c.goals_mm]
     trajectory = builder.AddNamedSystem("trajectory", TaskTrajectorySource(
         goals, T, max_periods=c.max_periods, relative_start_sec=start, anchor_frames=c.anchor_frames))
@@ -206,14 +208,19 @@ def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: floa
             "trajectory": trajectory, "start_sec": start}
 
 
-def _wire_control(builder: DiagramBuilder, c: dict, policy, sensor, flt) -> None:
-    """Connect the control section's systems (:func:`_add_control`) to the exploration,
-    the sensor and the filter, and export their outputs as ``controller.<signal>`` and
-    ``trajectory.<signal>``."""
+def _wire_control(builder: DiagramBuilder, c: dict, policy, plant, sensor, flt) -> None:
+    """Connect the control section's systems (:func:`_add_control`) to the exploration, the
+    hand, the sensor and the filter, and export their outputs as ``controller.<signal>`` and
+    ``trajectory.<signal>``. The controller steps from what the hand was given (on hardware
+    what the motors were sent, after the interface's clipping and ramp) and waits for the
+    trajectory's goals to be anchored."""
     ctrl, traj, switch = c["controller"], c["trajectory"], c["switch"]
     builder.Connect(policy.GetOutputPort("tendon_command"), c["explore_in"])
     builder.Connect(ctrl.tendon_command_output_port(), c["control_in"])
-    builder.Connect(switch.get_output_port(), ctrl.tendon_command_applied_input_port())
+    applied = (plant.GetOutputPort("tendon_command_sent") if plant.HasOutputPort("tendon_command_sent")
+               else switch.get_output_port())
+    builder.Connect(applied, ctrl.tendon_command_applied_input_port())
+    builder.Connect(traj.ready_output_port(), ctrl.enabled_input_port())
     for dest in (ctrl, traj):
         builder.Connect(sensor.GetOutputPort("X_PO_measured"), dest.GetInputPort("X_PO_measured"))
         builder.Connect(sensor.GetOutputPort("X_PO_valid"), dest.GetInputPort("X_PO_valid"))
@@ -221,7 +228,7 @@ def _wire_control(builder: DiagramBuilder, c: dict, policy, sensor, flt) -> None
     builder.Connect(traj.X_PO_goal_output_port(), ctrl.X_PO_goal_input_port())
     builder.Connect(ctrl.at_goal_output_port(), traj.at_goal_input_port())
     for name, system, ports in (("controller", ctrl, ("at_goal", "pose_error", "has_model", "tendon_command")),
-                                ("trajectory", traj, ("waypoint_index", "done"))):
+                                ("trajectory", traj, ("waypoint_index", "done", "ready"))):
         for port in ports:
             builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
 
@@ -297,7 +304,10 @@ def _nominal_grasp(s: Scenario, h: HandModel) -> tuple[np.ndarray, np.ndarray, n
             h, theta, a, np.eye(3), np.array(MODEL_PLANT_t_PO), np.random.default_rng(0), tendon=s.filter.tendon
         )
     except ValueError as e:
-        raise ValueError(f"grasp: 'theta_deg' and 'contact' are not a grasp the model can hold ({e})") from e
+        given = [name for name, v in (("theta_deg", s.grasp.theta_deg), ("contact", s.grasp.contact)) if v]
+        what = " and ".join(f"'{n}'" for n in given) if given else "the grasp sampled with the seed"
+        raise ValueError(f"grasp: {what} {'do' if len(given) == 2 else 'does'} not make a grasp the model can "
+                         f"hold ({e})") from e
     l0 = mp.state.tendon_command.copy()
     if s.hardware is not None:  # the real hand closes on these commands: refuse them before any motor moves
         lower, upper = s.hardware.tendon_limits(s.hand_spec_resolved())
@@ -397,7 +407,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action,
                         command=None if ctrl is None else ctrl["switch"].get_output_port())
     if ctrl is not None:
-        _wire_control(builder, ctrl, policy, sensor, flt)
+        _wire_control(builder, ctrl, policy, plant, sensor, flt)
     diagram = builder.Build()
     diagram.set_name(f"self_identification_{s.name}")
     return BuiltDiagram(
@@ -564,7 +574,11 @@ def write_diagrams(folder: str | Path | None = None, render: bool = True) -> lis
 class _GoalRecorder:
     """A Simulator monitor for a diagram with a control section: each time the trajectory
     leaves a goal (reached, or its periods spent), that goal's measured error and, where the
-    plant has its truth, the true POM's distance from it."""
+    plant has its truth, the true POM's distance from it (the goal as anchored on the
+    measured frames, so the anchor's own noise is in it). A monitor runs before the events
+    due at the end of a step: a goal left at k T + 0.5 T is seen, and its ``time_s``
+    recorded, at the next event (the filter's, 0.9 T); the controller's at-goal flag and
+    error are those it left the goal with, the model plant has not moved since."""
 
     def __init__(self, built: BuiltDiagram):
         self.d = built.diagram

@@ -314,8 +314,9 @@ def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
 def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
     """dl with every tendon kept inside ``limits`` (N, 2) (default ``hand.tendon_range``;
     always within it), per tendon clamp. A tendon that starts outside ``limits`` (but inside
-    the range) moves towards them by at most its own dl, never further out: it is not pulled
-    into them in one jump past the step the caller clipped dl to."""
+    the range) never moves further out, and inwards by at most its own dl: it is not pulled
+    into them in one jump past the step the caller clipped dl to (nor at all, while its dl
+    points outwards)."""
     lim = tendon_limits(hand, limits)
     l_now = np.asarray(l_now, float).reshape(hand.N)
     dl = np.asarray(dl, float).reshape(hand.N)

@@ -338,9 +338,10 @@ class ControlSettings:
     # The controlled rows of Eq. 12: "position" (the goals' positions) or "full" (also hold
     # the orientation measured when control starts).
     rows: str = "position"
-    # A goal is reached when its measured error is within these tolerances (keep them above
-    # the camera's noise: the model plant's stand-in has 0.2 mm per axis, the rendered
-    # camera's detection about 0.01 mm) ...
+    # A goal is reached when one frame's measured error is within these tolerances. The
+    # defaults suit the rendered camera and a real one (detection about 0.01 mm); with the
+    # model plant's stand-in (0.2 mm per axis by default) use about 0.5 mm, or a quieter
+    # stand-in, so that the error can fall under them at the goal and not far from it ...
     tol_position_mm: float = 0.1
     tol_rotation_deg: float = 0.5
     # ... or given up after this many action periods.

@@ -11,10 +11,11 @@
   one of its ``fallbacks``, the filter's hypotheses nearest the mean; 0.0 while it holds the
   command for want of one).
 - :class:`TaskTrajectorySource`: a sequence of goal poses; ``at_goal`` in, ``X_PO_goal``,
-  ``waypoint_index`` and ``done`` out. It moves to the next goal once the controller is at
+  ``waypoint_index``, ``done`` and ``ready`` out. It moves to the next goal once the controller is at
   the current one, or after ``max_periods`` action periods. With ``relative_start_sec`` the
   goals are offsets from the POM pose measured when control starts (``X_PO_measured`` and
-  ``X_PO_valid`` in), as the scenario builder's control section wires it.
+  ``X_PO_valid`` in; ``ready`` 1 once anchored, the controller's ``enabled``), as the scenario
+  builder's control section wires it.
 - :class:`ControlPhase`: the selector of a PortSwitch that hands the tendons from the
   exploration policy to the controller at a given time (the scenario builder's control).
 - :class:`EstimateFromTruth`: packs a plant's truth ports (``theta_true``,
@@ -57,8 +58,9 @@ class JacobianController(LeafSystem):
             starts controlling from (where exploration left the tendons); None: no such window.
         tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
         tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
-        start_sec: before this time the controller does not control: it follows the
-            ``tendon_command_applied`` input (when connected) and reads ``at_goal`` 0.
+        start_sec: before this time, and while the ``enabled`` input (when connected) is 0,
+            the controller does not control: it follows the ``tendon_command_applied`` input
+            (when connected) and reads ``at_goal`` 0.
 
     Without a valid measurement or with an empty estimate the command is held; so it is when
     neither the estimate nor any of its ``fallbacks`` is a physical grasp with a Jacobian
@@ -138,6 +140,9 @@ class JacobianController(LeafSystem):
         # exploration policy); connected, each step starts from it and, before start_sec, the
         # controller follows it so that control starts where exploration left the tendons
         self._applied = self.DeclareVectorInputPort(name="tendon_command_applied", size=hand.N)
+        # optional: 1 when the goals are ready (e.g. the trajectory's ``ready``); connected and
+        # 0, the controller does not control yet, as before start_sec
+        self._enabled = self.DeclareVectorInputPort(name="enabled", size=1)
         rng = hand.tendon_range
         if np.any((l_initial < rng[:, 0] - 1e-12) | (l_initial > rng[:, 1] + 1e-12)):
             raise ValueError(f"'l_initial' {np.round(1e3 * l_initial, 3).tolist()} mm is outside the hand's tendon "
@@ -191,6 +196,9 @@ class JacobianController(LeafSystem):
     def tendon_command_applied_input_port(self):
         return self._applied
 
+    def enabled_input_port(self):
+        return self._enabled
+
     def tendon_command_output_port(self):
         return self._command_out
 
@@ -209,7 +217,8 @@ class JacobianController(LeafSystem):
             l_now = np.asarray(self._applied.Eval(context), float).copy()
             if not np.all(np.isfinite(l_now)):
                 raise ValueError(f"controller: input 'tendon_command_applied' is not finite: {l_now.tolist()}")
-        if context.get_time() < self._start - 1e-9:  # not controlling yet: follow the applied command
+        waiting = self._enabled.HasValue(context) and self._enabled.Eval(context)[0] < 0.5
+        if waiting or context.get_time() < self._start - 1e-9:  # not controlling yet: follow the applied command
             discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)
             discrete_state.get_mutable_vector(self._status_state).SetAtIndex(0, 0.0)
             return
@@ -329,6 +338,9 @@ class TaskTrajectorySource(LeafSystem):
         self._done_out = self.DeclareVectorOutputPort(
             name="done", size=1, calc=self._calc_done, prerequisites_of_calc=ticket
         )
+        self._ready_out = self.DeclareVectorOutputPort(
+            name="ready", size=1, calc=self._calc_ready,
+            prerequisites_of_calc={self.discrete_state_ticket(self._anchor)})
         offset = 0.5 * period_sec if offset_sec is None else offset_sec
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
         self.DeclareForcedDiscreteUpdateEvent(update=self._update)
@@ -351,6 +363,10 @@ class TaskTrajectorySource(LeafSystem):
 
     def done_output_port(self):
         return self._done_out
+
+    def ready_output_port(self):
+        """1 once the goals are anchored (always, for absolute goals): a controller's ``enabled``."""
+        return self._ready_out
 
     def _update(self, context, discrete_state):
         if not self.anchored(context):
@@ -397,6 +413,9 @@ class TaskTrajectorySource(LeafSystem):
 
     def _calc_index(self, context, output: BasicVector):
         output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(0)])
+
+    def _calc_ready(self, context, output: BasicVector):
+        output.SetFromVector([float(self.anchored(context))])
 
     def _calc_done(self, context, output: BasicVector):
         output.SetFromVector([context.get_discrete_state(self._state).GetAtIndex(2)])

@@ -201,6 +201,7 @@ def run_write(
     R_true0 = tp.true_pose()[0]  # the drift is the truth's: the measurement's noise is not a turn
     x, y, n = writing_plane(J0)
     t_home = home_position(pl, t0)
+    m0 = model_fn(np.zeros(tp.hand.N), R0, t_home, True)  # anchored where the letters are, for the probe
     l_home = tp.tendon_command()
     limits = common.grip_window(tp.hand, l_home, window)
     reach = probe_workspace(
