@@ -75,7 +75,7 @@ def two_sided_action(grasp):
 
 
 def weighted(e, rows, alpha=1.0):
-    w = control._row_weights(rows, alpha, control.POSITION_UNIT, control.ROTATION_UNIT)
+    w = control.row_weights(rows, alpha, control.POSITION_UNIT, control.ROTATION_UNIT)
     return np.linalg.norm(w * e)
 
 
@@ -335,7 +335,7 @@ def test_transpose_form_is_the_scaled_gradient():
     J = rng.standard_normal((6, 3))
     e = rng.standard_normal(6) * 1e-3
     dl = control.control_step(J, e, mode="transpose", rows="full", gain=1.0, clip=1.0)
-    w = control._row_weights("full", 1.0, control.POSITION_UNIT, control.ROTATION_UNIT)
+    w = control.row_weights("full", 1.0, control.POSITION_UNIT, control.ROTATION_UNIT)
     g = (w[:, None] * J).T @ (w * e)
     np.testing.assert_allclose(dl / np.linalg.norm(dl), g / np.linalg.norm(g), atol=1e-12)
 
@@ -830,3 +830,30 @@ def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a
     assert phase.get_output_port().Eval(px) == "explore"
     px.SetTime(2.0)
     assert phase.get_output_port().Eval(px) == "control"
+
+
+def test_the_controller_holds_once_its_error_stops_improving(grasp):
+    """A goal the hand cannot reach (or friction holds the object short of): after
+    stall_periods periods without progress the controller holds its command, instead of
+    winding the tendons on (on the physics plant that released every tendon until the apple
+    slipped), and steps again once the goal changes."""
+    h, pl = grasp.hand, fresh(grasp)
+    l0 = pl.state.tendon_command.copy()
+    R, t = pl.state.R_PO, pl.state.t_PO
+    c = JacobianController(h, l0, 0.1, stall_periods=3, clip=0.2e-3)
+    cx = c.CreateDefaultContext()
+    c.estimate_input_port().FixValue(cx, {"theta": pl.state.theta.copy(), "a": pl.state.a.copy()})
+    c.X_PO_valid_input_port().FixValue(cx, [1.0])
+    c.X_PO_measured_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t))  # the object never moves
+    c.X_PO_goal_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t + [1e-3, 0.0, 0.0]))
+    commands = []
+    for _ in range(8):
+        c.ExecuteForcedEvents(cx)
+        commands.append(c.tendon_command_output_port().Eval(cx).copy())
+    moves = [bool(np.any(b != a)) for a, b in zip([l0] + commands[:-1], commands, strict=True)]
+    assert moves[:3] == [True, True, True] and not any(moves[3:]), moves  # three steps, then held
+    c.X_PO_goal_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t + [-1e-3, 0.0, 0.0]))
+    c.ExecuteForcedEvents(cx)
+    assert np.any(c.tendon_command_output_port().Eval(cx) != commands[-1])  # a new goal: steps again
+    with pytest.raises(ValueError, match="'stall_periods' must be an integer >= 1"):
+        JacobianController(h, l0, 0.1, stall_periods=0)

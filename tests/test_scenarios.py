@@ -213,6 +213,7 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("control: {anchor_frames: 0}\n", "control: 'anchor_frames'"),
         ("control: {window_mm: -1.0}\n", "control: 'window_mm'"),
         ("control: {clip_mm: .inf}\n", "control: 'clip_mm'"),
+        ("control: {damping: -0.1}\n", "control: 'damping'"),
         ("grasp: {contact: [.nan, 0.02, 0.02]}\n", "contact"),
         # ragged lists failed with numpy's "inhomogeneous shape", naming no field
         ("grasp: {theta_deg: [[1, 2], [3]]}\n", "'theta_deg' must be 3 lists of 2"),

@@ -198,7 +198,8 @@ def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: floa
     # hardware: also within the motors' limits, which may be narrower than the hand's range
     limits = np.column_stack(s.hardware.tendon_limits(s.hand_spec_resolved())) if s.plant == "hardware" else None
     controller = builder.AddNamedSystem("controller", JacobianController(
-        h, l0, T, offset_sec=0.05 * T, rows=c.rows, clip=1e-3 * c.clip_mm, tol_position=1e-3 * c.tol_position_mm,
+        h, l0, T, offset_sec=0.05 * T, rows=c.rows, damping=c.damping, clip=1e-3 * c.clip_mm,
+        tol_position=1e-3 * c.tol_position_mm,
         tol_rotation=np.deg2rad(c.tol_rotation_deg), tendon=s.filter.tendon, limits=limits, window=w,
         start_sec=start))
     goals = [(np.eye(3), 1e-3 * np.asarray(g, float)) for g in c.goals_mm]
@@ -600,6 +601,7 @@ class _GoalRecorder:
                 t_goal = self.traj.goal(self.traj.GetMyContextFromRoot(root), left).translation()
                 t_true = self.d.GetOutputPort("hand.X_PO_true").Eval(root).translation()
                 entry["true_error_mm"] = 1e3 * float(np.linalg.norm(t_true - t_goal))
+                entry["true_offset_mm"] = (1e3 * (t_true - t_goal)).tolist()  # palm frame: where the error lies
             self.goals.append(entry)
             self._last = (index, done)
         return EventStatus.Succeeded()

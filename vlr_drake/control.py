@@ -54,6 +54,7 @@ __all__ = [
     "true_model_fn",
     "filter_model_fn",
     "usable_model",
+    "row_weights",
     "FALLBACKS",
     "PredictedPlant",
 ]
@@ -230,7 +231,9 @@ def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.n
     return J
 
 
-def _row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: float) -> np.ndarray:
+def row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: float) -> np.ndarray:
+    """The weights W (6,) of Eq. 12 on [dt, dw]: 1/position_unit on the position rows,
+    alpha/rotation_unit on the rotation rows, 0 on the rows ``rows`` does not control."""
     if rows not in ROWS:
         raise ValueError(f"'rows' must be one of {ROWS}, got '{rows}'")
     if not (np.isfinite(alpha) and alpha > 0):
@@ -281,7 +284,7 @@ def control_step(
         raise ValueError(f"'mode' must be one of {MODES}, got '{mode}'")
     if not (gain > 0 and clip > 0 and damping >= 0 and np.isfinite([gain, clip, damping]).all()):  # NaN too
         raise ValueError(f"gain and clip must be positive and damping >= 0 (finite), got {gain}, {clip}, {damping}")
-    w = _row_weights(rows, alpha, position_unit, rotation_unit)
+    w = row_weights(rows, alpha, position_unit, rotation_unit)
     Jw = w[:, None] * J
     ew = w * e
     g = Jw.T @ ew
@@ -434,7 +437,7 @@ def servo_to(
         raise ValueError(f"'max_lost' must be >= 1, got {max_lost}")
     R_goal = _shaped("R_goal", R_goal, (3, 3))
     t_goal = _shaped("t_goal", t_goal, (3,))
-    w = _row_weights(rows, alpha, position_unit, rotation_unit)
+    w = row_weights(rows, alpha, position_unit, rotation_unit)
     ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
     R, t, valid = plant.measure()
     R_last, t_last = np.asarray(R, float), np.asarray(t, float)

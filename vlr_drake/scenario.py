@@ -346,6 +346,15 @@ class ControlSettings:
     tol_rotation_deg: float = 0.5
     # ... or given up after this many action periods.
     max_periods: int = 20
+    # Damped least squares' damping, as a fraction of the weighted Jacobian's largest singular
+    # value (vlr_drake.control.control_step): larger keeps the steps out of the directions the
+    # grasp barely moves the object in. On the physics plant the apple's grasp moves the POM
+    # along nearly one line; with 0.01 or 0.1 the controller chased the rest of the error
+    # (the object creeping along the palm normal) by releasing every tendon, period after
+    # period, until the apple slipped 2-4 mm; with 0.3 the commands held and the POM followed
+    # +-0.3 mm goals along the line. The model plant's example takes 0.01 (its grasp moves the
+    # POM in a plane, and no friction holds it) ...
+    damping: float = 0.3
     # Largest tendon step per action period [mm] ...
     clip_mm: float = 0.5
     # ... and the window that the controller's commands stay in: +-window_mm [mm] about the
@@ -362,6 +371,8 @@ class ControlSettings:
             raise ValueError(f"control: 'after_iterations' must be an integer >= 1, got {self.after_iterations!r}")
         if self.rows not in ("position", "full"):
             raise ValueError(f"control: 'rows' must be 'position' or 'full', got '{self.rows}'")
+        if not (np.isfinite(self.damping) and self.damping >= 0):
+            raise ValueError(f"control: 'damping' must be finite and >= 0, got {self.damping}")
         for name in ("tol_position_mm", "tol_rotation_deg", "clip_mm", "window_mm"):
             v = getattr(self, name)
             if name == "window_mm" and v is None:

@@ -58,6 +58,9 @@ class JacobianController(LeafSystem):
             starts controlling from (where exploration left the tendons); None: no such window.
         tol_position [m], tol_rotation [rad]: the ``at_goal`` tolerances.
         tendon: tendon model of the controller's Gamma ("elastic" or "ideal").
+        stall_periods: once the measured (weighted) error has not improved for this many
+            periods on the current goal, hold the command until the goal changes (as
+            :func:`vlr_drake.control.servo_to`'s ``stall_steps``).
         start_sec: before this time, and while the ``enabled`` input (when connected) is 0,
             the controller does not control: it follows the ``tendon_command_applied`` input
             (when connected) and reads ``at_goal`` 0.
@@ -89,6 +92,7 @@ class JacobianController(LeafSystem):
         limits=None,
         start_sec: float = 0.0,
         window: float | None = None,
+        stall_periods: int = 6,
     ):
         super().__init__()
         if not period_sec > 0:
@@ -120,6 +124,9 @@ class JacobianController(LeafSystem):
         if window is not None and not (np.isfinite(window) and window > 0):
             raise ValueError(f"'window' must be None or a positive finite length [m], got {window}")
         self._window = window
+        if isinstance(stall_periods, bool) or not isinstance(stall_periods, int | np.integer) or stall_periods < 1:
+            raise ValueError(f"'stall_periods' must be an integer >= 1, got {stall_periods!r}")
+        self._stall = int(stall_periods)
         if not (np.isfinite(eps) and eps > 0):  # jacobian's error would be taken for "no usable model"
             raise ValueError(f"'eps' must be a positive finite number [m], got {eps}")
         self._hand = hand
@@ -156,6 +163,9 @@ class JacobianController(LeafSystem):
         self._status_state = self.DeclareDiscreteState(
             np.array([0.0, np.inf, np.inf, 0.0])
         )  # at_goal, |dt|, angle, whether the last step had a usable model
+        # progress on the current goal: the goal (R row-major, t), the best weighted measured
+        # error so far and the periods since it improved
+        self._progress_state = self.DeclareDiscreteState(np.concatenate([np.full(12, np.nan), [np.inf, 0.0]]))
         self._command_out = self.DeclareStateOutputPort("tendon_command", self._command_state)
         self._at_goal_out = self.DeclareVectorOutputPort(
             name="at_goal",
@@ -253,6 +263,21 @@ class JacobianController(LeafSystem):
         discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)  # held unless a step follows
         if at_goal:
             return
+        # stalled: the weighted error has not improved for stall_periods measured periods on
+        # this goal (it lies where the hand cannot move the object, or friction holds it there,
+        # as the physics plant's palm-normal direction under a common-mode release): hold,
+        # rather than wind the tendons on, until the goal changes
+        progress = discrete_state.get_mutable_vector(self._progress_state)
+        key = G.GetAsMatrix34().ravel()
+        ew = float(np.linalg.norm(control.row_weights(self._rows, self._kw["alpha"], self._kw["position_unit"],
+                                                       self._kw["rotation_unit"]) * e))
+        p = np.array(progress.get_value())
+        if not np.array_equal(p[:12], key) or ew < p[12] - 1e-9:
+            progress.SetFromVector(np.concatenate([key, [ew, 0.0]]))
+        else:
+            progress.SetAtIndex(13, p[13] + 1.0)
+            if p[13] + 1.0 >= self._stall:
+                return
         _check_estimate(self._hand, est)  # a malformed one is a wiring mistake, not "no model here"
         for fallback in est.get("fallbacks", []):
             _check_estimate(self._hand, fallback)
