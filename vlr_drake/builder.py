@@ -179,10 +179,11 @@ def wire_identification(
 
 def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: float, window: float) -> dict:
     """The control section's systems, added by name: ``command_switch`` (a PortSwitch of the
-    exploration's and the controller's commands), its ``control_phase`` selector,
-    ``controller`` (JacobianController, from the section's start, within the exploration's
-    window around the grasp's commands) and ``trajectory`` (the goals, relative to the pose
-    measured when control starts)."""
+    exploration's and the controller's commands), its ``control_phase`` selector (the
+    controller's from the section's start), ``controller`` (JacobianController, within
+    ``window`` (the exploration's, unless the section gives one) of the commands it starts
+    from, and on hardware within the motors' limits) and ``trajectory`` (the goals, relative
+    to the pose measured when control starts)."""
     from pydrake.systems.primitives import PortSwitch
 
     from vlr_drake.systems.controller import ControlPhase, JacobianController, TaskTrajectorySource
@@ -206,7 +207,7 @@ def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: floa
     trajectory = builder.AddNamedSystem("trajectory", TaskTrajectorySource(
         goals, T, max_periods=c.max_periods, relative_start_sec=start, anchor_frames=c.anchor_frames))
     return {"switch": switch, "explore_in": explore_in, "control_in": control_in, "controller": controller,
-            "trajectory": trajectory, "start_sec": start}
+            "trajectory": trajectory}
 
 
 def _wire_control(builder: DiagramBuilder, c: dict, policy, plant, sensor, flt) -> None:
@@ -635,9 +636,10 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     ``interval_half_width`` [rad], ``converged``, ``iterations``, ``sim_time`` [s],
     ``wall_s``, ``realtime_rate`` (sim time over wall time; a hardware scenario runs in real
     time, at most 1, and warns below 0.9); ``hardware``: the interface's counts of updates,
-    clipped and ramped commands and its grasp report (None on the simulated plants); ``trace``: where the filter's trace was saved, for
-    ``vlr-drake replay``, when ``trace`` names a file). A hardware interface is closed
-    (torque off) at the end."""
+    clipped and ramped commands and its grasp report (None on the simulated plants);
+    ``control``: with a control section, each goal left and its errors (``_GoalRecorder``),
+    else None; ``trace``: where the filter's trace was saved, for ``vlr-drake replay``, when
+    ``trace`` names a file). A hardware interface is closed (torque off) at the end."""
     import time
 
     if iterations < 0:

@@ -353,7 +353,7 @@ class ControlSettings:
     # (the object creeping along the palm normal) by releasing every tendon, period after
     # period, until the apple slipped 2-4 mm; with 0.3 the commands held and the POM followed
     # +-0.3 mm goals along the line. The model plant's example takes 0.01 (its grasp moves the
-    # POM in a plane, and no friction holds it) ...
+    # POM in a plane, and no friction holds it).
     damping: float = 0.3
     # Largest tendon step per action period [mm] ...
     clip_mm: float = 0.5
