@@ -577,19 +577,30 @@ def true_model_fn(plant) -> Callable[[np.ndarray, np.ndarray, np.ndarray, bool],
 FALLBACKS = 8
 
 
+def _jacobian_if_usable(model: ControlModel, eps: float | None = None) -> np.ndarray | None:
+    """The model's Jacobian (Eq. 10) when it is a physical grasp and every perturbed action
+    has an equilibrium, else None: what makes a model usable for control."""
+    if not model.physical:
+        return None
+    try:
+        return jacobian(model) if eps is None else jacobian(model, eps)
+    except RuntimeError:
+        return None
+
+
 def usable_model(hand: HandModel, est: dict, R, t, *, tendon: str = "elastic", eps: float | None = None):
-    """The :class:`ControlModel` of ``est`` anchored at the measured pose (R, t) when it is a
-    physical grasp whose Jacobian exists, else of the first of ``est["fallbacks"]`` (estimate
-    dicts, e.g. the filter's nearest hypotheses) that is; None when none is."""
-    kw = {} if eps is None else {"eps": eps}
+    """``(model, J)``: the :class:`ControlModel` of ``est`` anchored at the measured pose
+    (R, t) and its Jacobian when it is a physical grasp whose Jacobian exists, else those of
+    the first of ``est["fallbacks"]`` (estimate dicts, e.g. the filter's nearest hypotheses)
+    that is; None when none is."""
     for candidate in [est, *est.get("fallbacks", [])]:
         try:
             model = ControlModel.from_estimate(hand, candidate, R, t, tendon=tendon)
-            if model.physical:
-                jacobian(model, **kw)
-                return model
-        except (RuntimeError, ValueError):
+        except ValueError:
             continue
+        J = _jacobian_if_usable(model, eps)
+        if J is not None:
+            return model, J
     return None
 
 
@@ -607,24 +618,15 @@ def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks
     apart, and no perturbed action had an equilibrium: 53 control steps ended
     "no_equilibrium" and the letters came out 3.6-4.0 mm off (0.12 mm with the fallback)."""
 
-    def usable(model: ControlModel) -> bool:
-        if not model.physical:
-            return False
-        try:
-            jacobian(model)
-        except RuntimeError:
-            return False
-        return True
-
     def fn(dl, R, t, valid):
         if np.any(dl):
             filt.step(dl, R, t, valid)
         model = ControlModel.from_estimate(hand, filt.estimate(), R, t, tendon=tendon)
-        if usable(model):
+        if _jacobian_if_usable(model) is not None:
             return model
-        for est in filt.nearest_hypotheses(fallbacks):
+        for est in filt.nearest_hypotheses(fallbacks):  # only when the mean is no usable model
             candidate = ControlModel.from_estimate(hand, est, R, t, tendon=tendon)
-            if usable(candidate):
+            if _jacobian_if_usable(candidate) is not None:
                 return candidate
         return model
 

@@ -133,6 +133,7 @@ class JacobianController(LeafSystem):
         self._kw = dict(mode=mode, rows=rows, alpha=alpha, gain=gain, damping=damping, clip=clip,
                         position_unit=position_unit, rotation_unit=rotation_unit)
         self._eps, self._tendon = eps, tendon
+        self._weights = control.row_weights(rows, alpha, position_unit, rotation_unit)  # Eq. 12's, for progress
         self._tol = (tol_position, tol_rotation)
         self._rows = rows
         self._goal = self.DeclareAbstractInputPort(
@@ -269,8 +270,7 @@ class JacobianController(LeafSystem):
         # rather than wind the tendons on, until the goal changes
         progress = discrete_state.get_mutable_vector(self._progress_state)
         key = G.GetAsMatrix34().ravel()
-        ew = float(np.linalg.norm(control.row_weights(self._rows, self._kw["alpha"], self._kw["position_unit"],
-                                                       self._kw["rotation_unit"]) * e))
+        ew = float(np.linalg.norm(self._weights * e))
         p = np.array(progress.get_value())
         if not np.array_equal(p[:12], key) or ew < p[12] - 1e-9:
             progress.SetFromVector(np.concatenate([key, [ew, 0.0]]))
@@ -282,12 +282,11 @@ class JacobianController(LeafSystem):
         for fallback in est.get("fallbacks", []):
             _check_estimate(self._hand, fallback)
         # the mean, else the first fallback hypothesis that is a physical grasp with a Jacobian
-        model = control.usable_model(self._hand, est, R, t, tendon=self._tendon, eps=self._eps)
-        status.SetAtIndex(3, float(model is not None))
-        if model is None:
+        usable = control.usable_model(self._hand, est, R, t, tendon=self._tendon, eps=self._eps)
+        status.SetAtIndex(3, float(usable is not None))
+        if usable is None:
             return  # no usable model here: hold, and say so (has_model 0)
-        J = control.jacobian(model, self._eps)
-        dl = control.control_step(J, e, **self._kw)
+        dl = control.control_step(usable[1], e, **self._kw)
         dl = control.limit_action(self._hand, l_now, dl, lim)
         discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now + dl)
 
