@@ -131,8 +131,12 @@ def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
                           ("camera: {xyz: [0.0, 0.0, 5.0]}\n", r"the palm camera does not see the tag \(check the "
                                                                r"camera section: xyz \[0.0, 0.0, 5.0\]"),
                           # the scenario's observer is the run's (it had been the defaults' whatever it said)
-                          ("observer: {min_tag_side_px: 5000}\n", r"does not see the tag .*observer section: "
-                                                                  r"min_tag_side_px 5000")]:
+                          # ... and says why it lost the tag (it had said "does not see" for every reason)
+                          ("observer: {min_tag_side_px: 5000}\n", r"sees the tag smaller than min_tag_side_px "
+                                                                  r".*observer section: min_tag_side_px 5000"),
+                          ("observer: {max_reprojection_error_px: 1.0e-9}\n",
+                           r"sees the tag but its pose reprojects \d\.\d\d px off .*max_reprojection_error_px 1e-09")]:
+
         path = _scenario_file(tmp_path, "name: bad\nplant: physics\n" + text)
         assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200",
                      "--no-progress", "--out", str(tmp_path)]) == 2

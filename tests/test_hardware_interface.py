@@ -304,6 +304,10 @@ def test_intrinsics_yaml_round_trip(tmp_path):
     back = read_intrinsics(tmp_path / "cam.yaml")
     assert np.allclose(back.K, K) and np.allclose(back.dist, intr.dist)
     assert (back.width, back.height) == (W, H)
+    # no coefficients (no distortion) reads back as no distortion (it had written a matrix
+    # that read_intrinsics refused)
+    write_intrinsics(tmp_path / "plain.yaml", CameraIntrinsics(K=K, dist=np.zeros(0), width=W, height=H))
+    assert np.array_equal(read_intrinsics(tmp_path / "plain.yaml").dist, np.zeros(5))
 
 
 def test_intrinsics_errors(tmp_path):

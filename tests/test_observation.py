@@ -54,6 +54,13 @@ def test_collinear_contacts_are_refused_and_flagged():
     assert ok.tolist() == [True, False]
     assert np.all(np.isfinite(R)) and np.all(np.isfinite(t))
     np.testing.assert_array_equal(R[1], np.eye(3))
+    # a NaN contact (in either set, any finger) is no pose either: it had given ok with a NaN R
+    for which in range(3):
+        bad = good.copy()
+        bad[0, which, 1] = np.nan
+        for p_O, p_P in ((good, bad), (bad, good)):
+            R, t, ok = observation.pom_pose(np.concatenate([good, p_O]), np.concatenate([good, p_P]))
+            assert ok.tolist() == [True, False] and np.all(np.isfinite(R))
     with pytest.raises(ValueError, match="p_O"):
         observation.pom_pose(np.zeros((2, 2, 3)), np.zeros((2, 2, 3)))
 

@@ -13,6 +13,7 @@ from vlr_drake.models import PAD_FRACTION
 from vlr_drake.objects import PAPER_OBJECTS, preset
 from vlr_drake.perception.apriltag import dictionary, tag_corners
 from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.perception.tag_pose import TagObserverConfig, observe_pom, vtk_render_intrinsics
 from vlr_drake.physics.check import exploration_step, run_check
 from vlr_drake.systems.physics_plant import (
     ImageDownsampler,
@@ -63,6 +64,15 @@ def test_ports_and_camera_image_match_the_intrinsics():
     R = cv2.Rodrigues(rvec)[0]
     angle = np.rad2deg(np.arccos(np.clip((np.trace(R.T @ X_CO_true.rotation().matrix()) - 1) / 2, -1, 1)))
     assert angle < 3.0
+    # the project's own observer on this image (the renderer's intrinsics, the tag's offset):
+    # the POM within the accuracy the filter's noise model assumes, not just a millimetre
+    # (a principal point 2-3 px off still passed the raw check above: 0.3-0.5 mm)
+    X_PO, info = observe_pom(np.asarray(img.data), TagObserverConfig(tag_id=ph.obj.tag_id, tag_size=ph.obj.tag_size),
+                             vtk_render_intrinsics(camera), None, camera.X_PC(), ph.obj.X_TO())
+    assert info["valid"]
+    assert np.linalg.norm(X_PO.translation() - g.X_PO.translation()) < 3e-5  # measured 6e-6
+    R_err = X_PO.rotation().matrix().T @ g.X_PO.rotation().matrix()
+    assert np.rad2deg(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 0.3
     del diagram
 
 
@@ -176,6 +186,21 @@ def test_image_downsampler_averages_blocks_and_seeds_noise():
         noisy.append(np.asarray(dn.image_output.Eval(c).data).copy())
     np.testing.assert_array_equal(noisy[0], noisy[1])
     assert np.any(noisy[0] != noisy[2]) and np.any(noisy[0][..., 0] != 50)
+    # a frame's noise depends on the seed and the time only: evaluated again, in a fresh
+    # context or after the image was fixed anew, it is the same; at another time it differs
+    dn = ImageDownsampler(w, h, s, noise_std=5.0, seed=7)
+    for _ in range(2):
+        c = dn.CreateDefaultContext()
+        dn.image_input.FixValue(c, AbstractValue.Make(img))
+        np.testing.assert_array_equal(np.asarray(dn.image_output.Eval(c).data), noisy[0])
+        dn.image_input.FixValue(c, AbstractValue.Make(img))
+        np.testing.assert_array_equal(np.asarray(dn.image_output.Eval(c).data), noisy[0])
+    c.SetTime(0.1)
+    assert np.any(np.asarray(dn.image_output.Eval(c).data) != noisy[0])
+    for bad, says in [(dict(seed=-1), "'seed' must be an integer >= 0"), (dict(scale=1.5), "integer width"),
+                      (dict(noise_std=float("nan")), "'noise_std' must be a finite number")]:
+        with pytest.raises(ValueError, match=says):
+            ImageDownsampler(**{"width": w, "height": h, "scale": s, **bad})
 
 
 def test_physics_config_loads_from_yaml_and_validates():

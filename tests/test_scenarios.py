@@ -169,7 +169,8 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("prior: {stiffness_unknown: [0, 1]}\n", "field 'prior.stiffness_unknown'"),  # a pair, not a list of pairs
         ("filter: null\n", "field 'filter' (a section: a mapping of its fields"),
         ("filter: [1, 2]\n", "field 'filter' (a section"),
-        ("physics: {seed: -1}\n", "'seed' must be an integer >= 0"),
+        # the camera's pixel noise takes the scenario's seed: a physics seed would be replaced
+        ("physics: {seed: 3}\n", "physics: 'seed' (3) is set from the scenario's 'seed'"),
         ("filter: {particles: 0}\n", "particles"),
         ("camera: {width: -640}\n", "width"),
         # non-finite camera values were accepted (NaN xyz: a NaN camera pose, NaN noise: a

@@ -355,6 +355,12 @@ def test_observer_bad_arguments(camera):
         make_observer(K, camera, pixel_noise_std=-1.0)
     with pytest.raises(ValueError, match="image_size"):
         make_observer(K, camera, image_size=(640,))
+    # a negative seed failed at the first frame, in numpy, without naming the field
+    for seed in (-1, 2.5):
+        with pytest.raises(ValueError, match=rf"'seed' must be an integer >= 0, got {seed}"):
+            make_observer(K, camera, seed=seed)
+        with pytest.raises(ValueError, match=rf"'seed' must be an integer >= 0, got {seed}"):
+            NoisyPoseSensor(sigma_p=1e-4, sigma_r=1e-3, seed=seed)
     with pytest.raises(TypeError, match="X_PC"):
         TagObserver(TagObserverConfig(), K, None, np.eye(4))
     with pytest.raises(ValueError, match="tag_size"):

@@ -266,6 +266,18 @@ def test_lost_tag_cases(K, views):
     X_PO, info = observe_pom(blank, config, K, None, RigidTransform())
     assert X_PO is None and not info["valid"] and info["reason"] == "not_detected"
     assert np.isnan(info["reprojection_error_px"])
+    # bad poses and settings are named at once, not after a detection (a NaN X_PC had given
+    # a NaN pose marked valid, a NaN threshold switched the rejection off)
+    nan_pose = RigidTransform(np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="'X_PC' is not finite"):
+        observe_pom(image, config, K, None, nan_pose)
+    with pytest.raises(ValueError, match="'X_TO' is not finite"):
+        observe_pom(image, config, K, None, RigidTransform(), nan_pose)
+    with pytest.raises(TypeError, match="'X_PC' must be a pydrake.math.RigidTransform, got ndarray"):
+        observe_pom(blank, config, K, None, np.eye(4))
+    with pytest.raises(ValueError, match="max_reprojection_error_px"):
+        observe_pom(image, TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE, max_reprojection_error_px=np.nan),
+                    K, None, RigidTransform())
     # Another tag id is not ours.
     other = TagObserverConfig(tag_id=TAG_ID + 1, tag_size=TAG_SIZE)
     assert observe_pom(image, other, K, None, RigidTransform())[0] is None

@@ -349,7 +349,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         theta0, l0 = placed_grasp(spec, obj, s.physics)
         if prior.links_unknown:  # the grasp placed with the hand the filter believes in, as vlr-drake identify
             theta0 = placed_grasp(believed, obj, s.physics)[0]
-        ph = add_physics_hand(builder, spec, obj, s.physics, s.camera, meshcat)
+        # the camera's pixel noise takes the scenario's seed (PhysicsConfig.seed)
+        ph = add_physics_hand(builder, spec, obj, replace(s.physics, seed=s.seed), s.camera, meshcat)
         plant = ph.diagram
         theta_c = np.asarray(theta0, float).reshape(h.N, h.K)
         # the pads fix the true contacts at PAD_FRACTION of the distal links: a guess of them,

@@ -70,7 +70,8 @@ def _pose_kernel(p_O, p_P, R, t, area):  # pragma: no cover - numba
         for pp in range(cc * _CHUNK, min((cc + 1) * _CHUNK, P)):
             a1 = _triad_one(p_O[pp], Fo)
             a2 = _triad_one(p_P[pp], Fp)
-            area[pp] = 0.5 * min(a1, a2)
+            # NaN contacts give a NaN area (min() would drop it), so the pose is not ok
+            area[pp] = 0.5 * min(a1, a2) if (a1 == a1 and a2 == a2) else np.nan
             for r in range(3):
                 for c in range(3):  # R = Fp Fo^T
                     R[pp, r, c] = Fp[r, 0] * Fo[c, 0] + Fp[r, 1] * Fo[c, 1] + Fp[r, 2] * Fo[c, 2]
@@ -177,8 +178,9 @@ def _check_points(name: str, x) -> np.ndarray:
 def pom_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lambda (Eq. 5): POM poses (R (P,3,3), t (P,3)) mapping attachments onto contacts.
 
-    Returns (R, t, ok): ``ok`` is False where the contacts are (nearly) collinear and no
-    pose follows from them; such particles get an identity rotation, never NaN.
+    Returns (R, t, ok): ``ok`` is False where the contacts are (nearly) collinear, or not
+    finite, and no pose follows from them; such particles get an identity rotation, never
+    NaN.
     """
     p_O = _check_points("p_O", p_O)
     p_P = _check_points("p_P", p_P)

@@ -19,6 +19,7 @@ fingers' pad spheres slightly off their flexion planes.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 
 import numpy as np
@@ -45,7 +46,8 @@ class PhysicsAdapter:
         spec = getattr(opts, "object_spec", None)
         self.obj = spec if spec is not None else preset(opts.object)
         self.camera = (camera or CameraConfig()).validate()
-        self.physics = physics or PhysicsConfig()
+        # the camera's pixel noise takes the run's seed (PhysicsConfig.seed)
+        self.physics = dataclasses.replace(physics or PhysicsConfig(), seed=int(opts.seed))
         self.diagram, self.ph, self.sim = build_physics_hand(hand_spec, self.obj, self.physics, self.camera, meshcat)
         self.root = self.sim.get_mutable_context()
         # the scenario's observer settings, with the object's tag
@@ -58,6 +60,7 @@ class PhysicsAdapter:
         self.not_settled = 0
         self.lost = 0
         self.refused = 0  # the physics plant never refuses an action
+        self.last_observation: dict = {}
 
     def start(self, prior):
         t0 = time.perf_counter()
@@ -80,8 +83,14 @@ class PhysicsAdapter:
         R, t, valid = self.measure(timing)
         if not valid:
             c = self.camera
+            seen = {"not_detected": "does not see the tag",
+                    "too_small": "sees the tag smaller than min_tag_side_px",
+                    "no_facing_solution": "sees the tag but finds no pose of it facing the camera",
+                    "reprojection_error": f"sees the tag but its pose reprojects "
+                                          f"{self.last_observation.get('reprojection_error_px', float('nan')):.2f} px "
+                                          f"off"}.get(self.last_observation.get("reason"), "does not see the tag")
             raise PlacementError(
-                f"grasp of '{self.obj.name}': the palm camera does not see the tag (check the camera section: "
+                f"grasp of '{self.obj.name}': the palm camera {seen} (check the camera section: "
                 f"xyz {list(c.xyz)}, rpy_deg {list(c.rpy_deg)}, {c.width} x {c.height} px; and the object's "
                 f"tag_face '{self.obj.tag_face}' and tag_size {self.obj.tag_size} m; and the observer section: "
                 f"min_tag_side_px {self.observer.min_tag_side_px}, max_reprojection_error_px "
@@ -105,6 +114,7 @@ class PhysicsAdapter:
         image = self.ph.output(self.root, "rgb_image").data
         t1 = time.perf_counter()
         X_PO, info = observe_pom(image, self.observer, self.K, None, self.X_PC, self.X_TO, self.detector)
+        self.last_observation = info  # why a frame was lost ("reason")
         t2 = time.perf_counter()
         timing["render"] += t1 - t0
         timing["detect"] += t2 - t1

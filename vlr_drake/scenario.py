@@ -477,6 +477,9 @@ class Scenario:
         """Check every section; raises ``ValueError`` naming the section and field."""
         if not is_count(self.seed):
             raise ValueError(f"'seed' must be an integer >= 0, got {self.seed!r}")
+        if self.physics.seed != 0:  # it would be replaced without a word
+            raise ValueError(f"physics: 'seed' ({self.physics.seed!r}) is set from the scenario's 'seed', which "
+                             "every random draw of the run takes (the camera's pixel noise too): set 'seed'")
         if self.plant not in PLANTS:
             raise ValueError(f"'plant' must be one of {list(PLANTS)}, got '{self.plant}'")
         if self.filter_action not in FILTER_ACTIONS:

@@ -89,7 +89,10 @@ def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, rms_px: flo
         fs.write("image_width", int(intrinsics.width))
         fs.write("image_height", int(intrinsics.height))
         fs.write("camera_matrix", np.asarray(intrinsics.K, np.float64))
-        fs.write("distortion_coefficients", np.asarray(intrinsics.dist, np.float64).reshape(1, -1))
+        # no coefficients is no distortion: written as five zeros (OpenCV writes an empty
+        # matrix it cannot read back)
+        dist = np.asarray(intrinsics.dist, np.float64).ravel()
+        fs.write("distortion_coefficients", (dist if dist.size else np.zeros(5)).reshape(1, -1))
         if rms_px is not None:
             fs.write("avg_reprojection_error", float(rms_px))
     finally:

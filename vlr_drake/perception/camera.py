@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vlr_drake.kinematics import is_count
+
 
 @dataclass
 class CameraConfig:
@@ -36,8 +38,8 @@ class CameraConfig:
     pixel_noise_std: float = 0.0
 
     def validate(self) -> CameraConfig:
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera: 'width' and 'height' must be positive, got {self.width} x {self.height}")
+        if not (is_count(self.width, 1) and is_count(self.height, 1)):
+            raise ValueError(f"camera: 'width' and 'height' must be positive integers, got {self.width!r} x {self.height!r}")
         if not 1.0 < self.fov_y_deg < 170.0:
             raise ValueError(f"camera: 'fov_y_deg' must be in (1, 170), got {self.fov_y_deg}")
         if len(self.xyz) != 3 or len(self.rpy_deg) != 3:
@@ -45,8 +47,8 @@ class CameraConfig:
         for name in ("xyz", "rpy_deg"):
             if not np.all(np.isfinite(np.asarray(getattr(self, name), float))):
                 raise ValueError(f"camera: '{name}' must be finite, got {list(getattr(self, name))}")
-        if self.render_scale < 1:
-            raise ValueError(f"camera: 'render_scale' must be >= 1, got {self.render_scale}")
+        if not is_count(self.render_scale, 1):
+            raise ValueError(f"camera: 'render_scale' must be an integer >= 1, got {self.render_scale!r}")
         if not 0 < self.near < self.far < np.inf:
             raise ValueError(f"camera: need 0 < near < far, both finite, got near {self.near}, far {self.far}")
         if not (np.isfinite(self.pixel_noise_std) and self.pixel_noise_std >= 0):

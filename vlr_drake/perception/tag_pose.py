@@ -385,6 +385,14 @@ def observe_pom(
         "X_CT": None,
     }
     _check_intrinsics(K, dist)  # also when no tag is in view: a bad calibration is named at once
+    config.validate()
+    for name, X in (("X_PC", X_PC), ("X_TO", X_TO)):
+        if X is None and name == "X_TO":
+            continue
+        if not isinstance(X, RigidTransform):
+            raise TypeError(f"observe_pom: '{name}' must be a pydrake.math.RigidTransform, got {type(X).__name__}")
+        if not np.all(np.isfinite(X.GetAsMatrix34())):
+            raise ValueError(f"observe_pom: '{name}' is not finite: {X.GetAsMatrix34().tolist()}")
     if detector is None:
         detector = make_detector(config.corner_refinement, config.detector_overrides)
     gray = to_gray(image)

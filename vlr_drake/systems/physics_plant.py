@@ -6,7 +6,8 @@ DESIGN.md section 8. The plant loads the hand generated from a :class:`HandSpec`
 (:class:`vlr_drake.systems.tendons.TendonForces`) turn tendon commands into joint torques. An
 RgbdSensor fixed to the palm at ``camera.X_PC()`` renders with VTK at ``render_scale`` times
 the resolution; a small system downsamples (INTER_AREA) to the camera's size, so the image
-matches ``camera.intrinsic_matrix()``, and adds seeded pixel noise.
+matches ``vlr_drake.perception.tag_pose.vtk_render_intrinsics(camera)`` (the intrinsic
+matrix with VTK's half-pixel shift of the principal point), and adds seeded pixel noise.
 
 Exported ports of the Diagram ``hand`` (same names as the model plant's):
     input  tendon_command            (N) commanded absolute pulls l [m]
@@ -89,6 +90,7 @@ from pydrake.systems.framework import (
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
+from vlr_drake.kinematics import is_count
 from vlr_drake.models import (
     configure_parser,
     hand_sdf,
@@ -211,7 +213,9 @@ class PhysicsConfig:
     # grasp [m]. The grasp is compliant along the thumb-finger axis (random +-1.5 mm actions
     # within +-4 mm of the grasp's commands moved the POM up to 20 mm while all pads held).
     fall_distance: float = 0.04
-    # Seed of the camera's pixel noise.
+    # Seed of the camera's pixel noise (CameraConfig.pixel_noise_std). A run sets it to its
+    # own seed (vlr-drake identify, the tasks, a scenario's diagram: the scenario's 'seed'),
+    # so runs of different seeds see different noise.
     seed: int = 0
     # Magnitude of gravity [m/s^2], along the world's -z. The VLR (Eq. 9) has no object
     # weight; 0 takes it out of the plant too, to measure how much of the model's mismatch
@@ -290,21 +294,33 @@ class PhysicsConfig:
 # --------------------------------------------------------------------------------------
 
 
+#: The pixel noise's own stream of a run's seed (the generator of a frame is
+#: ``default_rng((seed, PIXEL_NOISE_STREAM, t_us))``), apart from the run's other draws.
+PIXEL_NOISE_STREAM = 7
+
+
 class ImageDownsampler(LeafSystem):
     """Downsamples a supersampled RGBA image by an integer ``scale`` (OpenCV INTER_AREA) and
     adds seeded Gaussian pixel noise. Input ``image_in`` (scale*W x scale*H), output
     ``rgb_image`` (W x H). With INTER_AREA a pixel of the output is the mean of a scale x
-    scale block, so the intrinsics scale exactly (f/scale, (c + 0.5)/scale - 0.5)."""
+    scale block, so the intrinsics scale exactly (f/scale, (c + 0.5)/scale - 0.5). The noise
+    of a frame is drawn from ``numpy.random.default_rng((seed, PIXEL_NOISE_STREAM, t_us))``
+    (t_us: the context's time in microseconds), as the TagObserver's, so an image depends on the seed and the
+    time only, not on how often or in which order the output was evaluated."""
 
     def __init__(self, width: int, height: int, scale: int, noise_std: float = 0.0, seed: int = 0):
         super().__init__()
-        if scale < 1 or width <= 0 or height <= 0:
+        if not all(is_count(v, 1) for v in (width, height, scale)):
             raise ValueError(
-                f"ImageDownsampler: need width, height > 0 and scale >= 1, got {width}, {height}, {scale}"
+                f"ImageDownsampler: need integer width, height and scale >= 1, got {width!r}, {height!r}, {scale!r}"
             )
+        if not is_count(seed):
+            raise ValueError(f"ImageDownsampler: 'seed' must be an integer >= 0, got {seed!r}")
+        if not (np.isfinite(noise_std) and noise_std >= 0):
+            raise ValueError(f"ImageDownsampler: 'noise_std' must be a finite number >= 0, got {noise_std!r}")
         self._w, self._h, self._s = int(width), int(height), int(scale)
         self._noise = float(noise_std)
-        self._rng = np.random.default_rng(seed)
+        self._seed = int(seed)
         self.image_input = self.DeclareAbstractInputPort(
             name="image_in", model_value=AbstractValue.Make(ImageRgba8U(self._w * self._s, self._h * self._s))
         )
@@ -324,7 +340,8 @@ class ImageDownsampler(LeafSystem):
         else:
             dst = src.copy()
         if self._noise > 0:
-            noisy = dst[..., :3].astype(np.float64) + self._rng.normal(0.0, self._noise, dst[..., :3].shape)
+            rng = np.random.default_rng((self._seed, PIXEL_NOISE_STREAM, int(round(context.get_time() * 1e6))))
+            noisy = dst[..., :3].astype(np.float64) + rng.normal(0.0, self._noise, dst[..., :3].shape)
             dst[..., :3] = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         out = output.get_mutable_value()
         out.resize(self._w, self._h)

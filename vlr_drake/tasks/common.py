@@ -204,7 +204,7 @@ class PhysicsTaskPlant:
         from vlr_drake.physics_identify import PhysicsAdapter
 
         self.adapter = PhysicsAdapter(
-            SimpleNamespace(object=object_name, object_spec=object_spec), model_o(), np.random.default_rng(seed),
+            SimpleNamespace(object=object_name, object_spec=object_spec, seed=seed), model_o(), np.random.default_rng(seed),
             physics, camera,
         )
         self.hand = self.adapter.hand
