@@ -72,6 +72,31 @@ def test_identify_quick(tmp_path, experiment, extra):
     assert list((tmp_path / "out").glob("*_convergence.png"))
 
 
+def test_runs_that_differ_keep_their_own_outputs_and_plots_follow_the_run(tmp_path, monkeypatch):
+    """The hand, object and plant name a run's files where they are not the defaults, so two
+    runs in one folder do not overwrite each other; the plots draw the run's own unknown
+    spring and convergence threshold (a scenario's spring of finger_left, 5 deg)."""
+    from vlr_drake import plots
+
+    drawn = {}
+    monkeypatch.setattr(plots, "plot_stiffness", lambda *a, which, **k: drawn.update(which=which))
+    monkeypatch.setattr(plots, "plot_convergence",
+                        lambda history, path, threshold, measure: drawn.update(threshold=(threshold, measure)))
+    out = tmp_path / "out"
+    common = ["--plant", "model", "--particles", "600", "--iterations", "3", "--no-progress", "--out", str(out)]
+    for hand in ("NH1", "NH2"):
+        assert main(["identify", "novel_fingers", "--hand", hand, *common]) == 0
+    for hand in ("NH1", "NH2"):
+        assert json.loads((out / f"identify_novel_fingers_{hand}_model_seed0.json").read_text())["hand"] == hand
+        assert (out / f"novel_fingers_{hand}_model_seed0_links.png").is_file()
+    path = _scenario_file(tmp_path, "name: left\nplant: model\nobject: toy_block\nfilter: {convergence_deg: 5.0}\n"
+                                    "prior: {stiffness_unknown: [[1, 1]], stiffness_range: [0.1, 0.4]}\n")
+    assert main(["identify", "--scenario", str(path), *common]) == 0
+    r = json.loads((out / "identify_stiffness_model_seed0.json").read_text())
+    assert list(r["hand_parameters"]) == ["stiffness:finger_left/1"] and r["convergence_deg"] == 5.0
+    assert drawn == {"which": [(1, 1)], "threshold": (5.0, "half_width")}
+
+
 def test_identify_stuck_probability_defaults_and_flag(tmp_path):
     """Novel fingers on the physics plant (and hardware) hold hypotheses that find no
     equilibrium; everything else discards them; --stuck-probability overrides."""
@@ -136,7 +161,6 @@ def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
                                                                   r".*observer section: min_tag_side_px 5000"),
                           ("observer: {max_reprojection_error_px: 1.0e-9}\n",
                            r"sees the tag but its pose reprojects \d\.\d\d px off .*max_reprojection_error_px 1e-09")]:
-
         path = _scenario_file(tmp_path, "name: bad\nplant: physics\n" + text)
         assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200",
                      "--no-progress", "--out", str(tmp_path)]) == 2
@@ -213,6 +237,11 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert r["first_move_substeps_compared"] == [None, 0]  # the default, then without the continuation
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
+    assert r["iterations_timed"] == 2
+    # seed 7: the model plant refuses the first action; another is drawn and timed instead
+    r = _run(tmp_path, "bench", "filter", "--particles", "100", "--iterations", "1", "--run-iterations", "0",
+             "--seed", "7")
+    assert r["iterations_timed"] == 1 and r["actions_refused"] >= 1 and r["iteration_s"] > 0
     t = run["timing_s"]
     assert min(t["physics"], t["render"], t["detect"], t["filter"]) > 0
     assert t["physics"] + t["render"] + t["detect"] + t["filter"] <= t["total"] * 1.01
@@ -488,8 +517,8 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["identify", "--scenario", str(path), "--particles", "300", "--iterations", "3", "--no-progress",
                  "--out", str(out)]) == 0
-    r = json.loads((out / "identify_known_hand_seed0.json").read_text())
-    assert r["actions_refused"] == 3 and not r["converged"]
+    r = json.loads((out / "identify_known_hand_model_seed0.json").read_text())
+    assert r["actions_refused"] == 3 and r["actions_tried"] == 3 and r["iterations"] == 0 and not r["converged"]
     assert "no convergence plot: no filter iteration ran (3 actions refused)" in capsys.readouterr().out
 
 

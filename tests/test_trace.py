@@ -143,7 +143,7 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
             IdentificationTrace.load(tmp_path / name)
     header["filter"]["particles"] = 3
     np.savez(tmp_path / "few.npz", header=np.array(json.dumps(header)), **arrays)
-    with pytest.raises(ValueError, match="few.npz: .*'particles' must be >= 10"):
+    with pytest.raises(ValueError, match="few.npz: .*'particles' must be an integer >= 10"):
         IdentificationTrace.load(tmp_path / "few.npz")
     with pytest.raises(ValueError, match="parameter must be one of"):
         evidence_profile(trace, "damping", [0.1])
@@ -184,6 +184,19 @@ def test_bad_trace_headers_arrays_and_truths_are_named(tmp_path):
         IdentificationTrace.load(write("theta.npz", truth_theta=arrays["truth_theta"][:, :2]))
     with pytest.raises(ValueError, match="k.npz: trace: truths 'stiffness' must be finite numbers"):
         IdentificationTrace.load(write("k.npz", truth_stiffness=np.full_like(arrays["truth_stiffness"], np.nan)))
+    # settings of the wrong type ended in an AttributeError or a TypeError from deep inside
+    with pytest.raises(ValueError, match="hand.npz: "):
+        IdentificationTrace.load(write("hand.npz", {**header, "hand": [1, 2]}))
+    for value in ("abc", 2000.5):
+        with pytest.raises(ValueError, match=rf"m.npz: filter: 'particles' must be an integer >= 10, got {value!r}"):
+            IdentificationTrace.load(write("m.npz", {**header, "filter": {**header["filter"], "particles": value}}))
+    with pytest.raises(ValueError, match="sigma.npz: filter: 'sigma_position' must be a number, got 'x'"):
+        IdentificationTrace.load(write("sigma.npz", {**header, "filter": {**header["filter"], "sigma_position": "x"}}))
+    # the prior is checked against the trace's hand when it is read, not when it is replayed
+    with pytest.raises(ValueError, match="prior.npz: prior: links_unknown entry 7 is not a finger"):
+        IdentificationTrace.load(write("prior.npz", {**header, "prior": {**header["prior"], "links_unknown": [7]}}))
+    with pytest.raises(ValueError, match="is a folder, not a trace file"):
+        IdentificationTrace.load(tmp_path)
 
 
 def test_a_trace_from_before_a_setting_existed_replays_with_its_behaviour_then(tmp_path):
@@ -374,3 +387,14 @@ def test_a_replay_stops_where_a_run_with_its_settings_would_stop(tmp_path, capsy
     # an evidence profile always replays every step
     assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--all-steps"]) == 2
     assert "--all-steps is for a replay" in capsys.readouterr().err
+
+
+def test_iterations_count_filter_steps_as_a_replay_does():
+    """Refused actions are not iterations: the result's ``iterations`` at convergence is the
+    filter step its replay converges at (seed 0 of this run has refused actions)."""
+    r = _run("stiffness", particles=2000, iterations=30, seed=0)
+    assert r["actions_refused"] > 0 and r["converged"]
+    out = replay(r["_trace"], stop_at_convergence=True)
+    assert r["iterations"] == out["converged_at"] == len(r["_history"]) == r["_trace"].steps
+    assert r["actions_tried"] == r["iterations"] + r["actions_refused"]
+    assert r["convergence_deg"] == pf.FilterConfig().convergence_deg

@@ -87,9 +87,14 @@ def format_motion(r: dict) -> str:
     )
 
 
+#: How many refused actions per timed iteration ``bench_filter`` draws past before it gives up
+#: (the model plant refuses an action where it finds no equilibrium: about 1 in 10).
+MAX_REFUSED_PER_ITERATION = 10
+
+
 def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, run_iterations: int = 30) -> dict:
-    """Time full filter iterations (move, predict, weigh, resample, roughen) on the model
-    plant, then a known-hand identification of ``run_iterations`` iterations with as many
+    """Time ``iterations`` full filter iterations (move, predict, weigh, resample, roughen)
+    on the model plant (an action it refuses is drawn again, not timed), then a known-hand identification of ``run_iterations`` iterations with as many
     particles on the physics plant with the rendered camera, its wall time split into
     physics, rendering, detection and filtering (0: no identification run)."""
     from vlr_drake import filter as pf
@@ -126,9 +131,14 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     pf.interval95(np.arange(8.0)[:, None], np.arange(1.0, 9.0) / 36.0)  # weighted intervals
     pf.temper(-np.arange(8.0) ** 2, 4.0)  # tempering
     times, resampled, phases = [], [], []
-    for _ in range(iterations):
+    refused = 0
+    while len(times) < iterations:  # a refused action is not an iteration: another is drawn
         dl = explore.next_action()
         if not plant.apply_action(dl):
+            refused += 1
+            if refused > MAX_REFUSED_PER_ITERATION * iterations:
+                raise ValueError(f"bench filter: the model plant refused {refused} actions and took {len(times)}; "
+                                 f"try another --seed")
             continue
         explore.commit(dl)
         R, t, v = plant.measure()
@@ -143,7 +153,7 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     # prior's draws (FilterConfig.first_move_substeps; not the default, see there)
     plant, fast, explore, _, _ = setup(first_move_substeps=0)
     first_fast_s = float("nan")
-    for _ in range(iterations):
+    for _ in range(MAX_REFUSED_PER_ITERATION * iterations + 1):
         dl = explore.next_action()
         if plant.apply_action(dl):
             explore.commit(dl)
@@ -156,6 +166,8 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
         "benchmark": "filter",
         "particles": particles,
         "iteration_s": it_s,
+        "iterations_timed": len(times),
+        "actions_refused": refused,
         "iteration_max_s": float(np.max(times)),
         # the first iteration moves the whole prior: the widest cloud, the most failed moves
         "first_iteration_s": float(times[0]),

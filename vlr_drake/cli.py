@@ -245,11 +245,12 @@ def print_summary(result: dict) -> None:
 
 
 def identify(args) -> dict:
-    from vlr_drake.identify import run_identification
+    from vlr_drake.identify import options_run_name, run_identification
 
     opts = _identify_options(args)
     out = Path(args.out)
-    stem = f"identify_{opts.experiment}_seed{opts.seed}"
+    name = options_run_name(opts)
+    stem = f"identify_{name}"
     meshcat = _meshcat(args)
     on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
     result = run_identification(opts, on_iteration=on_iteration)
@@ -260,7 +261,7 @@ def identify(args) -> dict:
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
     write_json(result, args.json or str(out / f"{stem}.json"))  # first: the result is kept whatever the plots do
-    _plots(result, out)
+    _plots(result, out / name)
     return result
 
 
@@ -348,7 +349,8 @@ def replay_trace(args) -> dict:
         for row, t in table.items():
             print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} runs; truth inside "
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
-    out = {"filter_overrides": args.filter or [], "runs": runs, "rows": table}
+    out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
+           "profile": args.profile, "values": values, "statics": bool(args.statics), "runs": runs, "rows": table}
     write_json(out, args.json)
     return out
 
@@ -394,22 +396,24 @@ def _meshcat_hypotheses(meshcat, html_path: Path):
     return on_iteration, finish
 
 
-def _plots(result: dict, out: Path) -> None:
+def _plots(result: dict, stem: Path) -> None:
+    """The run's plots, ``<stem>_<what>.png``."""
     from vlr_drake import plots
 
-    out.mkdir(parents=True, exist_ok=True)
+    stem.parent.mkdir(parents=True, exist_ok=True)
     est, truths, names = result["_estimates"], result["_truths"], result["_finger_names"]
-    stem = out / f"{result['experiment']}_seed{result['seed']}"
     written = [
         plots.plot_joint_angles(est, truths, names, f"{stem}_proximal.png", joints="proximal"),
         plots.plot_contacts(est, truths, names, f"{stem}_contacts.png"),
     ]
     if result["_history"]:
-        written.append(plots.plot_convergence(result["_history"], f"{stem}_convergence.png"))
+        written.append(plots.plot_convergence(result["_history"], f"{stem}_convergence.png",
+                                              result["convergence_deg"], result["convergence_measure"]))
     else:  # the plant refused every action: no filter iteration to plot
         print(f"no convergence plot: no filter iteration ran ({result.get('actions_refused', 0)} actions refused)")
     if result.get("stiffness_error_Nm_per_rad") is not None:
-        written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=[(0, 1)]))
+        which = [(p["finger"], p["joint"]) for p in result["hand_parameters"].values() if p["unit"] == "N m/rad"]
+        written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=which))
     if result.get("link_length_error_mm"):
         fingers = [names.index(n) for n in result["link_length_error_mm"]]
         written.append(plots.plot_link_lengths(est, truths, names, f"{stem}_links.png", fingers=fingers))

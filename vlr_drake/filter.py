@@ -852,8 +852,13 @@ class FilterConfig:
     gravity_loads: str | None = None
 
     def validate(self) -> FilterConfig:
-        if self.particles < 10:
-            raise ValueError(f"filter: 'particles' must be >= 10, got {self.particles}")
+        if not kinematics.is_count(self.particles, 10):
+            raise ValueError(f"filter: 'particles' must be an integer >= 10, got {self.particles!r}")
+        for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas",
+                     "motion_error", "convergence_deg"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ValueError(f"filter: '{name}' must be a number, got {v!r}")
         for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):

@@ -491,6 +491,30 @@ def _hand_name(opts: IdentifyOptions) -> str:
     return opts.hand_spec.name if opts.hand_spec is not None else opts.hand
 
 
+def run_name(experiment: str, hand: str, object_name: str, plant: str, seed: int) -> str:
+    """The name of a run's output files: the experiment, then the hand, the object and the
+    plant where they are not the experiment's defaults (the Model O, DEFAULT_OBJECT, the
+    physics plant), then the seed: ``known_hand_seed0``, ``novel_fingers_NH2_seed3``,
+    ``known_hand_gelatin_box_model_seed1``. Runs that differ in any of them do not
+    overwrite each other's results in one output folder."""
+    parts = [experiment]
+    if hand != "model_o":
+        parts.append(hand)
+    if object_name != DEFAULT_OBJECT[experiment]:
+        parts.append(object_name)
+    if plant != "physics":
+        parts.append(plant)
+    return "_".join(parts + [f"seed{seed}"])
+
+
+def options_run_name(opts: IdentifyOptions) -> str:
+    """:func:`run_name` of the run ``opts`` describes (validated first, which fills in the
+    defaults; its result carries the same fields)."""
+    opts.validate()
+    obj = opts.object_spec.name if opts.object_spec is not None else opts.object
+    return run_name(opts.experiment, _hand_name(opts), obj, opts.plant, opts.seed)
+
+
 def _hands(opts: IdentifyOptions, rng):
     """(true hand spec, filter's hand spec, prior config).
 
@@ -614,6 +638,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     bar = tqdm(total=opts.max_iterations, disable=not opts.progress, desc=f"identify {opts.experiment}",
                unit="it", leave=False)
     stopped = None
+    it = 0
     for it in range(1, opts.max_iterations + 1):
         dl = explore.next_action()
         try:
@@ -638,16 +663,17 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
             on_iteration(it, f)
         bar.update(1)
         bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
+        # iterations count filter steps (actions the plant took), as a replay of the trace does
         if rep.converged and converged_at is None:
-            converged_at, converged_step = it, len(f.history)
-        # the extra iterations count filter steps, as a replay of the trace does
-        if converged_at is not None and len(f.history) >= converged_step + opts.extra_iterations:
+            converged_at = len(f.history)
+        if converged_at is not None and len(f.history) >= converged_at + opts.extra_iterations:
             break
     bar.close()
     timing["total"] = time.perf_counter() - t_start
     est = f.estimates[-1]
     truth = truths[-1]
-    result = _result_dict(opts, filt_hand, est, truth, converged_at, it, timing, prior, f, lost, plant)
+    result = _result_dict(opts, filt_hand, est, truth, converged_at, timing, prior, f, lost, plant)
+    result["actions_tried"] = it if stopped is None else it - 1
     result["stopped"] = stopped
     result["_estimates"] = f.estimates
     result["_history"] = f.history
@@ -758,7 +784,7 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
     return res
 
 
-def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f, lost, plant) -> dict:
+def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, plant) -> dict:
     res = {
         "experiment": opts.experiment,
         "scenario": opts.scenario,
@@ -771,7 +797,11 @@ def _result_dict(opts, hand, est, truth, converged_at, last_it, timing, prior, f
         "likelihood_width": opts.filter.likelihood_width,
         "plant": opts.plant,
         "converged": converged_at is not None,
-        "iterations": int(converged_at if converged_at is not None else last_it),
+        # filter iterations (an action the plant took, its measurement, the update): at the
+        # convergence, or all of them; refused actions are not iterations (actions_refused)
+        "iterations": int(converged_at if converged_at is not None else len(f.history)),
+        "convergence_deg": opts.filter.convergence_deg,
+        "convergence_measure": opts.filter.convergence_measure,
         "timing_s": timing,
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),

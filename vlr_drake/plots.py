@@ -294,11 +294,13 @@ def make_link_lengths_figure(
     )
 
 
-def make_convergence_figure(history: Sequence, threshold_deg: float | None = None) -> Figure:
-    """Mean 95% interval of the joint angles per iteration (``StepReport.mean_interval_deg``)
-    with the convergence threshold (``FilterConfig.convergence_deg`` by default), and the
-    effective sample size below it. Re-initialisations are marked by red vertical lines,
-    the first converged iteration by a green one.
+def make_convergence_figure(history: Sequence, threshold_deg: float | None = None,
+                            measure: str = "half_width") -> Figure:
+    """Mean 95% interval of the joint angles per iteration (``StepReport.mean_interval_deg``,
+    its half-width or full width as the run's ``FilterConfig.convergence_measure``, named by
+    ``measure``) with the convergence threshold (``FilterConfig.convergence_deg`` by default;
+    pass the run's own), and the effective sample size below it. Re-initialisations are
+    marked by red vertical lines, the first converged iteration by a green one.
 
     Axes 0: ``lines[0]`` the interval, ``lines[1]`` the threshold; axes 1: ``lines[0]`` ESS.
     """
@@ -308,6 +310,9 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
         from vlr_drake.filter import FilterConfig
 
         threshold_deg = FilterConfig().convergence_deg
+    if measure not in ("half_width", "full_width"):
+        raise ValueError(f"measure must be 'half_width' or 'full_width' (FilterConfig.convergence_measure), got {measure!r}")
+    label = "mean 95% half-width" if measure == "half_width" else "mean 95% interval width"
     for t, rep in enumerate(history):
         for field in ("iteration", "mean_interval_deg", "ess", "converged", "reinitialised"):
             if not hasattr(rep, field):
@@ -318,7 +323,7 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     fig = Figure(figsize=(6.0, 5.0), layout="constrained")
     FigureCanvasAgg(fig)
     ax, ax_ess = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
-    ax.plot(it, width, color=ESTIMATE_COLOR, marker="o", markersize=3, label="mean 95% interval")
+    ax.plot(it, width, color=ESTIMATE_COLOR, marker="o", markersize=3, label=label)
     ax.axhline(threshold_deg, color=TRUTH_COLOR, linestyle="--", label=f"threshold {threshold_deg:g} deg")
     for r in history:
         if r.reinitialised:
@@ -326,7 +331,7 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     first = next((r.iteration for r in history if r.converged), None)
     if first is not None:
         ax.axvline(first, color="tab:green", linestyle="-", alpha=0.6, label=f"converged at {first}")
-    ax.set_ylabel("interval [deg]")
+    ax.set_ylabel(f"{label.removeprefix('mean 95% ')} [deg]")
     ax.set_yscale("log" if np.all(width > 0) and width.max() > 20 * max(width.min(), 1e-12) else "linear")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
@@ -469,9 +474,10 @@ def plot_link_lengths(
     return save_figure(make_link_lengths_figure(estimates, truths, names, fingers, iterations), path)
 
 
-def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float | None = None) -> Path:
+def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float | None = None,
+                     measure: str = "half_width") -> Path:
     """Save :func:`make_convergence_figure` to ``path``; returns the path."""
-    return save_figure(make_convergence_figure(history, threshold_deg), path)
+    return save_figure(make_convergence_figure(history, threshold_deg, measure), path)
 
 
 def plot_hypotheses(

@@ -198,6 +198,8 @@ class IdentificationTrace:
     def load(cls, path: str | Path) -> IdentificationTrace:
         """Read a trace written by :meth:`save`; raises ``ValueError`` naming what is wrong."""
         path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder, not a trace file (a .npz written by vlr-drake identify --trace)")
         if not path.is_file():
             raise FileNotFoundError(f"trace file not found: {path}")
         try:
@@ -218,7 +220,7 @@ class IdentificationTrace:
             )
         except KeyError as e:
             raise ValueError(f"{path}: trace lacks {e}") from None
-        except (ValueError, TypeError) as e:  # a setting or an array that is not what it should be
+        except (ValueError, TypeError, AttributeError) as e:  # a setting or an array that is not what it should be
             raise ValueError(f"{path}: {e}") from None
         limits, hand = trace.prior.contact_limits, trace.hand.model()
         if limits is not None and list(limits) == LEGACY_CONTACT_LIMITS:
@@ -226,11 +228,12 @@ class IdentificationTrace:
                 trace.prior.contact_bounds(hand)
             except ValueError:  # the old default, past a shorter finger's pad
                 trace.prior.contact_limits = None
-        try:
+        try:  # every setting now, not at its replay (several traces are read before the first replay)
             trace.filter.validate()
+            trace.prior.validate(hand.N, hand.K)
             trace.prior.contact_bounds(hand)
             return trace.validate()
-        except ValueError as e:
+        except (ValueError, TypeError) as e:
             raise ValueError(f"{path}: {e}") from None
 
 
