@@ -94,9 +94,10 @@ MAX_REFUSED_PER_ITERATION = 10
 
 def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, run_iterations: int = 30) -> dict:
     """Time ``iterations`` full filter iterations (move, predict, weigh, resample, roughen)
-    on the model plant (an action it refuses is drawn again, not timed), then a known-hand identification of ``run_iterations`` iterations with as many
-    particles on the physics plant with the rendered camera, its wall time split into
-    physics, rendering, detection and filtering (0: no identification run)."""
+    on the model plant (an action it refuses is drawn again, not timed), then a known-hand
+    identification of ``run_iterations`` iterations with as many particles on the physics
+    plant with the rendered camera, its wall time split into physics, rendering, detection
+    and filtering (0: no identification run)."""
     from vlr_drake import filter as pf
     from vlr_drake.identify import Exploration, _truth_grasp
     from vlr_drake.model_plant import ModelPlant
