@@ -325,7 +325,8 @@ def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: 
 
 def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
     """hardware.yaml with the bus on the emulator and a video file for the camera: the
-    policy's commands reach the motors; without a tag in view the filter waits."""
+    grasp reaches the motors, one limited step per update; without a tag in view the filter
+    waits, and the policy holds the grasp with it (the prior is drawn around the grasp)."""
     import cv2
     from dynamixel_emulator import ADDR_GOAL_POSITION, SYNC_WRITE, DynamixelEmulator
 
@@ -347,14 +348,14 @@ def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
         ctx = sim.get_mutable_context()
         try:
             initialize(b, sim)
-            sim.AdvanceTo(2.5 * b.period_sec)  # two actions, at T and 2 T
+            sim.AdvanceTo(2.5 * b.period_sec)  # two action times, at T and 2 T: both held
             command = b.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx)
-            assert not np.allclose(command, b.l_grasp)
+            np.testing.assert_array_equal(command, b.l_grasp)
             assert b.diagram.GetOutputPort("hand.camera_valid").Eval(ctx)[0] == 1.0  # frames arrive ...
             assert b.diagram.GetOutputPort("tag_observer.X_PO_valid").Eval(ctx)[0] == 0.0  # ... with no tag
             assert b.filter.filter(b.filter.GetMyContextFromRoot(ctx)) is None  # the filter waits
             emu.wait_idle()
-            # the motors were sent the policy's command (Model O: direction [1, -1, 1], zero 2048)
+            # the motors hold the policy's command (Model O: direction [1, -1, 1], zero 2048)
             ticks_per_m = 4096 / (2 * np.pi * s.hardware.spool_radius)
             want = [
                 2048 + d * int(np.round(x * ticks_per_m)) for d, x in zip([1, -1, 1], command, strict=True)

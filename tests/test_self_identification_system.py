@@ -55,7 +55,7 @@ def test_filter_system_ports_with_fixvalue():
     h, th, a, plant, sys, ctx = _fixed_filter_system(500, valid=0.0)
     sys.ExecuteForcedEvents(ctx)
     assert sys.filter(ctx) is None
-    assert sys.GetOutputPort("converged").Eval(ctx)[0] == 0.0
+    assert sys.GetOutputPort("converged").Eval(ctx)[0] == 0.0 and sys.GetOutputPort("started").Eval(ctx)[0] == 0.0
     np.testing.assert_allclose(sys.GetOutputPort("theta_estimate").Eval(ctx), th.ravel())
     # a valid one initialises it around the nominal grasp
     sys.X_PO_valid_input_port().FixValue(ctx, [1.0])
@@ -75,6 +75,52 @@ def test_filter_system_ports_with_fixvalue():
     est = sys.GetOutputPort("estimate").Eval(ctx)
     assert set(["theta", "a", "theta_lo", "theta_hi"]) <= set(est)
     assert sys.GetOutputPort("particles").Eval(ctx).size == 500
+    assert sys.GetOutputPort("started").Eval(ctx)[0] == 1.0
+    # the outputs hand out the filter's own arrays, read-only: a consumer cannot change them
+    with pytest.raises(ValueError, match="read-only"):
+        est["theta"][...] = 0.0
+    with pytest.raises(ValueError, match="read-only"):
+        sys.GetOutputPort("particles").Eval(ctx).theta[0] = 0.0
+    assert np.all(sys.filter(ctx).estimates[-1]["theta"] == est["theta"]) and np.any(est["theta"] != 0.0)
+
+
+def test_the_policy_holds_the_grasp_until_the_filter_has_started():
+    """Lost measurements at the grasp (the model plant's dropout): the filter starts late, and
+    the hand has not moved by then, so the prior drawn around the grasp holds the truth (the
+    policy had acted from T on, whatever the filter, and moved the hand away from it)."""
+    h, th, a = _grasp()
+    for seed in range(20):
+        plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+        b = build_model_identification_diagram(h, plant, pf.FilterConfig(particles=300), pf.PriorConfig(), th, a,
+                                               dropout=0.6, seed=seed)
+        sim = Simulator(b.diagram)
+        ctx = sim.get_mutable_context()
+        sim.Initialize()
+        fctx = b.filter.GetMyContextFromRoot(ctx)
+        k = 0
+        while b.filter.filter(fctx) is None and k < 10:
+            k += 1
+            sim.AdvanceTo(k)  # the filter updates at 0.9 T of each period
+            if b.filter.filter(fctx) is None:
+                np.testing.assert_array_equal(b.diagram.GetOutputPort("exploration.tendon_command").Eval(ctx),
+                                              b.l_grasp)
+        if k > 1:  # this seed lost the first measurement: the filter started at period k
+            f = b.filter.filter(fctx)
+            assert f is not None and f.tendon_command.tolist() == b.l_grasp.tolist()
+            break
+    else:
+        pytest.fail("no seed lost its first measurement")
+
+
+def test_systems_refuse_bad_seeds_and_offsets():
+    h, th, a = _grasp()
+    for seed in (-1, 2.9):
+        with pytest.raises(ValueError, match=rf"'seed' must be an integer >= 0, got {seed}"):
+            ExplorationPolicy(h, np.full(3, 0.015), 1.0, seed=seed)
+        with pytest.raises(ValueError, match=rf"'seed' must be an integer >= 0, got {seed}"):
+            SelfIdentificationSystem(h, pf.FilterConfig(particles=3000), pf.PriorConfig(), th, a, 1.0, seed=seed)
+    with pytest.raises(ValueError, match=r"'offset_sec' must be None or in \[0, period_sec"):
+        SelfIdentificationSystem(h, pf.FilterConfig(particles=3000), pf.PriorConfig(), th, a, 1.0, offset_sec=5.0)
 
 
 def test_exploration_policy_stays_in_its_window():

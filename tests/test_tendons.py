@@ -128,3 +128,31 @@ def test_bad_indices_raise():
     hand = model_o().model()
     with pytest.raises(ValueError, match="position_indices"):
         TendonForces(hand, np.arange(5), np.arange(6), 6, 6)
+    # negative or repeated indices would read another coordinate ([q; v] wraps round)
+    for qi, vi, name in ((np.arange(6) - 1, np.arange(6), "position_indices"),
+                         (np.arange(6), np.array([0, 1, 2, 3, 4, 4]), "velocity_indices")):
+        with pytest.raises(ValueError, match=f"{name} must be distinct indices"):
+            TendonForces(hand, qi, vi, 6, 6)
+
+
+def test_damping_follows_the_ramp_rate_and_the_time():
+    """Mid-ramp the damping term carries the ramp's rate: the tension at a time inside the
+    ramp, and after it, from one context whose time is set (the output depends on time)."""
+    hand = model_o().model()
+    c = 50.0
+    sys, qi, vi = _system(hand, ramp_time=0.2, damping=[c] * hand.N)
+    ctx = sys.CreateDefaultContext()
+    theta = np.full(hand.num_angles, 0.3)
+    l0 = hand.R @ theta + 0.003
+    sys.set_applied(ctx, l0)
+    sys.state_input.FixValue(ctx, _state(qi, vi, theta))
+    l1 = l0 + 0.002
+    sys.tendon_command_input.FixValue(ctx, l1)
+    sim = Simulator(sys, ctx)
+    sim.Initialize()
+    sim.AdvanceTo(0.1)  # mid-ramp: pull rate (l1 - l0) / 0.2
+    l = sys.tendon_position_output.Eval(ctx)
+    rate = (l1 - l0) / 0.2
+    np.testing.assert_allclose(sys.tension_output.Eval(ctx), hand.kappa * (l - hand.R @ theta) + c * rate, rtol=1e-9)
+    ctx.SetTime(0.5)  # the same ramp state read past the ramp's end: no rate any more
+    np.testing.assert_allclose(sys.tension_output.Eval(ctx), hand.kappa * (l - hand.R @ theta), rtol=1e-9)

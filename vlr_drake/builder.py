@@ -86,6 +86,10 @@ __all__ = [
 #: The object's POM in the palm for the model plant's grasp [m] (as in vlr_drake.identify).
 MODEL_PLANT_t_PO = (0.0, 0.0, 0.11)
 #: Seed offsets of the systems' random draws (policy, sensor, filter, model plant, grasp).
+#: The systems take seed + offset, as `vlr-drake identify` takes seed + 1, 2, 3 (so one
+#: run's sensor stream is the next seed's policy stream: streams of different purpose,
+#: drawn differently; tuple seeds would separate them, at the cost of every recorded
+#: figure, and are left for a change that re-measures them).
 SEED_POLICY, SEED_SENSOR, SEED_FILTER, SEED_PLANT = 1, 2, 3, 4
 
 # Outputs exported as "<system>.<signal>" when the system has them.
@@ -166,6 +170,9 @@ def wire_identification(
     builder.Connect(action, flt.tendon_command_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_measured"), flt.X_PO_measured_input_port())
     builder.Connect(sensor.GetOutputPort("X_PO_valid"), flt.X_PO_valid_input_port())
+    # the policy holds the grasp until the filter has its first measurement (the prior is
+    # drawn around the grasp: a hand that had moved on could leave the truth outside it)
+    builder.Connect(flt.GetOutputPort("started"), policy.GetInputPort("enabled"))
     for name, system in [
         ("exploration", policy),
         ("hand", plant),
@@ -490,7 +497,12 @@ def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | No
     weight. Hardware: ``Initialize``, in which the interface opens the motors and closes the
     hand on the grasp's commands, then the real-time clock starts. The model plant:
     ``Initialize`` only. Returns ``{"theta_placed", "command",
-    "in_contact"}`` (the last two None/all-True off the physics plant)."""
+    "in_contact"}`` (the last two None/all-True off the physics plant).
+
+    One simulator per physics diagram: a second ``Simulator`` of the same ``built.diagram``,
+    made after the first was freed, rendered frames without the object's textured tag from
+    about 0.6 s on (drake 1.51's VTK renderer with textured models; :func:`run` builds a
+    diagram per run and is not touched). Build the diagram again for another run."""
     root = simulator.get_mutable_context()
     if built.physics_hand is None:
         simulator.Initialize()  # hardware: the motors open and close on the grasp (HardwareInterface)

@@ -4,22 +4,27 @@
   ``tendon_command``, ``X_PO_measured`` and ``X_PO_valid`` in; ``estimate`` (abstract dict:
   the filter's estimate, the weighted mean, with ``fallbacks``, the :data:`FALLBACKS` live
   hypotheses nearest it, for a controller), ``theta_estimate``, ``interval_half_width``,
-  ``converged`` and ``particles`` out.
-- :class:`ExplorationPolicy`: random exploratory tendon commands (``tendon_command`` out).
+  ``converged``, ``started`` and ``particles`` out (the estimate's arrays and the particles
+  read-only: they are the filter's own).
+- :class:`ExplorationPolicy`: random exploratory tendon commands (``tendon_command`` out;
+  ``enabled`` in, optional: it holds the grasp's command until the filter has started).
 - :class:`ModelPlantSystem`: the model plant (the VLR model with hidden truth) with the
   physics plant's truth ports: ``tendon_command`` in; ``X_PO_true``, ``theta_true``,
-  ``contacts_true``, ``tendon_position_measured`` out.
+  ``contacts_true``, ``contact_along_link_true``, ``tendon_position_measured`` out.
 
 Timing within one action period T (all periodic events share T, offsets order them):
 the policy commands at k T, the model plant applies the command at k T + 0.25 T (the
 physics plant instead ramps and settles during the period), and the filter reads the
 command and the measurement at k T + ``filter_offset`` (default 0.9 T), when the plant has
 settled. The filter stores the command of its previous update, so its action is
-``dl = l_k - l_{k-1}``. It initialises itself at its first update with a valid measurement.
+``dl = l_k - l_{k-1}``. It initialises itself at its first update with a valid measurement;
+the policy, its ``enabled`` input wired to the filter's ``started``, holds the grasp until
+then, so that the prior, drawn around the grasp, is drawn where the hand still is.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -31,6 +36,7 @@ from vlr_drake import filter as pf
 from vlr_drake.control import FALLBACKS
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
+from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.trace import IdentificationTrace, TraceRecorder
 
@@ -38,13 +44,32 @@ __all__ = ["SelfIdentificationSystem", "ExplorationPolicy", "ModelPlantSystem"]
 
 
 def _timing(period_sec, offset_sec=None) -> tuple[float, float | None]:
-    """A periodic event's ``period_sec`` (finite, > 0) and ``offset_sec`` (None, or finite
-    and >= 0) [s], or a ValueError that names the bad one."""
+    """A periodic event's ``period_sec`` (finite, > 0) and ``offset_sec`` (None, or in
+    [0, period_sec): the offsets order the events within one period) [s], or a ValueError
+    that names the bad one."""
     if not (np.isfinite(period_sec) and period_sec > 0):
         raise ValueError(f"'period_sec' must be a positive finite number [s], got {period_sec}")
-    if offset_sec is not None and not (np.isfinite(offset_sec) and offset_sec >= 0):
-        raise ValueError(f"'offset_sec' must be None or a finite number >= 0 [s], got {offset_sec}")
+    if offset_sec is not None and not (np.isfinite(offset_sec) and 0 <= offset_sec < period_sec):
+        raise ValueError(f"'offset_sec' must be None or in [0, period_sec = {period_sec}) [s], got {offset_sec}")
     return float(period_sec), None if offset_sec is None else float(offset_sec)
+
+
+def _seed(seed) -> int:
+    """A system's seed, checked when the system is made (numpy refuses a negative one only
+    at the first draw, without naming it; 2.9 would be cut to 2)."""
+    if not is_count(seed):
+        raise ValueError(f"'seed' must be an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
+def _read_only(x):
+    """A read-only view of an array (other values as they are): an output that hands out the
+    filter's own arrays must not let a consumer change them."""
+    if isinstance(x, np.ndarray):
+        v = x.view()
+        v.flags.writeable = False
+        return v
+    return x
 
 
 class _FilterBox:
@@ -76,7 +101,7 @@ class SelfIdentificationSystem(LeafSystem):
                  period_sec: float, offset_sec: float | None = None, seed: int = 0):
         super().__init__()
         period_sec, offset_sec = _timing(period_sec, offset_sec)
-        self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, int(seed)
+        self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, _seed(seed)
         pf.warn_if_few_particles(self._config)  # now, not at the first measurement mid-run
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
         self._a_center = pf._shaped("a_center", a_center, (hand.N,))
@@ -96,6 +121,9 @@ class SelfIdentificationSystem(LeafSystem):
             prerequisites_of_calc={self.abstract_state_ticket(self._box)})
         self._converged_out = self.DeclareVectorOutputPort(
             name="converged", size=1, calc=self._calc_converged,
+            prerequisites_of_calc={self.abstract_state_ticket(self._box)})
+        self._started_out = self.DeclareVectorOutputPort(  # 1 once the filter has its first measurement
+            name="started", size=1, calc=self._calc_started,
             prerequisites_of_calc={self.abstract_state_ticket(self._box)})
         self._particles_out = self.DeclareAbstractOutputPort(
             name="particles", alloc=lambda: AbstractValue.Make(object()), calc=self._calc_particles,
@@ -160,7 +188,8 @@ class SelfIdentificationSystem(LeafSystem):
         f = self._current(context)
         # the weighted mean, and the live hypotheses nearest it for a controller whose model
         # the mean cannot be (control.filter_model_fn; the JacobianController tries them in turn)
-        output.set_value({} if f is None else {**f.estimates[-1], "fallbacks": f.nearest_hypotheses(FALLBACKS)})
+        output.set_value({} if f is None else {**{k: _read_only(v) for k, v in f.estimates[-1].items()},
+                                                "fallbacks": f.nearest_hypotheses(FALLBACKS)})
 
     def _calc_theta(self, context, output: BasicVector):
         f = self._current(context)
@@ -177,9 +206,17 @@ class SelfIdentificationSystem(LeafSystem):
         f = self._current(context)
         output.SetFromVector([1.0 if (f is not None and f.converged) else 0.0])
 
+    def _calc_started(self, context, output: BasicVector):
+        output.SetFromVector([0.0 if self._current(context) is None else 1.0])
+
     def _calc_particles(self, context, output):
         f = self._current(context)
-        output.set_value(None if f is None else f.particles)
+        if f is None:
+            output.set_value(None)
+            return
+        p = f.particles
+        output.set_value(dataclasses.replace(p, **{k.name: _read_only(getattr(p, k.name))
+                                                   for k in dataclasses.fields(p)}))
 
 
 class ExplorationPolicy(LeafSystem):
@@ -187,6 +224,8 @@ class ExplorationPolicy(LeafSystem):
     uniform draw in +-``span`` per tendon, reflected inside +-``window`` around the initial
     (grasp) commands and inside the tendon range, plus, with ``squeeze`` > 0, a common-mode
     pull of +-``squeeze`` inside +-``squeeze_window`` (see :class:`vlr_drake.identify.Exploration`).
+    While its ``enabled`` input, where connected, reads 0 (the filter's ``started``), it holds
+    the command and draws nothing: the first action comes once the filter has started.
 
     Its actions are random, the paper's choice, on every plant: the informative choice of
     ``vlr-drake identify`` on the model plant (:class:`vlr_drake.identify.InformativeExploration`)
@@ -197,16 +236,19 @@ class ExplorationPolicy(LeafSystem):
         super().__init__()
         period_sec, _ = _timing(period_sec)
         self._l0 = np.asarray(l_grasp, float)
-        self._seed = seed
+        self._seed = _seed(seed)
         self._state = self.DeclareDiscreteState(self._l0)
         self._draws = self.DeclareDiscreteState(1)
         self._out = self.DeclareStateOutputPort("tendon_command", self._state)
+        self._enabled = self.DeclareVectorInputPort(name="enabled", size=1)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=period_sec, update=self._update)
         self._span, self._window, self._range = span, window, hand.tendon_range
         self._squeeze = (squeeze, squeeze_window)
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
 
     def _update(self, context, discrete_state):
+        if self._enabled.HasValue(context) and not self._enabled.Eval(context)[0] > 0.5:
+            return  # held: the filter has not started
         n = int(context.get_discrete_state(self._draws).GetAtIndex(0))
         l_now = np.array(context.get_discrete_state(self._state).get_value())
         ex = Exploration(self._l0, self._range, self._span, self._window, np.random.default_rng((self._seed, n)),

@@ -83,8 +83,9 @@ class TendonForces(LeafSystem):
                 f"position_indices and velocity_indices must have N*K = {nk} entries "
                 f"(finger-major), got {self._qi.shape} and {self._vi.shape}"
             )
-        if np.any(self._qi >= num_positions) or np.any(self._vi >= num_velocities):
-            raise ValueError("position_indices / velocity_indices out of range of the plant's state")
+        for name, idx, n in (("position_indices", self._qi, num_positions), ("velocity_indices", self._vi, num_velocities)):
+            if np.any(idx < 0) or np.any(idx >= n) or len(set(idx.tolist())) != idx.size:
+                raise ValueError(f"{name} must be distinct indices in [0, {n}) of the plant's state, got {idx.tolist()}")
         if not ramp_time >= 0 or not update_period > 0:
             raise ValueError(
                 f"ramp_time must be >= 0 and update_period > 0, got {ramp_time}, {update_period}"
@@ -113,13 +114,14 @@ class TendonForces(LeafSystem):
             name="generalized_force",
             size=num_velocities,
             calc=self._calc_force,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+            # the time too: the damping term uses the ramp's rate at the context's time
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()},
         )
         self.tension_output = self.DeclareVectorOutputPort(
             name="tension",
             size=N,
             calc=self._calc_tension,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()},
         )
         self.tendon_position_output = self.DeclareVectorOutputPort(
             name="tendon_position_measured",
@@ -148,8 +150,9 @@ class TendonForces(LeafSystem):
         return np.clip(l, self._lo, self._hi)
 
     def set_applied(self, context: Context, l: np.ndarray) -> None:
-        """Set the applied pull directly (no ramp), e.g. at the grasp. Also fix the command
-        input to ``l`` so the next update keeps it."""
+        """Set the applied pull directly (no ramp), e.g. at the grasp. The command input is
+        not touched: give it ``l`` as well (a connected source's state, or ``FixValue``), or
+        the next update ramps from ``l`` to whatever the input says."""
         l = self.clamp(l)
         x = np.concatenate([l, l, l, [context.get_time() - self._ramp_time - 1.0]])
         context.SetDiscreteState(self._ramp_state, x)
