@@ -398,3 +398,8 @@ def test_iterations_count_filter_steps_as_a_replay_does():
     assert r["iterations"] == out["converged_at"] == len(r["_history"]) == r["_trace"].steps
     assert r["actions_tried"] == r["iterations"] + r["actions_refused"]
     assert r["convergence_deg"] == pf.FilterConfig().convergence_deg
+    # the budget counts iterations too: a run that does not converge makes all of them,
+    # however many actions the plant refused on the way
+    r = _run("stiffness", particles=600, iterations=12, seed=0)
+    assert r["actions_refused"] > 0 and not r["converged"] and r["stopped"] is None
+    assert r["iterations"] == len(r["_history"]) == 12 and r["actions_tried"] == 12 + r["actions_refused"]

@@ -240,7 +240,9 @@ class IdentifyOptions:
     object_spec: ObjectSpec | None = None
     seed: int = 0
     particles: int = 20_000
-    # Iteration budget; the run stops earlier once converged (plus ``extra_iterations``).
+    # Iteration budget: filter iterations (an action the plant refuses is not one, and
+    # another is drawn; a plant that refuses as many as the budget stops the run); the run
+    # stops earlier once converged (plus ``extra_iterations``).
     # None: the plant's and experiment's (ITERATIONS: 240 for the stiffness and the novel
     # fingers on the physics plant, else DEFAULT_ITERATIONS, 120).
     max_iterations: int | None = None
@@ -638,13 +640,18 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     bar = tqdm(total=opts.max_iterations, disable=not opts.progress, desc=f"identify {opts.experiment}",
                unit="it", leave=False)
     stopped = None
-    it = 0
-    for it in range(1, opts.max_iterations + 1):
+    it = 0  # actions tried; the budget counts filter iterations (len(f.history))
+    while len(f.history) < opts.max_iterations:
+        if it - len(f.history) >= opts.max_iterations:
+            stopped = (f"iteration {len(f.history) + 1}: the plant refused {it - len(f.history)} actions, as many as "
+                       f"the iteration budget (a grasp from which the exploration's actions find no equilibrium)")
+            break
+        it += 1
         dl = explore.next_action()
         try:
             moved = plant.act(dl, timing)
         except RunStopped as e:  # the estimates so far are kept and reported, with why it stopped
-            stopped = f"iteration {it}: {e}"
+            stopped = f"iteration {len(f.history) + 1}: {e}"
             break
         if not moved:
             continue
