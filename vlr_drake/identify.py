@@ -667,7 +667,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         truths.append(plant.truth())
         recorder.step(dl, R, t, valid, l_now, truths[-1])
         if on_iteration is not None:
-            on_iteration(it, f)
+            on_iteration(len(f.history), f)
         bar.update(1)
         bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
         # iterations count filter steps (actions the plant took), as a replay of the trace does
