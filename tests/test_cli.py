@@ -44,9 +44,14 @@ def _run(tmp_path, *argv):
     return json.loads(path.read_text())
 
 
-def test_selfcheck(tmp_path):
+def test_selfcheck(tmp_path, capsys):
     r = _run(tmp_path, "selfcheck")
     assert r["max_difference_ipopt_rad"] < 1e-6 and r["max_difference_snopt_rad"] < 1e-6
+    assert min(r["actions_compared"].values()) >= 1
+    # a grasp near a fold (seed 5): the batched solver flags every action, so nothing was
+    # compared; the check says so and fails, where it had printed differences of 0 and passed
+    assert main(["selfcheck", "--seed", "5"]) == 2
+    assert "selfcheck compared no action" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("experiment, extra", [("known_hand", []), ("stiffness", []),

@@ -52,6 +52,10 @@ def test_novel_hands_replace_the_right_fingers():
         ("tendon_damping", float("nan"), "tendon_damping"),
         ("pad_offset", float("nan"), "pad_offset"),
         ("joint_damping", [0.01, -0.01], "joint_damping"),
+        # of the wrong type: numpy's TypeError had come out instead, naming nothing
+        ("stiffness", 0.08, "field 'stiffness' must be a list of 2 numbers, got 0.08"),
+        ("moment_arms", ["a", "b"], "field 'moment_arms' must be a list of 2 numbers"),
+        ("distal_length", "long", "field 'distal_length' must be a number, got 'long'"),
     ],
 )
 def test_bad_finger_fields_are_named(field, value, message):

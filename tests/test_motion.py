@@ -518,3 +518,22 @@ def test_gravity_loads_agree_with_the_mathematical_program(request, hand_name):
         motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, object_load=load)
     with pytest.raises(ValueError, match="'object_load' must have shape"):
         motion.move(hand, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=gs.stretch, gravity=g, object_load=load[:, :2])
+
+
+def test_the_reference_refuses_a_solution_on_its_search_box():
+    """Near a fold the nearest minimum lies beyond the reference's +-0.3 rad box; IPOPT and
+    SNOPT then stop on the box's face and report success, with angles that are no
+    equilibrium (a joint moved exactly 0.3 rad). solve_move raises instead."""
+    from vlr_drake.hand import model_o
+
+    hand = model_o().model()
+    rng = np.random.default_rng(5)  # selfcheck's seed-5 grasp: near a fold
+    g = grasps.sample_grasps(hand, rng, 1, proximal_range=(0.05, 0.35), distal_range=(0.3, 0.9),
+                             contact_range=(0.02, 0.032), min_tension=2.0, stable=True)
+    dl = rng.uniform(-1e-3, 1e-3, hand.N)
+    for solver in ref.SOLVERS:
+        with pytest.raises(ref.MotionSolveError, match="stopped on the local search box"):
+            ref.solve_move(hand, g.theta[0], dl, a=g.a[0], D2=g.D2[0], stretch=g.stretch[0], solver=solver)
+    # the batched solver flags the same action (no nearby equilibrium: a snap-through)
+    res = motion.move(hand, g.theta, dl, a=g.a, D2=g.D2, stretch=g.stretch)
+    assert not res.ok[0]

@@ -84,6 +84,8 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
     print(f"grasp: proximal {np.rad2deg(theta[0, :, 0]).round(1)} deg, distal {np.rad2deg(theta[0, :, 1]).round(1)} deg, "
           f"contacts {1e3 * a[0].round(4)} mm, tensions {g.tension[0].round(2)} N")
     worst = {"ipopt": 0.0, "snopt": 0.0}
+    compared = {"ipopt": 0, "snopt": 0}
+    failed = {"ipopt": 0, "snopt": 0}
     for k in range(actions):
         dl = rng.uniform(-1e-3, 1e-3, hand.N)
         res = motion.move(hand, theta, dl, a=a, D2=D2, stretch=s)
@@ -92,17 +94,39 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
             print(line + "  -> no nearby equilibrium (flagged)")
             continue
         for solver in worst:
-            r = ref.solve_move(hand, theta[0], dl, a=a[0], D2=D2[0], stretch=s[0], solver=solver)
+            try:
+                r = ref.solve_move(hand, theta[0], dl, a=a[0], D2=D2[0], stretch=s[0], solver=solver)
+            except ref.MotionSolveError as e:  # counted and said, not a crash
+                failed[solver] += 1
+                print(f"{line}  -> {e}")
+                continue
+            compared[solver] += 1
             worst[solver] = max(worst[solver], float(np.abs(r.theta - res.theta[0]).max()))
         p = kinematics.contacts(hand, res.theta, a)
         dist_err = np.abs(np.sqrt(motion.contact_distances_sq(hand, p)) - np.sqrt(D2)).max()
         print(f"{line}  -> dtheta {np.rad2deg(res.theta[0] - theta[0]).ravel().round(2)} deg, "
               f"tensions {res.tension[0].round(2)} N, grasp distance error {dist_err:.1e} m")
         theta, s = res.theta, res.stretch
-    print(f"batched Newton vs MathematicalProgram: max |dtheta| IPOPT {worst['ipopt']:.1e} rad, "
-          f"SNOPT {worst['snopt']:.1e} rad")
-    return {"check": "selfcheck", "seed": seed, "max_difference_ipopt_rad": worst["ipopt"],
-            "max_difference_snopt_rad": worst["snopt"]}
+    print(f"batched Newton vs MathematicalProgram: max |dtheta| IPOPT {worst['ipopt']:.1e} rad over "
+          f"{compared['ipopt']} actions, SNOPT {worst['snopt']:.1e} rad over {compared['snopt']}")
+    out = {"check": "selfcheck", "seed": seed, "max_difference_ipopt_rad": worst["ipopt"],
+           "max_difference_snopt_rad": worst["snopt"], "actions_compared": compared, "reference_failures": failed}
+    if min(compared.values()) == 0:  # a check that compared nothing has not passed
+        raise SelfCheckError(f"selfcheck compared no action with {[k for k, v in compared.items() if v == 0]} "
+                             f"(seed {seed}: every action flagged or failed); try another --seed or more --actions")
+    if max(worst.values()) > SELFCHECK_TOLERANCE_RAD:
+        raise SelfCheckError(f"selfcheck: the batched solver is {max(worst.values()):.1e} rad from the "
+                             f"MathematicalProgram solve, more than {SELFCHECK_TOLERANCE_RAD:.0e} rad")
+    return out
+
+
+#: How far the batched solver's angles may lie from IPOPT's and SNOPT's for `selfcheck` [rad].
+SELFCHECK_TOLERANCE_RAD = 1e-6
+
+
+class SelfCheckError(ValueError):
+    """``vlr-drake selfcheck`` found the batched solver and the reference apart, or compared
+    nothing (the command ends with status 2 and says which)."""
 
 
 # ------------------------------------------------------------------------------ scenario

@@ -160,14 +160,23 @@ class HandSpec:
                 ("tendon_range", 2),
             ]:
                 v = getattr(f, fname)
-                if len(v) != n:
-                    raise ValueError(f"{where}: field '{fname}' must have {n} entries, got {len(v)}")
-                if not np.all(np.isfinite(v)):
+                try:  # a scalar, a string or a nested list: named here, not a TypeError deep inside
+                    arr = np.asarray(v, dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}") from None
+                if arr.shape != (n,):
+                    raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}")
+                if not np.all(np.isfinite(arr)):
                     raise ValueError(f"{where}: field '{fname}' is not finite: {v}")
             for fname in ["link_lengths", "moment_arms", "stiffness"]:
                 v = np.asarray(getattr(f, fname))
                 if np.any(v <= 0):
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
+            for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
+                          "friction", "tendon_damping", "pad_radius"]:
+                v = getattr(f, fname)
+                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                    raise ValueError(f"{where}: field '{fname}' must be a number, got {v!r}")
             for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
                 if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) > 0):
                     raise ValueError(f"{where}: field '{fname}' must be a finite positive number, got {getattr(f, fname)}")

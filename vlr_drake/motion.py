@@ -99,7 +99,12 @@ class MoveResult:
         tension: (P, N) implied tendon tension T [N].
         multipliers: (P, m) contact-constraint multipliers lambda (negative: the fingers
             squeeze the object along that contact pair).
-        ok: (P,) True where Newton converged.
+        ok: (P,) True where Newton converged: to a stationary point of Eq. 9 under its
+            constraints, which it does not check is a minimum. A review found unstable
+            equilibria (a negative reduced-Hessian eigenvalue, ``grasps.reduced_hessian_min_eig``)
+            among the converged moves: 5 of 300 stable NH3 grasps under +-3 mm actions, many
+            more from a wide prior's draws. Joint limits and tension are not in ``ok``
+            either (:meth:`tension_feasible`; the filter and the model plant add both).
         iterations: (P,) Newton iterations used.
         residuals: (P, 3) final max residuals: stationarity [N m], constraints [m^2],
             tendon equations [m] (ideal model).
@@ -126,7 +131,7 @@ class Equilibrium:
     stretch: np.ndarray  # (P, N)
     tension: np.ndarray  # (P, N)
     multipliers: np.ndarray  # (P, m)
-    ok: np.ndarray  # (P,)
+    ok: np.ndarray  # (P,) solved (a finite least-squares residual), not exact: see _ridge_solve
 
 
 # --------------------------------------------------------------------------------------

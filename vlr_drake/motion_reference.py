@@ -190,6 +190,11 @@ def solve_move(
             f"{solver} failed on the motion problem (Eq. 9, {tendon} tendon): {result.get_solution_result()}"
         )
     th = result.GetSolution(x).reshape(N, K)
+    reach = float(np.max(np.abs(th - theta0)))
+    if reach >= local_range - 1e-6:  # a solver "succeeds" on the box's face: no equilibrium there
+        raise MotionSolveError(
+            f"{solver} stopped on the local search box (a joint moved {reach:.4f} rad, the box is +-{local_range} rad): "
+            f"the nearest minimum of Eq. 9 lies further; no equilibrium within the box")
     if tendon == "elastic":
         T = hand.kappa * (s0 + dl - R @ (th - theta0).ravel())
     else:
