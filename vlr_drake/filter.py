@@ -857,7 +857,7 @@ class FilterConfig:
         for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas",
                      "motion_error", "convergence_deg"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            if not kinematics.is_number(v):
                 raise ValueError(f"filter: '{name}' must be a number, got {v!r}")
         for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas"):
             v = getattr(self, name)

@@ -172,10 +172,12 @@ class HandSpec:
                 v = np.asarray(getattr(f, fname))
                 if np.any(v <= 0):
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
+            from vlr_drake.kinematics import is_number  # (kinematics imports this module)
+
             for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
                           "friction", "tendon_damping", "pad_radius"]:
                 v = getattr(f, fname)
-                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                if not is_number(v):
                     raise ValueError(f"{where}: field '{fname}' must be a number, got {v!r}")
             for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
                 if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) > 0):

@@ -178,6 +178,21 @@ def is_count(value, least: int = 0) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= least
 
 
+def is_number(value) -> bool:
+    """Whether ``value`` is a real number (Python's or numpy's, not a bool or a string): the
+    type check of a setting read from a file, before its range is checked."""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+
+
+def checked_seed(seed) -> int:
+    """``seed`` as an int, or a ValueError naming it (numpy refuses a negative seed only at
+    the first draw, without naming it; 2.9 would be cut to 2): what a system checks when it
+    is made."""
+    if not is_count(seed):
+        raise ValueError(f"'seed' must be an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
 def as_particles(name: str, value, shape: tuple, allow_shared: bool = False) -> np.ndarray:
     """Validate a particle-first array; ``shape`` is the full (P, ...) shape expected.
 

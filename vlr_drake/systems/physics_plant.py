@@ -90,7 +90,7 @@ from pydrake.systems.framework import (
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import checked_seed, is_count
 from vlr_drake.models import (
     configure_parser,
     hand_sdf,
@@ -314,13 +314,11 @@ class ImageDownsampler(LeafSystem):
             raise ValueError(
                 f"ImageDownsampler: need integer width, height and scale >= 1, got {width!r}, {height!r}, {scale!r}"
             )
-        if not is_count(seed):
-            raise ValueError(f"ImageDownsampler: 'seed' must be an integer >= 0, got {seed!r}")
         if not (np.isfinite(noise_std) and noise_std >= 0):
             raise ValueError(f"ImageDownsampler: 'noise_std' must be a finite number >= 0, got {noise_std!r}")
         self._w, self._h, self._s = int(width), int(height), int(scale)
         self._noise = float(noise_std)
-        self._seed = int(seed)
+        self._seed = checked_seed(seed)
         self.image_input = self.DeclareAbstractInputPort(
             name="image_in", model_value=AbstractValue.Make(ImageRgba8U(self._w * self._s, self._h * self._s))
         )

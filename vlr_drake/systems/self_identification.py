@@ -36,7 +36,7 @@ from vlr_drake import filter as pf
 from vlr_drake.control import FALLBACKS
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import checked_seed
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.trace import IdentificationTrace, TraceRecorder
 
@@ -52,14 +52,6 @@ def _timing(period_sec, offset_sec=None) -> tuple[float, float | None]:
     if offset_sec is not None and not (np.isfinite(offset_sec) and 0 <= offset_sec < period_sec):
         raise ValueError(f"'offset_sec' must be None or in [0, period_sec = {period_sec}) [s], got {offset_sec}")
     return float(period_sec), None if offset_sec is None else float(offset_sec)
-
-
-def _seed(seed) -> int:
-    """A system's seed, checked when the system is made (numpy refuses a negative one only
-    at the first draw, without naming it; 2.9 would be cut to 2)."""
-    if not is_count(seed):
-        raise ValueError(f"'seed' must be an integer >= 0, got {seed!r}")
-    return int(seed)
 
 
 def _read_only(x):
@@ -101,7 +93,7 @@ class SelfIdentificationSystem(LeafSystem):
                  period_sec: float, offset_sec: float | None = None, seed: int = 0):
         super().__init__()
         period_sec, offset_sec = _timing(period_sec, offset_sec)
-        self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, _seed(seed)
+        self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, checked_seed(seed)
         pf.warn_if_few_particles(self._config)  # now, not at the first measurement mid-run
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
         self._a_center = pf._shaped("a_center", a_center, (hand.N,))
@@ -236,7 +228,7 @@ class ExplorationPolicy(LeafSystem):
         super().__init__()
         period_sec, _ = _timing(period_sec)
         self._l0 = np.asarray(l_grasp, float)
-        self._seed = _seed(seed)
+        self._seed = checked_seed(seed)
         self._state = self.DeclareDiscreteState(self._l0)
         self._draws = self.DeclareDiscreteState(1)
         self._out = self.DeclareStateOutputPort("tendon_command", self._state)

@@ -34,7 +34,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem, State, ValueProducer
 from pydrake.systems.sensors import ImageRgba8U
 
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import checked_seed
 from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
 from vlr_drake.perception.tag_pose import TagObserverConfig, _check_intrinsics, make_detector, observe_pom
 
@@ -60,14 +60,6 @@ def _check_pose(value: Any, name: str) -> RigidTransform:
         raise ValueError(f"{name}: the pose is not finite: {value.GetAsMatrix34().tolist()}")
     return value
 
-
-
-def _seed(seed) -> int:
-    """A system's seed, checked when the system is made (numpy would refuse a negative one
-    at the first evaluation, without naming it)."""
-    if not is_count(seed):
-        raise ValueError(f"'seed' must be an integer >= 0, got {seed!r}")
-    return int(seed)
 
 class TagObserver(LeafSystem):
     """AprilTag observer: ``rgb_image`` in; ``X_PO_measured``, ``X_PO_valid``,
@@ -121,7 +113,7 @@ class TagObserver(LeafSystem):
         if not pixel_noise_std >= 0:
             raise ValueError(f"'pixel_noise_std' must be >= 0, got {pixel_noise_std}")
         self._pixel_noise_std = float(pixel_noise_std)
-        self._seed = _seed(seed)
+        self._seed = checked_seed(seed)
         self._detector = make_detector(config.corner_refinement, config.detector_overrides)
 
         self._rgb_image = self.DeclareAbstractInputPort(
@@ -260,7 +252,7 @@ class NoisyPoseSensor(LeafSystem):
         self._sigma_p = float(sigma_p)
         self._sigma_r = float(sigma_r)
         self._dropout = float(dropout_probability)
-        self._seed = _seed(seed)
+        self._seed = checked_seed(seed)
 
         self._X_PO_true = self.DeclareAbstractInputPort(
             name="X_PO_true", model_value=AbstractValue.Make(RigidTransform())
