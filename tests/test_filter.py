@@ -1336,3 +1336,33 @@ def test_implied_roughening_drops_hypotheses_without_an_equilibrium(monkeypatch)
     assert np.all(np.isneginf(ps.log_w[::2])) and np.all(ps.log_w[1::2] == 0.0)
     w = pf.normalise(ps.log_w)
     assert w[::2].sum() == 0.0 and w.sum() == pytest.approx(1.0)
+
+
+def test_stable_grasps_conditions_the_prior_and_the_moves():
+    """``stable_grasps``: "prior" and "always" draw only stable equilibria (about a third
+    of the physical draws are saddles otherwise); "always" also gives a move that ends on a
+    saddle no weight, as one that found no equilibrium."""
+    prior = pf.PriorConfig()
+    unstable = {}
+    for mode in pf.STABLE_GRASPS:
+        h, f = _initialised(prior, pf.FilterConfig(particles=2000, stable_grasps=mode))
+        ps = f.particles
+        eq = pf.motion.equilibrium(h, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness)
+        stable = pf.motion.stable_equilibria(h, ps.theta, eq.multipliers, a=ps.a, ok=eq.ok)
+        unstable[mode] = 1.0 - stable.mean()
+        # a move's saddles: feasible unless "always"
+        res = pf.motion.move(h, ps.theta, np.full(h.N, 0.5e-3), a=ps.a, D2=pf.motion.contact_distances_sq(h, ps.p_O),
+                             stretch=ps.stretch)
+        res.stable[::3] = False  # as if these had ended on saddles
+        pose_ok = np.ones(ps.size, bool)
+        plain = f._feasible(pf.motion.MoveResult(**{**res.__dict__, "stable": res.ok.copy()}), pose_ok)
+        feasible = f._feasible(res, pose_ok)
+        if mode == "always":
+            np.testing.assert_array_equal(feasible, plain & res.stable)
+            assert plain[::3].any()
+        else:
+            np.testing.assert_array_equal(feasible, plain)
+    assert unstable["off"] > 0.1
+    assert unstable["prior"] == 0.0 and unstable["always"] == 0.0
+    with pytest.raises(ValueError, match="'stable_grasps' must be one of"):
+        pf.FilterConfig(stable_grasps="yes").validate()

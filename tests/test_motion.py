@@ -537,3 +537,111 @@ def test_the_reference_refuses_a_solution_on_its_search_box():
     # the batched solver flags the same action (no nearby equilibrium: a snap-through)
     res = motion.move(hand, g.theta, dl, a=g.a, D2=g.D2, stretch=g.stretch)
     assert not res.ok[0]
+
+
+def _random_equilibria(hand, rng, count):
+    """Equilibria of random angles and contacts (a wide prior's draws: about half of the
+    physical ones are saddles) with pulling tendons."""
+    th = np.empty((count, hand.N, hand.K))
+    th[..., 0] = rng.uniform(-0.1, 0.6, (count, hand.N))
+    th[..., 1:] = rng.uniform(0.0, 1.2, (count, hand.N, hand.K - 1)) / (hand.K - 1)
+    a = rng.uniform(0.015, 0.04, (count, hand.N))
+    eq = motion.equilibrium(hand, th, a=a)
+    keep = eq.ok & np.all(eq.tension >= 0.05, axis=1)
+    return eq.theta[keep], a[keep], eq.multipliers[keep]
+
+
+@pytest.mark.parametrize("hand_name", ["model_o_hand", "hand_4x3"])
+def test_stability_is_the_reduced_hessians_sign(request, hand_name):
+    """motion.stable_equilibria reads the KKT matrix's inertia; it says the same as the
+    reduced Hessian's smallest eigenvalue (a null-space basis by SVD), including on the
+    near-degenerate grasps of kilonewton multipliers, and both kinds occur."""
+    hand = request.getfixturevalue(hand_name)
+    th, a, lam = _random_equilibria(hand, np.random.default_rng(3), 1500)
+    eig = grasps.reduced_hessian_min_eig(hand, th, a, lam)
+    stable = motion.stable_equilibria(hand, th, lam, a=a)
+    clear = np.abs(eig) > 1e-6  # (none is closer to zero in these draws; the sign is moot there)
+    assert clear.mean() > 0.99
+    np.testing.assert_array_equal(stable[clear], eig[clear] > 0)
+    assert stable.sum() >= 5 and (~stable).sum() >= 5  # (the 4x3 hand: 8 saddles in 347)
+    assert np.abs(lam).max() > 1e3  # the near-degenerate grasps were among them
+    # ``ok`` False (an equilibrium not found) is reported unstable
+    ok = np.ones(len(th), bool)
+    ok[::2] = False
+    assert not motion.stable_equilibria(hand, th, lam, a=a, ok=ok)[::2].any()
+
+
+@pytest.mark.parametrize("tendon", ["elastic", "ideal"])
+def test_moves_report_whether_they_end_stable(model_o_hand, tendon):
+    """MoveResult.stable: the converged moves' reduced-Hessian sign (from random equilibria,
+    about half of them saddles); unsolved moves are not stable; without the check it
+    repeats ``ok``."""
+    hand = model_o_hand
+    rng = np.random.default_rng(5)
+    th, a, lam = _random_equilibria(hand, rng, 800)
+    eq = motion.equilibrium(hand, th, a=a)
+    D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, th, a))
+    span = 1.5e-3 if tendon == "elastic" else 0.1e-3
+    dl = rng.uniform(-span, span, (len(th), hand.N))
+    res = motion.move(hand, th, dl, a=a, D2=D2, stretch=eq.stretch, tendon=tendon)
+    eig = grasps.reduced_hessian_min_eig(hand, res.theta, a, res.multipliers, tendon=tendon)
+    clear = res.ok & (np.abs(eig) > 1e-6)
+    assert clear.sum() > 0.5 * len(th)
+    np.testing.assert_array_equal(res.stable[clear], eig[clear] > 0)
+    if tendon == "elastic":
+        assert res.stable[clear].any() and not res.stable[clear].all()
+    else:  # the Model O's ideal-tendon problem is square: an isolated point, nothing to roll off to
+        assert res.stable[res.ok].all()
+    assert not res.stable[~res.ok].any()
+    off = motion.move(hand, th, dl, a=a, D2=D2, stretch=eq.stretch, tendon=tendon, check_stability=False)
+    np.testing.assert_array_equal(off.stable, off.ok)
+    np.testing.assert_array_equal(off.theta, res.theta)
+
+
+def test_stability_counts_the_gravity_loads_stiffness(model_o_hand):
+    """With gravity loads that follow the angles (the links' and the object's weight), the
+    energy's Hessian gains the loads' -d tau / d theta: stable_equilibria agrees with the
+    reduced Hessian of the Lagrangian plus that term (by central differences of
+    motion.gravity_torque), and the loads change the verdict on some grasps."""
+    hand = model_o_hand
+    rng = np.random.default_rng(8)
+    th, a, _ = _random_equilibria(hand, rng, 600)
+    g = np.array([9.81, 0.0, 0.0])  # along the palm, in the fingers' planes
+    load = rng.uniform(0.5, 2.0, (len(th), hand.N))  # heavy, so that the loads decide some grasps
+    eq = motion.equilibrium(hand, th, a=a, gravity=g, object_load=load, settle=False)
+    keep = np.flatnonzero(eq.ok)
+    th, a, load, lam = th[keep], a[keep], load[keep], eq.multipliers[keep]
+    stable = motion.stable_equilibria(hand, th, lam, a=a, gravity=g, object_load=load)
+    plain = motion.stable_equilibria(hand, th, lam, a=a)
+    assert (stable != plain).any()
+    h = 1e-6
+    checked = 0
+    for p in range(min(len(th), 120)):
+        H, G = grasps.lagrangian_hessian(hand, th[p], a[p], lam[p])
+        dtau = np.empty((hand.N * hand.K, hand.N * hand.K))
+        for q in range(hand.N * hand.K):
+            d = np.zeros(hand.N * hand.K)
+            d[q] = h
+            up = motion.gravity_torque(hand, (th[p].ravel() + d).reshape(1, hand.N, hand.K), a=a[p:p + 1], gravity=g,
+                                       object_load=load[p:p + 1])
+            dn = motion.gravity_torque(hand, (th[p].ravel() - d).reshape(1, hand.N, hand.K), a=a[p:p + 1], gravity=g,
+                                       object_load=load[p:p + 1])
+            dtau[:, q] = (up - dn).ravel() / (2 * h)
+        _, _, Vt = np.linalg.svd(G)
+        Z = Vt[G.shape[0]:].T
+        e = np.linalg.eigvalsh(Z.T @ (H - 0.5 * (dtau + dtau.T)) @ Z).min()
+        if abs(e) > 1e-5:
+            assert stable[p] == (e > 0), p
+            checked += 1
+    assert checked >= 100
+
+
+def test_stability_refuses_bad_input(model_o_hand):
+    hand = model_o_hand
+    th, a, lam = _random_equilibria(hand, np.random.default_rng(1), 50)
+    with pytest.raises(ValueError, match="'multipliers' must have shape"):
+        motion.stable_equilibria(hand, th, lam[:, :2], a=a)
+    with pytest.raises(ValueError, match="tendon model must be one of"):
+        motion.stable_equilibria(hand, th, lam, a=a, tendon="rope")
+    with pytest.raises(ValueError, match="'theta' must have shape"):
+        motion.stable_equilibria(hand, th[:, :2], lam, a=a)

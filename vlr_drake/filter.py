@@ -669,6 +669,9 @@ TENDON_REFERENCES = ("commanded", "implied")
 #: Shapes of the measurement likelihood (FilterConfig.likelihood).
 LIKELIHOODS = ("gaussian", "student_t")
 
+#: Where the filter asks a hypothesis' equilibrium to be stable (FilterConfig.stable_grasps).
+STABLE_GRASPS = ("off", "prior", "always")
+
 
 @dataclass
 class FilterConfig:
@@ -850,6 +853,12 @@ class FilterConfig:
     # novel fingers, "following" on the stiffness (vlr_drake.identify.GRAVITY_LOADS). None:
     # the experiment's default where identify or the builder sets the filter up, else "held".
     gravity_loads: str | None = None
+    # Which equilibria must be stable, a strict minimum of Eq. 9's energy on the grasp
+    # manifold (motion.stable_equilibria; Newton's stationary points include saddles, which
+    # a hand balances on rather than holds): "always", the prior's draws and every move's
+    # result (an unstable one weighs nothing, as an unsolved one); "prior", the draws only;
+    # "off", neither (the behaviour before 2026-11-27, twenty-third session).
+    stable_grasps: str = "off"
 
     def validate(self) -> FilterConfig:
         if not kinematics.is_count(self.particles, 10):
@@ -881,6 +890,8 @@ class FilterConfig:
             raise ValueError(f"filter: 'likelihood_width' must be None or a positive finite number, got {w}")
         if self.gravity_loads is not None and self.gravity_loads not in GRAVITY_LOADS:
             raise ValueError(f"filter: 'gravity_loads' must be one of {GRAVITY_LOADS}, got '{self.gravity_loads}'")
+        if self.stable_grasps not in STABLE_GRASPS:
+            raise ValueError(f"filter: 'stable_grasps' must be one of {STABLE_GRASPS}, got '{self.stable_grasps}'")
         if self.held_motion not in HELD_MOTIONS:
             raise ValueError(f"filter: 'held_motion' must be one of {HELD_MOTIONS}, got '{self.held_motion}'")
         if self.max_substeps < 0:
@@ -1115,6 +1126,11 @@ class SelfIdentificationFilter:
         eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff,
                                 **self._loads(theta, a, links, load))
         good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & h.within_joint_limits(eq.theta)
+        if self.config.stable_grasps != "off" and good.any():
+            idx = np.flatnonzero(good)
+            good[idx] = self._stable(eq.theta[idx], a[idx], eq.multipliers[idx],
+                                     stiff[idx] if stiff.shape[0] > 1 else stiff,
+                                     links[idx] if links.shape[0] > 1 else links, None if load is None else load[idx])
         theta, stretch = eq.theta, eq.stretch
         if self.config.settle_prior and self._uses_command() and good.any():  # only the physical draws
             idx = np.flatnonzero(good)
@@ -1175,7 +1191,18 @@ class SelfIdentificationFilter:
                           loose_after=self.config.newton_loose_after,
                           **self._loads(theta, a, link_lengths, load))
         ok = res.ok & np.all(res.tension >= self.prior.min_tension, axis=1) & h.within_joint_limits(res.theta)
+        if self.config.stable_grasps != "off":
+            ok &= res.stable
         return res.theta, self._commanded_stretch(res.theta), ok
+
+    def _stable(self, theta, a, multipliers, stiffness, link_lengths, load) -> np.ndarray:
+        """(P,) equilibria ``theta`` (with their contact ``multipliers``) that are stable
+        under the filter's model: its tendon and, where they follow the angles, its gravity
+        loads (``gravity_loads``; held ones add no stiffness)."""
+        kw = self._loads(theta, a, link_lengths, load)
+        kw.pop("external_torque", None)
+        return motion.stable_equilibria(self.hand, theta, multipliers, a=a, link_lengths=link_lengths,
+                                        stiffness=stiffness, tendon=self.config.tendon, **kw)
 
     def _draw_stiffness(self, n, center, scale):
         h, pr = self.hand, self.prior
@@ -1252,10 +1279,14 @@ class SelfIdentificationFilter:
 
     def _feasible(self, res, pose_ok) -> np.ndarray:
         """(P,) hypotheses that stay physical after the move ``res``: solved, a POM pose
-        (``pose_ok``), pulling tendons and joints inside their limits. With a
+        (``pose_ok``), pulling tendons, joints inside their limits and, with ``stable_grasps``
+        "always", a stable equilibrium. With a
         ``stuck_probability`` an unsolved hypothesis (which keeps its angles) counts as solved."""
         solved = res.ok | bool(self.config.stuck_probability)
-        return solved & pose_ok & (res.tension_feasible() | ~res.ok) & self.hand.within_joint_limits(res.theta)
+        physical = res.tension_feasible()
+        if self.config.stable_grasps == "always":
+            physical &= res.stable
+        return solved & pose_ok & (physical | ~res.ok) & self.hand.within_joint_limits(res.theta)
 
     # ---------------------------------------------------------------- action choice
     def action_information(self, actions, rng: np.random.Generator, samples: int = 256,

@@ -57,6 +57,7 @@ __all__ = [
     "Equilibrium",
     "TendonLimitError",
     "move",
+    "stable_equilibria",
     "equilibrium",
     "check_action",
     "contact_distances_sq",
@@ -100,14 +101,16 @@ class MoveResult:
         multipliers: (P, m) contact-constraint multipliers lambda (negative: the fingers
             squeeze the object along that contact pair).
         ok: (P,) True where Newton converged: to a stationary point of Eq. 9 under its
-            constraints, which it does not check is a minimum. A review found unstable
-            equilibria (a negative reduced-Hessian eigenvalue, ``grasps.reduced_hessian_min_eig``)
-            among the converged moves: 5 of 300 stable NH3 grasps under +-3 mm actions, many
-            more from a wide prior's draws. Joint limits and tension are not in ``ok``
-            either (:meth:`tension_feasible`; the filter and the model plant add both).
+            constraints, which need not be a minimum (``stable`` says; a review found
+            unstable equilibria among the converged moves: 5 of 300 stable NH3 grasps under
+            +-3 mm actions, many more from a wide prior's draws). Joint limits and tension
+            are not in ``ok`` either (:meth:`tension_feasible`; the filter and the model
+            plant add both).
         iterations: (P,) Newton iterations used.
         residuals: (P, 3) final max residuals: stationarity [N m], constraints [m^2],
             tendon equations [m] (ideal model).
+        stable: (P,) True where ``ok`` and the equilibrium is a strict constrained minimum
+            (:func:`stable_equilibria`); all ``ok`` when :func:`move` was asked not to check.
     """
 
     theta: np.ndarray
@@ -117,6 +120,7 @@ class MoveResult:
     ok: np.ndarray
     iterations: np.ndarray
     residuals: np.ndarray
+    stable: np.ndarray
 
     def tension_feasible(self, tol: float = 0.0) -> np.ndarray:
         """(P,) True where every implied tendon tension is >= -tol (tendons only pull)."""
@@ -954,6 +958,124 @@ def _equilibrium_kernel(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, la
                            resid)
 
 
+@njit(cache=True)
+def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded, ideal,
+                     start, stop, stable):  # pragma: no cover - numba
+    """:func:`_stability_kernel` for particles ``start:stop``, LANES at a time."""
+    P, N, K = theta.shape
+    n = N * K
+    m = pairs.shape[0]
+    nc = N if ideal else 0
+    dim = n + m + nc
+    W = LANES
+    th = np.zeros((N, K, W))
+    Ll = np.ones((N, K - 1, W))
+    al = np.zeros((N, W))
+    kl = np.ones((N, K, W))
+    lm = np.zeros((m, W))
+    lmu = np.zeros((N, K, W))
+    lfc = np.zeros((N, 3, W))
+    tau = np.zeros((N, K, W))
+    dtau = np.zeros((N, K, K, W))
+    sc1, sc2, sc3 = np.empty(W), np.empty(W), np.empty(W)
+    Pc, Jc, Hc = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
+    g, G, D2 = np.empty((m, W)), np.empty((m, n, W)), np.zeros((m, W))
+    A, A2, b = np.empty((dim, dim, W)), np.empty((dim, dim, W)), np.zeros((dim, W))
+    A1 = np.empty((dim, dim))
+    hscale, gscale = np.zeros(W), np.zeros(W)
+    tiny1, tiny2 = np.zeros(W), np.zeros(W)
+    bad = np.zeros(W, dtype=np.bool_)
+    Hten = np.zeros((n, n))
+    if not ideal:
+        for i in range(N):
+            for k in range(K):
+                for k2 in range(K):
+                    Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
+    for b0 in range(start, stop, W):
+        nw = min(W, stop - b0)
+        for w in range(W):
+            p = b0 + w if w < nw else b0  # idle lanes compute on a valid particle, unused
+            pl = p if L.shape[0] > 1 else 0
+            pk = p if kst.shape[0] > 1 else 0
+            for i in range(N):
+                al[i, w] = a[p, i]
+                for k in range(K):
+                    th[i, k, w] = theta[p, i, k]
+                    kl[i, k, w] = kst[pk, i, k]
+                for k in range(K - 1):
+                    Ll[i, k, w] = L[pl, i, k]
+            for c in range(m):
+                lm[c, w] = lam[p, c]
+            if loaded:
+                pm = p if mu_all.shape[0] > 1 else 0
+                pf = p if fc_all.shape[0] > 1 else 0
+                for i in range(N):
+                    for k in range(K):
+                        lmu[i, k, w] = mu_all[pm, i, k]
+                    for r in range(3):
+                        lfc[i, r, w] = fc_all[pf, i, r]
+        _fk_all(th, Ll, al, pad, base, u, Pc, Jc, Hc)
+        _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
+        if loaded:
+            _load_lanes(th, Jc, Hc, lmu, gw, lfc, tau, dtau, sc1, sc2, sc3)
+        _kkt_lanes(Pc, Jc, Hc, G, kl, Hten, rarm, lm, pairs, ideal, A, hscale, gscale, dtau, loaded)
+        # without the Newton matrix's tiny negative diagonal on the multipliers' block: where
+        # a constraint's gradient nearly vanishes (the Model O's mirror-image grasps) it
+        # would outweigh the gradient and count a negative eigenvalue too many
+        for c in range(m + nc):
+            for w in range(W):
+                A[n + c, n + c, w] = 0.0
+        for w in range(W):
+            bad[w] = False
+            tiny1[w] = 1e-9 * hscale[w]
+            tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w]
+        for q in range(dim):
+            for q2 in range(q, dim):
+                for w in range(W):
+                    A2[q, q2, w] = A[q, q2, w]
+        _lu_lanes(A, b, n, tiny1, tiny2, bad)  # A's diagonal: the reciprocal pivots
+        for w in range(nw):
+            p = b0 + w
+            if not ok[p]:
+                stable[p] = False
+                continue
+            neg = 0
+            if bad[w]:  # a small pivot: the eigenvalues of this lane's matrix instead
+                for q in range(dim):
+                    for q2 in range(q, dim):
+                        A1[q, q2] = A2[q, q2, w]
+                        A1[q2, q] = A2[q, q2, w]
+                ev = np.linalg.eigvalsh(A1)
+                for q in range(dim):
+                    if ev[q] < 0.0:
+                        neg += 1
+            else:
+                for q in range(dim):
+                    if A[q, q, w] < 0.0:
+                        neg += 1
+            stable[p] = neg == m + nc
+
+
+@njit(cache=True, parallel=True)
+def _stability_kernel(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded, ideal,
+                      stable):  # pragma: no cover - numba
+    """Whether each particle's equilibrium is a strict constrained minimum of Eq. 9's energy
+    (``stable`` (P,)), from the inertia of its KKT matrix [[H, G^T], [G, 0]] (H: the
+    Hessian of the Lagrangian, with the elastic tendons' and the gravity loads' parts; G:
+    the constraint gradients, with the ideal tendon's rows R): the reduced Hessian
+    Z^T H Z is positive definite if and only if the KKT matrix has exactly as many negative
+    eigenvalues as constraints (Gould 1985). The inertia is read off the pivots of the
+    same elimination without pivoting as the Newton steps (Sylvester's law of inertia);
+    a lane with a small pivot counts its matrix's eigenvalues instead."""
+    P = theta.shape[0]
+    chunk = 2048
+    nchunks = (P + chunk - 1) // chunk
+    for cc in prange(nchunks):
+        start = np.int64(cc) * chunk
+        _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded,
+                         ideal, start, min(start + chunk, P), stable)
+
+
 # --------------------------------------------------------------------------------------
 # Python API
 # --------------------------------------------------------------------------------------
@@ -1108,6 +1230,7 @@ def move(
     external_torque=None,
     gravity=None,
     object_load=None,
+    check_stability: bool = True,
 ) -> MoveResult:
     """Gamma (Eq. 4/9): move every particle by the tendon action ``dl``.
 
@@ -1151,6 +1274,9 @@ def move(
             likewise following the angles (the energy gains -sum_i f_i . p_i(theta)). A
             torque held constant instead (``external_torque`` evaluated before the move)
             misses the loads' stiffness, which for the object's weight is half the springs'.
+        check_stability: whether to test each converged equilibrium for a constrained
+            minimum (``MoveResult.stable``, :func:`stable_equilibria`); without it ``stable``
+            repeats ``ok``.
     """
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
@@ -1190,7 +1316,43 @@ def move(
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
         _move_tasks(P),
     )
-    return MoveResult(out_theta, s_out, T, lam, ok, iters, resid)
+    stable = ok.copy()
+    if check_stability:
+        _stability_kernel(out_theta, lam, ok, a, L, k, hand.pad, hand.base, hand.u, hand.moment_arms, hand.kappa,
+                          hand.constraint_pairs, mu_all, fc_all, gw, loaded, tendon == "ideal", stable)
+    return MoveResult(out_theta, s_out, T, lam, ok, iters, resid, stable)
+
+
+def stable_equilibria(
+    hand: HandModel, theta, multipliers, *, a, ok=None, link_lengths=None, stiffness=None, tendon: str = "elastic",
+    gravity=None, object_load=None,
+) -> np.ndarray:
+    """(P,) True where the equilibrium at ``theta`` (P, N, K) with contact multipliers
+    ``multipliers`` (P, m) (from :func:`move` or :func:`equilibrium`) is a strict
+    constrained minimum of Eq. 9's energy: a grasp the hand can hold, rather than one it
+    balances on (a saddle, from which the least disturbance moves it away).
+
+    The test is the KKT matrix's inertia (Gould 1985; :func:`_stability_kernel`), which
+    needs no null-space basis: it agrees with the reduced Hessian's smallest eigenvalue
+    (``grasps.reduced_hessian_min_eig``) away from zero. ``ok`` (P,): where the
+    equilibrium was found (default all); the others are reported unstable. The elastic
+    tendons' stiffness and, with ``gravity`` (and ``object_load``), the gravity loads'
+    stiffness (:func:`move`) are part of the energy; a constant ``external_torque`` adds none.
+    """
+    if tendon not in TENDON_MODELS:
+        raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
+    theta = _check_theta(hand, theta)
+    P = theta.shape[0]
+    lam = as_particles("multipliers", multipliers, (P, hand.num_constraints))
+    a = as_particles("a", a, (P, hand.N))
+    ok = np.ones(P, dtype=np.bool_) if ok is None else np.ascontiguousarray(np.broadcast_to(ok, (P,)), dtype=np.bool_)
+    L, k = _hand_params(hand, P, link_lengths, stiffness)
+    mu_all, fc_all, gw, loaded = _gravity_loads(hand, P, L, gravity, object_load)
+    stable = np.empty(P, dtype=np.bool_)
+    _stability_kernel(theta, lam, ok & np.all(np.isfinite(lam), axis=1), a, L, k, hand.pad, hand.base, hand.u,
+                      hand.moment_arms, hand.kappa, hand.constraint_pairs, mu_all, fc_all, gw, loaded,
+                      tendon == "ideal", stable)
+    return stable
 
 
 def equilibrium(
