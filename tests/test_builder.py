@@ -77,10 +77,10 @@ def test_example_scenario_builds_and_runs(path: Path):
         # the prior's centre: the placed angles, and a guess of the contacts, which the pads
         # fix at PAD_FRACTION of the distal link (not the truth itself), as identify guesses
         prior = s.prior.to_prior()
-        if prior.links_unknown:
+        believed = prior.believed_hand(spec)
+        if believed != spec:
             # a replaced finger's true link does not reach the filter: the angles are placed
             # with the hand it believes in, whose unknown links are their range's middle
-            believed = prior.believed_hand(spec)
             middle = 0.5 * sum(prior.link_range)
             assert all(believed.fingers[fi].link_lengths[0] == middle for fi in prior.links_unknown)
             np.testing.assert_allclose(b.theta_center.ravel(), placed_grasp(believed, s.object_spec_resolved(),

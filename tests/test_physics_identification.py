@@ -89,6 +89,61 @@ def test_an_object_that_falls_stops_the_run_and_keeps_its_estimates(monkeypatch,
     assert np.all(np.isfinite(r["proximal_joint_error_deg"]))
 
 
+def test_a_failed_simulation_stops_the_run_and_keeps_its_estimates(monkeypatch):
+    """The simulator raising mid-run (here made to, at the third action) ends the run as a
+    dropped object does, naming the failure; before a review it propagated and the two
+    iterations done were lost."""
+    from vlr_drake.systems.physics_plant import PhysicsHand
+
+    real, calls = PhysicsHand.apply_action, {"n": 0}
+
+    def fails_at_third(self, *args, **kw):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise RuntimeError("SAP solver failed to converge")
+        return real(self, *args, **kw)
+
+    monkeypatch.setattr(PhysicsHand, "apply_action", fails_at_third)
+    r = run_identification(IdentifyOptions(experiment="known_hand", plant="physics", particles=300,
+                                           max_iterations=10, seed=0, progress=False))
+    assert "the physics simulation failed (SAP solver failed to converge)" in r["stopped"], r["stopped"]
+    assert r["iterations"] == 2 and np.all(np.isfinite(r["proximal_joint_error_deg"]))
+
+
+def test_a_physics_seed_is_refused():
+    from vlr_drake.systems.physics_plant import PhysicsConfig
+
+    with pytest.raises(ValueError, match="physics: 'seed' .* is set from the run's seed"):
+        IdentifyOptions(plant="physics", physics=PhysicsConfig(seed=5)).validate()
+
+
+def test_no_true_spring_reaches_the_filter():
+    """The stiffness experiment on the physics plant: the placed angles follow the springs'
+    closing path (the thumb's distal/proximal ratio is the springs' ratio), so a centre
+    placed with the true spring would tell it. A review found exactly that; the centre is
+    placed with the hand the filter believes in, its unknown spring at the log-uniform
+    prior's middle (the geometric mean of its range), which the filter's hand carries."""
+    from vlr_drake.hand import model_o
+    from vlr_drake.objects import preset
+    from vlr_drake.systems.physics_plant import PhysicsConfig, placed_grasp
+
+    r = run_identification(IdentifyOptions(experiment="stiffness", plant="physics", particles=3000, max_iterations=1,
+                                           seed=0, progress=False))
+    trace = r["_trace"]
+    (fi, j), = trace.prior.stiffness_unknown
+    lo, hi = trace.prior.stiffness_range
+    assert trace.hand.fingers[fi].stiffness[j] == pytest.approx(np.sqrt(lo * hi))
+    believed = trace.prior.believed_hand(model_o())
+    assert believed == trace.hand
+    obj = preset(trace.meta["object"])
+    np.testing.assert_array_equal(trace.theta_center, placed_grasp(believed, obj, PhysicsConfig())[0].reshape(3, 2))
+    true_spec = model_o()
+    true_spec.fingers[fi].stiffness = list(true_spec.fingers[fi].stiffness)
+    true_spec.fingers[fi].stiffness[j] = float(trace.truths["stiffness"][0][fi, j])
+    true_centre = placed_grasp(true_spec, obj, PhysicsConfig())[0].reshape(3, 2)
+    assert not np.allclose(trace.theta_center, true_centre, atol=1e-3)
+
+
 def test_no_replaced_finger_s_true_length_reaches_the_filter():
     """Novel fingers on the physics plant: the plant places its grasp with the true hand, the
     filter's prior is centred on the grasp placed with the hand it believes in (each unknown

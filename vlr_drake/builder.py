@@ -47,7 +47,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import check_output, plain
+from vlr_drake.entry import check_output, count, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng
@@ -60,6 +60,7 @@ from vlr_drake.scenario import (
     Scenario,
     example_scenarios,
     find_scenario,
+    ignored_by_plant,
     load_scenario,
 )
 from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, placed_grasp
@@ -339,10 +340,13 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     Raises ``ValueError`` for an invalid scenario or a model-plant truth with no stable grasp.
     """
     s = scenario.validate()
+    ignored = ignored_by_plant(s)
+    if ignored:  # said, not silently dropped
+        warnings.warn(f"scenario '{s.name}': the {s.plant} plant does not use {', '.join(ignored)}", stacklevel=2)
     spec = s.hand_spec_resolved()
     h = spec.model()
     prior = s.prior.to_prior()
-    believed = prior.believed_hand(spec)  # the filter's hand: a replaced finger's unknown link at its range's middle
+    believed = prior.believed_hand(spec)  # the filter's hand: unknown links and springs at their range's middle
     T = s.period_sec()
     builder = DiagramBuilder()
     ph = None
@@ -354,7 +358,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
             meshcat = Meshcat()
         obj = s.object_spec_resolved()
         theta0, l0 = placed_grasp(spec, obj, s.physics)
-        if prior.links_unknown:  # the grasp placed with the hand the filter believes in, as vlr-drake identify
+        if believed != spec:  # the grasp placed with the hand the filter believes in, as vlr-drake identify
             theta0 = placed_grasp(believed, obj, s.physics)[0]
         # the camera's pixel noise takes the scenario's seed (PhysicsConfig.seed)
         ph = add_physics_hand(builder, spec, obj, replace(s.physics, seed=s.seed), s.camera, meshcat)
@@ -727,7 +731,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
     parser.add_argument("--run", metavar="SCENARIO", default=None,
                         help="run a scenario: a file, or an example's name in diagrams/ (e.g. model_plant)")
-    parser.add_argument("--iterations", type=int, default=None, help="filter iterations of --run (default 10)")
+    parser.add_argument("--iterations", type=count(0), default=None, help="filter iterations of --run (default 10)")
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
@@ -735,6 +739,10 @@ def main(argv: list[str] | None = None) -> int:
     for flag, value in (("--set", args.set), ("--trace", args.trace), ("--iterations", args.iterations)):
         if value is not None and not args.run:
             parser.error(f"{flag} needs --run SCENARIO")
+    for flag, value in (("--write-diagrams", args.write_diagrams), ("--folder", args.folder),
+                        ("--no-render", args.no_render)):
+        if value and args.run:
+            parser.error(f"{flag} does not go with --run (it writes the example diagrams)")
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
         iterations = 10 if args.iterations is None else args.iterations

@@ -557,17 +557,29 @@ class PriorConfig:
 
     def believed_hand(self, spec: HandSpec) -> HandSpec:
         """The hand the filter believes in before any measurement: a copy of ``spec`` whose
-        unknown proximal links (``links_unknown``) are the middle of ``link_range``, for
-        whatever is computed from the hand's geometry before the particles are drawn (the
-        nominal grasp's placed angles), so that no true length of a replaced finger reaches
-        the filter."""
+        unknown proximal links (``links_unknown``) are the middle of ``link_range`` and whose
+        unknown springs (``stiffness_unknown``) are the middle of ``stiffness_range`` in the
+        prior's own space (:meth:`stiffness_middle`), for whatever is computed from the
+        hand's geometry and springs before the particles are drawn (the nominal grasp's
+        placed angles, which follow the springs' closing path), so that no true length of a
+        replaced finger and no true spring reaches the filter."""
         believed = copy.deepcopy(spec)
         middle = 0.5 * (self.link_range[0] + self.link_range[1])
         for fi in self.links_unknown:
             lengths = list(believed.fingers[fi].link_lengths)
             lengths[0] = middle
             believed.fingers[fi].link_lengths = lengths
+        for fi, j in self.stiffness_unknown:
+            k = list(believed.fingers[fi].stiffness)
+            k[j] = self.stiffness_middle()
+            believed.fingers[fi].stiffness = k
         return believed
+
+    def stiffness_middle(self) -> float:
+        """The middle of ``stiffness_range`` in the prior's space: the geometric mean for
+        the log-uniform prior, the arithmetic mean for the uniform one [N m/rad]."""
+        lo, hi = self.stiffness_range
+        return float(np.sqrt(lo * hi)) if self.stiffness_prior == "log_uniform" else 0.5 * (lo + hi)
 
     def guessed_grasp(self, theta, a, rng: np.random.Generator,
                       fraction: float = CENTER_OFFSET_FRACTION) -> tuple[np.ndarray, np.ndarray]:
@@ -609,8 +621,9 @@ class PriorConfig:
                                  f"got {getattr(self, name)}")
         if self.stiffness_prior not in STIFFNESS_PRIORS:
             raise ValueError(f"prior: 'stiffness_prior' must be one of {STIFFNESS_PRIORS}, got '{self.stiffness_prior}'")
-        if not np.isfinite(self.min_tension):
-            raise ValueError(f"prior: 'min_tension' must be finite, got {self.min_tension}")
+        if not (np.isfinite(self.min_tension) and self.min_tension >= 0):
+            raise ValueError(f"prior: 'min_tension' must be a finite number >= 0 (tendons only pull) [N], "
+                             f"got {self.min_tension}")
         for fi, j in self.stiffness_unknown if N is not None else ():
             if not (0 <= fi < N and 0 <= j < K):
                 raise ValueError(f"prior: stiffness_unknown entry ({fi}, {j}) is not a joint of a {N} x {K} hand")

@@ -357,6 +357,9 @@ class IdentifyOptions:
         if self.object_weight and self.filter.gravity_loads != "following":
             raise ValueError("object_weight needs filter gravity_loads 'following' (held through a move, the "
                              "object's weight misses its stiffness)")
+        if self.physics is not None and self.physics.seed != 0:  # it would be replaced without a word
+            raise ValueError(f"physics: 'seed' ({self.physics.seed!r}) is set from the run's seed (--seed), which "
+                             "every random draw of the run takes (the camera's pixel noise too)")
         if self.nominal_grasp not in ("placed", "settled"):
             raise ValueError(f"nominal_grasp must be 'placed' or 'settled', got '{self.nominal_grasp}'")
         if not 0.0 <= self.dropout < 1.0:  # (NaN too) 1 would never see the tag
@@ -521,7 +524,8 @@ def _hands(opts: IdentifyOptions, rng):
     """(true hand spec, filter's hand spec, prior config).
 
     The filter's hand is the nominal one (``hand_spec`` or the preset), with the replaced
-    fingers' unknown links at their range's middle (:meth:`PriorConfig.believed_hand`); the
+    fingers' unknown links and the unknown springs at their range's middle
+    (:meth:`PriorConfig.believed_hand`); the
     true hand is the nominal one with the stiffness and link lengths of ``true_stiffness`` /
     ``true_link_lengths`` and, for the stiffness experiment without them, a thumb distal
     spring drawn from ``STIFFNESS_RANGE``."""
@@ -611,7 +615,8 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     else:
         from vlr_drake.physics_identify import PhysicsAdapter
 
-        plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera, observer=opts.observer)
+        plant = PhysicsAdapter(opts, true_spec, rng, opts.physics, opts.camera, observer=opts.observer,
+                               believed_spec=filt_spec)
     opts.filter.gravity_palm = filter_gravity(plant.physics if opts.link_weight else None)
     theta_c, a_c, R0, t0 = plant.start(prior)
     if opts.plant == "physics":  # the pads fix the true contacts: the filter gets a guess of them

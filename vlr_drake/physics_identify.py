@@ -39,9 +39,14 @@ class PhysicsAdapter:
     """Physics plant + rendered camera + AprilTag observer for :func:`run_identification`."""
 
     def __init__(self, opts, hand_spec, rng, physics: PhysicsConfig | None = None, camera: CameraConfig | None = None,
-                 meshcat=None, observer: TagObserverConfig | None = None):
+                 meshcat=None, observer: TagObserverConfig | None = None, believed_spec=None):
+        """``hand_spec``: the true hand, which the plant simulates; ``believed_spec``: the
+        hand the filter believes in (:meth:`~vlr_drake.filter.PriorConfig.believed_hand`),
+        with which the nominal grasp is placed; default: the prior's believed hand of
+        ``hand_spec``."""
         self.opts = opts
         self.spec = hand_spec
+        self.believed_spec = believed_spec
         self.hand = hand_spec.model()
         spec = getattr(opts, "object_spec", None)
         self.obj = spec if spec is not None else preset(opts.object)
@@ -73,11 +78,14 @@ class PhysicsAdapter:
                 f"pretension_mode '{self.physics.pretension_mode}'; and the object's placement)")
         self.grasp_wall_s = time.perf_counter() - t0
         theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
-        if prior is not None and prior.links_unknown:
-            # placed with the true links; the filter's nominal angles are those of the hand it
-            # believes in (a replaced finger's unknown link at its range's middle)
-            believed = placed_grasp(prior.believed_hand(self.spec), self.obj, self.physics)[0]
-            theta_c = believed.reshape(self.hand.N, self.hand.K)
+        believed = self.believed_spec
+        if believed is None and prior is not None:
+            believed = prior.believed_hand(self.spec)
+        if believed is not None and believed != self.spec:
+            # placed with the true links and springs; the filter's nominal angles are those of
+            # the hand it believes in (an unknown link or spring at its range's middle): the
+            # placed angles follow the springs' closing path, and would tell the true ones
+            theta_c = placed_grasp(believed, self.obj, self.physics)[0].reshape(self.hand.N, self.hand.K)
         a_c = PAD_FRACTION * self.hand.distal_length
         timing = {"render": 0.0, "detect": 0.0}
         R, t, valid = self.measure(timing)
@@ -101,7 +109,12 @@ class PhysicsAdapter:
         return self.ph.command(self.root).copy()
 
     def act(self, dl, timing) -> bool:
-        r = self.ph.apply_action(self.sim, np.asarray(dl, float), render=False)
+        try:
+            r = self.ph.apply_action(self.sim, np.asarray(dl, float), render=False)
+        except RuntimeError as e:  # the simulator or its contact solver failed: the run so far is kept
+            raise RunStopped(f"the physics simulation failed ({e}); the estimates are those before this "
+                             f"action (check the physics section: time_step {self.physics.time_step} s, "
+                             f"discrete_contact_approximation '{self.physics.discrete_contact_approximation}')") from e
         timing["physics"] += r.wall_physics_s
         self.not_settled += not r.settled
         if self.ph.object_fell(self.root):
