@@ -687,3 +687,29 @@ def test_demo_refuses_a_scenario_of_another_experiment_before_anything_runs(caps
     assert main(["demo", "--scenario", "custom_hand_and_object", "--no-progress"]) == 2
     out, err = capsys.readouterr()
     assert "self-check" not in out and "holds another hand than the Model O's" in err
+
+
+def test_builder_refuses_flags_its_run_would_drop(capsys):
+    """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
+    example diagrams do not go with it (a review found them silently dropped), and a bad
+    --iterations names the flag."""
+    from vlr_drake.builder import main as builder_main
+
+    for extra in (["--write-diagrams"], ["--folder", "/nonexistent"], ["--no-render"], ["--iterations", "-1"]):
+        with pytest.raises(SystemExit) as info:
+            builder_main(["--run", "model_plant", *extra])
+        assert info.value.code == 2
+        err = capsys.readouterr().err
+        assert (extra[0] in err) and ("does not go with --run" in err or "must be >= 0" in err), err
+
+
+def test_an_output_nothing_can_be_written_in_is_refused_before_the_run():
+    """Root passes os.access everywhere, so a read-only place (here Linux's /proc) passed the
+    check and the run's result was lost at its end; now a file is made and removed there first."""
+    from vlr_drake.entry import check_output
+
+    # (as another user than root os.access already says no)
+    with pytest.raises(ValueError, match="--out: (nothing can be written in '/proc'|'/proc' is not writable)"):
+        check_output("--out", "/proc/x", folder=True)
+    with pytest.raises(ValueError, match="--json: (nothing can be written in '/proc'|'/proc' is not writable)"):
+        check_output("--json", "/proc/x/r.json")

@@ -132,6 +132,26 @@ def test_contacts_sit_on_the_pads_and_hold_when_lost():
         np.testing.assert_allclose(p2, p_L[i], atol=5e-4)
 
 
+def test_untouched_contacts_are_nan_and_images_are_copies():
+    """Before a finger has touched the object there is no contact to report: NaN, not the
+    last link's origin (a review found that). And an image read from the hand is the
+    frame's, not a view that the next frame overwrites."""
+    _, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(), CameraConfig())
+    root = sim.get_mutable_context()
+    assert not np.any(ph.in_contact(root))
+    assert np.all(np.isnan(ph.output(root, "contacts_true")))
+    # (the VLR's a_i is where the pads are, which needs no touch)
+    np.testing.assert_allclose(ph.output(root, "contact_along_link_true"), PAD_FRACTION * ph.hand.distal_length)
+    g = ph.grasp(sim)
+    assert np.all(g.in_contact) and np.all(np.isfinite(ph.output(root, "contacts_true")))
+    first = ph.output(root, "rgb_image")
+    pixels = first.data.copy()
+    ph.apply_action(sim, np.array([1.5e-3, -1.5e-3, 1.5e-3]), render=False)
+    second = ph.output(root, "rgb_image")
+    assert second is not first and not np.array_equal(second.data, pixels)
+    np.testing.assert_array_equal(first.data, pixels)
+
+
 def test_action_commands_are_clamped_to_the_tendon_range():
     _, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(settle_max=0.05))
     ph.grasp(sim)
@@ -211,8 +231,20 @@ def test_physics_config_loads_from_yaml_and_validates():
     with pytest.raises(ValueError, match="discrete_contact_approximation"):
         PhysicsConfig(discrete_contact_approximation="tamsi").validate()
     for bad in (-1.0, float("nan")):
-        with pytest.raises(ValueError, match="'gravity' must be >= 0"):
+        with pytest.raises(ValueError, match="'gravity' must be a finite number >= 0"):
             PhysicsConfig(gravity=bad).validate()
+    # each was accepted before a review, and failed later without naming the setting
+    for kw, field in [({"palm_xyz": [0.0, 0.0, float("nan")]}, "'palm_xyz' must be 3 finite numbers"),
+                      ({"auto_place_range": float("nan")}, "'auto_place_range' must be a finite number >= 0"),
+                      ({"auto_place_range": -0.01}, "'auto_place_range'"),
+                      ({"settle_object_speed": float("nan")}, "'settle_object_speed' must be a positive finite"),
+                      ({"settle_joint_speed": -0.02}, "'settle_joint_speed'"),
+                      ({"time_step": float("inf")}, "'time_step' must be a positive finite"),
+                      ({"fall_distance": float("inf")}, "'fall_distance'"),
+                      ({"settle_max": 0.0}, "'settle_max' must be positive unless 'fixed_settle_time'")]:
+        with pytest.raises(ValueError, match=field):
+            PhysicsConfig(**kw).validate()
+    PhysicsConfig(settle_max=0.0, fixed_settle_time=0.05).validate()  # a fixed settle needs no cap
 
 
 @pytest.mark.parametrize("g", [9.81, 0.0])

@@ -220,6 +220,12 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("grasp: {theta_deg: [[1, 2], [3]]}\n", "'theta_deg' must be 3 lists of 2"),
         ("plant: model\nmodel_plant: {stiffness: [[0.1, 0.2], [0.3]]}\n", "'stiffness' must be 3 lists of 2"),
         ("plant: model\nmodel_plant: {link_lengths: [[0.05], [0.05, 0.01], [0.05]]}\n", "'link_lengths' must be 3"),
+        # a review found these accepted: a colour out of [0, 1] and a NaN palm crashed in
+        # Drake's parser, a negative palm ran; a negative min_tension let hypotheses push
+        ("plant: model\nobject_spec: {name: o, size: [0.03], color: [2.0, 0.0, 0.0, 1.0]}\n", "field 'color'"),
+        ("plant: model\nhand: \"\"\n", "'hand' must be a preset"),  # an empty name is not the default
+        ("plant: model\nprior: {min_tension: -100.0}\n", "'min_tension' must be a finite number >= 0"),
+        ("plant: model\nfilter: {gravity_palm: [0.0, 0.0, 9.81]}\n", "'gravity_palm' is a hardware hand's"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",
@@ -248,6 +254,36 @@ def test_bad_custom_hand_names_the_field_and_the_file(tmp_path: Path):
     with pytest.raises(ValueError, match=r"hand_spec\.fingers\[0\]\.link_colour") as info:
         load_scenario(path)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize("field", ["palm_radius", "palm_thickness"])
+@pytest.mark.parametrize("value", ["-0.075", ".nan"])
+def test_bad_palm_names_the_field(tmp_path: Path, field, value):
+    text = (DIAGRAMS_DIR / "custom_hand_and_object.yaml").read_text()
+    path = _write(tmp_path, text.replace(f"  {field}: ", f"  {field}: {value}  # ", 1))
+    with pytest.raises(ValueError, match=f"field '{field}' must be a finite positive number"):
+        load_scenario(path)
+
+
+def test_what_a_plant_does_not_use_is_named(tmp_path: Path):
+    """Sections a plant does not use, set away from their defaults, are named (the
+    builder warns, identify says so) rather than silently dropped: the model plant's truth
+    on the physics plant, the camera on the model plant, the grasp off hardware."""
+    from vlr_drake.builder import build_diagram
+    from vlr_drake.scenario import ignored_by_identify, ignored_by_plant
+
+    s = load_scenario(DIAGRAMS_DIR / "default.yaml",
+                      "model_plant: {stiffness: [[0.3, 0.3], [0.3, 0.3], [0.3, 0.3]], dropout: 0.5, "
+                      "center_offset_fraction: 0.2}\ngrasp: {theta_deg: [[10, 20], [10, 20], [10, 20]]}\n")
+    assert ignored_by_plant(s) == ["model_plant.dropout", "model_plant.stiffness", "grasp"]
+    assert ignored_by_identify(s) == ["grasp", "model_plant.dropout", "model_plant.stiffness"]
+    m = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "camera: {pixel_noise_std: 5.0}\nphysics: {time_step: 0.002}\n")
+    assert ignored_by_plant(m) == ["camera", "physics"]
+    assert ignored_by_identify(m, "physics") == []  # run on the physics plant instead: it takes both
+    with pytest.warns(UserWarning, match="the model plant does not use camera, physics"):
+        build_diagram(m)
+    for path in sorted(DIAGRAMS_DIR.glob("*.yaml")):  # the examples set nothing their plant ignores
+        assert ignored_by_plant(load_scenario(path)) == [], path
 
 
 def test_bad_override_text_names_the_file(tmp_path: Path):

@@ -166,7 +166,8 @@ def _identify_options(args):
         hand=args.hand, seed=args.seed, particles=args.particles, max_iterations=args.iterations,
         progress=not args.no_progress, action_choice=getattr(args, "actions", None),
     )
-    ignored = [] if args.loaded is None or getattr(args, "told_ignored", False) else ignored_by_identify(args.loaded)
+    ignored = ([] if args.loaded is None or getattr(args, "told_ignored", False)
+               else ignored_by_identify(args.loaded, opts.plant))
     args.told_ignored = True  # once per command (the demo builds the options twice)
     if ignored:  # said, not silently dropped (once the scenario is known to run)
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': an identification run does not use "

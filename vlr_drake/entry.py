@@ -149,6 +149,7 @@ def check_output(flag: str, path, *, folder: bool = False) -> None:
     a parent that is not writable. Folders that do not exist yet are fine (they are
     made). Raises ValueError naming ``flag``."""
     import os
+    import tempfile
     from pathlib import Path
 
     if path is None or str(path) == "":
@@ -164,4 +165,9 @@ def check_output(flag: str, path, *, folder: bool = False) -> None:
                 raise ValueError(f"{flag}: '{parent}' is a file, so '{path}' cannot be written")
             if not os.access(parent, os.W_OK | os.X_OK):
                 raise ValueError(f"{flag}: '{parent}' is not writable")
+            try:  # os.access says yes to root on a read-only file system: a file is made and removed
+                with tempfile.TemporaryFile(dir=parent):
+                    pass
+            except OSError as e:
+                raise ValueError(f"{flag}: nothing can be written in '{parent}' ({e.strerror})") from None
             return

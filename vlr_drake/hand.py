@@ -138,6 +138,12 @@ class HandSpec:
         """Check the spec and raise ``ValueError`` naming the offending field."""
         if len(self.fingers) < 3:
             raise ValueError(f"hand '{self.name}': a VLR needs at least 3 fingers, got {len(self.fingers)}")
+        from vlr_drake.kinematics import is_number  # (kinematics imports this module)
+
+        for fname in ("palm_radius", "palm_thickness"):
+            v = getattr(self, fname)
+            if not (is_number(v) and 0 < v < np.inf):
+                raise ValueError(f"hand '{self.name}': field '{fname}' must be a finite positive number [m], got {v!r}")
         K = self.fingers[0].num_joints
         if K < 2:
             raise ValueError(f"hand '{self.name}': fingers need at least 2 joints, got {K}")
@@ -172,8 +178,6 @@ class HandSpec:
                 v = np.asarray(getattr(f, fname))
                 if np.any(v <= 0):
                     raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
-            from vlr_drake.kinematics import is_number  # (kinematics imports this module)
-
             for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
                           "friction", "tendon_damping", "pad_radius"]:
                 v = getattr(f, fname)

@@ -124,8 +124,8 @@ class ObjectSpec:
             v = getattr(self, fname)
             if len(v) != 3 or not all(np.isfinite(v)):
                 raise ValueError(f"{where}: field '{fname}' must have 3 finite entries, got {v}")
-        if len(self.color) != 4:
-            raise ValueError(f"{where}: field 'color' must be RGBA (4 entries), got {self.color}")
+        if len(self.color) != 4 or not all(np.isfinite(c) and 0 <= c <= 1 for c in self.color):
+            raise ValueError(f"{where}: field 'color' must be RGBA, 4 entries in [0, 1], got {self.color}")
         for fname in ["friction", "marble_radius", "marble_mass", "rim_height"]:  # (NaN < 0 is False)
             if not (np.isfinite(getattr(self, fname)) and getattr(self, fname) >= 0):
                 raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(self, fname)}")

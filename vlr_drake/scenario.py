@@ -61,6 +61,7 @@ __all__ = [
     "options_from_scenario",
     "task_settings",
     "ignored_by_identify",
+    "ignored_by_plant",
     "config_overrides",
 ]
 
@@ -512,6 +513,9 @@ class Scenario:
         self.model_plant.validate(N, K)
         self.grasp.validate(N, K, hand.model())
         self.control.validate()
+        if self.plant != "hardware" and np.any(self.filter.gravity_palm):
+            raise ValueError(f"filter: 'gravity_palm' is a hardware hand's mounting; the {self.plant} plant sets "
+                             "it from its own ('link_weight')")
         if self.link_weight and self.plant != "physics":
             raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
                              "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
@@ -537,6 +541,10 @@ def _with_section(section: str, check) -> None:
         raise ValueError(msg if msg.startswith(section) else f"{section}: {msg}") from e
 
 
+#: A preset name no scenario file gives (load_scenario's "not given").
+_UNSET = "\0unset"
+
+
 def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     """Load a scenario: ``yaml_load_typed(filename=path)`` on the defaults, then the YAML
     ``overrides`` text on the result; resolve the hardware section's relative file names
@@ -548,8 +556,9 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: scenario file not found")
-    # Load with empty preset names so that a preset written next to a full spec is caught.
-    scenario = Scenario(hand="", object="")
+    # Load with unset preset names so that a preset written next to a full spec is caught
+    # (a sentinel no file writes: an empty name given is an error, not the default)
+    scenario = Scenario(hand=_UNSET, object=_UNSET)
     for source, kwargs in [("file", dict(filename=str(path))), ("override text", dict(data=overrides))]:
         if source == "override text" and not overrides:
             continue
@@ -567,10 +576,10 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
         ("object", "object_spec", "apple"),
     ]:
         name, spec = getattr(scenario, preset_field), getattr(scenario, spec_field)
-        if name and spec is not None:
+        if name != _UNSET and spec is not None:
             raise ValueError(f"{path}: give either '{preset_field}' or '{spec_field}', not both")
-        if not name and spec is None:
-            setattr(scenario, preset_field, default)
+        if name == _UNSET:
+            setattr(scenario, preset_field, default if spec is None else "")
     if scenario.hardware is not None:
         cal = Path(scenario.hardware.calibration_file)
         if not cal.is_absolute():
@@ -870,12 +879,40 @@ def ignored_by_tasks(scenario: Scenario) -> list[str]:
 IDENTIFY_IGNORES = ("filter_action", "grasp", "exploration.period_sec", "control")
 
 
-def ignored_by_identify(scenario: Scenario) -> list[str]:
-    """The fields of ``scenario`` set away from their defaults that an identification run
-    does not use (:data:`IDENTIFY_IGNORES`), as dotted names, so that the command can say so."""
+def ignored_by_identify(scenario: Scenario, plant: str | None = None) -> list[str]:
+    """The fields of ``scenario`` set away from their defaults that an identification run on
+    ``plant`` (default: the scenario's) does not use (:data:`IDENTIFY_IGNORES` and
+    :func:`ignored_by_plant`), as dotted names, so that the command can say so."""
+    return _set_fields(scenario, [*IDENTIFY_IGNORES, *_plant_ignores(scenario.plant if plant is None else plant)])
+
+
+def ignored_by_plant(scenario: Scenario, plant: str | None = None) -> list[str]:
+    """The sections and fields of ``scenario`` set away from their defaults that ``plant``
+    (default: the scenario's) does not use, as dotted names: the model plant takes no camera,
+    observer or physics; the others take no model-plant truth (the physics plant does take
+    ``model_plant.center_offset_fraction``, for its guess of the contacts); only hardware
+    takes ``grasp``, ``hardware`` and ``filter.gravity_palm``."""
+    return _set_fields(scenario, _plant_ignores(scenario.plant if plant is None else plant))
+
+
+def _plant_ignores(plant: str) -> list[str]:
+    names = []
+    if plant == "model":
+        names += ["camera", "observer", "physics"]
+    else:
+        names += [f"model_plant.{f.name}" for f in dataclasses.fields(ModelPlantSettings)
+                  if not (plant == "physics" and f.name == "center_offset_fraction")]
+    if plant == "hardware":
+        names.append("physics")
+    else:
+        names += ["grasp", "hardware", "filter.gravity_palm"]
+    return names
+
+
+def _set_fields(scenario: Scenario, names) -> list[str]:
     default = Scenario()
     out = []
-    for name in IDENTIFY_IGNORES:
+    for name in dict.fromkeys(names):  # (in order, once each)
         mine, theirs = scenario, default
         for part in name.split("."):
             mine, theirs = getattr(mine, part), getattr(theirs, part)

@@ -183,7 +183,7 @@ def run_check(
 def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.check", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS), help="object presets")
+    ap.add_argument("--objects", nargs="+", default=list(PAPER_OBJECTS), help="object presets")
     ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
     ap.add_argument("--actions", type=count(1), default=50, help="random actions per object (default 50)")
     ap.add_argument("--seed", type=count(0), default=0, help="seed of the random actions (default 0)")
@@ -198,10 +198,14 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     check_output("--json", args.json)
     check_output("--html-dir", args.html_dir, folder=True)
     physics = PhysicsConfig()
-    if args.time_step:
+    if args.time_step is not None:  # (0 and NaN are refused by the validation, not read as "default")
         physics.time_step = args.time_step
     if args.pretension_mode:
         physics.pretension_mode = args.pretension_mode
+    try:
+        physics.validate()
+    except ValueError as e:
+        ap.error(str(e))
     camera = None if args.no_camera else CameraConfig()
     results = []
     t0 = time.perf_counter()

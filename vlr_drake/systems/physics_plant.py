@@ -55,6 +55,7 @@ use :meth:`PhysicsHand.place` + ``grasp(fix_command=False)``)::
     image = ph.output(sim.get_context(), "rgb_image")
 """
 
+import copy
 import time
 from dataclasses import dataclass, field
 
@@ -90,7 +91,7 @@ from pydrake.systems.framework import (
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake.hand import HandModel, HandSpec
-from vlr_drake.kinematics import checked_seed, is_count
+from vlr_drake.kinematics import checked_seed, is_count, is_number
 from vlr_drake.models import (
     configure_parser,
     hand_sdf,
@@ -247,6 +248,10 @@ class PhysicsConfig:
             )
         if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
             raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
+        for name in ("palm_xyz", "palm_rpy_deg"):
+            v = getattr(self, name)
+            if not all(is_number(x) and np.isfinite(x) for x in v):
+                raise ValueError(f"physics: '{name}' must be 3 finite numbers, got {list(v)}")
         for name in [
             "ramp_time",
             "tendon_damping",
@@ -256,18 +261,28 @@ class PhysicsConfig:
             "grasp_settle_max",
             "fixed_settle_time",
             "gravity",
+            "auto_place_range",
         ]:
-            if not getattr(self, name) >= 0:  # NaN too
-                raise ValueError(f"physics: '{name}' must be >= 0, got {getattr(self, name)}")
+            v = getattr(self, name)
+            if not (is_number(v) and 0 <= v < np.inf):  # NaN and inf too
+                raise ValueError(f"physics: '{name}' must be a finite number >= 0, got {v!r}")
         for name in [
+            "time_step",
             "ramp_update_period",
             "settle_window",
             "contact_sample_period",
             "fall_distance",
             "penetration_allowance",
+            "settle_object_speed",
+            "settle_object_angular_speed",
+            "settle_joint_speed",
         ]:
-            if not getattr(self, name) > 0:
-                raise ValueError(f"physics: '{name}' must be positive, got {getattr(self, name)}")
+            v = getattr(self, name)
+            if not (is_number(v) and 0 < v < np.inf):
+                raise ValueError(f"physics: '{name}' must be a positive finite number, got {v!r}")
+        if self.fixed_settle_time == 0 and self.settle_max == 0:
+            raise ValueError("physics: 'settle_max' must be positive unless 'fixed_settle_time' is (an action "
+                             "would never settle)")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"physics: 'seed' must be an integer >= 0 (it seeds the camera's pixel noise), "
                              f"got {self.seed!r}")
@@ -460,13 +475,17 @@ class HandTruth(LeafSystem):
         return p_W, has
 
     def _contacts_W(self, context: Context) -> np.ndarray:
-        """Contacts in the world, current or held (N, 3)."""
+        """Contacts in the world, current or held (N, 3); NaN for a finger that has not
+        touched the object yet (nothing to hold, and no point is its contact)."""
         poses = self.body_poses_input.Eval(context)
         p_W, has = self._current(context)
         held = context.get_discrete_state(self._held).value()
         for i in np.flatnonzero(~has):
-            X_WL = poses[int(self._links[i])]
-            p_W[i] = X_WL @ held[3 * i : 3 * i + 3]
+            if held[3 * self._N + i] > 0.5:
+                X_WL = poses[int(self._links[i])]
+                p_W[i] = X_WL @ held[3 * i : 3 * i + 3]
+            else:
+                p_W[i] = np.nan
         return p_W
 
     def _sample(self, context: Context, discrete_state: DiscreteValues) -> None:
@@ -594,13 +613,20 @@ class PhysicsHand:
         )
 
     def output(self, root_context: Context, name: str):
-        """Evaluate an exported output; returns a copy (never a reference into the cache)."""
+        """Evaluate an exported output; returns a copy (never a reference into the cache:
+        an image kept from one frame would otherwise show the next)."""
         v = self.diagram.GetOutputPort(name).Eval(self.hand_context(root_context))
         if isinstance(v, RigidTransform):
             return RigidTransform(v)
         if isinstance(v, np.ndarray):
             return v.copy()
-        return v
+        if hasattr(v, "Clone"):
+            return v.Clone()
+        if hasattr(v, "resize") and hasattr(v, "mutable_data"):  # an Image: pydrake has no copy of one
+            image = type(v)(v.width(), v.height())
+            image.mutable_data[:] = v.data
+            return image
+        return copy.deepcopy(v)
 
     def in_contact(self, root_context: Context) -> np.ndarray:
         """Whether each finger's pad touches the object right now (no hold)."""
