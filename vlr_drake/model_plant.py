@@ -57,6 +57,9 @@ class ModelPlant:
                                 stiffness=self.stiffness[None], **self.loads)
         if not eq.ok[0] or np.any(eq.tension[0] < 0):
             raise ValueError(f"model plant: the initial grasp is not physical (tensions {eq.tension[0]} N)")
+        if not self._stable(eq.theta, a[None], eq.multipliers)[0]:
+            raise ValueError("model plant: the initial grasp is not stable (a saddle of Eq. 9's energy, which a "
+                             "hand balances on rather than holds)")
         theta = eq.theta[0]
         l0 = hand.tendon_travel(theta) + eq.stretch[0]
         self.state = ModelPlantState(theta, a, eq.stretch[0], l0, np.asarray(R_PO, float), np.asarray(t_PO, float))
@@ -83,7 +86,15 @@ class ModelPlant:
         res = motion.move(h, rep(s.theta), dls, a=rep(s.a), D2=np.repeat(D2, S, axis=0), stretch=rep(s.stretch),
                           link_lengths=rep(self.link_lengths), stiffness=rep(self.stiffness), tendon=self.tendon,
                           l_now=l_now, max_substeps=64, **self.loads)
-        return res, res.ok & h.within_joint_limits(res.theta) & res.tension_feasible()
+        return res, res.ok & res.stable & h.within_joint_limits(res.theta) & res.tension_feasible()
+
+    def _stable(self, theta, a, multipliers) -> np.ndarray:
+        """(P,) whether equilibria ``theta`` (P, N, K) of the true hand are stable."""
+        P = theta.shape[0]
+        return motion.stable_equilibria(self.hand, theta, multipliers, a=a,
+                                        link_lengths=np.repeat(self.link_lengths[None], P, axis=0),
+                                        stiffness=np.repeat(self.stiffness[None], P, axis=0), tendon=self.tendon,
+                                        **self.loads)
 
     def possible_actions(self, dls) -> np.ndarray:
         """(S,) whether the true system has a nearby physical equilibrium for each action of
@@ -96,8 +107,9 @@ class ModelPlant:
 
     def apply_action(self, dl) -> bool:
         """Move the true system by ``dl``; returns False (and stays put) if the model has
-        no nearby physical equilibrium for it: the solve fails, a joint would pass its limit,
-        or a tendon would have to push (the tendon command is not changed then). A real hand
+        no nearby physical equilibrium for it: the solve fails or ends on a saddle, a joint
+        would pass its limit, or a tendon would have to push (the tendon command is not
+        changed then). A real hand
         cannot get there either; the ideal tendon's ill-conditioned solve otherwise jumps to
         far-away roots for mm actions (joints at -130 deg)."""
         h, s = self.hand, self.state
@@ -127,7 +139,8 @@ class ModelPlant:
         eq = motion.equilibrium(h, s.theta[None], a=a[None], link_lengths=self.link_lengths[None],
                                 stiffness=self.stiffness[None], **self.loads)
         command = s.tendon_command + eq.stretch[0] - s.stretch
-        if not (eq.ok[0] and np.all(eq.tension[0] >= 0) and h.within_tendon_range(command[None]).all()):
+        if not (eq.ok[0] and np.all(eq.tension[0] >= 0) and h.within_tendon_range(command[None]).all()
+                and self._stable(s.theta[None], a[None], eq.multipliers)[0]):
             return
         s.a, s.tendon_command, s.stretch = a, command, eq.stretch[0]
         self.p_O = observation.attach(p[None], s.R_PO[None], s.t_PO[None])[0]

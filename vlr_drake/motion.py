@@ -646,13 +646,7 @@ def _move_lanes(
     fresh = np.zeros(W, dtype=np.bool_)
     step = np.zeros(W, dtype=np.bool_)  # lanes that take a Newton step this cycle
     status = np.full(W, EMPTY, dtype=np.int64)
-    # The elastic tendon's part of the KKT matrix is the same for every lane.
-    Hten = np.zeros((n, n))
-    if not ideal:
-        for i in range(N):
-            for k in range(K):
-                for k2 in range(K):
-                    Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
+    Hten = _tendon_hessian(kappa, rarm, ideal)
     nxt = _finish_lanes(
         status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
         D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
@@ -855,19 +849,41 @@ def _finish_lanes(
             for k in range(K - 1):
                 L[i, k, w] = L_all[pl, i, k]
         if loaded:
-            pm = q if mu_all.shape[0] > 1 else 0
-            pf = q if fc_all.shape[0] > 1 else 0
-            for i in range(N):
-                for k in range(K):
-                    lmu[i, k, w] = mu_all[pm, i, k]
-                for r in range(3):
-                    lfc[i, r, w] = fc_all[pf, i, r]
+            _lane_loads(mu_all, fc_all, q, w, lmu, lfc)
         for c in range(m):
             D2[c, w] = D2_all[q, c]
             # coincident contacts (D2 = 0): a huge residual that fails this particle alone,
             # not a division by zero that ends its thread's whole share of the batch
             sqD[c, w] = np.sqrt(max(D2_all[q, c], 1e-300))
     return nxt
+
+
+@njit(cache=True)
+def _tendon_hessian(kappa, rarm, ideal):  # pragma: no cover - numba
+    """The elastic tendons' part of the KKT matrix, kappa_i R_i^T R_i per finger block
+    (n, n): the same for every lane (zero for the ideal tendon)."""
+    N, K = rarm.shape
+    H = np.zeros((N * K, N * K))
+    if not ideal:
+        for i in range(N):
+            for k in range(K):
+                for k2 in range(K):
+                    H[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
+    return H
+
+
+@njit(cache=True)
+def _lane_loads(mu_all, fc_all, q, w, lmu, lfc):  # pragma: no cover - numba
+    """Particle ``q``'s gravity loads into lane ``w``: its links' first moments (``mu_all``
+    (P or 1, N, K)) and contact forces (``fc_all`` (P or 1, N, 3))."""
+    N, K = lmu.shape[0], lmu.shape[1]
+    pm = q if mu_all.shape[0] > 1 else 0
+    pf = q if fc_all.shape[0] > 1 else 0
+    for i in range(N):
+        for k in range(K):
+            lmu[i, k, w] = mu_all[pm, i, k]
+        for r in range(3):
+            lfc[i, r, w] = fc_all[pf, i, r]
 
 
 @njit(cache=True, parallel=True)
@@ -985,12 +1001,7 @@ def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs
     hscale, gscale = np.zeros(W), np.zeros(W)
     tiny1, tiny2 = np.zeros(W), np.zeros(W)
     bad = np.zeros(W, dtype=np.bool_)
-    Hten = np.zeros((n, n))
-    if not ideal:
-        for i in range(N):
-            for k in range(K):
-                for k2 in range(K):
-                    Hten[i * K + k, i * K + k2] = kappa[i] * rarm[i, k] * rarm[i, k2]
+    Hten = _tendon_hessian(kappa, rarm, ideal)
     for b0 in range(start, stop, W):
         nw = min(W, stop - b0)
         for w in range(W):
@@ -1007,13 +1018,7 @@ def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs
             for c in range(m):
                 lm[c, w] = lam[p, c]
             if loaded:
-                pm = p if mu_all.shape[0] > 1 else 0
-                pf = p if fc_all.shape[0] > 1 else 0
-                for i in range(N):
-                    for k in range(K):
-                        lmu[i, k, w] = mu_all[pm, i, k]
-                    for r in range(3):
-                        lfc[i, r, w] = fc_all[pf, i, r]
+                _lane_loads(mu_all, fc_all, p, w, lmu, lfc)
         _fk_all(th, Ll, al, pad, base, u, Pc, Jc, Hc)
         _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
         if loaded:
