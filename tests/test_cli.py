@@ -209,7 +209,7 @@ def test_a_true_hand_with_no_grasp_is_named(tmp_path, capsys):
     path = _scenario_file(tmp_path, "name: far\nplant: model\nmodel_plant: {link_lengths: [[5.0], [5.0], [5.0]]}\n")
     assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200", "--no-progress",
                  "--out", str(tmp_path)]) == 2
-    assert "the true hand has no physical fingertip grasp to start from" in capsys.readouterr().err
+    assert "the true hand has no stable fingertip grasp to start from" in capsys.readouterr().err
 
 
 def test_a_particle_count_too_large_for_memory_is_an_error(tmp_path, capsys):
@@ -243,9 +243,9 @@ def test_bench_motion_and_filter_quick(tmp_path):
     run = r["identification"]
     assert run["plant"] == "physics" and run["iterations"] == 3
     assert r["iterations_timed"] == 2
-    # seed 7: the model plant refuses the first action; another is drawn and timed instead
+    # seed 24: the model plant refuses the first action; another is drawn and timed instead
     r = _run(tmp_path, "bench", "filter", "--particles", "100", "--iterations", "1", "--run-iterations", "0",
-             "--seed", "7")
+             "--seed", "24")
     assert r["iterations_timed"] == 1 and r["actions_refused"] >= 1 and r["iteration_s"] > 0
     t = run["timing_s"]
     assert min(t["physics"], t["render"], t["detect"], t["filter"]) > 0

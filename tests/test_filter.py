@@ -438,9 +438,11 @@ def test_informative_exploration_falls_back_to_random_after_a_refusal():
 def test_informative_actions_converge_sooner_and_stay_honest():
     """Model plant, known hand, 20,000 particles, at most 100 iterations, seeds 0-7: choosing
     the most informative of 8 random actions converges in fewer iterations than random
-    actions, with the truth inside the 95% intervals as often. Measured over seeds 0-23:
-    31.5 against 56 iterations, 24 of 24 converged against 21-22, coverage 0.97 / 0.92
-    (joints / contacts) against 1.00 / 1.00 (vlr_drake.identify.ACTION_CHOICE). Coverage
+    actions, with the truth inside the 95% intervals as often. Measured over seeds 0-23
+    with the model plant's stable truths (2026-11-27): 34.9 against 44.5 iterations (seeds
+    0-7: 41.0 against 50.4), 23 of 24 converged either way, coverage 0.96 / 0.96 (joints /
+    contacts) against 1.00 / 0.97; on the truths of before, half of them on saddles, 31.5
+    against 56 (vlr_drake.identify.ACTION_CHOICE). Coverage
     comes in clumps (a run that misses, misses several values), so a handful of seeds
     scatters: over seeds 0-35 it was 0.97 / 0.94 (FilterConfig.newton_loose_after 8) and
     0.96 / 0.92 (None), and the pooled coverage of 8 consecutive seeds was at least 0.92
@@ -457,8 +459,10 @@ def test_informative_actions_converge_sooner_and_stay_honest():
             assert r["action_choice"] == choice
             its[choice].append(r["iterations"])
             inside[choice] += [r["truth_inside_95_theta"]] * 6 + [r["truth_inside_95_contact"]] * 3
-            assert np.mean(r["proximal_joint_error_deg"]) < 1.5
-    assert np.mean(its["informative"]) < 0.8 * np.mean(its["random"]), its
+            if r["converged"]:  # (seed 7's grasp, stable but barely told apart, converges in neither: its
+                # intervals are wide, 2-3 deg off, and hold the truth)
+                assert np.mean(r["proximal_joint_error_deg"]) < 1.5
+    assert np.mean(its["informative"]) < 0.9 * np.mean(its["random"]), its
     assert np.mean(inside["informative"]) >= 0.85, inside
 
 
@@ -948,7 +952,9 @@ def test_link_weight_defaults_per_plant_and_experiment():
     s = Scenario(plant="model", link_weight=True)
     with pytest.raises(ValueError, match="'link_weight': only the physics plant"):
         s.validate()
-    built = build_diagram(Scenario(plant="model", filter=pf.FilterConfig(particles=100, gravity_palm=(0.0, 0.0, 1.0))))
+    with pytest.raises(ValueError, match="'gravity_palm' is a hardware hand's mounting"):  # not silently replaced
+        build_diagram(Scenario(plant="model", filter=pf.FilterConfig(particles=100, gravity_palm=(0.0, 0.0, 1.0))))
+    built = build_diagram(Scenario(plant="model", filter=pf.FilterConfig(particles=100)))
     assert built.filter._config.gravity_palm == [0.0, 0.0, 0.0]  # the model plant's truth has no link weight
     physics = build_diagram(Scenario(plant="physics", filter=pf.FilterConfig(particles=100)))
     np.testing.assert_allclose(physics.filter._config.gravity_palm, [0.0, 0.0, 9.81], atol=1e-12)
@@ -1133,15 +1139,15 @@ def test_known_hand_converges_accurately_and_honestly():
 def test_stiffness_is_identified_with_the_elastic_tendon():
     """The thumb's distal spring unknown (prior 0.05-0.40 N m/rad, log-uniform), elastic
     tendon (the spring shapes Eq. 9's motion through the tendon's stretch), 6 seeds x 5000
-    particles x 60 iterations: the interval narrows to a few percent of the prior around
-    the truth, and holds it in at least 5 of 6 runs (at 95% coverage that fails 3% of the
-    time). Measured (seeds 0-7, 2026-11-27): errors 0.0009-0.0113 N m/rad, mean 0.0036 (the
-    paper: 0.0026 +- 0.0012), interval widths 2-5% of the prior but seed 0's 23% (its
-    joints converged at iteration 21, which ends the run), 8 of 8 inside. With a uniform
-    prior: errors 0.0003-0.0077, mean 0.0039, widths 3-10%, 7 of 8 inside. With the
-    paper's implied tendon state: 0.006-0.011 N m/rad. The ideal tendon cannot do this: its
-    motion does not depend on the springs at all
-    (test_motion.py::test_ideal_motion_does_not_depend_on_the_springs)."""
+    particles x 60 iterations: the interval narrows to a fraction of the prior around the
+    truth, and holds it in at least 5 of 6 runs (at 95% coverage that fails 3% of the time).
+    Measured (seeds 0-11, 2026-11-27, the model plant's truths stable grasps): errors
+    0.0008-0.072 N m/rad, median 0.0088 (the paper: 0.0026 +- 0.0012), interval widths
+    0.02-0.58 of the prior, median 0.14, 10 of 12 inside. (On the truths of before, half of
+    them balanced on saddles of the energy, where the spring shows more: errors 0.0009-0.0113,
+    mean 0.0036, widths 2-5% but one of 23%.) A prior the data did not narrow keeps 0.94 of
+    its width. The ideal tendon cannot do this: its motion does not depend on the springs
+    at all (test_motion.py::test_ideal_motion_does_not_depend_on_the_springs)."""
     errors, widths, inside = [], [], []
     for seed in range(6):
         r = run_identification(IdentifyOptions(experiment="stiffness", particles=5000, max_iterations=60, seed=seed,
@@ -1151,8 +1157,8 @@ def test_stiffness_is_identified_with_the_elastic_tendon():
         errors.append(r["stiffness_error_Nm_per_rad"])
         widths.append((hi - lo) / (p_hi - p_lo))
         inside.append(r["stiffness_inside_95"])
-    assert np.mean(errors) < 0.006 and max(errors) < 0.015, errors
-    assert np.median(widths) < 0.08 and max(widths) < 0.3, widths
+    assert np.median(errors) < 0.012 and max(errors) < 0.1, errors
+    assert np.median(widths) < 0.2 and max(widths) < 0.7, widths
     assert sum(inside) >= 5, inside
 
 

@@ -83,7 +83,7 @@ def test_physics_overrides_parse_and_name_bad_keys():
         physics_overrides(["contact_model=point"])  # not a number
     with pytest.raises(ValueError, match="'heavy' is not a number"):
         physics_overrides(["gravity=heavy"])
-    with pytest.raises(ValueError, match="'gravity' must be >= 0"):
+    with pytest.raises(ValueError, match="'gravity' must be a finite number >= 0"):
         physics_overrides(["gravity=-9.81"])
 
 
