@@ -309,8 +309,13 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert known_hand_objects("model") == (None,)
     for row in data["rows"]:
         converged = row.get("converged", [1, 1])
+        succeeded = row.get("succeeded", [1, 1])  # task rows: a failed trial does not beat the paper
+        assert ("succeeded" in row) == (row["key"] in ("write", "maze", "stack_position", "stack_orientation"))
         assert np.isfinite(row["ours_mean"])
-        assert row["better"] == (row["ours_mean"] < row["paper_mean"] and converged[0] == converged[1])
+        assert row["better"] == (row["ours_mean"] < row["paper_mean"] and converged[0] == converged[1]
+                                 and succeeded[0] == succeeded[1])
+    for key, task in (("write", "write"), ("maze", "maze"), ("stack_position", "stack")):
+        assert {r["key"]: r for r in data["rows"]}[key]["succeeded"] == [int(data["runs"][task][0]["success"]), 1]
     # an unconverged run counts its budget, a lower bound: 8 iterations do not beat the paper's 15.1
     its = {r["key"]: r for r in data["rows"]}["known_hand_iterations"]
     assert its["converged"] == [int(data["runs"]["known_hand"][0]["converged"]), 1]

@@ -63,6 +63,37 @@ def test_write_rejects_bad_input():
         write.run_write("H1", progress=False)
     with pytest.raises(ValueError, match="letter_height"):
         write.run_write("H", letter_height=20e-3, progress=False)
+    # a review found these accepted, or failing without naming the argument
+    with pytest.raises(ValueError, match=r"'-1' not in A-Z"):
+        write.run_write("Ab-1c", progress=False)
+    with pytest.raises(ValueError, match="'ı' not in A-Z"):  # the dotless i: upper() makes it 'I'
+        write.run_write("ıi", progress=False)
+    for kw, name in [({"spacing": 0.0}, "spacing"), ({"spacing": -1e-3}, "spacing"), ({"spacing": float("nan")}, "spacing"),
+                     ({"tol_position": float("nan")}, "tol_position"), ({"window": float("nan")}, "window"),
+                     ({"max_steps": 0}, "max_steps")]:
+        with pytest.raises(ValueError, match=f"'{name}' must be"):
+            write.run_write("I", progress=False, **kw)
+
+
+def test_other_tasks_reject_bad_settings():
+    for kw, name in [({"period": 0.0}, "period"), ({"period": -0.2}, "period"), ({"segment_time": float("nan")},
+                     "segment_time"), ({"tilt_deg": float("nan")}, "tilt_deg")]:
+        with pytest.raises(ValueError, match=f"'{name}' must be"):
+            maze.run_maze(progress=False, **kw)
+    with pytest.raises(ValueError, match="'tilt_range_deg' must be"):
+        stack.run_stack(tilt_range_deg=(float("nan"), float("nan")), progress=False)
+    with pytest.raises(ValueError, match="'offset_range' must be"):
+        stack.run_stack(offset_range=-1e-3, progress=False)
+
+
+def test_a_maze_run_the_marble_skipped_scores_nothing():
+    """With 0.5 s periods the marble runs past three of the six tilt runs before their goal
+    is set: they have no control step and score nothing (each had counted the previous
+    run's last sample again, a review found: 6 samples that were 3 values twice)."""
+    r = maze.run_maze(seed=0, plant="model", model="true", period=0.5, progress=False)
+    assert r["success"] and r["runs"] == 6 and r["skipped_runs"] == 3
+    assert r["orientation_error_deg"]["n"] == 3
+    assert maze.run_maze(seed=0, plant="model", model="true", progress=False)["skipped_runs"] == 0
 
 
 def test_maze_parse_and_path():
@@ -276,6 +307,9 @@ def test_pooled_stats_are_those_of_all_the_values():
     assert got["n"] == every.size and got["max"] == pytest.approx(every.max())
     assert got["mean"] == pytest.approx(every.mean(), rel=1e-12)
     assert got["sd"] == pytest.approx(every.std(), rel=1e-12)
+    # a trial with no values (a maze run whose tag was lost from the start) adds none
+    assert common.pooled([None, *[common.stats(p, 1.0) for p in parts]]) == got
+    assert common.pooled([None, None]) is None
 
 
 def test_the_letters_origin_is_the_mean_of_the_resting_frames():

@@ -113,7 +113,7 @@ def selfcheck(seed: int = 0, actions: int = 5) -> dict:
            "max_difference_snopt_rad": worst["snopt"], "actions_compared": compared, "reference_failures": failed}
     if min(compared.values()) == 0:  # a check that compared nothing has not passed
         raise SelfCheckError(f"selfcheck compared no action with {[k for k, v in compared.items() if v == 0]} "
-                             f"(seed {seed}: every action flagged or failed); try another --seed or more --actions")
+                             f"(seed {seed}: every action flagged or failed); try another --seed")
     if max(worst.values()) > SELFCHECK_TOLERANCE_RAD:
         raise SelfCheckError(f"selfcheck: the batched solver is {max(worst.values()):.1e} rad from the "
                              f"MathematicalProgram solve, more than {SELFCHECK_TOLERANCE_RAD:.0e} rad")
@@ -663,11 +663,12 @@ def main(argv: list[str] | None = None) -> int:
                                 "physics plant, else 0; vlr_drake.identify.STUCK_PROBABILITY)")
             p.add_argument("--link-weight", action=argparse.BooleanOptionalAction, default=None,
                            help="the filter's model carries the weight of the fingers' links, gravity from the "
-                                "physics plant's mounting (default: on for the physics plant, off for the model "
-                                "plant; the paper's Eq. 9 has none; vlr_drake.identify.LINK_WEIGHT)")
+                                "physics plant's mounting (physics plant only: on by default there; the model "
+                                "plant's truth, the paper's Eq. 9, has none; vlr_drake.identify.LINK_WEIGHT)")
             p.add_argument("--object-weight", action="store_true",
                            help="identify the object's weight as well (its mass and how the contacts share it), "
-                                "carried with the links' weight; off by default (IdentifyOptions.object_weight)")
+                                "carried with the links' weight (physics plant only); off by default "
+                                "(IdentifyOptions.object_weight)")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         if name == "identify":  # the demo's hand is the Model O

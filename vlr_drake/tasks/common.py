@@ -12,6 +12,7 @@ import numpy as np
 from vlr_drake import control, grasps
 from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel, model_o
+from vlr_drake.kinematics import is_number
 from vlr_drake.model_plant import ModelPlant
 
 __all__ = [
@@ -340,10 +341,28 @@ def stats(values_m_or_rad, scale: float) -> dict | None:
     return {"mean": float(v.mean()), "sd": float(v.std()), "max": float(v.max()), "n": int(v.size)}
 
 
-def pooled(runs: list[dict]) -> dict:
+def check_positive(**values) -> None:
+    """ValueError naming the first of ``values`` that is not a positive finite number."""
+    for name, v in values.items():
+        if not (is_number(v) and 0 < v < np.inf):
+            raise ValueError(f"'{name}' must be a positive finite number, got {v!r}")
+
+
+def check_finite(**values) -> None:
+    """ValueError naming the first of ``values`` that is not a finite number."""
+    for name, v in values.items():
+        if not (is_number(v) and np.isfinite(v)):
+            raise ValueError(f"'{name}' must be a finite number, got {v!r}")
+
+
+def pooled(runs: list[dict | None]) -> dict | None:
     """The :func:`stats` of all the values of several runs together (mean, SD over every
     waypoint, sample or cup of every run, as the paper gives its task figures), from each
-    run's mean, SD and n."""
+    run's mean, SD and n; a run with no values (None, e.g. a maze run whose tag was lost
+    from the start) adds none, and with none at all the result is None."""
+    runs = [r for r in runs if r is not None and r["n"] > 0]
+    if not runs:
+        return None
     n = np.array([r["n"] for r in runs], float)
     m = np.array([r["mean"] for r in runs], float)
     sd = np.array([r["sd"] for r in runs], float)

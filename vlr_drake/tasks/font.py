@@ -59,6 +59,8 @@ LETTERS: dict[str, list[list[tuple[float, float]]]] = {
 
 def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
     """Points along a polyline (M, 2) at most ``spacing`` apart, keeping every vertex."""
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise ValueError(f"'spacing' must be a positive finite number [m], got {spacing}")
     polyline = np.asarray(polyline, float)
     out = [polyline[0]]
     for p, q in zip(polyline[:-1], polyline[1:], strict=True):
@@ -68,8 +70,9 @@ def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
 
 
 def letter_strokes(letter: str, height: float, spacing: float | None = None) -> list[np.ndarray]:
-    """Strokes of ``letter`` scaled to ``height`` [m], centred on (0, 0), each resampled to
-    ``spacing`` [m] when given. Raises ValueError for a letter outside A-Z."""
+    """Strokes of ``letter`` scaled to ``height`` [m] (the font's unit cap height; Q's tail
+    reaches 5% below the baseline, as a descender does), centred on (0, 0), each resampled
+    to ``spacing`` [m] when given. Raises ValueError for a letter outside A-Z."""
     key = letter.upper()
     if key not in LETTERS:
         raise ValueError(f"letter '{letter}' is not in the stroke font (A-Z)")
@@ -86,8 +89,10 @@ def letter_strokes(letter: str, height: float, spacing: float | None = None) -> 
 
 def word_letters(word: str) -> list[str]:
     """The letters of ``word`` (spaces dropped); ValueError names any character not in A-Z."""
-    letters = [c.upper() for c in word if not c.isspace()]
-    bad = [c for c in letters if c not in LETTERS]
-    if not letters or bad:
-        raise ValueError(f"word must consist of letters A-Z, got '{word}'")
-    return letters
+    chars = [c for c in word if not c.isspace()]
+    # (ASCII first: str.upper() takes the dotless i and the long s to I and S)
+    bad = [c for c in chars if not (c.isascii() and c.upper() in LETTERS)]
+    if not chars or bad:
+        which = f": {''.join(sorted(set(bad)))!r} not in A-Z" if bad else ""
+        raise ValueError(f"word must consist of letters A-Z, got '{word}'{which}")
+    return [c.upper() for c in chars]

@@ -234,6 +234,8 @@ def run_maze(
     """
     if plant not in ("model", "physics"):
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+    common.check_positive(period=period, segment_time=segment_time, tol_rotation_deg=tol_rotation_deg, window=window)
+    common.check_finite(tilt_deg=tilt_deg, bias_deg=bias_deg)
     from tqdm.auto import tqdm
 
     mz = parse_maze(maze_text)
@@ -284,6 +286,7 @@ def run_maze(
     iterations = lost = 0
     rep = None  # the last servo call's report: one step per call, so a lost tag's predicted pose carries on
     stopped = None
+    skipped_runs = 0
     for run in runs:
         R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
         if view is not None:
@@ -292,6 +295,7 @@ def run_maze(
         t_run = 0.0
         settled = False
         run_samples = 0
+        run_steps = 0
         while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
             if t_run > segment_time or common.object_fell(tp):
                 success, stopped = False, "object_fell" if common.object_fell(tp) else "timeout"
@@ -317,6 +321,7 @@ def run_maze(
             marble.step(g_plate(), period)
             time_s += period
             t_run += period
+            run_steps += 1
             err = np.rad2deg(observation.rotation_angle(R_goal[None], tp.true_pose()[0][None])[0])
             times.append(time_s)
             errs.append(err)
@@ -324,8 +329,10 @@ def run_maze(
             if settled:
                 settled_err.append(err)
                 run_samples += 1
-        if run_samples == 0 and errs:  # the marble left before the servo settled: score the last sample
+        if run_samples == 0 and run_steps > 0:  # the marble left before the servo settled: score its last sample
             settled_err.append(errs[-1])
+        elif run_steps == 0:  # the marble had passed this run's goal already: nothing of it to score
+            skipped_runs += 1
         bar.update(1)
         if not success:
             break
@@ -349,6 +356,7 @@ def run_maze(
         "lost_measurements": int(lost),
         "stopped": stopped,  # why the run ended early: "timeout", "object_fell" or "lost_tag"; null if it did not
         "runs": len(runs),
+        "skipped_runs": int(skipped_runs),  # runs the marble had passed before their goal was set (unscored)
         "tilt_deg": tilt_deg,
         "orientation_error_all_deg": common.stats(np.deg2rad(errs), np.rad2deg(1.0)),
         "tilt_axis_palm": k_P.tolist(),

@@ -143,6 +143,10 @@ def run_stack(
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
     if not (np.isfinite(alpha) and alpha > 0):
         raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
+    if len(tilt_range_deg) != 2 or not (0 <= tilt_range_deg[0] <= tilt_range_deg[1] < np.inf):  # NaN too
+        raise ValueError(f"'tilt_range_deg' must be (low, high) with 0 <= low <= high, finite, got {tilt_range_deg}")
+    if not (np.isfinite(offset_range) and offset_range >= 0):
+        raise ValueError(f"'offset_range' must be a finite number >= 0 [m], got {offset_range}")
     from tqdm.auto import tqdm
 
     rng = np.random.default_rng(seed)

@@ -27,6 +27,7 @@ import os
 import numpy as np
 
 from vlr_drake import control
+from vlr_drake.kinematics import is_count
 from vlr_drake.tasks import common, font
 
 __all__ = ["run_write", "writing_plane", "probe_workspace"]
@@ -182,6 +183,9 @@ def run_write(
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
     if not 0 < letter_height <= 12e-3:  # NaN too
         raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
+    common.check_positive(spacing=spacing, tol_position=tol_position, window=window)
+    if not is_count(max_steps, 1):
+        raise ValueError(f"'max_steps' must be an integer >= 1, got {max_steps!r}")
     from tqdm.auto import tqdm
 
     if plant == "model":
@@ -231,6 +235,8 @@ def run_write(
                 np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps, "stall_steps": 8}
             )
             iterations += rep.iterations
+            if not rep.reached:  # the stroke's start is its first waypoint: scored, and counted
+                failures[rep.reason] = failures.get(rep.reason, 0) + 1
             path = []
             for k, goal in enumerate(pts):
                 if k > 0:
