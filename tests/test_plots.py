@@ -227,3 +227,17 @@ def test_hypotheses_still_segments_in_mm(rng, tmp_path):
         plots.make_hypotheses_figure(bad, contacts)
     with pytest.raises(ValueError, match="pom_position must be finite"):
         plots.make_hypotheses_figure(joints, contacts, np.full(3, np.inf))
+
+
+def test_every_column_keeps_its_iteration_axis():
+    """Four fingers in three columns: the panels above an empty slot are their columns'
+    lowest and show the iteration axis (a review found them without, as sharex hides the
+    labels of all but the bottom row)."""
+    rng = np.random.default_rng(0)
+    panels = [plots.Panel(f"f{i}", *rng.normal(size=(3, 5)), None) for i in range(4)]
+    fig = plots.band_figure(panels, np.arange(5), "deg", "four fingers")
+    shown = {ax.get_title(): ax for ax in fig.axes if ax.get_visible()}
+    assert len(shown) == 4
+    for title in ("f1", "f2", "f3"):  # each column's lowest (f0 has f3 below it)
+        assert shown[title].get_xlabel() == "iteration", title
+        assert shown[title].xaxis.get_tick_params()["labelbottom"], title

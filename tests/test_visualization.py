@@ -7,6 +7,7 @@ from itertools import combinations
 import numpy as np
 import pytest
 from pydrake.geometry import Meshcat
+from pydrake.math import RigidTransform, RollPitchYaw
 
 from vlr_drake import kinematics, observation
 from vlr_drake.filter import ParticleSet
@@ -185,7 +186,7 @@ def test_hypothesis_points_per_particle_links_and_no_pose(model_o_hand, rng):
     p = kinematics.contacts(hand, ps.theta, ps.a, ps.link_lengths)
     ps.p_O = observation.attach(p, np.eye(3)[None], t_PO[None])
     q, pc, pom = hypothesis_points(hand, ps, 5, np.random.default_rng(7))
-    idx = np.sort(np.random.default_rng(7).choice(12, size=5, replace=False))
+    idx = np.sort(np.random.default_rng(7).choice(12, size=5, replace=False, p=np.full(12, 1 / 12)))
     np.testing.assert_allclose(q, kinematics.joint_positions(hand, ps.theta[idx], ps.link_lengths[idx]))
     np.testing.assert_allclose(pc, p[idx])
     np.testing.assert_allclose(pom, np.repeat(t_PO[None], 5, axis=0), atol=1e-9)
@@ -193,3 +194,50 @@ def test_hypothesis_points_per_particle_links_and_no_pose(model_o_hand, rng):
     assert hypothesis_points(hand, ps, 50)[2] is None
     with pytest.raises(ValueError, match="max_particles"):
         hypothesis_points(hand, ps, 0)
+
+
+def test_the_subsample_is_of_the_weighted_posterior(model_o_hand, rng):
+    """A review found the drawing's subsample uniform over the particles, ruled-out ones
+    (weight 0, awaiting resampling) included: it is drawn by weight now, never a dead one,
+    and without a generator it is the heaviest ones."""
+    hand = model_o_hand
+    ps, _ = _particles(hand, rng, 40)
+    ps.log_w = np.where(np.arange(40) % 4 == 0, -np.inf, rng.normal(0.0, 1.0, 40))
+    q_all = kinematics.joint_positions(hand, ps.theta)
+    for gen in (np.random.default_rng(1), None):
+        q, _, _ = hypothesis_points(hand, ps, 5, gen)
+        drawn = [int(np.flatnonzero(np.all(np.isclose(q_all, x), axis=(1, 2, 3)))[0]) for x in q]
+        assert all(i % 4 != 0 for i in drawn), drawn
+        if gen is None:
+            assert sorted(drawn) == sorted(np.argsort(-ps.log_w)[:5].tolist())
+    ps.log_w = np.full(40, -np.inf)
+    ps.log_w[[3, 7]] = 0.0  # two alive: at most two to draw
+    assert hypothesis_points(hand, ps, 5, np.random.default_rng(2))[0].shape[0] == 2
+    # by weight: a particle with nearly all the weight is drawn every time
+    ps.log_w = np.zeros(40)
+    ps.log_w[11] = 30.0
+    assert all(np.any(np.all(np.isclose(hypothesis_points(hand, ps, 3, np.random.default_rng(s))[0], q_all[11]),
+                             axis=(1, 2, 3))) for s in range(5))
+
+
+def test_a_new_drawer_and_clear_keep_the_scene_right(model_o_hand, rng):
+    """A new drawer removes a previous run's drawing and recorded frames (a review found them
+    left beside the new hypotheses), and clear() keeps the palm pose (it had been lost, and
+    later drawings appeared at the world origin)."""
+    meshcat = Meshcat()
+    hand = model_o_hand
+    ps, _ = _particles(hand, rng, 10)
+    old = HypothesisDrawer(meshcat, hand)
+    meshcat.StartRecording()
+    for k in range(3):
+        old.draw_particles(ps, None, np.random.default_rng(k), time_in_recording=float(k))
+    meshcat.StopRecording()
+    assert meshcat.HasPath("/hypotheses/frame_0002")
+    X_WP = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, 0.4])
+    spy = Spy(meshcat)
+    new = HypothesisDrawer(spy, hand, X_WP=X_WP)
+    assert not meshcat.HasPath("/hypotheses/frame_0002")
+    new.draw_particles(ps)
+    spy.calls.clear()
+    new.clear()
+    assert spy.last("SetTransform", "/hypotheses")[1].IsExactlyEqualTo(X_WP)

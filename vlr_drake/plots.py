@@ -165,10 +165,13 @@ def band_figure(
         ax.set_title(p.title)
         ax.set_ylabel(ylabel)
         ax.grid(True, alpha=0.3)
-    for ax in axes[-1]:
-        ax.set_xlabel("iteration")
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
+    for c in range(ncols):  # each column's lowest panel shows the iteration axis (sharex hides the others')
+        shown = [axes[r, c] for r in range(nrows) if r * ncols + c < n]
+        if shown:
+            shown[-1].xaxis.set_tick_params(labelbottom=True)
+            shown[-1].set_xlabel("iteration")
     axes.ravel()[0].legend(loc="best", fontsize="small")
     fig.suptitle(title)
     return fig

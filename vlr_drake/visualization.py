@@ -41,7 +41,7 @@ from pydrake.geometry import Cylinder, Meshcat, Rgba, Sphere
 from pydrake.math import RigidTransform, RotationMatrix
 
 from vlr_drake import kinematics, observation
-from vlr_drake.filter import ParticleSet
+from vlr_drake.filter import ParticleSet, normalise
 from vlr_drake.hand import HandModel
 
 __all__ = ["HypothesisDrawer", "TaskView", "cylinder_mesh", "hypothesis_points", "recorded_folder", "save_recording"]
@@ -97,14 +97,23 @@ def hypothesis_points(
 
     Joints and contacts follow from (theta, a, link_lengths) by the kinematics (DESIGN.md
     section 2), the POM positions from the attachments p_O by Lambda (Eq. 5); particles
-    whose contacts give no pose get the mean of the others (None if none has one). ``rng``
-    picks the subsample without replacement (None: the first particles).
+    whose contacts give no pose get the mean of the others (None if none has one). The
+    subsample is of the weighted posterior, as the estimate is: ``rng`` draws it without
+    replacement with probabilities the particles' weights (None: the heaviest ones), and a
+    particle of no weight (ruled out, awaiting resampling) is never drawn; n is at most the
+    number of particles with weight.
     """
     if max_particles < 1:
         raise ValueError(f"max_particles must be >= 1, got {max_particles}")
-    M = particles.size
-    n = min(M, max_particles)
-    idx = np.arange(n) if rng is None or n == M else np.sort(rng.choice(M, size=n, replace=False))
+    w = normalise(particles.log_w)
+    alive = np.flatnonzero(w > 0)
+    n = min(alive.size, max_particles)
+    if n == alive.size:
+        idx = alive
+    elif rng is None:
+        idx = np.sort(alive[np.argsort(-w[alive], kind="stable")[:n]])
+    else:
+        idx = np.sort(rng.choice(w.size, size=n, replace=False, p=w))
     L = particles.link_lengths
     L = L[idx] if L.shape[0] > 1 else L
     theta, a = particles.theta[idx], particles.a[idx]
@@ -158,6 +167,7 @@ class HypothesisDrawer:
         self.axes = np.cross(hand.z[None], hand.u)  # joint axes w_i = z x u_i (DESIGN.md section 2)
         self.frames: list[tuple[str, float]] = []  # recorded frames: (folder, time)
         self._spheres: set[str] = set()  # paths whose Sphere object is already set
+        meshcat.Delete(self.prefix)  # a previous drawing's hypotheses and recorded frames
         self.set_palm_pose(X_WP or RigidTransform())
 
     # ------------------------------------------------------------------ paths
@@ -175,7 +185,8 @@ class HypothesisDrawer:
 
     def set_palm_pose(self, X_WP: RigidTransform) -> None:
         """Place the drawing (palm frame P) in Meshcat's world."""
-        self.meshcat.SetTransform(self.prefix, X_WP)
+        self.X_WP = RigidTransform(X_WP)
+        self.meshcat.SetTransform(self.prefix, self.X_WP)
 
     # ------------------------------------------------------------------ drawing
     def draw(
@@ -271,7 +282,8 @@ class HypothesisDrawer:
 
         Joints and contacts follow from (theta, a, link_lengths) by the kinematics
         (DESIGN.md section 2); the POM positions from the attachments p_O by Lambda (Eq. 5).
-        ``rng`` draws ``max_particles`` of them without replacement (None: the first ones);
+        ``rng`` draws ``max_particles`` of them by weight without replacement (None: the
+        heaviest; :func:`hypothesis_points`);
         ``estimate`` is a ``SelfIdentificationFilter.estimate()`` dict whose ``contacts``
         are drawn yellow (None: the mean of the drawn contacts). Returns how many were drawn.
         """
@@ -280,10 +292,12 @@ class HypothesisDrawer:
         return self.draw(q, p, pom, est_contacts, time_in_recording)
 
     def clear(self) -> None:
-        """Delete the drawing (live paths and recorded frames)."""
+        """Delete the drawing (live paths and recorded frames); the next one is placed at the
+        same palm pose."""
         self.meshcat.Delete(self.prefix)
         self._spheres.clear()
         self.frames.clear()
+        self.set_palm_pose(self.X_WP)
 
     # ------------------------------------------------------------------ helpers
     def _sphere(self, path: str, radius: float, rgba: Rgba, position: np.ndarray) -> None:
