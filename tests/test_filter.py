@@ -1372,3 +1372,38 @@ def test_stable_grasps_conditions_the_prior_and_the_moves():
     assert unstable["prior"] == 0.0 and unstable["always"] == 0.0
     with pytest.raises(ValueError, match="'stable_grasps' must be one of"):
         pf.FilterConfig(stable_grasps="yes").validate()
+
+
+def test_the_model_plant_truth_stays_an_equilibrium_and_starts_physical():
+    """A review of the model plant: on a hand with more joints than the Model O, a contact
+    roll kept the angles but took the tendon state of an equilibrium elsewhere (a zero action
+    then moved the joints by 0.01 rad); such rolls do not happen now, and a zero action
+    leaves the truth where it is. And an initial grasp past a joint limit, off its links or
+    beyond the tendon range is refused by name (it had been accepted, with every action then
+    refused or raising)."""
+    from vlr_drake import motion
+    from vlr_drake.hand import generic_hand
+
+    h = generic_hand(4, 3).model()
+    theta, a = _truth_grasp(h, np.random.default_rng(0))
+    plant = ModelPlant(h, theta, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1),
+                       contact_drift=2e-3)
+    rng = np.random.default_rng(2)
+    for _ in range(8):
+        plant.apply_action(rng.uniform(-1e-4, 1e-4, h.N))
+        s = plant.state
+        D2 = motion.contact_distances_sq(h, plant.contacts()[None])
+        still = motion.move(h, s.theta[None], np.zeros(h.N), a=s.a[None], D2=D2, stretch=s.stretch[None])
+        assert still.ok[0] and np.max(np.abs(still.theta[0] - s.theta)) < 1e-9
+    m = model_o().model()
+    theta, a = _truth_grasp(m, np.random.default_rng(0))
+    args = (np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    bad_theta = theta.copy()
+    bad_theta[0, 0] = -0.53  # the limit is -0.2
+    with pytest.raises(ValueError, match="model plant: the initial (grasp has joints past their limits|grasp is not)"):
+        ModelPlant(m, bad_theta, a, *args)
+    with pytest.raises(ValueError, match="model plant: the initial contacts .* are not on the last links"):
+        ModelPlant(m, theta, np.r_[a[:2], -0.01], *args)
+    for kw, name in [({"dropout": float("nan")}, "dropout"), ({"sigma_position": -1e-3}, "sigma_position")]:
+        with pytest.raises(ValueError, match=f"model plant: '{name}'"):
+            ModelPlant(m, theta, a, *args, **kw)

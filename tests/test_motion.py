@@ -645,3 +645,31 @@ def test_stability_refuses_bad_input(model_o_hand):
         motion.stable_equilibria(hand, th, lam, a=a, tendon="rope")
     with pytest.raises(ValueError, match="'theta' must have shape"):
         motion.stable_equilibria(hand, th[:, :2], lam, a=a)
+
+
+def test_grasp_helpers_check_what_they_return(model_o_hand):
+    """From a review: sample_grasps returned grasps past the joint limits and accepted
+    ranges that cannot be drawn; commanded_equilibrium reported ok for tendons that would
+    push; an unknown tendon model was taken as the ideal one; stable_equilibria refused NaN
+    multipliers of equilibria it was told were not found."""
+    h = model_o_hand
+    rng = np.random.default_rng(4)
+    gs = grasps.sample_grasps(h, rng, 50, proximal_range=(-0.6, 0.3))
+    assert np.all(h.within_joint_limits(gs.theta))
+    l0 = h.tendon_travel(gs.theta) + gs.stretch
+    assert h.within_tendon_range(l0).all()
+    for kw, msg in [({"count": 0}, "'count'"), ({"contact_range": (-0.01, 0.02)}, "'contact_range'"),
+                    ({"proximal_range": (0.3, 0.1)}, "'proximal_range'")]:
+        with pytest.raises(ValueError, match=msg):
+            grasps.sample_grasps(h, rng, **{"count": 5, **kw})
+    th, a = gs.theta[0], gs.a[0]
+    pushing = h.tendon_travel(th[None])[0] - 10e-3  # 10 mm slacker than the grasp: the tendons would push
+    _, ok = grasps.commanded_equilibrium(h, th, a, pushing)
+    assert not ok
+    assert grasps.commanded_equilibrium(h, th, a, l0[0])[1]
+    with pytest.raises(ValueError, match="tendon model must be one of"):
+        grasps.lagrangian_hessian(h, th, a, gs.multipliers[0], tendon="Elastic")
+    lam = gs.multipliers[:3].copy()
+    lam[1] = np.nan
+    st = motion.stable_equilibria(h, gs.theta[:3], lam, a=gs.a[:3], ok=np.array([True, False, True]))
+    assert not st[1]

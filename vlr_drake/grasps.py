@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vlr_drake import kinematics, motion
+from vlr_drake.kinematics import is_count
 from vlr_drake.hand import HandModel
 
 __all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian", "commanded_equilibrium",
@@ -33,6 +34,8 @@ def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None
 
     Returns (H (n, n), G (m, n)) with n = N*K.
     """
+    if tendon not in motion.TENDON_MODELS:
+        raise ValueError(f"tendon model must be one of {motion.TENDON_MODELS}, got '{tendon}'")
     N, K = hand.N, hand.K
     L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths).reshape(N, K - 1)
     k = hand.stiffness if stiffness is None else np.asarray(stiffness).reshape(N, K)
@@ -113,10 +116,22 @@ def sample_grasps(
     Proximal joints (the first) in ``proximal_range``, the others in ``distal_range`` split
     evenly over the K-1 distal joints, contacts along the last link in ``contact_range``.
     Kept: tension >= ``min_tension`` [N] on every tendon, squeeze on every contact pair,
-    at most ``max_tension``, and with ``stable`` a strict constrained minimum whose reduced
-    Hessian's smallest eigenvalue exceeds ``min_stability`` [N m/rad] (a margin keeps
-    the grasp away from folds where small actions snap it). Raises if too few are found.
+    at most ``max_tension``, joints within their limits, contacts on the last links, tendon
+    commands within their range, and with ``stable`` a strict constrained minimum whose
+    reduced Hessian's smallest eigenvalue exceeds ``min_stability`` [N m/rad] (a margin
+    keeps the grasp away from folds where small actions snap it). Raises if too few are
+    found. (The squeeze is judged pair by pair, on the constraint multipliers: for six or
+    more fingers that depends on which pairs the hand constrains, and a grasp whose contact
+    forces all point inwards can fail it; a review found ``generic_hand(6, 3)`` with none.)
     """
+    if not is_count(count, 1):
+        raise ValueError(f"'count' must be an integer >= 1, got {count!r}")
+    for name, (lo, hi) in (("proximal_range", proximal_range), ("distal_range", distal_range),
+                           ("contact_range", contact_range)):
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+            raise ValueError(f"'{name}' must be finite (low, high) with low <= high, got {(lo, hi)}")
+    if contact_range[0] < 0:
+        raise ValueError(f"'contact_range' must lie on the last links (>= 0 m), got {contact_range}")
     N, K = hand.N, hand.K
     kept: list[tuple] = []
     total = 0
@@ -132,7 +147,9 @@ def sample_grasps(
         drawn += batch
         eq = motion.equilibrium(hand, th, a=a)
         good = (eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.tension <= max_tension, axis=1)
-                & np.all(eq.multipliers < 0, axis=1))
+                & np.all(eq.multipliers < 0, axis=1) & hand.within_joint_limits(eq.theta)
+                & np.all(a <= hand.distal_length, axis=1)
+                & hand.within_tendon_range(hand.tendon_travel(eq.theta) + eq.stretch).all(axis=1))
         idx = np.flatnonzero(good)
         if stable and idx.size:
             eig = reduced_hessian_min_eig(hand, eq.theta[idx], a[idx], eq.multipliers[idx])
@@ -164,7 +181,7 @@ def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_length
     res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
                       link_lengths=L, stiffness=stiffness, max_substeps=64,
                       external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)))
-    ok = bool(res.ok[0])
+    ok = bool(res.ok[0] and res.tension_feasible()[0])  # a tendon that would push holds nothing
     return (res.theta[0] if ok else theta[0]).copy(), ok
 
 

@@ -47,16 +47,31 @@ class ModelPlant:
         self.stiffness = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
         self.link_lengths = (hand.link_lengths.copy() if link_lengths is None
                              else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1))
+        for name, v in (("sigma_position", sigma_position), ("sigma_rotation", sigma_rotation),
+                        ("contact_drift", contact_drift)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"model plant: '{name}' must be a finite number >= 0, got {v}")
+        if not 0 <= dropout < 1:  # (NaN too)
+            raise ValueError(f"model plant: 'dropout' must be a probability in [0, 1), got {dropout}")
         self.sigma_position, self.sigma_rotation, self.dropout = sigma_position, sigma_rotation, dropout
         self.tendon = tendon
         self.contact_drift = contact_drift
         self.failures = 0  # actions for which the model found no nearby equilibrium
         theta = np.asarray(theta, float).reshape(hand.N, hand.K)
         a = np.asarray(a, float).reshape(hand.N)
+        if np.any(a < 0) or np.any(a > hand.distal_length):
+            raise ValueError(f"model plant: the initial contacts {a.tolist()} m are not on the last links "
+                             f"(0 to {hand.distal_length.tolist()} m)")
         eq = motion.equilibrium(hand, theta[None], a=a[None], link_lengths=self.link_lengths[None],
                                 stiffness=self.stiffness[None], **self.loads)
         if not eq.ok[0] or np.any(eq.tension[0] < 0):
             raise ValueError(f"model plant: the initial grasp is not physical (tensions {eq.tension[0]} N)")
+        if not hand.within_joint_limits(eq.theta)[0]:
+            raise ValueError(f"model plant: the initial grasp has joints past their limits "
+                             f"({np.round(np.rad2deg(eq.theta[0]), 1).tolist()} deg)")
+        if not hand.within_tendon_range((hand.tendon_travel(eq.theta) + eq.stretch)).all():
+            raise ValueError("model plant: the initial grasp needs tendon commands outside the tendon range "
+                             f"({np.round(1e3 * (hand.tendon_travel(eq.theta) + eq.stretch)[0], 2).tolist()} mm)")
         if not self._stable(eq.theta, a[None], eq.multipliers)[0]:
             raise ValueError("model plant: the initial grasp is not stable (a saddle of Eq. 9's energy, which a "
                              "hand balances on rather than holds)")
@@ -98,7 +113,9 @@ class ModelPlant:
 
     def possible_actions(self, dls) -> np.ndarray:
         """(S,) whether the true system has a nearby physical equilibrium for each action of
-        ``dls`` (S, N) from where it is now (what :meth:`apply_action` would accept)."""
+        ``dls`` (S, N) from where it is now (what :meth:`apply_action` would accept; an action
+        past the tendon range is False here, and :meth:`apply_action` raises
+        :class:`~vlr_drake.motion.TendonLimitError` for it)."""
         dls = np.asarray(dls, float)
         if dls.ndim != 2 or dls.shape[1] != self.hand.N:
             raise ValueError(f"possible_actions: dls must have shape (S, {self.hand.N}), got {dls.shape}")
@@ -139,7 +156,10 @@ class ModelPlant:
         eq = motion.equilibrium(h, s.theta[None], a=a[None], link_lengths=self.link_lengths[None],
                                 stiffness=self.stiffness[None], **self.loads)
         command = s.tendon_command + eq.stretch[0] - s.stretch
+        # (a hand with more joints than the Model O settles elsewhere after a roll: no roll
+        # that would move its joints happens, since the truth must stay an equilibrium)
         if not (eq.ok[0] and np.all(eq.tension[0] >= 0) and h.within_tendon_range(command[None]).all()
+                and np.max(np.abs(eq.theta[0] - s.theta)) < 1e-9
                 and self._stable(s.theta[None], a[None], eq.multipliers)[0]):
             return
         s.a, s.tendon_command, s.stretch = a, command, eq.stretch[0]

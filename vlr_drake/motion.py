@@ -1348,13 +1348,16 @@ def stable_equilibria(
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
-    lam = as_particles("multipliers", multipliers, (P, hand.num_constraints))
-    a = as_particles("a", a, (P, hand.N))
     ok = np.ones(P, dtype=np.bool_) if ok is None else np.ascontiguousarray(np.broadcast_to(ok, (P,)), dtype=np.bool_)
+    lam = np.asarray(multipliers, float)
+    if lam.shape == (P, hand.num_constraints):  # (an equilibrium not found may carry NaN: it is not read)
+        lam = np.where(ok[:, None], lam, 0.0)
+    lam = as_particles("multipliers", lam, (P, hand.num_constraints))
+    a = as_particles("a", a, (P, hand.N))
     L, k = _hand_params(hand, P, link_lengths, stiffness)
     mu_all, fc_all, gw, loaded = _gravity_loads(hand, P, L, gravity, object_load)
     stable = np.empty(P, dtype=np.bool_)
-    _stability_kernel(theta, lam, ok & np.all(np.isfinite(lam), axis=1), a, L, k, hand.pad, hand.base, hand.u,
+    _stability_kernel(theta, lam, ok, a, L, k, hand.pad, hand.base, hand.u,
                       hand.moment_arms, hand.kappa, hand.constraint_pairs, mu_all, fc_all, gw, loaded,
                       tendon == "ideal", stable)
     return stable
