@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vlr_drake import kinematics, motion
-from vlr_drake.kinematics import is_count
 from vlr_drake.hand import HandModel
+from vlr_drake.kinematics import is_count
 
 __all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian", "commanded_equilibrium",
            "settle_under_command"]

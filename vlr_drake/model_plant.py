@@ -69,7 +69,7 @@ class ModelPlant:
         if not hand.within_joint_limits(eq.theta)[0]:
             raise ValueError(f"model plant: the initial grasp has joints past their limits "
                              f"({np.round(np.rad2deg(eq.theta[0]), 1).tolist()} deg)")
-        if not hand.within_tendon_range((hand.tendon_travel(eq.theta) + eq.stretch)).all():
+        if not hand.within_tendon_range(hand.tendon_travel(eq.theta) + eq.stretch).all():
             raise ValueError("model plant: the initial grasp needs tendon commands outside the tendon range "
                              f"({np.round(1e3 * (hand.tendon_travel(eq.theta) + eq.stretch)[0], 2).tolist()} mm)")
         if not self._stable(eq.theta, a[None], eq.multipliers)[0]:
