@@ -654,7 +654,7 @@ def test_grasp_helpers_check_what_they_return(model_o_hand):
     multipliers of equilibria it was told were not found."""
     h = model_o_hand
     rng = np.random.default_rng(4)
-    gs = grasps.sample_grasps(h, rng, 50, proximal_range=(-0.6, 0.3))
+    gs = grasps.sample_grasps(h, rng, 50, proximal_range=(-0.6, 0.3), in_tendon_range=True)
     assert np.all(h.within_joint_limits(gs.theta))
     l0 = h.tendon_travel(gs.theta) + gs.stretch
     assert h.within_tendon_range(l0).all()

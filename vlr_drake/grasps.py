@@ -110,14 +110,16 @@ def sample_grasps(
     min_stability: float = 1e-3,
     max_tension: float = np.inf,
     max_draws: int = 2_000_000,
+    in_tendon_range: bool = False,
 ) -> GraspSample:
     """Draw ``count`` physical grasps by rejection from uniform angle and contact ranges.
 
     Proximal joints (the first) in ``proximal_range``, the others in ``distal_range`` split
     evenly over the K-1 distal joints, contacts along the last link in ``contact_range``.
     Kept: tension >= ``min_tension`` [N] on every tendon, squeeze on every contact pair,
-    at most ``max_tension``, joints within their limits, contacts on the last links, tendon
-    commands within their range, and with ``stable`` a strict constrained minimum whose
+    at most ``max_tension``, joints within their limits, contacts on the last links, with
+    ``in_tendon_range`` tendon commands within their range (a grasp a real hand can hold;
+    the motion tests' abstract grasps need not), and with ``stable`` a strict constrained minimum whose
     reduced Hessian's smallest eigenvalue exceeds ``min_stability`` [N m/rad] (a margin
     keeps the grasp away from folds where small actions snap it). Raises if too few are
     found. (The squeeze is judged pair by pair, on the constraint multipliers: for six or
@@ -148,8 +150,9 @@ def sample_grasps(
         eq = motion.equilibrium(hand, th, a=a)
         good = (eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.tension <= max_tension, axis=1)
                 & np.all(eq.multipliers < 0, axis=1) & hand.within_joint_limits(eq.theta)
-                & np.all(a <= hand.distal_length, axis=1)
-                & hand.within_tendon_range(hand.tendon_travel(eq.theta) + eq.stretch).all(axis=1))
+                & np.all(a <= hand.distal_length, axis=1))
+        if in_tendon_range:
+            good &= hand.within_tendon_range(hand.tendon_travel(eq.theta) + eq.stretch).all(axis=1)
         idx = np.flatnonzero(good)
         if stable and idx.size:
             eig = reduced_hessian_min_eig(hand, eq.theta[idx], a[idx], eq.multipliers[idx])

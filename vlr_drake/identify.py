@@ -578,7 +578,8 @@ def _truth_grasp(hand, rng):
             try:
                 gs = grasps.sample_grasps(hand, rng, 1, proximal_range=ranges[0], distal_range=ranges[1],
                                           contact_range=ranges[2], min_tension=min_tension, max_tension=30.0,
-                                          stable=True, min_stability=margin, max_draws=300_000)
+                                          stable=True, min_stability=margin, max_draws=300_000,
+                                          in_tendon_range=True)
                 return gs.theta[0], gs.a[0]
             except RuntimeError:
                 continue
