@@ -105,11 +105,8 @@ class ModelPlant:
 
     def _stable(self, theta, a, multipliers) -> np.ndarray:
         """(P,) whether equilibria ``theta`` (P, N, K) of the true hand are stable."""
-        P = theta.shape[0]
-        return motion.stable_equilibria(self.hand, theta, multipliers, a=a,
-                                        link_lengths=np.repeat(self.link_lengths[None], P, axis=0),
-                                        stiffness=np.repeat(self.stiffness[None], P, axis=0), tendon=self.tendon,
-                                        **self.loads)
+        return motion.stable_equilibria(self.hand, theta, multipliers, a=a, link_lengths=self.link_lengths[None],
+                                        stiffness=self.stiffness[None], tendon=self.tendon, **self.loads)
 
     def possible_actions(self, dls) -> np.ndarray:
         """(S,) whether the true system has a nearby physical equilibrium for each action of
