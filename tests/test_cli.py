@@ -80,13 +80,14 @@ def test_identify_quick(tmp_path, experiment, extra):
 def test_runs_that_differ_keep_their_own_outputs_and_plots_follow_the_run(tmp_path, monkeypatch):
     """The hand, object and plant name a run's files where they are not the defaults, so two
     runs in one folder do not overwrite each other; the plots draw the run's own unknown
-    spring and convergence threshold (a scenario's spring of finger_left, 5 deg)."""
+    spring and convergence thresholds (a scenario's spring of finger_left, 5 deg, 20%)."""
     from vlr_drake import plots
 
     drawn = {}
     monkeypatch.setattr(plots, "plot_stiffness", lambda *a, which, **k: drawn.update(which=which))
     monkeypatch.setattr(plots, "plot_convergence",
-                        lambda history, path, threshold, measure: drawn.update(threshold=(threshold, measure)))
+                        lambda history, path, threshold, measure, parameter: drawn.update(
+                            threshold=(threshold, measure, parameter)))
     out = tmp_path / "out"
     common = ["--plant", "model", "--particles", "600", "--iterations", "3", "--no-progress", "--out", str(out)]
     for hand in ("NH1", "NH2"):
@@ -94,12 +95,14 @@ def test_runs_that_differ_keep_their_own_outputs_and_plots_follow_the_run(tmp_pa
     for hand in ("NH1", "NH2"):
         assert json.loads((out / f"identify_novel_fingers_{hand}_model_seed0.json").read_text())["hand"] == hand
         assert (out / f"novel_fingers_{hand}_model_seed0_links.png").is_file()
-    path = _scenario_file(tmp_path, "name: left\nplant: model\nobject: toy_block\nfilter: {convergence_deg: 5.0}\n"
+    path = _scenario_file(tmp_path, "name: left\nplant: model\nobject: toy_block\n"
+                                    "filter: {convergence_deg: 5.0, parameter_convergence: 0.2}\n"
                                     "prior: {stiffness_unknown: [[1, 1]], stiffness_range: [0.1, 0.4]}\n")
     assert main(["identify", "--scenario", str(path), *common]) == 0
     r = json.loads((out / "identify_stiffness_model_seed0.json").read_text())
     assert list(r["hand_parameters"]) == ["stiffness:finger_left/1"] and r["convergence_deg"] == 5.0
-    assert drawn == {"which": [(1, 1)], "threshold": (5.0, "half_width")}
+    assert r["parameter_convergence"] == 0.2 and 0 < r["parameter_interval"] < 1  # the spring's, after 3 steps
+    assert drawn == {"which": [(1, 1)], "threshold": (5.0, "half_width", 0.2)}
 
 
 def test_identify_stuck_probability_defaults_and_flag(tmp_path):

@@ -1006,9 +1006,9 @@ def test_each_experiment_holds_its_papers_object_unless_told():
 
 
 def test_iteration_budget_is_the_experiments_unless_told():
-    """The stiffness and the novel fingers on the physics plant run 240 iterations (their
-    hand parameters narrow slowly), the known hand and the model plant 120; a given budget is
-    kept, and one that is not a positive integer is named."""
+    """The stiffness on either plant and the novel fingers on the physics plant run 240
+    iterations (their hand parameters narrow slowly), the rest 120; a given budget is kept,
+    and one that is not a positive integer is named."""
     from vlr_drake.identify import DEFAULT_ITERATIONS, default_iterations
     from vlr_drake.scenario import DIAGRAMS_DIR, load_scenario, options_from_scenario
 
@@ -1016,12 +1016,12 @@ def test_iteration_budget_is_the_experiments_unless_told():
     budgets = {(p, e): IdentifyOptions(experiment=e, plant=p, hand="NH1" if e == "novel_fingers" else "model_o")
                .validate().max_iterations for p in ("model", "physics") for e in ("known_hand", "stiffness",
                                                                                   "novel_fingers")}
-    assert budgets == {("model", "known_hand"): 120, ("model", "stiffness"): 120, ("model", "novel_fingers"): 120,
+    assert budgets == {("model", "known_hand"): 120, ("model", "stiffness"): 240, ("model", "novel_fingers"): 120,
                        ("physics", "known_hand"): 120, ("physics", "stiffness"): 240,
                        ("physics", "novel_fingers"): 240}
     assert IdentifyOptions(experiment="stiffness", plant="physics", max_iterations=30).validate().max_iterations == 30
     scenario = load_scenario(DIAGRAMS_DIR / "stiffness.yaml")  # the model plant
-    assert options_from_scenario(scenario, max_iterations=None).validate().max_iterations == 120
+    assert options_from_scenario(scenario, max_iterations=None).validate().max_iterations == 240
     assert options_from_scenario(scenario, plant="physics", max_iterations=None).validate().max_iterations == 240
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="max_iterations must be an integer >= 1"):
@@ -1407,3 +1407,49 @@ def test_the_model_plant_truth_stays_an_equilibrium_and_starts_physical():
     for kw, name in [({"dropout": float("nan")}, "dropout"), ({"sigma_position": -1e-3}, "sigma_position")]:
         with pytest.raises(ValueError, match=f"model plant: '{name}'"):
             ModelPlant(m, theta, a, *args, **kw)
+
+
+def test_convergence_waits_for_the_identified_hand_parameters():
+    """parameter_interval is the widest unknown spring's or link's 95% interval over its
+    estimate (half width, or the full width with convergence_measure "full_width"), NaN for a
+    known hand; with parameter_convergence set, a cloud whose joints have converged has not
+    while that interval is wider (None: the joints alone, the paper's test)."""
+    from types import SimpleNamespace
+
+    h = model_o().model()
+    M = 2000
+    rng = np.random.default_rng(3)
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], links_unknown=[1])
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=M), prior, np.random.default_rng(0))
+    k = np.broadcast_to(h.stiffness, (M, h.N, h.K)).copy()
+    k[:, 0, 1] = rng.uniform(0.14, 0.16, M)  # +-6.7% around 0.15
+    L = np.broadcast_to(h.link_lengths, (M, h.N, h.K - 1)).copy()
+    L[:, 1, 0] = rng.uniform(0.049, 0.051, M)  # +-2%
+    theta = np.broadcast_to(np.full((h.N, h.K), 0.3), (M, h.N, h.K)).copy()  # the joints: all alike
+    f.particles = pf.ParticleSet(theta=theta, a=np.full((M, h.N), 0.02), stiffness=k, link_lengths=L,
+                                 stretch=np.zeros((M, h.N)), p_O=np.zeros((M, h.N, 3)), log_w=np.zeros(M))
+    lo_k, hi_k = pf.interval95(k[:, 0, 1], np.full(M, 1.0 / M))
+    lo_l, hi_l = pf.interval95(L[:, 1, 0], np.full(M, 1.0 / M))
+    expected = max(0.5 * (hi_k - lo_k) / k[:, 0, 1].mean(), 0.5 * (hi_l - lo_l) / L[:, 1, 0].mean())
+    assert f.parameter_interval() == pytest.approx(expected, rel=1e-9)
+    assert 0.05 < f.parameter_interval() < 0.07
+
+    def report(filt):
+        return filt._report(True, float(M), 1.0, SimpleNamespace(ok=np.ones(M, bool)), np.ones(M, bool), False, 0.0)
+
+    assert f.config.parameter_convergence == 0.05  # the default
+    rep = report(f)
+    assert rep.mean_interval_deg == 0.0 and rep.parameter_interval == pytest.approx(expected) and not rep.converged
+    f.config.parameter_convergence = None
+    assert report(f).converged
+    f.config.parameter_convergence = 0.1
+    assert report(f).converged
+    f.config.convergence_measure = "full_width"
+    assert f.parameter_interval() == pytest.approx(2 * expected, rel=1e-9) and not report(f).converged
+    known = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=M), pf.PriorConfig(), np.random.default_rng(0))
+    known.particles = pf.ParticleSet(theta=theta, a=np.full((M, h.N), 0.02), stiffness=h.stiffness[None].copy(),
+                                     link_lengths=h.link_lengths[None].copy(), stretch=np.zeros((M, h.N)),
+                                     p_O=np.zeros((M, h.N, 3)), log_w=np.zeros(M))
+    assert np.isnan(known.parameter_interval()) and report(known).converged
+    with pytest.raises(ValueError, match="parameter_convergence"):
+        pf.FilterConfig(parameter_convergence=-0.1).validate()

@@ -156,6 +156,22 @@ def test_convergence_lines():
     np.testing.assert_allclose(ax_ess.lines[0].get_ydata(), [r.ess for r in hist])
 
 
+def test_convergence_shows_the_hand_parameters_where_identified():
+    """A run that identified springs or links gets a third panel (axes 2, drawn between the
+    joints' and the ESS's) with their widest interval in percent and the threshold; a known
+    hand keeps two panels."""
+    from dataclasses import replace
+
+    hist = [replace(r, parameter_interval=p) for r, p in zip(_reports(), [0.5, 0.3, 0.2, 0.1, 0.06, 0.04])]
+    fig = plots.make_convergence_figure(hist, threshold_deg=2.0, parameter_threshold=0.05)
+    ax, ax_ess, ax_par = fig.axes
+    np.testing.assert_allclose(ax_par.lines[0].get_ydata(), [50, 30, 20, 10, 6, 4])
+    np.testing.assert_allclose(ax_par.lines[1].get_ydata(), [5.0, 5.0])
+    np.testing.assert_allclose(ax_ess.lines[0].get_ydata(), [r.ess for r in hist])
+    assert ax.get_position().y0 > ax_par.get_position().y0 > ax_ess.get_position().y0
+    assert len(plots.make_convergence_figure(_reports()).axes) == 2
+
+
 def test_files_written_and_no_pyplot_state(tmp_path, rng):
     est, tr = _history(rng)
     before = matplotlib.get_backend()

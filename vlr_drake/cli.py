@@ -433,7 +433,8 @@ def _plots(result: dict, stem: Path) -> None:
     ]
     if result["_history"]:
         written.append(plots.plot_convergence(result["_history"], f"{stem}_convergence.png",
-                                              result["convergence_deg"], result["convergence_measure"]))
+                                              result["convergence_deg"], result["convergence_measure"],
+                                              result.get("parameter_convergence")))
     else:  # the plant refused every action: no filter iteration to plot
         print(f"no convergence plot: no filter iteration ran ({result.get('actions_refused', 0)} actions refused)")
     if result.get("stiffness_error_Nm_per_rad") is not None:

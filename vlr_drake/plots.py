@@ -298,14 +298,19 @@ def make_link_lengths_figure(
 
 
 def make_convergence_figure(history: Sequence, threshold_deg: float | None = None,
-                            measure: str = "half_width") -> Figure:
+                            measure: str = "half_width", parameter_threshold: float | None = None) -> Figure:
     """Mean 95% interval of the joint angles per iteration (``StepReport.mean_interval_deg``,
     its half-width or full width as the run's ``FilterConfig.convergence_measure``, named by
     ``measure``) with the convergence threshold (``FilterConfig.convergence_deg`` by default;
     pass the run's own), and the effective sample size below it. Re-initialisations are
-    marked by red vertical lines, the first converged iteration by a green one.
+    marked by red vertical lines, the first converged iteration by a green one. Where the run
+    identified springs or link lengths (``StepReport.parameter_interval`` finite), a third
+    panel, between the two, shows their widest interval in percent of its estimate, with
+    ``parameter_threshold`` (the run's ``FilterConfig.parameter_convergence``; None: none
+    drawn).
 
-    Axes 0: ``lines[0]`` the interval, ``lines[1]`` the threshold; axes 1: ``lines[0]`` ESS.
+    Axes 0: ``lines[0]`` the interval, ``lines[1]`` the threshold; axes 1: ``lines[0]`` ESS;
+    axes 2 (where drawn): ``lines[0]`` the parameters' interval [%], ``lines[1]`` its threshold.
     """
     if len(history) == 0:
         raise ValueError("history is empty: nothing to plot")
@@ -323,9 +328,17 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     it = np.array([r.iteration for r in history], dtype=float)
     width = np.array([r.mean_interval_deg for r in history], dtype=float)
     ess = np.array([r.ess for r in history], dtype=float)
-    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    param = np.array([getattr(r, "parameter_interval", np.nan) for r in history], dtype=float)
+    has_param = bool(np.isfinite(param).any())
+    fig = Figure(figsize=(6.0, 6.5 if has_param else 5.0), layout="constrained")
     FigureCanvasAgg(fig)
-    ax, ax_ess = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
+    if has_param:  # axes in the order the docstring names them, drawn interval / parameters / ESS
+        grid = fig.add_gridspec(3, 1, height_ratios=[2, 1.3, 1])
+        ax = fig.add_subplot(grid[0])
+        ax_ess = fig.add_subplot(grid[2], sharex=ax)
+        ax_par = fig.add_subplot(grid[1], sharex=ax)
+    else:
+        ax, ax_ess = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
     ax.plot(it, width, color=ESTIMATE_COLOR, marker="o", markersize=3, label=label)
     ax.axhline(threshold_deg, color=TRUTH_COLOR, linestyle="--", label=f"threshold {threshold_deg:g} deg")
     for r in history:
@@ -339,6 +352,16 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     ax.set_title("convergence of the joint angle intervals")
+    if has_param:
+        what = "half-width" if measure == "half_width" else "width"
+        ax_par.plot(it, 100.0 * param, color="tab:purple", marker=".", label=f"widest hand parameter's 95% {what}")
+        if parameter_threshold is not None:
+            ax_par.axhline(100.0 * parameter_threshold, color=TRUTH_COLOR, linestyle="--",
+                           label=f"threshold {100.0 * parameter_threshold:g}%")
+        ax_par.set_ylabel("% of estimate")
+        ax_par.set_yscale("log" if np.nanmin(param) > 0 else "linear")
+        ax_par.grid(True, alpha=0.3)
+        ax_par.legend(loc="best", fontsize="small")
     ax_ess.plot(it, ess, color="tab:gray", marker=".", label="ESS")
     ax_ess.set_ylabel("ESS")
     ax_ess.set_xlabel("iteration")
@@ -478,9 +501,9 @@ def plot_link_lengths(
 
 
 def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float | None = None,
-                     measure: str = "half_width") -> Path:
+                     measure: str = "half_width", parameter_threshold: float | None = None) -> Path:
     """Save :func:`make_convergence_figure` to ``path``; returns the path."""
-    return save_figure(make_convergence_figure(history, threshold_deg, measure), path)
+    return save_figure(make_convergence_figure(history, threshold_deg, measure, parameter_threshold), path)
 
 
 def plot_hypotheses(

@@ -60,7 +60,7 @@ OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load")
 #: behaviour of the code that wrote a trace lacking them. A replay is bit-exact only with the
 #: code that recorded the trace: later kernels may round differently (the 2026-11-24 ones do,
 #: by up to 1e-17 m in the contacts), and the filter's resampling can amplify that.
-LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None}}
+LEGACY_SETTINGS = {"FilterConfig": {"newton_loose_after": None, "parameter_convergence": None}}
 #: PriorConfig.contact_limits as traces before 2026-11-25 recorded it: the default then, the
 #: Model O's 48 mm pad written for every finger. Where it reaches past a finger's last link
 #: (NH3's 40 mm NF3, which it let contacts leave by 8 mm), the trace loads with today's
