@@ -262,6 +262,11 @@ def print_summary(result: dict) -> None:
         p = result["hand_parameters"][name]
         print(f"weakly identified: {name} (its 95% interval is {100 * p['narrowed_to']:.0f}% as wide as the "
               f"prior's: the estimate leans on the prior)")
+    if result.get("parameter_interval") is not None:
+        limit = result.get("parameter_convergence")
+        print(f"widest hand parameter's 95% {result['convergence_measure'].replace('_', '-')}: "
+              f"{100 * result['parameter_interval']:.1f}% of its estimate"
+              + ("" if limit is None else f" (converges below {100 * limit:g}%)"))
     print(f"mean joint error {result['joint_error_deg_mean']:.2f} deg; mean 95% half-width "
           f"{result['interval_half_width_deg_mean']:.2f} deg; truth inside 95%: "
           f"{100 * result['truth_inside_95_theta']:.0f}% of joints, {100 * result['truth_inside_95_contact']:.0f}% of contacts")
@@ -529,7 +534,8 @@ MathematicalProgram (IPOPT and SNOPT), and print how far apart the joint angles 
     "identify": """Run one self-identification experiment of the paper (Algorithm 1): grasp, then exploratory
 tendon actions (random on the physics plant, as the paper's; informative on the model
 plant), each followed by a camera measurement of the POM and a particle filter iteration,
-until the 95% intervals of the joint angles are narrow (converged) or the
+until the 95% intervals of the joint angles, and of the identified springs and links,
+are narrow (converged; --filter convergence_deg=..., parameter_convergence=...) or the
 iteration budget is spent. Prints a table of estimated vs true joint angles, contacts (and
 stiffness or link lengths), writes convergence plots and the JSON result (its fields: docs/result-files.md)
 to --out. The experiment follows from the scenario's prior when not given:

@@ -351,7 +351,7 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     ax.set_yscale("log" if np.all(width > 0) and width.max() > 20 * max(width.min(), 1e-12) else "linear")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
-    ax.set_title("convergence of the joint angle intervals")
+    ax.set_title("convergence of the joint angle" + (" and hand parameter" if has_param else "") + " intervals")
     if has_param:
         what = "half-width" if measure == "half_width" else "width"
         ax_par.plot(it, 100.0 * param, color="tab:purple", marker=".", label=f"widest hand parameter's 95% {what}")
@@ -359,7 +359,13 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
             ax_par.axhline(100.0 * parameter_threshold, color=TRUTH_COLOR, linestyle="--",
                            label=f"threshold {100.0 * parameter_threshold:g}%")
         ax_par.set_ylabel("% of estimate")
-        ax_par.set_yscale("log" if np.nanmin(param) > 0 else "linear")
+        if np.nanmin(param) > 0:  # log, labelled 2, 5, 10, 20, 50 rather than 2x10^0
+            from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+            ax_par.set_yscale("log")
+            ax_par.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax_par.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax_par.yaxis.set_minor_formatter(NullFormatter())
         ax_par.grid(True, alpha=0.3)
         ax_par.legend(loc="best", fontsize="small")
     ax_ess.plot(it, ess, color="tab:gray", marker=".", label="ESS")
