@@ -59,8 +59,21 @@ def test_generated_files_are_current():
         path = root / rel
         assert path.exists(), f"{rel} missing: run python -m vlr_drake.models --write"
         assert path.read_text() == text, f"{rel} is stale: run python -m vlr_drake.models --write"
-    for name in preset_names():
-        assert tag_texture_path(preset(name).tag_id).exists()
+    import cv2
+
+    from vlr_drake.perception.apriltag import tag_image
+
+    ids = {preset(name).tag_id for name in preset_names()}
+    for tag_id in ids:  # the textures too, pixel for pixel (as write_tag_texture makes them)
+        png = cv2.imread(str(tag_texture_path(tag_id)), cv2.IMREAD_GRAYSCALE)
+        assert png is not None, f"texture of tag {tag_id} missing: run python -m vlr_drake.models --write"
+        np.testing.assert_array_equal(png, tag_image(tag_id, pixels_per_cell=32, quiet_cells=1),
+                                      err_msg=f"texture of tag {tag_id} is stale")
+    # and nothing else: a model the generator no longer writes is stale too
+    expected = set(files) | {tag_texture_path(i).relative_to(root).as_posix() for i in ids}
+    found = {p.relative_to(root).as_posix() for d in ("hands", "fingers", "objects") for p in (root / d).rglob("*")
+             if p.is_file()}
+    assert found <= expected, f"files the generator does not write: {sorted(found - expected)}"
 
 
 @pytest.mark.parametrize(
@@ -213,7 +226,7 @@ def test_object_model_frames(name):
 
 def test_paper_objects_present():
     assert set(PAPER_OBJECTS) <= set(preset_names())
-    assert object_sdf(preset("marble_maze")).count("<link") == 2
+    assert object_sdf(preset("marble_maze")).count("<link") == 1  # the plate; its marble is the maze task's
 
 
 def test_object_spec_loads_from_yaml():
@@ -248,12 +261,64 @@ placement_xyz: [0.0, 0.0, 0.08]
         (dict(tag_face="top"), "tag_face"),
         (dict(placement_xyz=[0.0, 0.0]), "placement_xyz"),
         (dict(marble_radius=0.01), "marble"),
+        (dict(shape="box", size=[0.05, 0.05, 0.01], marble_radius=0.03), "marble_radius"),
+        (dict(tag_id=float("nan")), "tag_id"),
+        (dict(tag_id=None), "tag_id"),
+        (dict(tag_id=2.5), "tag_id"),
+        (dict(name='a"b'), "name"),
+        (dict(name=""), "name"),
+        (dict(name="a::b"), "name"),
+        (dict(mass="heavy"), "mass"),
+        (dict(size=["big"]), "size"),
+        (dict(tag_size=0.2), "tag_size"),  # a 0.25 m plate on the default 37.5 mm sphere
+        (dict(friction="1"), "friction"),
         (dict(friction=float("nan")), "friction"),
         (dict(tag_size=float("inf")), "tag_size"),
         (dict(rim_height=float("nan")), "rim_height"),
     ],
 )
 def test_bad_object_spec_names_the_field(changes, field):
-    spec = ObjectSpec(name="bad", **changes)
+    spec = ObjectSpec(**{"name": "bad", **changes})
     with pytest.raises(ValueError, match=field):
         spec.validate()
+
+
+@pytest.mark.parametrize("shape, size", [("capsule", [0.02, 0.06]), ("cylinder", [0.03, 0.05]), ("box", [0.02, 0.03, 0.05]),
+                                         ("sphere", [0.04])])
+def test_object_inertia_matches_drake(shape, size):
+    """ObjectSpec.inertia against Drake's CalcSpatialInertia of the same shape and mass, about
+    the body origin (the capsule's hemispheres were once counted as cylinder: +26% Ixx)."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Sphere
+    from pydrake.multibody.tree import CalcSpatialInertia
+
+    shapes = {"capsule": lambda s: Capsule(*s), "cylinder": lambda s: Cylinder(*s), "box": lambda s: Box(*s),
+              "sphere": lambda s: Sphere(*s)}
+    m = 0.1
+    unit = CalcSpatialInertia(shapes[shape](size), 1.0)
+    M = CalcSpatialInertia(shapes[shape](size), m / unit.get_mass())
+    np.testing.assert_allclose(M.get_com(), 0.0, atol=1e-15)
+    I = M.CalcRotationalInertia().CopyToFullMatrix3()
+    np.testing.assert_allclose(ObjectSpec(name="s", shape=shape, size=size, mass=m).inertia(), np.diag(I), rtol=1e-12)
+
+
+def test_every_collision_geometry_has_a_hydroelastic_representation():
+    """Strict hydroelastic contact builds (a review found the palm, and the marble the maze
+    plate then carried, without one: Drake refused the model)."""
+    from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
+
+    for obj in ("marble_maze", "apple"):
+        _, ph, _ = build_physics_hand(hand_by_name("model_o"), preset(obj), PhysicsConfig(contact_model="hydroelastic"))
+        assert ph.plant.num_bodies() == 2 + 3 * 2 + 1  # world, palm, six links, the object: no marble body
+
+
+@pytest.mark.parametrize("changes, field", [(dict(stiffness=[0.1]), "stiffness"), (dict(link_radius=-0.01), "link_radius"),
+                                            (dict(distal_length=float("nan")), "distal_length"),
+                                            (dict(joint_lower=[0.5, 0.5], joint_upper=[0.1, 0.1]), "joint_lower"),
+                                            (dict(moment_arms=0.009), "moment_arms")])
+def test_a_bad_finger_is_refused_by_name(changes, field):
+    """finger_sdf checks its finger as HandSpec.validate checks a hand's (it passed an
+    IndexError, a NaN inertia or a negative radius on to Drake)."""
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match=field):
+        finger_sdf(replace(novel_finger("NF1"), **changes))

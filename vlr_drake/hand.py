@@ -104,6 +104,74 @@ class FingerSpec:
     def num_joints(self) -> int:
         return len(self.moment_arms)
 
+    def validate(self, where: str | None = None, joints: int | None = None) -> FingerSpec:
+        """Check the finger and raise ``ValueError`` naming the offending field (``where``:
+        how the message names the finger; ``joints``: the number of joints the hand's fingers
+        have, default this finger's own)."""
+        from vlr_drake.kinematics import is_number  # (kinematics imports this module)
+
+        f = self
+        where = f"finger '{f.name}'" if where is None else where
+        if joints is None:
+            try:
+                joints = len(f.moment_arms)
+            except TypeError:
+                raise ValueError(f"{where}: field 'moment_arms' must be a list of numbers, got {f.moment_arms!r}") from None
+        K = joints
+        if K < 2:
+            raise ValueError(f"{where}: a finger needs at least 2 joints, got {K}")
+        for fname, n in [
+            ("moment_arms", K),
+            ("stiffness", K),
+            ("rest_angles", K),
+            ("joint_lower", K),
+            ("joint_upper", K),
+            ("joint_damping", K),
+            ("link_lengths", K - 1),
+            ("base", 3),
+            ("flexion_direction", 3),
+            ("tendon_range", 2),
+        ]:
+            v = getattr(f, fname)
+            try:  # a scalar, a string or a nested list: named here, not a TypeError deep inside
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}") from None
+            if arr.shape != (n,):
+                raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{where}: field '{fname}' is not finite: {v}")
+        for fname in ["link_lengths", "moment_arms", "stiffness"]:
+            v = np.asarray(getattr(f, fname))
+            if np.any(v <= 0):
+                raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
+        for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
+                      "friction", "tendon_damping", "pad_radius"]:
+            v = getattr(f, fname)
+            if not is_number(v):
+                raise ValueError(f"{where}: field '{fname}' must be a number, got {v!r}")
+        for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
+            if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) > 0):
+                raise ValueError(f"{where}: field '{fname}' must be a finite positive number, got {getattr(f, fname)}")
+        for fname in ["pad_offset", "friction", "tendon_damping"]:  # (NaN < 0 is False: said so)
+            if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) >= 0):
+                raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(f, fname)}")
+        if not (np.isfinite(f.pad_radius) and 0 < f.pad_radius <= f.pad_offset + f.link_radius):
+            raise ValueError(
+                f"{where}: field 'pad_radius' must be in (0, pad_offset + link_radius] = "
+                f"(0, {f.pad_offset + f.link_radius:g}], got {f.pad_radius}"
+            )
+        if np.any(np.asarray(f.joint_damping) < 0):
+            raise ValueError(f"{where}: field 'joint_damping' must be >= 0, got {list(f.joint_damping)}")
+        u = np.asarray(f.flexion_direction, float)
+        if abs(u[2]) > 1e-9 or np.linalg.norm(u) < 1e-9:
+            raise ValueError(f"{where}: 'flexion_direction' must be a nonzero vector in the palm plane (z = 0), got {list(u)}")
+        if not np.all(np.asarray(f.joint_lower) < np.asarray(f.joint_upper)):
+            raise ValueError(f"{where}: 'joint_lower' must be below 'joint_upper'")
+        if not f.tendon_range[0] < f.tendon_range[1]:
+            raise ValueError(f"{where}: 'tendon_range' must be [min, max] with min < max")
+        return self
+
 
 @dataclass
 class HandSpec:
@@ -153,56 +221,7 @@ class HandSpec:
             if f.name in names:
                 raise ValueError(f"{where}: duplicate finger name")
             names.add(f.name)
-            for fname, n in [
-                ("moment_arms", K),
-                ("stiffness", K),
-                ("rest_angles", K),
-                ("joint_lower", K),
-                ("joint_upper", K),
-                ("joint_damping", K),
-                ("link_lengths", K - 1),
-                ("base", 3),
-                ("flexion_direction", 3),
-                ("tendon_range", 2),
-            ]:
-                v = getattr(f, fname)
-                try:  # a scalar, a string or a nested list: named here, not a TypeError deep inside
-                    arr = np.asarray(v, dtype=float)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}") from None
-                if arr.shape != (n,):
-                    raise ValueError(f"{where}: field '{fname}' must be a list of {n} numbers, got {v!r}")
-                if not np.all(np.isfinite(arr)):
-                    raise ValueError(f"{where}: field '{fname}' is not finite: {v}")
-            for fname in ["link_lengths", "moment_arms", "stiffness"]:
-                v = np.asarray(getattr(f, fname))
-                if np.any(v <= 0):
-                    raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
-            for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
-                          "friction", "tendon_damping", "pad_radius"]:
-                v = getattr(f, fname)
-                if not is_number(v):
-                    raise ValueError(f"{where}: field '{fname}' must be a number, got {v!r}")
-            for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density"]:
-                if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) > 0):
-                    raise ValueError(f"{where}: field '{fname}' must be a finite positive number, got {getattr(f, fname)}")
-            for fname in ["pad_offset", "friction", "tendon_damping"]:  # (NaN < 0 is False: said so)
-                if not (np.isfinite(getattr(f, fname)) and getattr(f, fname) >= 0):
-                    raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(f, fname)}")
-            if not (np.isfinite(f.pad_radius) and 0 < f.pad_radius <= f.pad_offset + f.link_radius):
-                raise ValueError(
-                    f"{where}: field 'pad_radius' must be in (0, pad_offset + link_radius] = "
-                    f"(0, {f.pad_offset + f.link_radius:g}], got {f.pad_radius}"
-                )
-            if np.any(np.asarray(f.joint_damping) < 0):
-                raise ValueError(f"{where}: field 'joint_damping' must be >= 0, got {list(f.joint_damping)}")
-            u = np.asarray(f.flexion_direction, float)
-            if abs(u[2]) > 1e-9 or np.linalg.norm(u) < 1e-9:
-                raise ValueError(f"{where}: 'flexion_direction' must be a nonzero vector in the palm plane (z = 0), got {list(u)}")
-            if not np.all(np.asarray(f.joint_lower) < np.asarray(f.joint_upper)):
-                raise ValueError(f"{where}: 'joint_lower' must be below 'joint_upper'")
-            if not f.tendon_range[0] < f.tendon_range[1]:
-                raise ValueError(f"{where}: 'tendon_range' must be [min, max] with min < max")
+            f.validate(where, K)
         if len({f.num_joints for f in self.fingers}) != 1:
             raise ValueError(f"hand '{self.name}': all fingers must have the same number of joints")
         return self

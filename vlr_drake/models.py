@@ -271,6 +271,10 @@ def _palm_links(hand: HandSpec, indent: str) -> list[str]:
         f'{indent}  <collision name="palm_collision">',
         f"{indent}    <pose>0 0 {-t / 2:.17g} 0 0 0</pose>",
         f"{indent}    <geometry><cylinder><radius>{r:.17g}</radius><length>{t:.17g}</length></cylinder></geometry>",
+        # rigid under hydroelastic contact (strict "hydroelastic" needs every collision
+        # geometry to have a representation); point contact ignores it
+        f"{indent}    <drake:proximity_properties><drake:rigid_hydroelastic/><drake:mesh_resolution_hint>{r / 6:.17g}"
+        f"</drake:mesh_resolution_hint></drake:proximity_properties>",
         f"{indent}  </collision>",
     ]
     # Visual: a ring of 12 blocks around the camera hole.
@@ -312,6 +316,7 @@ def hand_sdf(spec: HandSpec) -> str:
 def finger_sdf(finger: FingerSpec) -> str:
     """SDFormat of one finger on its own: a small mount link at the base (model frame =
     finger frame F: x = flexion direction, z = palm normal), then the K links."""
+    finger.validate()
     f = FingerSpec(**{**finger.__dict__, "base": [0.0, 0.0, 0.0], "flexion_direction": [1.0, 0.0, 0.0]})
     ind = "    "
     lines = [

@@ -15,11 +15,13 @@ objects (approximate: each object is reduced to the simple shape the fingers tou
 """
 
 import copy
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.kinematics import is_number
 from vlr_drake.perception.apriltag import TAG36H11_CELLS, TAG36H11_COUNT, tag_image
 
 __all__ = [
@@ -53,6 +55,8 @@ FACES = {
     "+z": (0.0, 0.0, 1.0),
     "-z": (0.0, 0.0, -1.0),
 }
+#: Side of the printed tag plate over the tag's side: the tag with its 1-cell quiet zone.
+TAG_PLATE_RATIO = (TAG36H11_CELLS + 2) / TAG36H11_CELLS
 #: The tag quad floats this far outside the face, so it never z-fights the body [m].
 TAG_STANDOFF = 0.0003
 #: The five objects of the paper's known-hand experiments.
@@ -92,15 +96,20 @@ class ObjectSpec:
     friction: float = 1.0
     # RGBA colour of the body (visual only).
     color: list[float] = field(default_factory=lambda: [0.8, 0.2, 0.15, 1.0])
-    # Marble-maze extras: radius [m] and mass [kg] of a free marble resting on the tag face
-    # (0: none), and the height of a rim around that face [m] (0: none). Box shape only.
+    # Marble-maze extras: the radius [m] of the marble that rolls on the tag face (0: none;
+    # the maze task simulates it in the plate's frame, vlr_drake.tasks.maze.MarbleMaze, so
+    # the Drake model has no marble body: until 2026-11-27 it had one, posed in the model
+    # frame, which fell away from the plate at the first step), and the height of a rim
+    # around that face [m] (0: none). Box shape only.
     marble_radius: float = 0.0
-    marble_mass: float = 0.0
     rim_height: float = 0.0
 
     def validate(self) -> "ObjectSpec":
         """Check the spec; raise ``ValueError`` naming the offending field."""
         where = f"object '{self.name}'"
+        if not (isinstance(self.name, str) and re.fullmatch(r"[A-Za-z0-9_.-]+", self.name)):
+            # it names the Drake model instance and the generated file
+            raise ValueError(f"object: field 'name' must be letters, digits, '_', '.' or '-', got {self.name!r}")
         if self.shape not in SHAPES:
             raise ValueError(f"{where}: field 'shape' must be one of {list(SHAPES)}, got '{self.shape}'")
         n = {"sphere": 1, "box": 3, "cylinder": 2, "capsule": 2}[self.shape]
@@ -108,11 +117,12 @@ class ObjectSpec:
             raise ValueError(
                 f"{where}: field 'size' must have {n} entries for a {self.shape} {SHAPES[self.shape]}, got {self.size}"
             )
-        if not all(np.isfinite(self.size)) or min(self.size) <= 0:
-            raise ValueError(f"{where}: field 'size' must be positive, got {self.size}")
-        if not (np.isfinite(self.mass) and self.mass > 0):
-            raise ValueError(f"{where}: field 'mass' must be positive, got {self.mass}")
-        if not 0 <= int(self.tag_id) < TAG36H11_COUNT or int(self.tag_id) != self.tag_id:
+        if not all(is_number(x) and np.isfinite(x) and x > 0 for x in self.size):
+            raise ValueError(f"{where}: field 'size' must be positive numbers, got {self.size}")
+        if not (is_number(self.mass) and np.isfinite(self.mass) and self.mass > 0):
+            raise ValueError(f"{where}: field 'mass' must be a positive number, got {self.mass!r}")
+        if not (is_number(self.tag_id) and np.isfinite(self.tag_id) and 0 <= self.tag_id < TAG36H11_COUNT
+                and int(self.tag_id) == self.tag_id):
             raise ValueError(
                 f"{where}: field 'tag_id' must be a tag36h11 id in 0..{TAG36H11_COUNT - 1}, got {self.tag_id}"
             )
@@ -120,21 +130,24 @@ class ObjectSpec:
             raise ValueError(f"{where}: field 'tag_size' must be a finite positive number, got {self.tag_size}")
         if self.tag_face not in FACES:
             raise ValueError(f"{where}: field 'tag_face' must be one of {list(FACES)}, got '{self.tag_face}'")
+        plate, room = TAG_PLATE_RATIO * self.tag_size, self.face_width()
+        if plate > room:
+            raise ValueError(f"{where}: field 'tag_size' ({self.tag_size} m) makes a {plate:.4g} m tag plate, wider "
+                             f"than the '{self.tag_face}' face ({room:.4g} m)")
         for fname in ["tag_to_pom_xyz", "tag_to_pom_rpy_deg", "placement_xyz", "placement_rpy_deg"]:
             v = getattr(self, fname)
             if len(v) != 3 or not all(np.isfinite(v)):
                 raise ValueError(f"{where}: field '{fname}' must have 3 finite entries, got {v}")
         if len(self.color) != 4 or not all(np.isfinite(c) and 0 <= c <= 1 for c in self.color):
             raise ValueError(f"{where}: field 'color' must be RGBA, 4 entries in [0, 1], got {self.color}")
-        for fname in ["friction", "marble_radius", "marble_mass", "rim_height"]:  # (NaN < 0 is False)
-            if not (np.isfinite(getattr(self, fname)) and getattr(self, fname) >= 0):
-                raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(self, fname)}")
-        if (self.marble_radius > 0) != (self.marble_mass > 0):
-            raise ValueError(
-                f"{where}: fields 'marble_radius' and 'marble_mass' must both be set or both be 0"
-            )
+        for fname in ["friction", "marble_radius", "rim_height"]:  # (NaN < 0 is False)
+            if not (is_number(getattr(self, fname)) and np.isfinite(getattr(self, fname)) and getattr(self, fname) >= 0):
+                raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(self, fname)!r}")
         if (self.marble_radius > 0 or self.rim_height > 0) and self.shape != "box":
             raise ValueError(f"{where}: field 'shape' must be 'box' for a marble maze, got '{self.shape}'")
+        if self.marble_radius > 0 and 2 * self.marble_radius >= min(self.size[:2]):
+            raise ValueError(f"{where}: field 'marble_radius' ({self.marble_radius} m) does not fit on the "
+                             f"{self.size[0]} x {self.size[1]} m face")
         return self
 
     # -- geometry -------------------------------------------------------------------------
@@ -151,6 +164,21 @@ class ObjectSpec:
         if self.shape == "cylinder":
             return 0.5 * s[1] if axis == 2 else s[0]
         return 0.5 * s[1] + s[0] if axis == 2 else s[0]  # capsule
+
+    def face_width(self, face: str | None = None) -> float:
+        """The narrowest width of the (flat or tangent) face across its normal [m]: what a
+        square tag plate on it must fit in (a sphere's and a cylinder's curved side: their
+        diameter, and the cylinder's length)."""
+        face = self.tag_face if face is None else face
+        axis = "xyz".index(face[1])
+        s = self.size
+        if self.shape == "sphere":
+            return 2 * s[0]
+        if self.shape == "box":
+            return min(s[i] for i in range(3) if i != axis)
+        if axis == 2:  # a cylinder's or capsule's end
+            return 2 * s[0]
+        return min(2 * s[0], s[1] + (2 * s[0] if self.shape == "capsule" else 0.0))
 
     def R_BT(self) -> np.ndarray:
         """Rotation of the tag frame T in the body frame B: z_T = the face's outward normal,
@@ -197,9 +225,21 @@ class ObjectSpec:
         if self.shape == "box":
             x, y, z = s
             return m * (y * y + z * z) / 12, m * (x * x + z * z) / 12, m * (x * x + y * y) / 12
-        r, L = s[0], s[1] + (2 * s[0] if self.shape == "capsule" else 0.0)
-        ixx = m * (3 * r * r + L * L) / 12
-        return ixx, ixx, 0.5 * m * r * r
+        r, L = s[0], s[1]
+        if self.shape == "cylinder":
+            ixx = m * (3 * r * r + L * L) / 12
+            return ixx, ixx, 0.5 * m * r * r
+        # capsule: a cylinder of length L and two hemispheres of radius r, uniform density,
+        # the hemispheres' moments carried from their own centres of mass (3r/8 from the flat
+        # face) to the body origin by the parallel-axis theorem
+        v_cyl, v_sph = np.pi * r * r * L, 4.0 / 3.0 * np.pi * r ** 3
+        m_cyl, m_sph = m * v_cyl / (v_cyl + v_sph), m * v_sph / (v_cyl + v_sph)
+        ixx_cyl = m_cyl * (3 * r * r + L * L) / 12
+        # two hemispheres (mass m_sph together): about their centres 83/320 m r^2 each side's
+        # transverse moment, then offset by L/2 + 3r/8
+        ixx_sph = m_sph * (83.0 / 320.0 * r * r + (0.5 * L + 3.0 * r / 8.0) ** 2)
+        izz = 0.5 * m_cyl * r * r + 0.4 * m_sph * r * r
+        return ixx_cyl + ixx_sph, ixx_cyl + ixx_sph, izz
 
 
 # --------------------------------------------------------------------------------------
@@ -309,7 +349,6 @@ def preset(name: str) -> ObjectSpec:
             placement_xyz=[0.0, 0.0, 0.09],
             color=[0.6, 0.45, 0.3, 1.0],
             marble_radius=0.006,
-            marble_mass=0.007,
             rim_height=0.008,
         )
     raise ValueError(f"unknown object preset '{name}' (known: {', '.join(preset_names())})")
@@ -417,7 +456,7 @@ def object_sdf(spec: ObjectSpec, tag_mesh_uri: str | None = None) -> str:
     ixx, iyy, izz = spec.inertia()
     color = _fmt(*spec.color)
     X_BT = spec.X_BT()
-    plate = spec.tag_size * (TAG36H11_CELLS + 2) / TAG36H11_CELLS  # with the 1-cell quiet zone
+    plate = spec.tag_size * TAG_PLATE_RATIO
     lines = [
         '<?xml version="1.0"?>',
         "<!-- Generated by `python -m vlr_drake.models --write` from vlr_drake.objects; do not edit. -->",
@@ -451,8 +490,6 @@ def object_sdf(spec: ObjectSpec, tag_mesh_uri: str | None = None) -> str:
         f"      <pose>{_pose(spec.X_TO())}</pose>",
         "    </frame>",
     ]
-    if spec.marble_radius > 0:
-        lines += _marble(spec)
     lines += ["  </model>", "</sdf>", ""]
     return "\n".join(lines)
 
@@ -484,26 +521,6 @@ def _rim(spec: ObjectSpec) -> list[str]:
                 f"      </{kind}>",
             ]
     return out
-
-
-def _marble(spec: ObjectSpec) -> list[str]:
-    """A free marble resting on the tag face, off-centre so it does not hide the tag."""
-    r, m = spec.marble_radius, spec.marble_mass
-    z = np.array(FACES[spec.tag_face])
-    x = spec.R_BT()[:, 0]
-    p = z * (spec.face_extent() + r + 0.0005) + x * (0.5 * spec.tag_size * 1.25 + r + 0.004)
-    i = 0.4 * m * r * r
-    return [
-        '    <link name="marble">',
-        f"      <pose>{_fmt(*p)} 0 0 0</pose>",
-        f"      <inertial><mass>{m:.17g}</mass><inertia><ixx>{i:.17g}</ixx><iyy>{i:.17g}</iyy><izz>{i:.17g}</izz>"
-        "<ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>",
-        f'      <collision name="marble_collision"><geometry><sphere><radius>{r:.17g}</radius></sphere></geometry>'
-        f"{_friction(0.3)}</collision>",
-        f'      <visual name="marble_visual"><geometry><sphere><radius>{r:.17g}</radius></sphere></geometry>'
-        "<material><diffuse>0.7 0.7 0.75 1</diffuse></material></visual>",
-        "    </link>",
-    ]
 
 
 def object_model_path(name: str) -> str:

@@ -22,19 +22,20 @@ rolling resistance ``damping`` [1/s]; walls on the cell grid stop it with restit
 ``restitution``; semi-implicit Euler with 1 ms steps. The layout is ASCII art (``MAZE``).
 On the physics plant (``plant="physics"``, the ``marble_maze`` preset) the plate is the
 Drake body, tilted by the physics hand and measured by the rendered camera; the marble is
-still this simulator, driven by the true plate orientation (the preset's Drake marble is
-not tracked).
+still this simulator, driven by the true plate orientation (the preset's Drake model has
+no marble body; its ``marble_radius`` is this marble's).
 """
 
 from __future__ import annotations
 
 import os
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from vlr_drake import control, observation
+from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
 __all__ = ["MAZE", "MarbleMaze", "parse_maze", "maze_path", "orientation_sequence", "run_maze"]
@@ -148,7 +149,8 @@ class MarbleMaze:
 
     maze: dict
     cell: float = 0.025  # cell size [m]
-    radius: float = 0.006  # marble radius [m]
+    # marble radius [m]: the marble_maze preset's (vlr_drake.objects)
+    radius: float = field(default_factory=lambda: preset("marble_maze").marble_radius)
     damping: float = 3.0  # viscous rolling resistance [1/s] (felt-lined plate: slow marble)
     restitution: float = 0.3  # wall bounce
     dt: float = 1e-3  # integration step [s]

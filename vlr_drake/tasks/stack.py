@@ -11,7 +11,9 @@ Model O's fingers flex in parallel planes, so a cup slipping while grasped turns
 their common normal), the offset in the plane the grasp can translate.
 
 Cup geometry (``CUPS``, metres): rim outer diameter D, height H, bottom outer diameter
-d = 0.72 D, wall w. The palm normal points down (world vertical), the cup axis is the POM
+d = 0.72 D, wall w; D and H are those of the cup presets (:func:`vlr_drake.objects.preset`,
+``cup_target`` and ``cup_1``-``cup_4``: the cylinders' diameter and length), which the
+physics plant grasps, so that the cups are described once. The palm normal points down (world vertical), the cup axis is the POM
 z axis, and the cup's bottom centre sits at ``q_O = (0, 0, 0.6 H)`` in the POM frame.
 At release the upper cup k+1 nests in cup k when its bottom fits in the lower mouth:
 
@@ -42,6 +44,7 @@ import os
 import numpy as np
 
 from vlr_drake import control, observation
+from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
 __all__ = ["CUPS", "ALPHA_STACK", "cup_clearance", "nested", "run_stack"]
@@ -59,8 +62,12 @@ ALPHA_STACK = 9.5
 #: 1, whose true model had no Jacobian, unmoved in both).
 STACK_POSITION_UNIT = 1e-3
 STACK_ROTATION_UNIT = 1.0
-#: (rim outer diameter D, height H) [m] of the target cup and the four cups, largest first.
-CUPS = ((0.080, 0.070), (0.072, 0.064), (0.064, 0.058), (0.056, 0.052), (0.048, 0.046))
+#: (rim outer diameter D, height H) [m] of the target cup and the four cups, largest first:
+#: the cup presets' cylinders. (Until 2026-11-27 written here a second time, with other
+#: numbers: 80 x 70 mm down to 48 x 46 mm, where the presets the physics hand grasps are
+#: 82 mm down to 60 mm wide and 60 mm tall.)
+CUPS = tuple((2.0 * preset(name).size[0], preset(name).size[1])
+             for name in ("cup_target", "cup_1", "cup_2", "cup_3", "cup_4"))
 WALL = 0.0015
 BOTTOM_RATIO = 0.72
 MAX_TILT = np.deg2rad(20.0)
@@ -287,8 +294,6 @@ def _tilted_physics_grasp(k: int, cup_seed: int, rng: np.random.Generator, tilt_
     import copy
 
     from pydrake.math import RollPitchYaw, RotationMatrix
-
-    from vlr_drake.objects import preset
 
     ref = common.PhysicsTaskPlant(f"cup_{k}", cup_seed, physics, camera)
     R_goal, t_goal = ref.true_pose()
