@@ -1,9 +1,11 @@
-"""Benchmarks that print their figures (never timed tests): ``vlr-drake bench motion``.
+"""Benchmarks that print their figures (never timed tests): ``vlr-drake bench motion`` and
+``vlr-drake bench filter``.
 
 The motion benchmark measures, in one run, one batched move of ``particles`` Model O
 hypotheses (numba Newton, DESIGN.md section 4) and single MathematicalProgram solves of
-the same problem with IPOPT and with SNOPT, and reports the per-particle speed-up. Field
-names follow docs/result-files.md.
+the same problem with IPOPT and with SNOPT (those that succeed; the failures counted), and
+reports the per-particle speed-up. The filter benchmark times full filter iterations and a
+physics-plant identification. Field names follow docs/result-files.md.
 """
 
 from __future__ import annotations
@@ -18,9 +20,25 @@ from vlr_drake import motion_reference as ref
 from vlr_drake.hand import hand_by_name
 
 
+def _check_counts(what: str, **counts) -> None:
+    """A ValueError naming the first argument that is not an integer >= its minimum
+    (``name=(value, minimum)``)."""
+    for name, (value, least) in counts.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            raise ValueError(f"bench {what}: '{name}' must be an integer >= {least}, got {value!r}")
+
+
 def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", repeats: int = 5,
                  reference_solves: int = 30, tendon: str = "elastic") -> dict:
-    """Time one batched move of ``particles`` hypotheses and single reference solves."""
+    """Time one batched move of ``particles`` hypotheses and single reference solves.
+
+    A reference solve is one MathematicalProgram (IPOPT or SNOPT) of one hypothesis' move,
+    timed as a caller pays it: building the program and solving it (``*_solve_s``, the
+    speed-ups' figure), with the solver's own time beside it (``*_solver_time_s``). Medians
+    over the solves that succeeded; how many failed (the reference stops where the move
+    leaves its local search box, which the batched Newton's continuation does not) is
+    reported, and a solver with no success is an error."""
+    _check_counts("motion", particles=(particles, 1), repeats=(repeats, 1), reference_solves=(reference_solves, 1))
     h = hand_by_name(hand).model()
     rng = np.random.default_rng(seed)
     base = grasps.sample_grasps(h, rng, min(particles, 2000))
@@ -39,17 +57,24 @@ def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", 
     batched = float(np.median(times["tight"]))
     batched_filter = float(np.median(times["filter"]))
     res = res_tight
-    solve_times = {}
+    solve_times, solver_times, failures = {}, {}, {}
+    n_ref = min(reference_solves, particles)
     for solver in ref.SOLVERS:
-        ts = []
-        for p in range(min(reference_solves, particles)):
+        ts, own = [], []
+        failures[solver] = 0
+        for p in range(n_ref):
             t0 = time.perf_counter()
             try:
-                ref.solve_move(h, theta[p], dl, a=a[p], D2=D2[p], stretch=s[p], tendon=tendon, solver=solver)
+                r = ref.solve_move(h, theta[p], dl, a=a[p], D2=D2[p], stretch=s[p], tendon=tendon, solver=solver)
             except ref.MotionSolveError:
-                pass
+                failures[solver] += 1
+                continue
             ts.append(time.perf_counter() - t0)
-        solve_times[solver] = float(np.median(ts))
+            own.append(r.solve_time_s)
+        if not ts:
+            raise RuntimeError(f"bench motion: every one of the {n_ref} {solver} reference solves failed (seed "
+                               f"{seed}); try another --seed")
+        solve_times[solver], solver_times[solver] = float(np.median(ts)), float(np.median(own))
     return {
         "benchmark": "motion",
         "hand": hand,
@@ -60,8 +85,18 @@ def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", 
         "batched_move_filter_tolerance_s": batched_filter,
         "batched_success_fraction": float(res.ok.mean()),
         "median_newton_iterations": float(np.median(res.iterations)),
+        # one reference solve that succeeded, median: building the program and solving it
         "ipopt_solve_s": solve_times["ipopt"],
         "snopt_solve_s": solve_times["snopt"],
+        # ... the solver's own part of it
+        "ipopt_solver_time_s": solver_times["ipopt"],
+        "snopt_solver_time_s": solver_times["snopt"],
+        # how many of the reference solves were tried, and how many of them failed
+        "reference_solves": n_ref,
+        "ipopt_failures": failures["ipopt"],
+        "snopt_failures": failures["snopt"],
+        # the same hypotheses' batched success (the first reference_solves of the move)
+        "batched_success_reference_particles": int(res.ok[:n_ref].sum()),
         "speedup_per_particle": solve_times["ipopt"] / (batched / particles),
         "speedup_per_particle_snopt": solve_times["snopt"] / (batched / particles),
         "speedup_per_particle_filter_tolerance": solve_times["ipopt"] / (batched_filter / particles),
@@ -81,7 +116,11 @@ def format_motion(r: dict) -> str:
         f"{r['batched_move_s'] * 1e3:.1f} ms  ({r['batched_success_fraction'] * 100:.1f}% converged, "
         f"median {r['median_newton_iterations']:.0f} Newton iterations); with the \"filter\" tolerance "
         f"{r['batched_move_filter_tolerance_s'] * 1e3:.1f} ms\n"
-        f"MathematicalProgram, one solve: IPOPT {r['ipopt_solve_s'] * 1e3:.2f} ms, SNOPT {r['snopt_solve_s'] * 1e3:.2f} ms\n"
+        f"MathematicalProgram, one solve (building and solving; the solver's own part), median of those that "
+        f"succeeded: IPOPT {r['ipopt_solve_s'] * 1e3:.2f} ms ({r['ipopt_solver_time_s'] * 1e3:.2f} ms), "
+        f"SNOPT {r['snopt_solve_s'] * 1e3:.2f} ms ({r['snopt_solver_time_s'] * 1e3:.2f} ms); failed: IPOPT "
+        f"{r['ipopt_failures']}, SNOPT {r['snopt_failures']} of {r['reference_solves']} (the batched move: "
+        f"{r['reference_solves'] - r['batched_success_reference_particles']} of the same)\n"
         f"speed-up per particle: {r['speedup_per_particle']:.0f}x vs IPOPT, {r['speedup_per_particle_snopt']:.0f}x vs SNOPT "
         f"({r['speedup_per_particle_filter_tolerance']:.0f}x vs IPOPT with the \"filter\" tolerance)"
     )
@@ -96,11 +135,14 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     """Time ``iterations`` full filter iterations (move, predict, weigh, resample, roughen)
     on the model plant (an action it refuses is drawn again, not timed), then a known-hand
     identification of ``run_iterations`` iterations with as many particles on the physics
-    plant with the rendered camera, its wall time split into physics, rendering, detection
-    and filtering (0: no identification run)."""
+    plant with the rendered camera, its wall time split into physics, rendering, detection,
+    filtering and the rest (building the plant and the diagram, the grasp; 0: no
+    identification run)."""
     from vlr_drake import filter as pf
     from vlr_drake.identify import Exploration, _truth_grasp
     from vlr_drake.model_plant import ModelPlant
+
+    _check_counts("filter", particles=(particles, 10), iterations=(iterations, 1), run_iterations=(run_iterations, 0))
 
     h = hand_by_name("model_o").model()
     theta, a = _truth_grasp(h, np.random.default_rng(seed))
@@ -131,6 +173,9 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
         small.step(np.zeros(h.N), R, t)
     pf.interval95(np.arange(8.0)[:, None], np.arange(1.0, 9.0) / 36.0)  # weighted intervals
     pf.temper(-np.arange(8.0) ** 2, 4.0)  # tempering
+    # the initialisation timed again, now that its kernels are compiled (the first setup's
+    # time included numba's compilation on a cold cache: 1.7 s)
+    plant, f, explore, init_s, (R, t) = setup()
     times, resampled, phases = [], [], []
     refused = 0
     while len(times) < iterations:  # a refused action is not an iteration: another is drawn
@@ -192,8 +237,11 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
                                max_iterations=run_iterations, seed=seed, progress=False)
         opts.filter.convergence_deg = 0.0
         r = run_identification(opts)
+        t = dict(r["timing_s"])
+        # what none of the parts holds: building the plant and diagram, the grasp, bookkeeping
+        t["other"] = max(t["total"] - sum(t[k] for k in ("physics", "render", "detect", "filter")), 0.0)
         out["identification"] = {"plant": "physics", "object": r["object"], "iterations": r["iterations"],
-                                 "timing_s": r["timing_s"]}
+                                 "timing_s": t}
     return out
 
 
@@ -213,7 +261,7 @@ def format_filter(r: dict) -> str:
     run = r.get("identification")
     if run:
         t = run["timing_s"]
-        parts = ", ".join(f"{k} {t[k]:.1f} s" for k in ("physics", "render", "detect", "filter") if k in t)
+        parts = ", ".join(f"{k} {t[k]:.1f} s" for k in ("physics", "render", "detect", "filter", "other") if k in t)
         text += (f"\nknown-hand identification on the {run['plant']} plant ({run['object']}, {run['iterations']} "
                  f"iterations): total {t['total']:.1f} s ({parts})")
     return text
