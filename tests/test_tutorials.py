@@ -75,12 +75,15 @@ def test_02_identification_narrows_and_improves(tmp_path, monkeypatch):
     assert s["iterations"] >= 20
     assert s["final_joint_error_deg"] < s["prior_joint_error_deg"]
     assert s["final_interval_deg"] < 0.5 * s["prior_interval_deg"]
-    assert s["final_contact_error_mm"] < 5.0
+    # the contacts and the diagram's angles against where they started (a review found bars of
+    # 5 mm and 4 deg that a filter learning nothing would pass: the guess is the truth moved
+    # by up to 60% of the prior's half-widths, 2-4 deg and 2-5 mm off)
+    assert s["final_contact_error_mm"] < 0.6 * s["prior_contact_error_mm"]
     assert s["final_truth_inside"] >= 5 / 6  # honest intervals: at most one of the six joints outside
     # the same loop as a Drake diagram built from diagrams/model_plant.yaml
     assert s["diagram_iterations"] == 20
     assert s["diagram_half_width_deg"] < 0.6 * s["prior_half_width_deg"]
-    assert s["diagram_joint_error_deg"] < 4.0
+    assert s["diagram_joint_error_deg"] < 0.6 * s["diagram_first_joint_error_deg"]
 
 
 def test_03_handwriting_follows_the_letters(tmp_path, monkeypatch):
@@ -99,13 +102,16 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     lo, hi = s["stiffness_interval_final_lo_hi"]
     assert lo <= s["stiffness_true"] <= hi  # an interval that holds the truth ...
     assert abs(s["stiffness_estimate"] - s["stiffness_true"]) < 0.03  # ... around a near estimate
-    # the evidence profile peaks within one grid step of the true spring and falls off away from it
+    # the evidence profile: the true spring is within a log Bayes factor of 2 of the best value
+    # (measured: the best at 2,000 particles; at 3,000, -0.07 against 0.30's 0), and it falls off
+    # away from it (asserting the peak "within one grid step" added nothing: the ends' bars
+    # below leave only the truth and its neighbours)
     values, rel = np.array(s["profile_values"]), np.array(s["profile_relative"])
-    assert abs(values[np.argmax(rel)] - s["stiffness_true"]) <= 0.05 + 1e-9
+    assert rel[np.argmin(np.abs(values - s["stiffness_true"]))] > -2.0, rel
     # (the stiff side falls off more slowly: a stiff distal joint barely moves, so twelve
-    # iterations tell 0.35 from 0.25 N m/rad by a log Bayes factor of about 1.3 on the
-    # model plant's stable truth of seed 2, 0.15 by 19)
-    assert rel[0] < -3.0 and rel[-1] < -1.0
+    # iterations tell 0.35 from 0.25 N m/rad by a log Bayes factor of about 1.1 on the
+    # model plant's stable truth of seed 2, 0.15 by 9.7, at 3,000 particles)
+    assert rel[0] < -3.0 and rel[-1] < -0.5
     assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
     assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
     lo, hi = s["link_interval_final_lo_hi_m"]

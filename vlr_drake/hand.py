@@ -506,7 +506,7 @@ def generic_hand(num_fingers: int, num_joints: int, radius: float = 0.055) -> Ha
     K = num_joints
     for i in range(num_fingers):
         ang = 2 * np.pi * i / num_fingers
-        c, s = np.cos(ang), np.sin(ang)
+        c, s = float(np.cos(ang)), float(np.sin(ang))  # plain floats: the spec prints and writes as YAML
         fingers.append(
             FingerSpec(
                 name=f"f{i}",
@@ -515,8 +515,8 @@ def generic_hand(num_fingers: int, num_joints: int, radius: float = 0.055) -> Ha
                 link_lengths=[0.062 / (K - 1)] * (K - 1),
                 distal_length=0.040,
                 pad_offset=0.008,
-                moment_arms=list(np.linspace(0.009, 0.0045, K)),
-                stiffness=list(np.linspace(0.08, 0.16, K)),
+                moment_arms=np.linspace(0.009, 0.0045, K).tolist(),
+                stiffness=np.linspace(0.08, 0.16, K).tolist(),
                 rest_angles=[0.0] * K,
                 joint_lower=[-0.2] * K,
                 joint_upper=[1.9] * K,
