@@ -1459,3 +1459,46 @@ def test_convergence_waits_for_the_identified_hand_parameters():
     assert np.isnan(known.parameter_interval()) and report(known).converged
     with pytest.raises(ValueError, match="parameter_convergence"):
         pf.FilterConfig(parameter_convergence=-0.1).validate()
+
+
+def test_systematic_resampling_never_picks_a_particle_without_weight():
+    """A position that rounds to 1 (u at the generator's largest value), or one past a
+    cumulative sum a little short of 1, picked the last particle whatever its weight (a
+    review)."""
+
+    class Top:  # the largest value Generator.random() returns
+        def random(self):
+            return 1.0 - 2.0**-53
+
+    np.testing.assert_array_equal(pf.systematic_resample(np.array([0.25, 0.25, 0.5, 0.0]), Top()), [0, 2, 2, 2])
+    np.testing.assert_array_equal(pf.systematic_resample(np.array([0.5, 0.5 - 1e-7, 0.0]), Top()), [0, 1, 1])
+
+
+def test_tempering_keeps_the_measurement_when_most_hypotheses_fail():
+    """With more hypotheses infeasible than the ESS target leaves room for, no beta reaches
+    the target over all M; the filter tempers relative to the live cloud instead of taking
+    the bisection's floor (1e-6, which discarded the measurement: a review's case, 424 of 600
+    infeasible with the ideal tendon and a 0.55 mm pull of every tendon)."""
+    h, plant, f = _filter_and_plant(3, particles=600, tendon="ideal", tendon_reference="implied")
+    R, t, _ = plant.measure()
+    rep = f.step(np.full(3, 0.55e-3), R, t)
+    assert not rep.reinitialised and rep.infeasible > 0.7 * 600  # the target (0.3 M) is out of the live cloud's reach
+    assert rep.beta > 1e-3  # (1e-6 before)
+    assert rep.ess == pytest.approx(0.3 * (600 - rep.infeasible), rel=0.05)  # the live cloud's target
+
+
+def test_a_cloud_whose_weighted_hypotheses_all_fail_is_reinitialised(monkeypatch):
+    """Particles already weighing nothing (carried at -inf since the last resampling) do not
+    keep a cloud alive: where every particle that carries weight becomes infeasible the
+    filter re-initialises (a review found it resampled uniformly over the failures)."""
+    h, plant, f = _filter_and_plant(3, particles=400)
+    dead = np.arange(400) % 2 == 1
+    f.particles.log_w[dead] = -np.inf
+    feasible = f._feasible
+    monkeypatch.setattr(f, "_feasible", lambda *args, **kwargs: feasible(*args, **kwargs) & dead)
+    dl = np.array([0.2e-3, -0.1e-3, 0.1e-3])
+    assert plant.apply_action(dl)
+    R, t, _ = plant.measure()
+    rep = f.step(dl, R, t, tendon_command=plant.state.tendon_command)
+    assert rep.reinitialised and f.reinitialisations == 1
+    assert np.isfinite(f.particles.log_w).all()
