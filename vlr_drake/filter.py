@@ -1451,7 +1451,7 @@ class SelfIdentificationFilter:
             # temper relative to it (the conditional ESS of adaptive SMC) rather than take the
             # bisection's floor, 1e-6, which would discard this measurement (a review: 424
             # of 600 infeasible, beta 1e-6). On the model plant 3 of about 2,300 iterations
-            # (NH2, NH3, seeds 0-4) came here; none of the sampled physics replays did.
+            # (NH2, NH3, seeds 0-4) came here; none of the 98 physics traces behind the rows.
             target = cfg.ess_fraction * live_ess
         beta = _temper_increment(ps.log_w, log_lik, target)
         log_w = ps.log_w + beta * log_lik
