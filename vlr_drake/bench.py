@@ -147,8 +147,11 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     h = hand_by_name("model_o").model()
     theta, a = _truth_grasp(h, np.random.default_rng(seed))
 
+    def new_plant():  # the same grasp and measurement noise for every call
+        return ModelPlant(h, theta, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(seed + 1))
+
     def setup(**settings):  # the same grasp, prior draws and actions for every call
-        plant = ModelPlant(h, theta, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(seed + 1))
+        plant = new_plant()
         f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=particles, **settings), pf.PriorConfig(),
                                         np.random.default_rng(seed + 2))
         R, t, _ = plant.measure()
@@ -163,7 +166,7 @@ def bench_filter(particles: int = 60_000, seed: int = 0, iterations: int = 10, r
     # (resampling every step and a tight ESS target, so that every kernel of an iteration is
     # compiled or loaded from numba's cache before the timed ones; the initialisation's too:
     # timed cold it included numba's compilation, 1.7 s)
-    plant = ModelPlant(h, theta, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(seed + 1))
+    plant = new_plant()
     R, t, _ = plant.measure()
     with warnings.catch_warnings():  # a warm-up, not an estimate
         warnings.simplefilter("ignore", pf.FewParticlesWarning)

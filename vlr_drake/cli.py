@@ -262,7 +262,7 @@ def print_summary(result: dict) -> None:
         p = result["hand_parameters"][name]
         print(f"weakly identified: {name} (its 95% interval is {100 * p['narrowed_to']:.0f}% as wide as the "
               f"prior's: the estimate leans on the prior)")
-    if result.get("parameter_interval") is not None:
+    if np.isfinite(result.get("parameter_interval", np.nan)):  # (NaN: every hand parameter known)
         limit = result.get("parameter_convergence")
         print(f"widest hand parameter's 95% {result['convergence_measure'].replace('_', '-')}: "
               f"{100 * result['parameter_interval']:.1f}% of its estimate"
@@ -486,16 +486,16 @@ def bench(args) -> dict:
     from vlr_drake import bench as b
 
     if args.what == "motion":
-        given = [flag for flag, value, default in (("--iterations", args.iterations, 10),
-                                                    ("--run-iterations", args.run_iterations, 30))
-                 if value != default]
+        given = [flag for flag, value in (("--iterations", args.iterations), ("--run-iterations", args.run_iterations))
+                 if value is not None]
         if given:  # the filter benchmark's options: said, not silently ignored
             raise ValueError(f"bench motion: {', '.join(given)} set the filter benchmark ('bench filter')")
         r = b.bench_motion(particles=args.particles, seed=args.seed)
         print(b.format_motion(r))
     else:
-        r = b.bench_filter(particles=args.particles, seed=args.seed, iterations=args.iterations,
-                           run_iterations=args.run_iterations)
+        counts = {k: v for k, v in (("iterations", args.iterations), ("run_iterations", args.run_iterations))
+                  if v is not None}  # (not given: bench_filter's defaults)
+        r = b.bench_filter(particles=args.particles, seed=args.seed, **counts)
         print(b.format_filter(r))
     write_json(r, args.json)
     return r
@@ -745,8 +745,8 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser("bench", sub, "benchmarks that print their figures")
     p.add_argument("what", choices=["motion", "filter"])
     p.add_argument("--particles", type=count(MIN_PARTICLES), default=60_000, help="number of particles (default 60,000)")
-    p.add_argument("--iterations", type=count(1), default=10, help="filter iterations timed (default 10)")
-    p.add_argument("--run-iterations", type=count(0), default=30,
+    p.add_argument("--iterations", type=count(1), default=None, help="filter iterations timed (default 10)")
+    p.add_argument("--run-iterations", type=count(0), default=None,
                    help="filter: iterations of the known-hand identification on the physics plant whose wall "
                         "time is split into physics, rendering, detection, filtering and the rest (default 30; "
                         "0: none)")

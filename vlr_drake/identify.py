@@ -808,10 +808,6 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
     return res
 
 
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
 def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, plant) -> dict:
     res = {
         "experiment": opts.experiment,
@@ -834,7 +830,7 @@ def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, p
         # None: the joints alone) and, at the end, their widest 95% interval as a fraction of
         # its estimate (None where every hand parameter is known)
         "parameter_convergence": opts.filter.parameter_convergence,
-        "parameter_interval": _finite_or_none(f.history[-1].parameter_interval if f.history else float("nan")),
+        "parameter_interval": f.history[-1].parameter_interval if f.history else float("nan"),
         "timing_s": timing,
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),
