@@ -255,6 +255,32 @@ def test_gravity_setting_reaches_the_plant(g):
     np.testing.assert_allclose(ph.plant.gravity_field().gravity_vector(), [0.0, 0.0, -g])
 
 
+def _pad_depths_mm(ph, root):
+    results = ph.plant.get_contact_results_output_port().Eval(ph.plant_context(root))
+    return np.array([results.point_pair_contact_info(i).point_pair().depth
+                     for i in range(results.num_point_pair_contacts())]) * 1e3
+
+
+def test_near_rigid_threshold_sets_how_far_the_pads_sink():
+    """SAP's near-rigid threshold, not a contact stiffness, sets how far the light fingers'
+    pads sink into the object: Drake's default (1.0) lets the toy block's grasp give by a few
+    tenths of a millimetre, 0.1 by a few micrometres. The setting reaches the plant and is
+    checked."""
+    depths = {}
+    for threshold in (1.0, 0.1):
+        physics = PhysicsConfig(sap_near_rigid_threshold=threshold)
+        _, ph, sim = build_physics_hand(model_o(), preset("toy_block"), physics, None, None)
+        assert np.all(ph.grasp(sim).in_contact)
+        ph.apply_action(sim, np.full(3, 1e-3), render=False)  # a squeeze
+        depths[threshold] = _pad_depths_mm(ph, sim.get_context())
+        assert depths[threshold].size >= 3
+    assert depths[1.0].min() > 0.1, depths  # measured 0.36-0.55 mm
+    assert depths[0.1].max() < 0.05, depths  # measured 0.008-0.014 mm
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="'sap_near_rigid_threshold' must be a finite number >= 0"):
+            PhysicsConfig(sap_near_rigid_threshold=bad).validate()
+
+
 @pytest.mark.parametrize("rpy", [[180.0, 0.0, 0.0], [90.0, 30.0, -60.0]])
 def test_link_weight_matches_the_plants_gravity_forces(rpy):
     """HandModel.link_weight_torque, with gravity in the palm frame from the plant's mounting

@@ -161,9 +161,23 @@ class PhysicsConfig:
     discrete_contact_approximation: str = "sap"
     # Penetration allowance that sets the point-contact stiffness [m]. Measured with the
     # default SAP solver and point contact: it changes nothing (physics.agreement on the toy
-    # block gives identical output for 5e-4 and 5e-5), so the pads' point-contact stiffness
-    # is not set here.
+    # block gives identical output for 5e-4 and 5e-5), and neither does a point-contact
+    # stiffness of 1e4-1e6 N/m on every geometry: the contacts are in SAP's near-rigid regime
+    # (``sap_near_rigid_threshold``), where the solver, not the stiffness, sets how far they
+    # give.
     penetration_allowance: float = 0.0005
+    # SAP's near-rigid threshold (Drake's MultibodyPlantConfig.sap_near_rigid_threshold; 1.0,
+    # Drake's default, is conservative). It caps a contact's stiffness by the bodies' masses
+    # and the time step, and the Model O's fingers are light: with 1.0 the toy block's pads
+    # sink 0.24-0.38 mm into it at the grasp (0.7-1.7 N) and 0.45-0.66 mm after three 1 mm
+    # squeezes (1-2 N), with 0.1 0.03-0.05 and 0.005-0.007 mm. So the plant's grasp gives
+    # under a squeeze by a few tenths of a millimetre, which Eq. 8 does not have. It is not
+    # what limits the thumb spring's row: fresh stiffness runs with 0.1 (seeds 0-9, 240
+    # iterations) gave 0.0159 N m/rad against 0.0202 with 1.0, the difference one seed's
+    # (0.029 against 0.075), the intervals as wide; the one-step error of Gamma from the
+    # truth, 0.155 against 0.167 mm (toy block, 30 actions). The default stays Drake's, with
+    # which every physics row was measured.
+    sap_near_rigid_threshold: float = 1.0
     # Pose of the palm in the world: position [m] and roll-pitch-yaw [deg]. The default
     # faces the palm down (P's +z = world -z), so the fingers hold the object against gravity.
     palm_xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.4])
@@ -262,6 +276,7 @@ class PhysicsConfig:
             "fixed_settle_time",
             "gravity",
             "auto_place_range",
+            "sap_near_rigid_threshold",
         ]:
             v = getattr(self, name)
             if not (is_number(v) and 0 <= v < np.inf):  # NaN and inf too
@@ -989,6 +1004,7 @@ def add_physics_hand(
         contact_model=physics.contact_model,
         discrete_contact_approximation=physics.discrete_contact_approximation,
         penetration_allowance=physics.penetration_allowance,
+        sap_near_rigid_threshold=physics.sap_near_rigid_threshold,
     )
     plant, sg = AddMultibodyPlant(cfg, inner)
     parser = Parser(plant)
