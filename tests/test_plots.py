@@ -162,7 +162,7 @@ def test_convergence_shows_the_hand_parameters_where_identified():
     hand keeps two panels."""
     from dataclasses import replace
 
-    hist = [replace(r, parameter_interval=p) for r, p in zip(_reports(), [0.5, 0.3, 0.2, 0.1, 0.06, 0.04])]
+    hist = [replace(r, parameter_interval=p) for r, p in zip(_reports(), [0.5, 0.3, 0.2, 0.1, 0.06, 0.04], strict=True)]
     fig = plots.make_convergence_figure(hist, threshold_deg=2.0, parameter_threshold=0.05)
     ax, ax_ess, ax_par = fig.axes
     np.testing.assert_allclose(ax_par.lines[0].get_ydata(), [50, 30, 20, 10, 6, 4])

@@ -2,7 +2,9 @@
 
 A VLR configuration (theta, a) is a *physical* grasp when (DESIGN.md sections 4 and 6)
 - the tendons only pull: the implied tension T >= 0 (:func:`vlr_drake.motion.equilibrium`);
-- the fingers squeeze the object: every contact-pair multiplier lambda < 0;
+- the fingers squeeze the object: their forces on it are a superposition of pairwise
+  squeezes (:func:`squeezes`; for up to four fingers, every contact-pair multiplier
+  lambda < 0);
 - and, for a strict check, the equilibrium is a constrained *minimum* of the energy of
   Eq. 9: the Hessian of the Lagrangian reduced to the tangent space of the grasp manifold
   is positive definite (:func:`reduced_hessian_min_eig`).
@@ -25,8 +27,83 @@ from vlr_drake import kinematics, motion
 from vlr_drake.hand import HandModel
 from vlr_drake.kinematics import is_count
 
-__all__ = ["GraspSample", "sample_grasps", "reduced_hessian_min_eig", "lagrangian_hessian", "commanded_equilibrium",
-           "settle_under_command"]
+__all__ = ["GraspSample", "sample_grasps", "squeezes", "reduced_hessian_min_eig", "lagrangian_hessian",
+           "commanded_equilibrium", "settle_under_command"]
+
+
+def all_pairs(n: int) -> np.ndarray:
+    """Every pair (i, j), i < j, of ``n`` contacts (n (n - 1) / 2 x 2)."""
+    return np.array([(i, j) for i in range(n) for j in range(i + 1, n)], dtype=np.int64).reshape(-1, 2)
+
+
+def constraint_gradients(hand: HandModel, theta, a, pairs, link_lengths=None) -> np.ndarray:
+    """Gradients (P, m, N*K) of g_c = 0.5 |p_i - p_j|^2 over joint angles, for the contact
+    ``pairs`` (m x 2) of each configuration ``theta`` (P, N, K) with contacts ``a`` (P, N)
+    (the rows of G in Eq. 9's stationarity conditions, for any set of pairs)."""
+    theta = np.asarray(theta, float).reshape(-1, hand.N, hand.K)
+    P, N, K = theta.shape[0], hand.N, hand.K
+    L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths, float)
+    L = np.broadcast_to(np.reshape(L, (-1, N, K - 1)), (P, N, K - 1))
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64)
+    Pc, Jc, Hc = np.empty((N, 3, P)), np.empty((N, 3, K, P)), np.empty((N, 3, K, K, P))
+    motion._fk_all(np.ascontiguousarray(np.moveaxis(theta, 0, -1)), np.ascontiguousarray(np.moveaxis(L, 0, -1)),
+                   np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), (P, N)).T), hand.pad, hand.base, hand.u,
+                   Pc, Jc, Hc)
+    g, G = np.empty((len(pairs), P)), np.empty((len(pairs), N * K, P))
+    motion._constraint_jacobian(Pc, Jc, pairs, np.zeros((len(pairs), P)), g, G)
+    return np.moveaxis(G, -1, 0)
+
+
+def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: float = 1e-9) -> np.ndarray:
+    """(P,) whether the fingers squeeze the object at equilibria ``theta`` (P, N, K) with
+    contacts ``a`` (P, N) and the grasp's contact-pair ``multipliers`` (P, m)
+    (:attr:`HandModel.constraint_pairs`; lambda < 0 pushes the pair's contacts together).
+
+    The fingers' forces on the object enter Eq. 9 as the joint torques G^T lambda. They
+    squeeze it when the same torques come from pushing every pair of contacts together:
+    some mu <= 0 over *all* contact pairs with G_all^T mu = G^T lambda. Up to four fingers
+    the hand constrains every pair and this is lambda < 0 on each. With five or more the
+    hand constrains 3N - 6 of them (a rigid framework), the multipliers depend on which, and
+    a grasp that squeezes can have one lambda > 0 (a review found no grasp of
+    ``generic_hand(6, 3)`` passing lambda < 0 in 300,000 draws); the squeeze is then
+    sought as a linear programme over all pairs, with pair forces that leave the joints'
+    torques unchanged (force along a finger's hinge axis, which its joints carry). ``tol``:
+    the least squeeze accepted, relative to the largest |lambda|.
+    """
+    lam = np.asarray(multipliers, float).reshape(-1, hand.num_constraints)
+    strict = np.all(lam < 0, axis=1)
+    N = hand.N
+    if hand.num_constraints == N * (N - 1) // 2:  # every pair constrained: the multipliers are the squeeze
+        return strict
+    from scipy.optimize import linprog
+
+    theta = np.asarray(theta, float).reshape(-1, N, hand.K)
+    a = np.broadcast_to(np.asarray(a, float), (theta.shape[0], N))
+    pairs = all_pairs(N)
+    out = strict.copy()
+    todo = np.flatnonzero(~strict & np.all(np.isfinite(lam), axis=1))
+    if not todo.size:
+        return out
+    L = None if link_lengths is None else np.broadcast_to(
+        np.reshape(np.asarray(link_lengths, float), (-1, N, hand.K - 1)), (theta.shape[0], N, hand.K - 1))[todo]
+    G_all = constraint_gradients(hand, theta[todo], a[todo], pairs, L)
+    G_fw = constraint_gradients(hand, theta[todo], a[todo], hand.constraint_pairs, L)
+    n = len(pairs)
+    for q, p in enumerate(todo):
+        b = G_fw[q].T @ lam[p]
+        scale = np.abs(lam[p]).max()
+        if not scale > 0:
+            continue
+        # maximise t subject to mu_c + t <= 0, G_all^T mu = b, t <= scale (the variables are
+        # (mu / scale, t / scale) for conditioning)
+        c = np.zeros(n + 1)
+        c[-1] = -1.0
+        A_ub = np.hstack([np.eye(n), np.ones((n, 1))])
+        A_eq = np.hstack([G_all[q].T, np.zeros((G_all.shape[2], 1))])
+        res = linprog(c, A_ub=A_ub, b_ub=np.zeros(n), A_eq=A_eq, b_eq=b / scale,
+                      bounds=[(None, None)] * n + [(None, 1.0)], method="highs")
+        out[p] = bool(res.status == 0 and -res.fun > tol)
+    return out
 
 
 def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None, tendon="elastic"):
@@ -116,15 +193,13 @@ def sample_grasps(
 
     Proximal joints (the first) in ``proximal_range``, the others in ``distal_range`` split
     evenly over the K-1 distal joints, contacts along the last link in ``contact_range``.
-    Kept: tension >= ``min_tension`` [N] on every tendon, squeeze on every contact pair,
+    Kept: tension >= ``min_tension`` [N] on every tendon, a squeeze (:func:`squeezes`),
     at most ``max_tension``, joints within their limits, contacts on the last links, with
     ``in_tendon_range`` tendon commands within their range (a grasp a real hand can hold;
     the motion tests' abstract grasps need not), and with ``stable`` a strict constrained minimum whose
     reduced Hessian's smallest eigenvalue exceeds ``min_stability`` [N m/rad] (a margin
     keeps the grasp away from folds where small actions snap it). Raises if too few are
-    found. (The squeeze is judged pair by pair, on the constraint multipliers: for six or
-    more fingers that depends on which pairs the hand constrains, and a grasp whose contact
-    forces all point inwards can fail it; a review found ``generic_hand(6, 3)`` with none.)
+    found.
     """
     if not is_count(count, 1):
         raise ValueError(f"'count' must be an integer >= 1, got {count!r}")
@@ -149,11 +224,12 @@ def sample_grasps(
         drawn += batch
         eq = motion.equilibrium(hand, th, a=a)
         good = (eq.ok & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.tension <= max_tension, axis=1)
-                & np.all(eq.multipliers < 0, axis=1) & hand.within_joint_limits(eq.theta)
-                & np.all(a <= hand.distal_length, axis=1))
+                & hand.within_joint_limits(eq.theta) & np.all(a <= hand.distal_length, axis=1))
         if in_tendon_range:
             good &= hand.within_tendon_range(hand.tendon_travel(eq.theta) + eq.stretch).all(axis=1)
         idx = np.flatnonzero(good)
+        if idx.size:
+            idx = idx[squeezes(hand, eq.theta[idx], a[idx], eq.multipliers[idx])]
         if stable and idx.size:
             eig = reduced_hessian_min_eig(hand, eq.theta[idx], a[idx], eq.multipliers[idx])
             idx = idx[eig > min_stability]
