@@ -88,22 +88,45 @@ def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: flo
         np.reshape(np.asarray(link_lengths, float), (-1, N, hand.K - 1)), (theta.shape[0], N, hand.K - 1))[todo]
     G_all = constraint_gradients(hand, theta[todo], a[todo], pairs, L)
     G_fw = constraint_gradients(hand, theta[todo], a[todo], hand.constraint_pairs, L)
-    n = len(pairs)
     for q, p in enumerate(todo):
-        b = G_fw[q].T @ lam[p]
         scale = np.abs(lam[p]).max()
-        if not scale > 0:
-            continue
-        # maximise t subject to mu_c + t <= 0, G_all^T mu = b, t <= scale (the variables are
-        # (mu / scale, t / scale) for conditioning)
-        c = np.zeros(n + 1)
-        c[-1] = -1.0
-        A_ub = np.hstack([np.eye(n), np.ones((n, 1))])
-        A_eq = np.hstack([G_all[q].T, np.zeros((G_all.shape[2], 1))])
-        res = linprog(c, A_ub=A_ub, b_ub=np.zeros(n), A_eq=A_eq, b_eq=b / scale,
-                      bounds=[(None, None)] * n + [(None, 1.0)], method="highs")
-        out[p] = bool(res.status == 0 and -res.fun > tol)
+        if scale > 0:
+            out[p] = _best_squeeze(G_all[q].T, G_fw[q].T @ (lam[p] / scale), linprog) > tol
     return out
+
+
+def _best_squeeze(A: np.ndarray, b: np.ndarray, linprog) -> float:
+    """max t subject to mu_c + t <= 0 for every pair c and A mu = b (t capped at 1): how
+    hard the gentlest pair can push while the pair forces mu give the joint torques b.
+    Solved in the null space of A (mu = mu0 + Z y): in closed form where it is at most one
+    dimension (five fingers), else by a linear programme."""
+    U, S, Vt = np.linalg.svd(A)
+    r = int(np.sum(S > 1e-10 * S[0]))
+    mu0 = Vt[:r].T @ ((U[:, :r].T @ b) / S[:r])
+    if np.linalg.norm(A @ mu0 - b) > 1e-8 * max(1.0, np.linalg.norm(b)):
+        return -np.inf  # these torques are no pair forces at all
+    Z = Vt[r:].T
+    if Z.shape[1] == 0:
+        return min(1.0, float(-mu0.max()))
+    if Z.shape[1] == 1:  # t(y) = min_c (-mu0_c - z_c y), a concave envelope of lines
+        z = Z[:, 0]
+        flat = np.abs(z) <= 1e-12
+        cap = min(1.0, float(-mu0[flat].max())) if flat.any() else 1.0
+        up, down = z < -1e-12, z > 1e-12
+        if not up.any() or not down.any():
+            return cap  # y can move every non-flat pair as far into a push as wanted
+        # the envelope peaks where a rising line crosses a falling one
+        ya = (mu0[up][:, None] - mu0[down][None, :]) / (z[down][None, :] - z[up][:, None])
+        y = ya.ravel()
+        t = np.min(-mu0[:, None] - z[:, None] * y[None, :], axis=0)
+        return min(cap, float(t.max()))
+    n = A.shape[1]
+    c = np.zeros(n + 1)
+    c[-1] = -1.0
+    res = linprog(c, A_ub=np.hstack([np.eye(n), np.ones((n, 1))]), b_ub=np.zeros(n),
+                  A_eq=np.hstack([A, np.zeros((A.shape[0], 1))]), b_eq=b,
+                  bounds=[(None, None)] * n + [(None, 1.0)], method="highs")
+    return float(-res.fun) if res.status == 0 else -np.inf
 
 
 def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None, tendon="elastic"):
