@@ -730,3 +730,39 @@ def test_squeeze_is_judged_over_every_contact_pair():
                               contact_range=(0.02, 0.032), min_tension=2.0, max_tension=30.0, stable=True,
                               min_stability=0.03, max_draws=300_000, in_tendon_range=True)
     assert grasps.squeezes(h, gs.theta, gs.a, gs.multipliers)[0] and not np.all(gs.multipliers < 0)
+
+
+def test_stability_with_dependent_constraint_gradients():
+    """A hand of six or more fingers that all flex in planes square to the palm has a
+    dependence among its constraint gradients at every configuration (the fingers' hinges
+    carry a pattern of sideways forces the object balances). The KKT test of stability then
+    has a zero eigenvalue, whose round-off had decided: the model plant refused the stable
+    truth grasp of generic_hand(6, 3) as a saddle. It counts positive eigenvalues for such
+    hands now, and agrees with the reduced Hessian (both for the multipliers given, which
+    such a hand does not fix)."""
+    from vlr_drake.hand import generic_hand, model_o
+
+    h = generic_hand(6, 3).model()
+    rng = np.random.default_rng(2)
+    B = 6000
+    th = np.empty((B, 6, 3))
+    th[..., 0] = rng.uniform(0.05, 0.35, (B, 6))
+    th[..., 1:] = rng.uniform(0.3, 0.9, (B, 6, 2)) / 2
+    a_all = rng.uniform(0.02, 0.032, (B, 6))
+    eq = motion.equilibrium(h, th, a=a_all)
+    idx = np.flatnonzero(eq.ok)[:200]
+    theta, a, lam = eq.theta[idx], a_all[idx], eq.multipliers[idx]
+    _, G = grasps.lagrangian_hessian(h, theta[0], a[0], lam[0])
+    sv = np.linalg.svd(G, compute_uv=False)
+    assert sv[-1] < 1e-12 * sv[0]  # the dependence
+    assert h.constraints_dependent and not model_o().model().constraints_dependent
+    assert not generic_hand(5, 3).model().constraints_dependent
+    # harder squeezes (the multipliers scaled) turn some of them into saddles; both tests
+    # are functions of (theta, a, lambda)
+    theta, a = np.concatenate([theta] * 4), np.concatenate([a] * 4)
+    lam = np.concatenate([lam * f for f in (1.0, 3.0, 10.0, 30.0)])
+    eig = grasps.reduced_hessian_min_eig(h, theta, a, lam)
+    st = motion.stable_equilibria(h, theta, lam, a=a)
+    clear = np.abs(eig) > 1e-4
+    assert clear.sum() >= 600 and (eig[clear] > 0).sum() >= 100 and (eig[clear] < 0).sum() >= 100, eig
+    np.testing.assert_array_equal(st[clear], eig[clear] > 0)

@@ -169,7 +169,10 @@ def reduced_hessian_min_eig(hand: HandModel, theta, a, multipliers, link_lengths
     """Smallest eigenvalue of the reduced Hessian, per particle (P,) [N m/rad].
 
     Positive: the configuration is a strict constrained minimum of Eq. 9's energy.
-    For the ideal tendon the tangent space also keeps the tendon lengths fixed.
+    For the ideal tendon the tangent space also keeps the tendon lengths fixed. Where the
+    constraints' gradients are dependent at every configuration
+    (:attr:`HandModel.constraints_dependent`) the tangent space is wider and the
+    multipliers are not unique: the test is then for the ``multipliers`` given.
     """
     theta = np.asarray(theta, float)
     P = theta.shape[0]
@@ -180,7 +183,12 @@ def reduced_hessian_min_eig(hand: HandModel, theta, a, multipliers, link_lengths
         H, G = lagrangian_hessian(hand, theta[p], np.asarray(a)[p], np.asarray(multipliers)[p], L, k, tendon)
         A = G if tendon == "elastic" else np.vstack([G, hand.R])
         _, S, Vt = np.linalg.svd(A)
-        Z = Vt[A.shape[0]:].T
+        # the tangent space is the null space of the constraints' gradients: of their rank
+        # where they are dependent at every configuration (a mechanism the tendons do not
+        # fix: HandModel.constraints_dependent), of their number otherwise (a gradient that
+        # vanishes at one configuration, as at the Model O's mirror-image grasps, still holds)
+        r = int(np.sum(S > 1e-10 * S[0])) if hand.constraints_dependent else A.shape[0]
+        Z = Vt[r:].T
         out[p] = np.linalg.eigvalsh(Z.T @ H @ Z).min() if Z.shape[1] else np.inf
     return out
 

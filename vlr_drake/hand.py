@@ -386,6 +386,23 @@ class HandModel:
     def num_constraints(self) -> int:
         return len(self.constraint_pairs)
 
+    @cached_property
+    def constraints_dependent(self) -> bool:
+        """True where the gradients of the grasp's constraints over the joint angles are
+        dependent at every configuration (rank below :attr:`num_constraints`): a hand of six
+        or more fingers that all flex in planes square to the palm, whose hinges can carry a
+        pattern of sideways contact forces that the object balances. Judged at three
+        configurations drawn inside the joint limits (a fixed seed)."""
+        from vlr_drake import grasps  # grasps builds on this module
+
+        rng = np.random.default_rng(0)
+        lo, hi = self.joint_lower, self.joint_upper
+        theta = lo + (hi - lo) * rng.uniform(0.3, 0.7, (3, self.N, self.K))
+        a = np.broadcast_to(0.6 * self.distal_length, (3, self.N))
+        G = grasps.constraint_gradients(self, theta, a, self.constraint_pairs)
+        sv = np.linalg.svd(G, compute_uv=False)
+        return bool(np.all(sv[:, -1] <= 1e-10 * sv[:, 0]))
+
     @property
     def statically_determinate(self) -> bool:
         """True where the grasp's stationarity conditions are square in (T, lambda)

@@ -976,7 +976,7 @@ def _equilibrium_kernel(theta, a, L, kst, pad, base, u, rarm, rest, pairs, T, la
 
 @njit(cache=True)
 def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded, ideal,
-                     start, stop, stable):  # pragma: no cover - numba
+                     dependent, start, stop, stable):  # pragma: no cover - numba
     """:func:`_stability_kernel` for particles ``start:stop``, LANES at a time."""
     P, N, K = theta.shape
     n = N * K
@@ -1044,8 +1044,36 @@ def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs
             if not ok[p]:
                 stable[p] = False
                 continue
+            if dependent:
+                # a hand whose constraint gradients are dependent at every configuration (rank
+                # r < m + nc: six or more fingers that all flex in planes square to the palm,
+                # HandModel.constraints_dependent) has a zero eigenvalue whose round-off decided
+                # a count of the negative ones, and a zero pivot that can hide above any
+                # threshold. Its inertia is Z^T H Z's plus (r, r, m + nc - r), Z spanning the
+                # wider tangent space (the hand has a mechanism the tendons do not fix), so a
+                # strict minimum has exactly n positive eigenvalues whatever r is: counted on the
+                # matrix scaled by congruence (which keeps the inertia) so that the joints' and
+                # the constraints' blocks are both of order one and a tolerance can tell a zero
+                # eigenvalue from a small one.
+                for q in range(dim):
+                    dq = 1.0 / np.sqrt(hscale[w]) if q < n else np.sqrt(hscale[w]) / gscale[w]
+                    for q2 in range(q, dim):
+                        dq2 = 1.0 / np.sqrt(hscale[w]) if q2 < n else np.sqrt(hscale[w]) / gscale[w]
+                        A1[q, q2] = A2[q, q2, w] * dq * dq2
+                        A1[q2, q] = A1[q, q2]
+                ev = np.linalg.eigvalsh(A1)
+                tol = 1e-9 * max(abs(ev[0]), abs(ev[dim - 1]))
+                pos = 0
+                for q in range(dim):
+                    if ev[q] > tol:
+                        pos += 1
+                stable[p] = pos == n
+                continue
             neg = 0
             if bad[w]:  # a small pivot: the eigenvalues of this lane's matrix instead
+                # (a gradient that vanishes at one configuration, as the pair of the Model O's
+                # side fingers at mirror-image grasps, keeps that pair's second-order hold on
+                # the fingers: its zero eigenvalue is not counted, as the original tangent space)
                 for q in range(dim):
                     for q2 in range(q, dim):
                         A1[q, q2] = A2[q, q2, w]
@@ -1063,7 +1091,7 @@ def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs
 
 @njit(cache=True, parallel=True)
 def _stability_kernel(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded, ideal,
-                      stable):  # pragma: no cover - numba
+                      dependent, stable):  # pragma: no cover - numba
     """Whether each particle's equilibrium is a strict constrained minimum of Eq. 9's energy
     (``stable`` (P,)), from the inertia of its KKT matrix [[H, G^T], [G, 0]] (H: the
     Hessian of the Lagrangian, with the elastic tendons' and the gravity loads' parts; G:
@@ -1071,14 +1099,16 @@ def _stability_kernel(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pair
     Z^T H Z is positive definite if and only if the KKT matrix has exactly as many negative
     eigenvalues as constraints (Gould 1985). The inertia is read off the pivots of the
     same elimination without pivoting as the Newton steps (Sylvester's law of inertia);
-    a lane with a small pivot counts its matrix's eigenvalues instead."""
+    a lane with a small pivot, or every lane of a hand whose constraint gradients are
+    ``dependent`` (:attr:`HandModel.constraints_dependent`), counts its matrix's positive
+    eigenvalues instead."""
     P = theta.shape[0]
     chunk = 2048
     nchunks = (P + chunk - 1) // chunk
     for cc in prange(nchunks):
         start = np.int64(cc) * chunk
         _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs, mu_all, fc_all, gw, loaded,
-                         ideal, start, min(start + chunk, P), stable)
+                         ideal, dependent, start, min(start + chunk, P), stable)
 
 
 # --------------------------------------------------------------------------------------
@@ -1324,7 +1354,8 @@ def move(
     stable = ok.copy()
     if check_stability:
         _stability_kernel(out_theta, lam, ok, a, L, k, hand.pad, hand.base, hand.u, hand.moment_arms, hand.kappa,
-                          hand.constraint_pairs, mu_all, fc_all, gw, loaded, tendon == "ideal", stable)
+                          hand.constraint_pairs, mu_all, fc_all, gw, loaded, tendon == "ideal",
+                          hand.constraints_dependent, stable)
     return MoveResult(out_theta, s_out, T, lam, ok, iters, resid, stable)
 
 
@@ -1359,7 +1390,7 @@ def stable_equilibria(
     stable = np.empty(P, dtype=np.bool_)
     _stability_kernel(theta, lam, ok, a, L, k, hand.pad, hand.base, hand.u,
                       hand.moment_arms, hand.kappa, hand.constraint_pairs, mu_all, fc_all, gw, loaded,
-                      tendon == "ideal", stable)
+                      tendon == "ideal", hand.constraints_dependent, stable)
     return stable
 
 
