@@ -766,3 +766,9 @@ def test_stability_with_dependent_constraint_gradients():
     clear = np.abs(eig) > 1e-4
     assert clear.sum() >= 600 and (eig[clear] > 0).sum() >= 100 and (eig[clear] < 0).sum() >= 100, eig
     np.testing.assert_array_equal(st[clear], eig[clear] > 0)
+    # and the model plant takes the truth grasp drawn for it
+    from vlr_drake.identify import _truth_grasp
+    from vlr_drake.model_plant import ModelPlant
+
+    th0, a0 = _truth_grasp(h, np.random.default_rng(0))
+    ModelPlant(h, th0, a0, np.eye(3), np.array([0.0, 0.0, 0.1]), np.random.default_rng(0))
