@@ -27,8 +27,8 @@ from vlr_drake import kinematics, motion
 from vlr_drake.hand import HandModel
 from vlr_drake.kinematics import is_count
 
-__all__ = ["GraspSample", "sample_grasps", "squeezes", "reduced_hessian_min_eig", "lagrangian_hessian",
-           "commanded_equilibrium", "settle_under_command"]
+__all__ = ["GraspSample", "sample_grasps", "squeezes", "all_pairs", "constraint_gradients", "reduced_hessian_min_eig",
+           "lagrangian_hessian", "commanded_equilibrium", "settle_under_command"]
 
 
 def all_pairs(n: int) -> np.ndarray:
@@ -75,8 +75,6 @@ def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: flo
     N = hand.N
     if hand.num_constraints == N * (N - 1) // 2:  # every pair constrained: the multipliers are the squeeze
         return strict
-    from scipy.optimize import linprog
-
     theta = np.asarray(theta, float).reshape(-1, N, hand.K)
     a = np.broadcast_to(np.asarray(a, float), (theta.shape[0], N))
     pairs = all_pairs(N)
@@ -91,11 +89,11 @@ def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: flo
     for q, p in enumerate(todo):
         scale = np.abs(lam[p]).max()
         if scale > 0:
-            out[p] = _best_squeeze(G_all[q].T, G_fw[q].T @ (lam[p] / scale), linprog) > tol
+            out[p] = _best_squeeze(G_all[q].T, G_fw[q].T @ (lam[p] / scale)) > tol
     return out
 
 
-def _best_squeeze(A: np.ndarray, b: np.ndarray, linprog) -> float:
+def _best_squeeze(A: np.ndarray, b: np.ndarray) -> float:
     """max t subject to mu_c + t <= 0 for every pair c and A mu = b (t capped at 1): how
     hard the gentlest pair can push while the pair forces mu give the joint torques b.
     Solved in the null space of A (mu = mu0 + Z y): in closed form where it is at most one
@@ -120,6 +118,8 @@ def _best_squeeze(A: np.ndarray, b: np.ndarray, linprog) -> float:
         y = ya.ravel()
         t = np.min(-mu0[:, None] - z[:, None] * y[None, :], axis=0)
         return min(cap, float(t.max()))
+    from scipy.optimize import linprog  # (two or more free dimensions: six or more fingers)
+
     n = A.shape[1]
     c = np.zeros(n + 1)
     c[-1] = -1.0
