@@ -1099,9 +1099,9 @@ def _stability_kernel(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pair
     Z^T H Z is positive definite if and only if the KKT matrix has exactly as many negative
     eigenvalues as constraints (Gould 1985). The inertia is read off the pivots of the
     same elimination without pivoting as the Newton steps (Sylvester's law of inertia);
-    a lane with a small pivot, or every lane of a hand whose constraint gradients are
-    ``dependent`` (:attr:`HandModel.constraints_dependent`), counts its matrix's positive
-    eigenvalues instead."""
+    a lane with a small pivot counts its matrix's negative eigenvalues instead, and every
+    lane of a hand whose constraint gradients are ``dependent``
+    (:attr:`HandModel.constraints_dependent`) the positive eigenvalues of its scaled matrix."""
     P = theta.shape[0]
     chunk = 2048
     nchunks = (P + chunk - 1) // chunk
