@@ -289,7 +289,7 @@ def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_length
         D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
     stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
     res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
-                      link_lengths=L, stiffness=stiffness, max_substeps=64,
+                      link_lengths=L, stiffness=stiffness, max_substeps=64, check_stability=False,
                       external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)))
     ok = bool(res.ok[0] and res.tension_feasible()[0])  # a tendon that would push holds nothing
     return (res.theta[0] if ok else theta[0]).copy(), ok

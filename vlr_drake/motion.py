@@ -1439,6 +1439,6 @@ def equilibrium(
     res = move(
         hand, theta, np.zeros(hand.N), a=a, D2=contact_distances_sq(hand, p), stretch=stretch,
         link_lengths=L, stiffness=k, tendon="elastic", external_torque=external_torque, gravity=gravity,
-        object_load=object_load,
+        object_load=object_load, check_stability=False,  # (an Equilibrium does not say; stable_equilibria does)
     )
     return Equilibrium(res.theta, res.stretch, res.tension, res.multipliers, ok & res.ok)
