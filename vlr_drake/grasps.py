@@ -36,10 +36,11 @@ def all_pairs(n: int) -> np.ndarray:
     return np.array([(i, j) for i in range(n) for j in range(i + 1, n)], dtype=np.int64).reshape(-1, 2)
 
 
-def constraint_gradients(hand: HandModel, theta, a, pairs, link_lengths=None) -> np.ndarray:
-    """Gradients (P, m, N*K) of g_c = 0.5 |p_i - p_j|^2 over joint angles, for the contact
-    ``pairs`` (m x 2) of each configuration ``theta`` (P, N, K) with contacts ``a`` (P, N)
-    (the rows of G in Eq. 9's stationarity conditions, for any set of pairs)."""
+def _kinematics(hand: HandModel, theta, a, pairs, link_lengths=None):
+    """Contacts Pc (P, N, 3), their Jacobians Jc (P, N, 3, K) and second derivatives Hc
+    (P, N, 3, K, K), and the gradients G (P, m, N*K) of g_c = 0.5 |p_i - p_j|^2 for the
+    contact ``pairs`` (m x 2), of each configuration ``theta`` (P, N, K) with contacts ``a``
+    (P, N): the batched kernels' quantities, particles first."""
     theta = np.asarray(theta, float).reshape(-1, hand.N, hand.K)
     P, N, K = theta.shape[0], hand.N, hand.K
     L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths, float)
@@ -51,7 +52,14 @@ def constraint_gradients(hand: HandModel, theta, a, pairs, link_lengths=None) ->
                    Pc, Jc, Hc)
     g, G = np.empty((len(pairs), P)), np.empty((len(pairs), N * K, P))
     motion._constraint_jacobian(Pc, Jc, pairs, np.zeros((len(pairs), P)), g, G)
-    return np.moveaxis(G, -1, 0)
+    return tuple(np.moveaxis(x, -1, 0) for x in (Pc, Jc, Hc, G))
+
+
+def constraint_gradients(hand: HandModel, theta, a, pairs, link_lengths=None) -> np.ndarray:
+    """Gradients (P, m, N*K) of g_c = 0.5 |p_i - p_j|^2 over joint angles, for the contact
+    ``pairs`` (m x 2) of each configuration ``theta`` (P, N, K) with contacts ``a`` (P, N)
+    (the rows of G in Eq. 9's stationarity conditions, for any set of pairs)."""
+    return _kinematics(hand, theta, a, pairs, link_lengths)[3]
 
 
 def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: float = 1e-9) -> np.ndarray:
@@ -85,11 +93,12 @@ def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: flo
     L = None if link_lengths is None else np.broadcast_to(
         np.reshape(np.asarray(link_lengths, float), (-1, N, hand.K - 1)), (theta.shape[0], N, hand.K - 1))[todo]
     G_all = constraint_gradients(hand, theta[todo], a[todo], pairs, L)
-    G_fw = constraint_gradients(hand, theta[todo], a[todo], hand.constraint_pairs, L)
+    # the hand's pairs among all of them: their gradients are those rows
+    rows = [int(np.flatnonzero((pairs == pr).all(axis=1))[0]) for pr in hand.constraint_pairs]
     for q, p in enumerate(todo):
         scale = np.abs(lam[p]).max()
         if scale > 0:
-            out[p] = _best_squeeze(G_all[q].T, G_fw[q].T @ (lam[p] / scale)) > tol
+            out[p] = _best_squeeze(G_all[q].T, G_all[q, rows].T @ (lam[p] / scale)) > tol
     return out
 
 
@@ -137,18 +146,9 @@ def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None
     if tendon not in motion.TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {motion.TENDON_MODELS}, got '{tendon}'")
     N, K = hand.N, hand.K
-    L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths).reshape(N, K - 1)
     k = hand.stiffness if stiffness is None else np.asarray(stiffness).reshape(N, K)
-    Pc = np.empty((N, 3, 1))  # the kernels' layout: one hypothesis on the last axis
-    Jc = np.empty((N, 3, K, 1))
-    Hc = np.empty((N, 3, K, K, 1))
-    motion._fk_all(np.ascontiguousarray(np.reshape(theta, (N, K, 1)), float),
-                   np.ascontiguousarray(np.reshape(L, (N, K - 1, 1)), float),
-                   np.ascontiguousarray(np.reshape(a, (N, 1)), float), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
-    g = np.empty((hand.num_constraints, 1))
-    G = np.empty((hand.num_constraints, N * K, 1))
-    motion._constraint_jacobian(Pc, Jc, hand.constraint_pairs, np.zeros((hand.num_constraints, 1)), g, G)
-    Pc, Jc, Hc, G = Pc[..., 0], Jc[..., 0], Hc[..., 0], G[..., 0]
+    Pc, Jc, Hc, G = (x[0] for x in _kinematics(hand, np.reshape(theta, (1, N, K)), np.reshape(a, (1, N)),
+                                               hand.constraint_pairs, link_lengths))
     H = np.diag(k.ravel()).astype(float)
     if tendon == "elastic":
         H += hand.R.T @ np.diag(hand.kappa) @ hand.R
