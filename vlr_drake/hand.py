@@ -11,7 +11,7 @@ its joints and its contact are
 
 where ``a_i`` is the (unknown) contact position along the last link and ``n_i`` the known
 offset of the pad's centre of curvature from the link axis (pad thickness minus pad radius:
-a rolling pad acts like a joint at its centre; see ``FingerSpec.pad_radius``). The segment
+a joint at the pad's centre stands for its rolling; see ``FingerSpec.pad_radius``). The segment
 ``q_K -> p_i`` is the distal *virtual* link of the VLR (Eq. 2).
 
 Everything in this module is SI (metres, radians, newtons). The SDFormat models in
@@ -68,10 +68,12 @@ class FingerSpec:
     # Pad thickness: distance of the contact surface from the last link's axis [m].
     pad_offset: float = 0.008
     # Radius of curvature of the pad [m] (the physics pad's spheres). The VLR's contact is
-    # the pad's centre of curvature, n_i = pad_offset - pad_radius from the axis: a pad that
-    # rolls on the object acts, to second order, like a joint at that centre (DESIGN.md
+    # the pad's centre of curvature, n_i = pad_offset - pad_radius from the axis (DESIGN.md
     # section 3 correction: with the contact on the pad surface, Eq. 9 predicted the physics
-    # plant's motion 2x too large; at the centre, within 5%).
+    # plant's motion 2x too large; at the centre, within 5%). It is an approximation: a pad
+    # that rolls moves its centre over the object by the pad radius times its rotation
+    # relative to the object (0.3 mm per action on the physics plant), which a joint at the
+    # centre lacks (vlr_drake.physics.agreement's kinematic check).
     pad_radius: float = 0.008
     # Tendon moment arms (pulley radii) r_k of the K joints [m].
     moment_arms: list[float] = field(default_factory=lambda: [0.009, 0.0045])

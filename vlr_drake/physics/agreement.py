@@ -25,7 +25,14 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   torques by load (tendon, spring, link weight, pad contacts and their moments about the
   pads' centres, the object's weight, other bodies' contacts) and the commanded offset with
   each load Eq. 9 lacks added (``loads_mNm``, ``commanded_offset_with_deg``;
-  ``statics_budget`` over the actions).
+  ``statics_budget`` over the actions);
+- the kinematic check, which needs no model of forces: the object moved by the plant's true
+  last links with it attached at link-fixed points, the pads' centres (the VLR's contacts)
+  or the points where the pads touch the object (``kinematic_error_mm`` / ``_deg``, medians
+  ``kinematic_error_*_median``); and the joints' motion, the plant's against the commanded
+  equilibria's (``true_joint_motion_deg``, ``settled_joint_motion_deg``; per joint the
+  least-squares slope ``joint_motion_slope``, 1 where the model moves a joint as far as the
+  plant does).
 
 The one-step and carried models start from the tendon stretch that holds the plant's angles
 in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
@@ -48,6 +55,17 @@ not have, is most of it everywhere but on the apple. The statics budget splits i
 actions): with the pads' friction moments, the links' weight and the object's weight
 added, 0.03-0.08 deg remain on all four objects; on the apple the pad moments (10 mN m at
 the thumb) and the links' weight matter most.
+
+The pads roll (2026-11-28; toy block, 30 random actions, seed 0): attached at the
+touching points the object follows the true links to 0.002 mm / 0.006 deg, at the pads'
+centres only to 0.272 mm / 0.398 deg (apple, 20 actions: 0.015 against 0.157 mm). A
+rolling pad's centre travels a pad radius times its rotation relative to the object, a
+first-order motion that the VLR's pinned centre lacks; a VLR pinned at the touching points
+instead predicts far worse (3-4 mm on the toy block's actions), because the rolling's
+curvature, which a pin at either point gets wrong, shapes the equilibrium. The commanded
+equilibria move the proximal joints 20-25% further than the plant (slopes 0.75-0.84, 0.74-
+1.12 distal); a pad rolling inside the equilibrium (a MathematicalProgram probe) brought
+the proximal slopes to 0.89.
 
 ``--physics KEY=VALUE`` overrides a setting of the physics plant
 (:class:`vlr_drake.systems.physics_plant.PhysicsConfig`), e.g. ``gravity=0`` (no object
@@ -103,24 +121,43 @@ class _ModelState:
         return R[0], t[0]
 
 
+def _last_link_poses(adapter) -> list:
+    """The last links' poses in the palm frame P (RigidTransforms)."""
+    plant, ctx = adapter.ph.plant, adapter.ph.plant_context(adapter.root)
+    X_PW = plant.EvalBodyPoseInWorld(ctx, adapter.ph.palm_body).inverse()
+    return [X_PW @ plant.EvalBodyPoseInWorld(ctx, b) for b in adapter.ph.last_links]
+
+
+def _kinematic_prediction(points, X_before, X_after, R, t):
+    """The object's pose after an action if it were attached to ``points`` (N, 3) in P, each
+    fixed on its last link, whose poses before and after are ``X_before`` / ``X_after``: the
+    object attached to the points at its true pose (R, t) before, then fitted to where the
+    links carry them (Eq. 5's attachment and pose fit). Returns (R_pred, t_pred)."""
+    moved = np.array([(X_after[i] @ X_before[i].inverse()).multiply(points[i]) for i in range(len(points))])
+    p_O = observation.attach(points[None], R[None], t[None])
+    R1, t1, _ = observation.pom_pose(p_O, moved[None])
+    return R1[0], t1[0]
+
+
 def _settled_prediction(h, truth, l_before, dl, R, t):
     """Commanded equilibria before and after ``dl`` from the plant's state (``truth``), and
     the predicted POM pose: their relative motion applied to the true pose (R, t). Returns
-    (offset before [rad] (N, K) or None, (R_pred, t_pred) or None)."""
+    (offset before [rad] (N, K) or None, (R_pred, t_pred) or None, the equilibria's joint
+    motion th_after - th_before [rad] (N, K) or None)."""
     a = truth["a"]
     p = kinematics.contacts(h, truth["theta"][None], a[None])
     D2 = motion.contact_distances_sq(h, p)[0]
     th0, ok0 = commanded_equilibrium(h, truth["theta"], a, l_before, D2=D2)
     if not ok0:
-        return None, None
+        return None, None, None
     th1, ok1 = commanded_equilibrium(h, th0, a, l_before + dl, D2=D2)
     if not ok1:
-        return th0 - truth["theta"], None
+        return th0 - truth["theta"], None, None
     p_O = observation.attach(p, R[None], t[None])
     R0, t0, _ = observation.pom_pose(p_O, kinematics.contacts(h, th0[None], a[None]))
     R1, t1, _ = observation.pom_pose(p_O, kinematics.contacts(h, th1[None], a[None]))
     dR = R1[0] @ R0[0].T
-    return th0 - truth["theta"], (dR @ R, dR @ (t - t0[0]) + t1[0])
+    return th0 - truth["theta"], (dR @ R, dR @ (t - t0[0]) + t1[0]), th1 - th0
 
 
 def physics_overrides(items: list[str]) -> PhysicsConfig:
@@ -194,7 +231,12 @@ def run_agreement(
         one = _ModelState(h, truth["theta"], truth["a"], R, t)  # restarted at the truth
         one_ok = one.move(dl)
         carried_ok = carried_ok and carried.move(dl)
-        offset, settled = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
+        offset, settled, settled_motion = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
+        # link-fixed points for the kinematic check: the pads' centres (the VLR's contacts)
+        # and the points where the pads touch the object
+        X_links = _last_link_poses(adapter)
+        fixed = {"centre": truth["contacts"],
+                 "touching": np.asarray(adapter.ph.output(adapter.root, "contacts_true"), float).reshape(h.N, 3)}
         loads = with_loads = None
         if budget:  # the statics budget of the state the commanded equilibrium starts from
             loads = plant_loads(adapter.ph, adapter.root)
@@ -203,6 +245,13 @@ def run_agreement(
         adapter.act(dl, timing)
         explore.commit(dl)
         R1, t1 = _pose(adapter)
+        true_motion = adapter.truth()["theta"] - truth["theta"]
+        X_links1 = _last_link_poses(adapter)
+        kinematic = {}
+        for name, points in fixed.items():
+            dp, ang = observation.pose_error(*(x[None] for x in _kinematic_prediction(points, X_links, X_links1, R, t)),
+                                             R1[None], t1[None])
+            kinematic[name] = (float(dp[0] * 1e3), float(np.rad2deg(ang[0])))
         truth = adapter.truth()
         row = {"action_mm": (dl * 1e3).tolist(), "true_motion_mm": float(np.linalg.norm(t1 - t) * 1e3),
                "true_rotation_deg": float(np.rad2deg(observation.rotation_angle(R1[None], R[None])[0])),
@@ -212,6 +261,13 @@ def run_agreement(
                "one_step_joint_error_deg": None, "carried_joint_error_deg": None,
                "commanded_offset_deg": None if offset is None else np.rad2deg(offset).tolist(),
                "settled_one_step_error_mm": None, "settled_one_step_error_deg": None,
+               # the plant's joint motion and the commanded equilibria's [deg] (N, K)
+               "true_joint_motion_deg": np.rad2deg(true_motion).tolist(),
+               "settled_joint_motion_deg": None if settled_motion is None else np.rad2deg(settled_motion).tolist(),
+               # the object moved with the plant's true links, attached at link-fixed
+               # points: the pads' centres (the VLR) or their touching points [mm], [deg]
+               "kinematic_error_mm": {k: v[0] for k, v in kinematic.items()},
+               "kinematic_error_deg": {k: v[1] for k, v in kinematic.items()},
                # the statics budget (vlr_drake.physics.statics): joint torques by load [mN m],
                # and the commanded offset with each unmodelled load added [deg]
                "loads_mNm": None if loads is None else loads.as_dict(1e3),
@@ -263,8 +319,26 @@ def run_agreement(
         "settled_one_step_error_deg_median": (float(np.median([r["settled_one_step_error_deg"] for r in settled]))
                                               if settled else None),
         "statics_budget": _budget_summary(rows) if budget else None,
+        # the kinematic check's medians over the actions, per attachment point
+        "kinematic_error_mm_median": {k: float(np.median([r["kinematic_error_mm"][k] for r in rows])) for k in fixed},
+        "kinematic_error_deg_median": {k: float(np.median([r["kinematic_error_deg"][k] for r in rows])) for k in fixed},
+        # per joint (N, K): least-squares slope of the plant's joint motion on the commanded
+        # equilibria's (1 = the model moves the joint as much as the plant does)
+        "joint_motion_slope": _slopes([r for r in rows if r["settled_joint_motion_deg"] is not None]),
         "wall_s": time.perf_counter() - t_start,
     }
+
+
+def _slopes(rows: list[dict]) -> list | None:
+    """Per joint, the least-squares slope of ``true_joint_motion_deg`` on
+    ``settled_joint_motion_deg`` over ``rows`` (N, K), None where the model never moved it."""
+    if not rows:
+        return None
+    pred = np.array([r["settled_joint_motion_deg"] for r in rows])
+    true = np.array([r["true_joint_motion_deg"] for r in rows])
+    den = (pred * pred).sum(0)
+    slope = np.where(den > 0, (pred * true).sum(0) / np.where(den > 0, den, 1.0), np.nan)
+    return [[None if not np.isfinite(x) else float(x) for x in row] for row in slope]
 
 
 def _budget_summary(rows: list[dict]) -> dict:
@@ -345,6 +419,13 @@ def main(argv: list[str] | None = None) -> dict:
     else:
         print(f"commanded equilibrium: the VLR found none before and after the action under the plant's tendon "
               f"state in {len(r['actions'])} actions")
+    ke, kd = r["kinematic_error_mm_median"], r["kinematic_error_deg_median"]
+    print("kinematic check (the object moved by the plant's true links, attached at link-fixed points): "
+          + ", ".join(f"{k} {ke[k]:.3f} mm / {kd[k]:.3f} deg" for k in ke) + " (median)")
+    if r["joint_motion_slope"] is not None:
+        print("plant's joint motion / the commanded equilibria's (least-squares slope per joint): "
+              + ", ".join(f"{name} " + "/".join(num(x) for x in row)
+                          for name, row in zip(spec.finger_names(), r["joint_motion_slope"], strict=True)))
     b = r["statics_budget"]
     if b is not None:
         print("statics budget: the plant's joint torques by load, mean over the actions [mN m] (Eq. 9 lacks "

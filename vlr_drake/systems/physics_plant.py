@@ -40,8 +40,8 @@ thumb against the fingers that the spec's 5 N s/m left.
 What the truth means: ``contacts_true`` are physical contact points. A side finger touching
 a round object does so with its inner pad sphere, about 10 mm out of the finger's flexion
 plane. ``contact_along_link_true`` is the VLR's contact a_i: the pads are spheres fixed on
-the last links, and a rolling pad's VLR contact is its centre of curvature (``HandSpec``'s
-``pad_radius``), so a_i is the spheres' coordinate along the link; the VLR's forward
+the last links, and the VLR's contact is a pad's centre of curvature (``HandSpec``'s
+``pad_radius``; it stands for the pad's rolling), so a_i is the spheres' coordinate along the link; the VLR's forward
 kinematics of ``theta_true`` and a_i gives the spheres' centres, one pad radius from the
 physical contacts (projected onto the flexion plane). With the spec's springs and tendon stiffness the grasp is compliant along the
 thumb-finger axis: a random +-1.5 mm action moves the POM 3-6 mm and 1-3 degrees.
@@ -388,9 +388,9 @@ class HandTruth(LeafSystem):
 
     ``contact_along_link_true`` is the VLR's a_i: with ``pad_along`` (N) given (the pads'
     centres of curvature along the last links), the contact of a rounded pad is its centre
-    of curvature, whichever point of it touches (``HandSpec.pad_radius``: a rolling pad acts
-    as a joint at its centre), so a_i is that centre's coordinate; without it, the physical
-    contact's coordinate along the link.
+    of curvature, whichever point of it touches (``HandSpec.pad_radius``: the VLR's joint at
+    the centre stands for the pad's rolling), so a_i is that centre's coordinate; without it,
+    the physical contact's coordinate along the link.
     """
 
     def __init__(
