@@ -274,14 +274,15 @@ def sample_grasps(
 
 
 def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_lengths=None, stiffness=None, D2=None,
-                          external_torque=None):
+                          external_torque=None, gravity=None, object_load=None):
     """The model's equilibrium (N, K) under the absolute tendon commands ``tendon_command``
     (N,), reached from ``theta`` (N, K) with the contacts ``a`` (N,) held at their mutual
     distances (``D2`` (m,), squared; default: those at ``theta``): Eq. 9 with a zero action
     and the elastic tendon's stretch ``s = l - R theta``, as the filter moves a hypothesis
     (``FilterConfig.tendon_reference = "commanded"``). Returns (angles, ok); the angles are
     ``theta`` where Newton, with continuation, finds no equilibrium. ``external_torque``
-    (N, K) [N m]: further joint torques (:func:`vlr_drake.motion.move`)."""
+    (N, K) [N m]: further joint torques; ``gravity`` (3,) [m/s^2] and ``object_load`` (N,)
+    [kg]: the links' and the object's weight, following the angles (:func:`vlr_drake.motion.move`)."""
     theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
     a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
     L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
@@ -290,7 +291,9 @@ def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_length
     stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
     res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
                       link_lengths=L, stiffness=stiffness, max_substeps=64, check_stability=False,
-                      external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)))
+                      external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)),
+                      gravity=gravity,
+                      object_load=None if object_load is None else np.reshape(np.asarray(object_load, float), (1, hand.N)))
     ok = bool(res.ok[0] and res.tension_feasible()[0])  # a tendon that would push holds nothing
     return (res.theta[0] if ok else theta[0]).copy(), ok
 

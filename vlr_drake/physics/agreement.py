@@ -32,7 +32,9 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   ``kinematic_error_*_median``); and the joints' motion, the plant's against the commanded
   equilibria's (``true_joint_motion_deg``, ``settled_joint_motion_deg``; per joint the
   least-squares slope ``joint_motion_slope``, 1 where the model moves a joint as far as the
-  plant does).
+  plant does), and both again with the links' and the object's weight following the angles
+  (the object's true mass, shared over the contacts by its centre of mass:
+  ``*_with_weights``).
 
 The one-step and carried models start from the tendon stretch that holds the plant's angles
 in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
@@ -62,10 +64,14 @@ centres only to 0.272 mm / 0.398 deg (apple, 20 actions: 0.015 against 0.157 mm)
 rolling pad's centre travels a pad radius times its rotation relative to the object, a
 first-order motion that the VLR's pinned centre lacks; a VLR pinned at the touching points
 instead predicts far worse (3-4 mm on the toy block's actions), because the rolling's
-curvature, which a pin at either point gets wrong, shapes the equilibrium. The commanded
-equilibria move the proximal joints 20-25% further than the plant (slopes 0.75-0.84, 0.74-
-1.12 distal); a pad rolling inside the equilibrium (a MathematicalProgram probe) brought
-the proximal slopes to 0.89.
+curvature, which a pin at either point gets wrong, shapes the equilibrium. Eq. 9's
+commanded equilibria move the proximal joints 20-25% further than the plant (slopes
+0.75-0.84, 0.74-1.12 distal). The weights are most of that: with the links' and the
+object's weight following the angles (``joint_motion_slope_with_weights``; a weight held
+as a constant torque misses its stiffness) the proximal slopes are 0.92-0.96 on the toy
+block and 1.03-1.05 on the apple, yet the POM's prediction gets worse (0.247 against 0.148
+mm on the toy block), because with the pads' centres pinned it had relied on the two errors
+cancelling. The filter needs both, the weights and the rolling, or neither.
 
 ``--physics KEY=VALUE`` overrides a setting of the physics plant
 (:class:`vlr_drake.systems.physics_plant.PhysicsConfig`), e.g. ``gravity=0`` (no object
@@ -139,18 +145,20 @@ def _kinematic_prediction(points, X_before, X_after, R, t):
     return R1[0], t1[0]
 
 
-def _settled_prediction(h, truth, l_before, dl, R, t):
+def _settled_prediction(h, truth, l_before, dl, R, t, gravity=None, object_load=None):
     """Commanded equilibria before and after ``dl`` from the plant's state (``truth``), and
     the predicted POM pose: their relative motion applied to the true pose (R, t). Returns
     (offset before [rad] (N, K) or None, (R_pred, t_pred) or None, the equilibria's joint
-    motion th_after - th_before [rad] (N, K) or None)."""
+    motion th_after - th_before [rad] (N, K) or None). ``gravity`` / ``object_load``: the
+    weights following the angles (:func:`vlr_drake.grasps.commanded_equilibrium`)."""
     a = truth["a"]
     p = kinematics.contacts(h, truth["theta"][None], a[None])
     D2 = motion.contact_distances_sq(h, p)[0]
-    th0, ok0 = commanded_equilibrium(h, truth["theta"], a, l_before, D2=D2)
+    weights = {"gravity": gravity, "object_load": object_load}
+    th0, ok0 = commanded_equilibrium(h, truth["theta"], a, l_before, D2=D2, **weights)
     if not ok0:
         return None, None, None
-    th1, ok1 = commanded_equilibrium(h, th0, a, l_before + dl, D2=D2)
+    th1, ok1 = commanded_equilibrium(h, th0, a, l_before + dl, D2=D2, **weights)
     if not ok1:
         return th0 - truth["theta"], None, None
     p_O = observation.attach(p, R[None], t[None])
@@ -226,12 +234,17 @@ def run_agreement(
     rows = []
     timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
     budget = adapter.physics.contact_model == "point"  # plant_loads needs point contact
+    gravity = np.asarray(adapter.physics.gravity_in_palm(), float)
     for _ in range(actions):
         dl = step * direction if direction is not None else explore.next_action()
         one = _ModelState(h, truth["theta"], truth["a"], R, t)  # restarted at the truth
         one_ok = one.move(dl)
         carried_ok = carried_ok and carried.move(dl)
         offset, settled, settled_motion = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
+        # the same with the links' and the object's weight following the angles (the object's
+        # true mass, shared over the contacts by its centre of mass)
+        _, settled_w, settled_motion_w = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t,
+                                                             gravity=gravity, object_load=truth["object_load"])
         # link-fixed points for the kinematic check: the pads' centres (the VLR's contacts)
         # and the points where the pads touch the object
         X_links = _last_link_poses(adapter)
@@ -264,6 +277,9 @@ def run_agreement(
                # the plant's joint motion and the commanded equilibria's [deg] (N, K)
                "true_joint_motion_deg": np.rad2deg(true_motion).tolist(),
                "settled_joint_motion_deg": None if settled_motion is None else np.rad2deg(settled_motion).tolist(),
+               "settled_joint_motion_with_weights_deg": (None if settled_motion_w is None
+                                                         else np.rad2deg(settled_motion_w).tolist()),
+               "settled_one_step_error_with_weights_mm": None, "settled_one_step_error_with_weights_deg": None,
                # the object moved with the plant's true links, attached at link-fixed
                # points: the pads' centres (the VLR) or their touching points [mm], [deg]
                "kinematic_error_mm": {k: v[0] for k, v in kinematic.items()},
@@ -273,9 +289,10 @@ def run_agreement(
                "loads_mNm": None if loads is None else loads.as_dict(1e3),
                "commanded_offset_with_deg": None if with_loads is None else {
                    k: None if v is None else np.rad2deg(v).tolist() for k, v in with_loads.items()}}
-        if settled is not None:
-            dp, ang = observation.pose_error(settled[0][None], settled[1][None], R1[None], t1[None])
-            row.update(settled_one_step_error_mm=float(dp[0] * 1e3), settled_one_step_error_deg=float(np.rad2deg(ang[0])))
+        for key, pred in (("settled_one_step_error", settled), ("settled_one_step_error_with_weights", settled_w)):
+            if pred is not None:
+                dp, ang = observation.pose_error(pred[0][None], pred[1][None], R1[None], t1[None])
+                row.update({key + "_mm": float(dp[0] * 1e3), key + "_deg": float(np.rad2deg(ang[0]))})
         if one_ok:
             Rp, tp = one.pose()
             dp, ang = observation.pose_error(Rp[None], tp[None], R1[None], t1[None])
@@ -324,17 +341,28 @@ def run_agreement(
         "kinematic_error_deg_median": {k: float(np.median([r["kinematic_error_deg"][k] for r in rows])) for k in fixed},
         # per joint (N, K): least-squares slope of the plant's joint motion on the commanded
         # equilibria's (1 = the model moves the joint as much as the plant does)
-        "joint_motion_slope": _slopes([r for r in rows if r["settled_joint_motion_deg"] is not None]),
+        "joint_motion_slope": _slopes(rows, "settled_joint_motion_deg"),
+        # the same with the weights following the angles, and that prediction's POM error
+        "joint_motion_slope_with_weights": _slopes(rows, "settled_joint_motion_with_weights_deg"),
+        "settled_one_step_error_with_weights_mm_median": _median(rows, "settled_one_step_error_with_weights_mm"),
+        "settled_one_step_error_with_weights_deg_median": _median(rows, "settled_one_step_error_with_weights_deg"),
         "wall_s": time.perf_counter() - t_start,
     }
 
 
-def _slopes(rows: list[dict]) -> list | None:
-    """Per joint, the least-squares slope of ``true_joint_motion_deg`` on
-    ``settled_joint_motion_deg`` over ``rows`` (N, K), None where the model never moved it."""
+def _median(rows: list[dict], key: str) -> float | None:
+    """Median of ``key`` over the rows that have it, None if none has."""
+    got = [r[key] for r in rows if r[key] is not None]
+    return float(np.median(got)) if got else None
+
+
+def _slopes(rows: list[dict], key: str) -> list | None:
+    """Per joint, the least-squares slope of ``true_joint_motion_deg`` on the model's joint
+    motion ``key`` over the rows that have it (N, K), None where the model never moved it."""
+    rows = [r for r in rows if r[key] is not None]
     if not rows:
         return None
-    pred = np.array([r["settled_joint_motion_deg"] for r in rows])
+    pred = np.array([r[key] for r in rows])
     true = np.array([r["true_joint_motion_deg"] for r in rows])
     den = (pred * pred).sum(0)
     slope = np.where(den > 0, (pred * true).sum(0) / np.where(den > 0, den, 1.0), np.nan)
@@ -422,10 +450,13 @@ def main(argv: list[str] | None = None) -> dict:
     ke, kd = r["kinematic_error_mm_median"], r["kinematic_error_deg_median"]
     print("kinematic check (the object moved by the plant's true links, attached at link-fixed points): "
           + ", ".join(f"{k} {ke[k]:.3f} mm / {kd[k]:.3f} deg" for k in ke) + " (median)")
-    if r["joint_motion_slope"] is not None:
-        print("plant's joint motion / the commanded equilibria's (least-squares slope per joint): "
-              + ", ".join(f"{name} " + "/".join(num(x) for x in row)
-                          for name, row in zip(spec.finger_names(), r["joint_motion_slope"], strict=True)))
+    for key, what in (("joint_motion_slope", "Eq. 9"), ("joint_motion_slope_with_weights", "the weights following")):
+        if r[key] is not None:
+            print(f"plant's joint motion / the commanded equilibria's, {what} (least-squares slope per joint): "
+                  + ", ".join(f"{name} " + "/".join(num(x) for x in row)
+                              for name, row in zip(spec.finger_names(), r[key], strict=True)))
+    print(f"settled one-step error with the weights following: {num(r['settled_one_step_error_with_weights_mm_median'])} mm / "
+          f"{num(r['settled_one_step_error_with_weights_deg_median'])} deg (median)")
     b = r["statics_budget"]
     if b is not None:
         print("statics budget: the plant's joint torques by load, mean over the actions [mN m] (Eq. 9 lacks "
