@@ -1,0 +1,212 @@
+"""Rolling pads and the weights: a reference equilibrium (Drake MathematicalProgram).
+
+Eq. 8 pins each pad's centre of curvature to the object. A pad rolls instead: its centre
+travels over the object by the pad radius times the pad's rotation relative to the object,
+and the object moves with the points where the pads touch it (the physics plant's kinematic
+check, :mod:`vlr_drake.physics.agreement`). Eq. 9 also leaves out the links' and the
+object's weight, whose stiffness moves the proximal joints as much as the springs do. This
+module writes the equilibrium with both, for one configuration, with the object's pose
+explicit:
+
+    min_{theta, w, tau}  sum 0.5 k (theta - theta0)^2 + sum_i 0.5 kappa_i s_i'^2
+                         + V_links(theta) - m g . x_com(w, tau)
+    s.t.                 p_i(theta) = C(w) R (c_i + r (omega_i x n_i)) + t + tau   (i = 1..N)
+    with                 s_i' = s_i + dl_i - R_i (theta - theta_start),
+                         omega_i = R^T (dphi_i h_i - w),
+
+where (R, t) is the object's (POM) pose at the start, c_i each pad centre in the object's
+frame there, n_i the object's outward normal at the contact (object frame), r the pad
+radius, dphi_i the last link's rotation about its hinge axis h_i = z x u_i since the start,
+C(w) the Cayley rotation of w (w: the object's turn, about the palm's axes), and V_links the
+links' potential (:meth:`vlr_drake.hand.HandModel.link_weight_torque`). The roll is linear
+in the relative rotation, which holds for one action's few degrees. With r = 0 and no
+gravity the constraints hold the centres as a rigid body and this is Eq. 9 (the batched
+:func:`vlr_drake.motion.move`), which the tests check.
+
+On the physics plant's toy block, started from the plant's true state (its tendons' stretch,
+the true contact normals, the block's mass and centre of mass), it predicts an action's
+object motion to 0.044 mm / 0.044 deg (median of 20 actions) against 0.210 mm / 0.316 deg
+for Eq. 9, sits 0.01 deg from the plant's angles at rest (Eq. 9: 0.50) and moves every
+joint as the plant does (slopes 0.99-1.02). The filter does not use it yet: it is the
+reference a batched rolling Gamma would be held to (docs/results.md, "The pads roll").
+It takes IPOPT tens of milliseconds a solve.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.solvers import IpoptSolver, MathematicalProgram
+
+from vlr_drake import kinematics
+from vlr_drake.hand import HandModel
+
+__all__ = ["RollingState", "RollingResult", "RollingSolveError", "solve_rolling"]
+
+#: Scale of the cost (energies ~1e-2 J) and of the attachment constraints (metres -> mm).
+COST_SCALE = 1e3
+CONSTRAINT_SCALE = 1e3
+
+
+class RollingSolveError(RuntimeError):
+    """IPOPT found no rolling equilibrium."""
+
+
+@dataclass
+class RollingState:
+    """A grasp with the object explicit: what the rolling equilibrium starts from.
+
+    theta (N, K) [rad] and a (N,) [m]: the hand's angles and the pads' centres along the last
+    links; R (3, 3), t (3,): the object's (POM) pose in the palm frame; normals (N, 3): the
+    object's outward unit normals at the contacts, in the palm frame; stretch (N,) [m]: the
+    tendons' stretch; object_mass [kg] and com (3,): the object's mass and its centre of mass
+    in the palm frame (mass 0: a weightless object)."""
+
+    theta: np.ndarray
+    a: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    normals: np.ndarray
+    stretch: np.ndarray
+    object_mass: float = 0.0
+    com: np.ndarray | None = None
+
+    def checked(self, hand: HandModel) -> RollingState:
+        """This state with its arrays shaped and finite, or a ValueError naming the field."""
+        N, K = hand.N, hand.K
+        shapes = {"theta": (N, K), "a": (N,), "R": (3, 3), "t": (3,), "normals": (N, 3), "stretch": (N,)}
+        out = {}
+        for name, shape in shapes.items():
+            x = np.asarray(getattr(self, name), float)
+            if x.shape != shape or not np.all(np.isfinite(x)):
+                raise ValueError(f"rolling state: '{name}' must be a finite array of shape {shape}, got "
+                                 f"{x.shape if x.shape != shape else 'non-finite values'}")
+            out[name] = x
+        norms = np.linalg.norm(out["normals"], axis=1)
+        if not np.all(norms > 0):
+            raise ValueError("rolling state: 'normals' must be nonzero vectors")
+        out["normals"] = out["normals"] / norms[:, None]
+        mass = float(self.object_mass)
+        if not (np.isfinite(mass) and mass >= 0):
+            raise ValueError(f"rolling state: 'object_mass' must be a finite number >= 0 [kg], got {self.object_mass}")
+        com = None
+        if mass > 0:
+            com = np.asarray(self.com, float) if self.com is not None else None
+            if com is None or com.shape != (3,) or not np.all(np.isfinite(com)):
+                raise ValueError("rolling state: an object with mass needs 'com', its centre of mass (3,) in the "
+                                 "palm frame [m]")
+        return RollingState(com=com, object_mass=mass, **out)
+
+
+@dataclass
+class RollingResult:
+    theta: np.ndarray  # (N, K) the equilibrium's angles
+    R: np.ndarray  # (3, 3) the object's pose there
+    t: np.ndarray  # (3,)
+    solve_time_s: float
+
+
+def _cayley(w):
+    """Rotation matrix of the Cayley parameters ``w`` (3,) (a rotation by ~|w| about w)."""
+    q = 0.5 * np.asarray(w)
+    Q = np.array([[0, -q[2], q[1]], [q[2], 0, -q[0]], [-q[1], q[0], 0]], dtype=q.dtype)
+    return np.eye(3) + (2.0 / (1.0 + q @ q)) * (Q + Q @ Q)
+
+
+def _centres(hand: HandModel, x, a):
+    """The pads' centres (N, 3) for joint angles x (N*K,): the VLR's forward kinematics
+    (:func:`vlr_drake.kinematics.contacts`), written for autodiff scalars."""
+    N, K = hand.N, hand.K
+    z = np.array([0.0, 0.0, 1.0])
+    out = []
+    for i in range(N):
+        phi, px, pz = 0.0, 0.0, 0.0
+        for k in range(K):
+            phi = phi + x[i * K + k]
+            s, c = np.sin(phi), np.cos(phi)
+            if k < K - 1:
+                px, pz = px + hand.link_lengths[i, k] * s, pz + hand.link_lengths[i, k] * c
+            else:
+                px, pz = px + a[i] * s + hand.pad[i] * c, pz + a[i] * c - hand.pad[i] * s
+        out.append(hand.base[i] + px * hand.u[i] + pz * z)
+    return out
+
+
+def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, pad_radius=None) -> RollingResult:
+    """The rolling equilibrium (module docstring) after the tendon action ``dl`` (N,) [m]
+    (default: none, the state's own equilibrium), started from ``state``
+    (:class:`RollingState`), with ``gravity`` (3,) [m/s^2] in the palm frame (None: no
+    weights, Eq. 9's energy) and the pads' radius ``pad_radius`` (N,) [m] (default: the
+    hand's, ``FingerSpec.pad_radius``; 0 pins the centres as Eq. 8 does).
+
+    Raises :class:`RollingSolveError` when IPOPT finds none, ValueError on bad input."""
+    st = state.checked(hand)
+    N, K = hand.N, hand.K
+    dl = np.zeros(N) if dl is None else np.asarray(dl, float)
+    if dl.shape != (N,) or not np.all(np.isfinite(dl)):
+        raise ValueError(f"rolling: 'dl' must be a finite array of shape ({N},), got {dl.shape}")
+    r = hand.pad_surface - hand.pad if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
+    if not np.all(np.isfinite(r) & (r >= 0)):
+        raise ValueError(f"rolling: 'pad_radius' must be >= 0 [m], got {np.asarray(r).tolist()}")
+    g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise ValueError(f"rolling: 'gravity' must be a finite (3,) vector [m/s^2], got {g.shape}")
+    x0 = st.theta.ravel()
+    c0 = kinematics.contacts(hand, st.theta[None], st.a[None])[0]
+    cO = (st.R.T @ (c0 - st.t).T).T  # the centres in the object's frame
+    nO = (st.R.T @ st.normals.T).T
+    hinge = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)  # (N, 3) the links turn about z x u
+    mu = hand.link_moments()[0] if gravity is not None else np.zeros((N, K))
+    g_u, g_z = hand.gravity_in_finger_planes(g).T
+    comO = None if st.object_mass == 0 else st.R.T @ (st.com - st.t)
+
+    prog = MathematicalProgram()
+    th = prog.NewContinuousVariables(N * K, "theta")
+    w = prog.NewContinuousVariables(3, "w")
+    tau = prog.NewContinuousVariables(3, "tau")
+
+    def hand_energy(x):
+        e = 0.0
+        for i in range(N):
+            travel, phi = 0.0, 0.0
+            for k in range(K):
+                j = i * K + k
+                e = e + 0.5 * hand.stiffness[i, k] * (x[j] - hand.rest_angles[i, k]) ** 2
+                travel = travel + hand.moment_arms[i, k] * (x[j] - x0[j])
+                phi = phi + x[j]
+                e = e - mu[i, k] * (g_u[i] * np.sin(phi) + g_z[i] * np.cos(phi))  # the links' weight
+            e = e + 0.5 * hand.kappa[i] * (st.stretch[i] + dl[i] - travel) ** 2
+        return COST_SCALE * e
+
+    prog.AddCost(hand_energy, vars=th)
+    if comO is not None:
+        def object_energy(v):  # the object's weight: -m g . x_com
+            return -COST_SCALE * st.object_mass * (g @ (_cayley(v[:3]) @ (st.R @ comO) + st.t + v[3:]))
+
+        prog.AddCost(object_energy, vars=np.concatenate([w, tau]))
+
+    def attachments(v):
+        x, wv, tv = v[: N * K], v[N * K : N * K + 3], v[N * K + 3 :]
+        C = _cayley(wv)
+        p = _centres(hand, x, st.a)
+        res = []
+        for i in range(N):
+            dphi = sum(x[i * K + k] - x0[i * K + k] for k in range(K))
+            rel = st.R.T @ (dphi * hinge[i] - wv)  # the pad's turn relative to the object (object frame)
+            target = C @ (st.R @ (cO[i] + r[i] * np.cross(rel, nO[i]))) + st.t + tv
+            res.extend(CONSTRAINT_SCALE * (p[i] - target))
+        return np.array(res)
+
+    prog.AddConstraint(attachments, np.zeros(3 * N), np.zeros(3 * N), np.concatenate([th, w, tau]))
+    prog.SetInitialGuess(th, x0)
+    prog.SetInitialGuess(w, np.zeros(3))
+    prog.SetInitialGuess(tau, np.zeros(3))
+    t_start = time.perf_counter()
+    result = IpoptSolver().Solve(prog)
+    elapsed = time.perf_counter() - t_start
+    if not result.is_success():
+        raise RollingSolveError(f"rolling: IPOPT found no equilibrium ({result.get_solution_result()})")
+    wv, tv = result.GetSolution(w), result.GetSolution(tau)
+    return RollingResult(result.GetSolution(th).reshape(N, K), _cayley(wv) @ st.R, st.t + tv, elapsed)
