@@ -40,7 +40,11 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   plant's state (its tendons' stretch under the commands, the object's normals from where
   the pads touch it, its mass and centre of mass): ``rolling_offset_deg`` (its angles at
   rest minus the plant's), ``rolling_one_step_error_mm`` / ``_deg``,
-  ``rolling_joint_motion_deg`` and the slopes ``joint_motion_slope_rolling``.
+  ``rolling_joint_motion_deg`` and the slopes ``joint_motion_slope_rolling``;
+- with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
+  and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
+  model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
+  experiment's common-mode squeezes to the random actions.
 
 The one-step and carried models start from the tendon stretch that holds the plant's angles
 in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
@@ -50,6 +54,7 @@ the commanded equilibrium uses the plant's own tendon state.
     python -m vlr_drake.physics.agreement --object apple --actions 40
     python -m vlr_drake.physics.agreement --object apple --direction -1 1 1 --step 0.5e-3 --actions 8
     python -m vlr_drake.physics.agreement --tendon-stiffness 20000 --span 0.3e-3 --window 0.8e-3
+    python -m vlr_drake.physics.agreement --object toy_block --actions 20 --squeeze --spring-profile 0.85 1 1.15
 
 Measured with it (apple, seed 0, 2000 N/m tendons): a thumb-vs-fingers pull (-1, 1, 1) moves
 the apple 10.8 mm per mm in the plant and 12.1 mm in the model; past ~1 mm the apple touches
@@ -84,6 +89,14 @@ one-step error is toy block 0.089 mm / 0.048 deg (Eq. 9: 0.162 / 0.277), apple 0
 (0.174 / 0.210), wine glass 0.137 / 0.064 (0.302 / 0.154) and gelatin box 0.138 / 0.039
 (0.111 / 0.155).
 
+Whether the spring shows (toy block, ``--squeeze --spring-profile 0.7 0.85 1 1.15 1.3``, 20
+actions, seed 0; sums of squares over 17 actions in units of 0.05 mm and 0.05 deg): the
+rolling reference 3121 / 352 / 45 / 168 / 365, Eq. 9 11320 / 2682 / 2275 / 2480 / 2736.
+To the rolling model the plant's own spring stands out (a likelihood of that width would
+put about 1% on it from these 17 actions); to Eq. 9 the springs from 0.85x to 1.3x are
+within 20% of each other. Without the squeezes the rolling model's profile is flat too
+(137 at 1x, 140 at 0.85x, 159 at 1.15x): the squeezes load the spring.
+
 ``--physics KEY=VALUE`` overrides a setting of the physics plant
 (:class:`vlr_drake.systems.physics_plant.PhysicsConfig`), e.g. ``gravity=0`` (no object
 weight, which the VLR lacks) or ``settle_object_speed=1e-4`` (a stricter settle test).
@@ -92,6 +105,7 @@ weight, which the VLR lacks) or ``settle_object_speed=1e-4`` (a stricter settle 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import time
 from pathlib import Path
@@ -103,7 +117,7 @@ from vlr_drake import kinematics, motion, observation
 from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, model_o
-from vlr_drake.identify import EXPLORATION
+from vlr_drake.identify import EXPLORATION, default_squeeze
 from vlr_drake.physics.statics import LOADS, commanded_offsets, plant_loads
 from vlr_drake.systems.physics_plant import PhysicsConfig
 
@@ -243,12 +257,21 @@ def run_agreement(
     direction=None,
     step: float = 0.5e-3,
     physics: PhysicsConfig | None = None,
+    spring_scales=None,
+    spring: tuple[int, int] | None = None,
+    squeeze: tuple[float, float] | None = None,
 ) -> dict:
     """Grasp ``object_name`` with the physics hand (``hand``: the Model O by default) and
     compare ``actions`` actions with Gamma's predictions (module docstring). Actions: random,
     uniform in +-``span`` per tendon within +-``window`` of the grasp (seeded), or, with
     ``direction`` (N,), ``step`` [m] times its unit vector each time (a sweep). ``physics``:
-    the plant's settings (default: PhysicsConfig())."""
+    the plant's settings (default: PhysicsConfig()). ``spring_scales``: a profile of one
+    spring, ``spring`` (finger, joint; default the first finger's last joint, the Model O's
+    thumb's distal spring): each action predicted again by the rolling reference and by
+    Eq. 9's commanded equilibria with the model's spring scaled by each factor
+    (``spring_profile``; the plant keeps its own). ``squeeze``: (squeeze, window) [m] of
+    common-mode pulls on top of the random actions, as the stiffness experiment's
+    (:func:`vlr_drake.identify.default_squeeze`); default none."""
     from vlr_drake.identify import Exploration, IdentifyOptions
     from vlr_drake.physics_identify import PhysicsAdapter
 
@@ -256,6 +279,7 @@ def run_agreement(
         raise ValueError(f"'actions' must be >= 1, got {actions}")
     spec = hand if hand is not None else model_o()
     h = spec.model()
+    profile = _profile_hands(spec, spring_scales, spring)
     if direction is not None:
         direction = np.asarray(direction, float).reshape(-1)
         if direction.shape != (h.N,) or not np.linalg.norm(direction) > 0:
@@ -265,8 +289,9 @@ def run_agreement(
     t_start = time.perf_counter()
     adapter = PhysicsAdapter(opts, spec, np.random.default_rng(seed), physics)
     adapter.start(pf.PriorConfig())
+    sq = {} if squeeze is None else {"squeeze": float(squeeze[0]), "squeeze_window": float(squeeze[1])}
     explore = Exploration(adapter.tendon_command(), h.tendon_range, opts.action_range, opts.window,
-                          np.random.default_rng(seed + 2))
+                          np.random.default_rng(seed + 2), **sq)
     truth = adapter.truth()
     R, t = _pose(adapter)
     carried = _ModelState(h, truth["theta"], truth["a"], R, t)  # lives through every action
@@ -291,8 +316,11 @@ def run_agreement(
         fixed = {"centre": truth["contacts"],
                  "touching": np.asarray(adapter.ph.output(adapter.root, "contacts_true"), float).reshape(h.N, 3)}
         # the rolling reference: the pads rolling and the weights, from the plant's state
+        com = _object_com(adapter)
         rolling_offset, rolling, rolling_motion = _rolling_prediction(
-            h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, _object_com(adapter))
+            h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com)
+        profiled = [(_rolling_prediction(hs, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com)[1],
+                     _settled_prediction(hs, truth, adapter.tendon_command(), dl, R, t)[1]) for hs in profile["hands"]]
         loads = with_loads = None
         if budget:  # the statics budget of the state the commanded equilibrium starts from
             loads = plant_loads(adapter.ph, adapter.root)
@@ -337,6 +365,13 @@ def run_agreement(
                "loads_mNm": None if loads is None else loads.as_dict(1e3),
                "commanded_offset_with_deg": None if with_loads is None else {
                    k: None if v is None else np.rad2deg(v).tolist() for k, v in with_loads.items()}}
+        if profile["hands"]:
+            row["spring_profile"] = {k: [] for k in ("rolling_mm", "rolling_deg", "eq9_mm", "eq9_deg")}
+            for preds in profiled:
+                for name, pred in zip(("rolling", "eq9"), preds, strict=True):
+                    err = (None, None) if pred is None else _pose_error(pred, R1, t1)
+                    row["spring_profile"][name + "_mm"].append(err[0])
+                    row["spring_profile"][name + "_deg"].append(err[1])
         for key, pred in (("settled_one_step_error", settled), ("settled_one_step_error_with_weights", settled_w),
                           ("rolling_one_step_error", rolling)):
             if pred is not None:
@@ -404,8 +439,59 @@ def run_agreement(
                                                    if r["rolling_offset_deg"] is not None]))
                                     if any(r["rolling_offset_deg"] is not None for r in rows) else None),
         "rolling_failures": sum(r["rolling_one_step_error_mm"] is None for r in rows),
+        "spring_profile": _profile_summary(rows, profile),
         "wall_s": time.perf_counter() - t_start,
     }
+
+
+#: Units of the spring profile's sum of squares: the rolling reference's one-step error on
+#: the toy block is about this much (docs/results.md, "The pads roll").
+PROFILE_UNITS = (0.05, 0.05)  # [mm], [deg]
+
+
+def _pose_error(pred, R1, t1) -> tuple[float, float]:
+    """(mm, deg) between a predicted pose (R, t) and the true one."""
+    dp, ang = observation.pose_error(pred[0][None], pred[1][None], R1[None], t1[None])
+    return float(dp[0] * 1e3), float(np.rad2deg(ang[0]))
+
+
+def _profile_hands(spec: HandSpec, scales, spring) -> dict:
+    """The hand models of a spring profile: ``spring`` (finger, joint) scaled by each of
+    ``scales`` (none: no profile). Bad input is named."""
+    if scales is None:
+        return {"scales": [], "hands": [], "spring": None}
+    scales = [float(x) for x in np.atleast_1d(np.asarray(scales, float))]
+    if not scales or not all(np.isfinite(x) and x > 0 for x in scales):
+        raise ValueError(f"'spring_scales' must be positive numbers, got {scales}")
+    fi, j = (0, len(spec.fingers[0].stiffness) - 1) if spring is None else (int(spring[0]), int(spring[1]))
+    if not (0 <= fi < len(spec.fingers) and 0 <= j < len(spec.fingers[fi].stiffness)):
+        raise ValueError(f"'spring' must name a finger and joint of the hand, got {spring}")
+    hands = []
+    for x in scales:
+        scaled = copy.deepcopy(spec)
+        k = list(scaled.fingers[fi].stiffness)
+        k[j] *= x
+        scaled.fingers[fi].stiffness = k
+        hands.append(scaled.validate().model())
+    return {"scales": scales, "hands": hands, "spring": [fi, j]}
+
+
+def _profile_summary(rows: list[dict], profile: dict) -> dict | None:
+    """Per scale, the median one-step errors of both models and the sum over the actions
+    (those where every scale solved for both) of (mm / 0.05)^2 + (deg / 0.05)^2."""
+    if not profile["hands"]:
+        return None
+    full = [r["spring_profile"] for r in rows
+            if all(x is not None for v in r["spring_profile"].values() for x in v)]
+    out = {"spring": profile["spring"], "scales": profile["scales"], "actions": len(full)}
+    for name in ("rolling", "eq9"):
+        mm = np.array([p[name + "_mm"] for p in full]).reshape(len(full), -1)
+        deg = np.array([p[name + "_deg"] for p in full]).reshape(len(full), -1)
+        out[name + "_mm_median"] = np.median(mm, axis=0).tolist() if full else None
+        out[name + "_deg_median"] = np.median(deg, axis=0).tolist() if full else None
+        out[name + "_sum_sq"] = (((mm / PROFILE_UNITS[0]) ** 2 + (deg / PROFILE_UNITS[1]) ** 2).sum(axis=0).tolist()
+                                 if full else None)
+    return out
 
 
 def _median(rows: list[dict], key: str) -> float | None:
@@ -459,6 +545,11 @@ def main(argv: list[str] | None = None) -> dict:
                     help="tendon stiffness of every finger [N/m] (default: the Model O spec's)")
     ap.add_argument("--physics", nargs="+", default=[], metavar="KEY=VALUE",
                     help="physics plant settings, e.g. gravity=0 settle_object_speed=1e-4")
+    ap.add_argument("--spring-profile", type=float, nargs="+", default=None, metavar="SCALE",
+                    help="predict each action again with the thumb's distal spring scaled by each factor, "
+                         "e.g. 0.85 1 1.15 (the rolling reference and Eq. 9)")
+    ap.add_argument("--squeeze", action="store_true",
+                    help="add the stiffness experiment's common-mode squeezes to the random actions")
     ap.add_argument("--json", default=None, help="write the result as JSON to this path")
     args = ap.parse_args(argv)
     check_output("--json", args.json)
@@ -471,8 +562,12 @@ def main(argv: list[str] | None = None) -> dict:
         for f in spec.fingers:
             f.tendon_stiffness = args.tendon_stiffness
         spec.validate()
+    if args.spring_profile is not None and not all(np.isfinite(x) and x > 0 for x in args.spring_profile):
+        ap.error(f"--spring-profile: the scales must be positive numbers, got {args.spring_profile}")
     r = run_agreement(args.object, hand=spec, actions=args.actions, seed=args.seed, span=args.span,
-                      window=args.window, direction=args.direction, step=args.step, physics=physics)
+                      window=args.window, direction=args.direction, step=args.step, physics=physics,
+                      spring_scales=args.spring_profile,
+                      squeeze=default_squeeze("physics", "stiffness") if args.squeeze else None)
     print(f"{r['object']}, {r['hand']}, tendons {r['tendon_stiffness']:.0f} N/m, {len(r['actions'])} actions")
     print(" k   true [mm]  one-step err [mm, deg]  predicted/true  carried err [mm]  other contacts")
     for k, row in enumerate(r["actions"]):
@@ -520,6 +615,17 @@ def main(argv: list[str] | None = None) -> dict:
           f"{num(r['rolling_one_step_error_mm_median'])} mm / {num(r['rolling_one_step_error_deg_median'])} deg (median), "
           f"angles at rest off the plant's by {num(r['rolling_offset_deg_mean'])} deg on average, "
           f"{r['rolling_failures']} failures")
+    sp = r["spring_profile"]
+    if sp is not None:
+        print(f"spring profile ({sp['actions']} actions; sum of squares in units of {PROFILE_UNITS[0]} mm and "
+              f"{PROFILE_UNITS[1]} deg): scale, rolling reference median mm / deg and sum, Eq. 9 median mm / deg and sum")
+        for k, x in enumerate(sp["scales"]):
+            if sp["rolling_sum_sq"] is None:
+                print(f"  x{x:g}: no action solved at every scale")
+                continue
+            print(f"  x{x:<5g} {sp['rolling_mm_median'][k]:.3f} / {sp['rolling_deg_median'][k]:.3f}  "
+                  f"{sp['rolling_sum_sq'][k]:8.0f}    {sp['eq9_mm_median'][k]:.3f} / {sp['eq9_deg_median'][k]:.3f}  "
+                  f"{sp['eq9_sum_sq'][k]:8.0f}")
     b = r["statics_budget"]
     if b is not None:
         print("statics budget: the plant's joint torques by load, mean over the actions [mN m] (Eq. 9 lacks "
