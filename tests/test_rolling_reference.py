@@ -86,3 +86,62 @@ def test_bad_input_is_named():
         solve_rolling(h, RollingState(**good), pad_radius=-1e-3)
     with pytest.raises(ValueError, match="'gravity' must be a finite"):
         solve_rolling(h, RollingState(**good), gravity=np.array([0.0, np.nan, 0.0]))
+
+
+def test_the_batched_rolling_solver_agrees_with_the_reference():
+    """vlr_drake.motion_rolling solves the same equilibrium for many hypotheses at once: on
+    six random grasps, poses, normals and actions, with the weights (gravity across the palm
+    too) and the pads rolling, it lands on IPOPT's angles and pose to round-off (measured
+    2e-10 rad) in a few Newton steps; without roll and weights it is the batched Eq. 9."""
+    from vlr_drake.motion_rolling import move_rolling
+
+    h = model_o().model()
+    rng = np.random.default_rng(0)
+    states, dls = [], []
+    for seed in range(6):
+        theta, a = _truth_grasp(h, np.random.default_rng(seed))
+        stretch = motion.equilibrium(h, theta[None], a=a[None]).stretch[0]
+        c = kinematics.contacts(h, theta[None], a[None])[0]
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        R *= np.sign(np.linalg.det(R))
+        states.append(RollingState(theta, a, R, c.mean(0) + rng.normal(0, 0.01, 3),
+                                   c - c.mean(0) + rng.normal(0, 0.003, (3, 3)), stretch, 0.05,
+                                   c.mean(0) + rng.normal(0, 0.005, 3)))
+        dls.append(rng.uniform(-0.5e-3, 0.5e-3, 3))
+    g = np.array([0.0, 3.0, -9.0])
+
+    def stack(name):
+        return np.array([getattr(s, name) for s in states])
+
+    moved = move_rolling(h, stack("theta"), stack("a"), stack("R"), stack("t"), stack("normals"), stack("stretch"),
+                         np.array(dls), gravity=g, object_mass=stack("object_mass"), com=stack("com"))
+    assert moved.ok.all() and moved.iterations <= 12
+    for k, (state, dl) in enumerate(zip(states, dls, strict=True)):
+        ref = solve_rolling(h, state, dl, gravity=g)
+        assert np.abs(ref.theta - state.theta).max() > 0.05  # the weights and the roll move these grasps
+        np.testing.assert_allclose(moved.theta[k], ref.theta, atol=1e-8)
+        np.testing.assert_allclose(moved.R[k], ref.R, atol=1e-8)
+        np.testing.assert_allclose(moved.t[k], ref.t, atol=1e-10)
+    # no roll, no weights: Eq. 9. (Grasp 2 is left out: its equilibrium is nearly neutral,
+    # and Gamma, IPOPT's Eq. 9 and this solver land 1e-4 rad apart there.)
+    keep = [0, 1, 3, 4, 5]
+    theta, a = stack("theta")[keep], stack("a")[keep]
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta, a))
+    gamma = motion.move(h, theta, np.array(dls)[keep], a=a, D2=D2, stretch=stack("stretch")[keep])
+    pinned = move_rolling(h, theta, a, stack("R")[keep], stack("t")[keep], stack("normals")[keep],
+                          stack("stretch")[keep], np.array(dls)[keep], pad_radius=0.0)
+    assert gamma.ok.all() and pinned.ok.all()
+    np.testing.assert_allclose(pinned.theta, gamma.theta, atol=1e-8)
+    # per-hypothesis springs: each hypothesis moves as a hand with its own spring would
+    stiff = model_o()
+    stiff.fingers[0].stiffness = [0.08, 0.24]
+    hs = stiff.model()
+    k = np.broadcast_to(h.stiffness, (6, 3, 2)).copy()
+    k[1] = hs.stiffness
+    mixed = move_rolling(h, stack("theta"), stack("a"), stack("R"), stack("t"), stack("normals"), stack("stretch"),
+                         np.array(dls), gravity=g, object_mass=stack("object_mass"), com=stack("com"), stiffness=k)
+    np.testing.assert_allclose(mixed.theta[0], moved.theta[0], atol=1e-10)
+    np.testing.assert_allclose(mixed.theta[1], solve_rolling(hs, states[1], dls[1], gravity=g).theta, atol=1e-8)
+    assert np.abs(mixed.theta[1] - moved.theta[1]).max() > 1e-3
+    with pytest.raises(ValueError, match="'theta' must have shape"):
+        move_rolling(h, theta[:, :2], a, stack("R"), stack("t"), stack("normals"), stack("stretch"))
