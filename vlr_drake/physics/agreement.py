@@ -331,11 +331,8 @@ def run_agreement(
         R1, t1 = _pose(adapter)
         true_motion = adapter.truth()["theta"] - truth["theta"]
         X_links1 = _last_link_poses(adapter)
-        kinematic = {}
-        for name, points in fixed.items():
-            dp, ang = observation.pose_error(*(x[None] for x in _kinematic_prediction(points, X_links, X_links1, R, t)),
-                                             R1[None], t1[None])
-            kinematic[name] = (float(dp[0] * 1e3), float(np.rad2deg(ang[0])))
+        kinematic = {name: _pose_error(_kinematic_prediction(points, X_links, X_links1, R, t), R1, t1)
+                     for name, points in fixed.items()}
         truth = adapter.truth()
         row = {"action_mm": (dl * 1e3).tolist(), "true_motion_mm": float(np.linalg.norm(t1 - t) * 1e3),
                "true_rotation_deg": float(np.rad2deg(observation.rotation_angle(R1[None], R[None])[0])),
@@ -375,8 +372,7 @@ def run_agreement(
         for key, pred in (("settled_one_step_error", settled), ("settled_one_step_error_with_weights", settled_w),
                           ("rolling_one_step_error", rolling)):
             if pred is not None:
-                dp, ang = observation.pose_error(pred[0][None], pred[1][None], R1[None], t1[None])
-                row.update({key + "_mm": float(dp[0] * 1e3), key + "_deg": float(np.rad2deg(ang[0]))})
+                row[key + "_mm"], row[key + "_deg"] = _pose_error(pred, R1, t1)
         if one_ok:
             Rp, tp = one.pose()
             dp, ang = observation.pose_error(Rp[None], tp[None], R1[None], t1[None])
