@@ -12,7 +12,8 @@ attachment multipliers; Newton steps on the Lagrangian's stationarity and the at
 with H the Lagrangian's Hessian: the springs, the tendons, the links' potential, the
 object's potential, the pads' forward kinematics' curvature and the Cayley rotation's. The
 Cayley rotation's first and second derivatives are taken by complex steps (exact to
-round-off) and central differences of those (1e-10); everything else is analytic.
+round-off) and central differences of those (1e-10); the pads' kinematics are Gamma's
+compiled kernel; everything else is analytic.
 
 It is not yet Gamma: the filter still moves its hypotheses with Eq. 9
 (:func:`vlr_drake.motion.move`). This is the batched solver a rolling Gamma would use, held
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
 __all__ = ["RollingMove", "move_rolling"]
@@ -79,26 +81,14 @@ def _cayley_derivatives(w, h=1e-20, d=1e-6):
 
 def _kinematics(hand: HandModel, theta, a):
     """Pads' centres (P, N, 3), their Jacobians dp_i/dtheta_ij (P, N, K, 3) and second
-    derivatives d2p_i/dtheta_ij dtheta_ik (P, N, K, K, 3), in the palm frame."""
-    N, K = hand.N, hand.K
-    phi = np.cumsum(theta, axis=-1)  # (P, N, K)
-    u = hand.u[None, :, None, :]
-    z = np.array([0.0, 0.0, 1.0])
-    e = np.sin(phi)[..., None] * u + np.cos(phi)[..., None] * z  # (P, N, K, 3) link directions
-    n = np.cos(phi)[..., None] * u - np.sin(phi)[..., None] * z  # de/dphi
-    lengths = np.concatenate([np.broadcast_to(hand.link_lengths[None], theta.shape[:1] + (N, K - 1)),
-                              a[..., None]], axis=-1)  # the last "link" reaches the pad along the link
-    off = np.zeros(theta.shape)
-    off[..., -1] = hand.pad[None]
-    seg = lengths[..., None] * e + off[..., None] * n  # each link's contribution
-    dseg = lengths[..., None] * n - off[..., None] * e  # d/dphi_k
-    d2seg = -seg
-    p = hand.base[None] + seg.sum(axis=2)
-    # dp/dtheta_j = sum_{k >= j} dseg_k ; d2p/dtheta_j dtheta_l = sum_{k >= max(j, l)} d2seg_k
-    tail1 = np.cumsum(dseg[:, :, ::-1], axis=2)[:, :, ::-1]
-    tail2 = np.cumsum(d2seg[:, :, ::-1], axis=2)[:, :, ::-1]
-    idx = np.maximum.outer(np.arange(K), np.arange(K))
-    return p, tail1, tail2[:, :, idx]
+    derivatives d2p_i/dtheta_ij dtheta_ik (P, N, K, K, 3), in the palm frame: the batched
+    Gamma's compiled kernel (:func:`vlr_drake.motion._fk_all`), particles first."""
+    P, N, K = theta.shape
+    L = np.broadcast_to(hand.link_lengths[..., None], (N, K - 1, P))
+    Pc, Jc, Hc = np.empty((N, 3, P)), np.empty((N, 3, K, P)), np.empty((N, 3, K, K, P))
+    motion._fk_all(np.ascontiguousarray(np.moveaxis(theta, 0, -1)), np.ascontiguousarray(L),
+                   np.ascontiguousarray(a.T), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
+    return np.moveaxis(Pc, -1, 0), np.moveaxis(Jc, (-1, 1), (0, -1)), np.moveaxis(Hc, (-1, 1), (0, -1))
 
 
 def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gravity=None, object_mass=None,

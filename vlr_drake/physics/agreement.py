@@ -329,11 +329,12 @@ def run_agreement(
         adapter.act(dl, timing)
         explore.commit(dl)
         R1, t1 = _pose(adapter)
-        true_motion = adapter.truth()["theta"] - truth["theta"]
+        truth_after = adapter.truth()
+        true_motion = truth_after["theta"] - truth["theta"]
         X_links1 = _last_link_poses(adapter)
         kinematic = {name: _pose_error(_kinematic_prediction(points, X_links, X_links1, R, t), R1, t1)
                      for name, points in fixed.items()}
-        truth = adapter.truth()
+        truth = truth_after
         row = {"action_mm": (dl * 1e3).tolist(), "true_motion_mm": float(np.linalg.norm(t1 - t) * 1e3),
                "true_rotation_deg": float(np.rad2deg(observation.rotation_angle(R1[None], R[None])[0])),
                "other_contacts": _other_contacts(adapter),
