@@ -30,6 +30,11 @@ One iteration (one action dl and one camera measurement of the POM):
    predicted POM pose towards the measured one (holding it fixed for ever makes the filter
    overconfident; DESIGN.md section 3).
 
+With ``FilterConfig.motion_model = "rolling"`` steps 1-2 are one solve instead
+(:func:`vlr_drake.motion_rolling.move_rolling`): the pads roll over the object, whose pose
+is an unknown of the equilibrium, under the links' and the object's weight, and each
+hypothesis carries the object's normals at its contacts and its centre of mass as well.
+
 The estimate is the weighted mean of the cloud (weights carry over between resamplings);
 the 95% interval of a quantity is its weighted 2.5-97.5 percentile range. The filter has converged when the average over
 joint angles of the 95% interval (half-width by default; full width selectable) is below
@@ -49,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from vlr_drake import kinematics, motion, observation
+from vlr_drake import kinematics, motion, motion_rolling, observation
 from vlr_drake.hand import HandModel, HandSpec
 from vlr_drake.kinematics import as_particles
 
@@ -555,6 +560,19 @@ class PriorConfig:
     # weightless).
     object_mass_unknown: bool = False
     object_mass_range: tuple[float, float] = (0.0, 0.25)
+    # With FilterConfig.motion_model "rolling", the object's weight acts at its centre of
+    # mass, fixed in the object's frame (ParticleSet.com_O), drawn as ``com_prior`` says:
+    # "contacts", at the barycentre of the contacts with the shares above (anywhere in their
+    # triangle), moved along the normal of the contacts' plane by up to ``com_half_width``
+    # (the centre of mass need not lie in that plane); or "balanced", uniformly within a
+    # ball of radius ``com_half_width`` around the contacts' balanced barycentre, whose
+    # shares balance the fingers' closing directions (sum_i w_i u_i = 0: on the Model O half
+    # at the thumb, a quarter at each finger): an object held near its centre of mass.
+    # The rolling model's spring trades off against the centre of mass (on the toy block a
+    # stiffer thumb spring by about 1.4% per mm towards the fingers), and the contacts'
+    # shares put it 11 mm towards the fingers on average (docs/results.md).
+    com_prior: str = "contacts"
+    com_half_width: float = 0.02
     # Contact positions must stay on the pad: [min, max] along the last link [m], the same
     # for every finger and within each finger's last link. None: from CONTACT_MIN to each
     # finger's own last-link length (HandModel.distal_length), so a shorter novel distal
@@ -648,6 +666,10 @@ class PriorConfig:
             lo, hi = self.object_mass_range
             if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
                 raise ValueError(f"prior: 'object_mass_range' must be 0 <= min < max [kg], got {self.object_mass_range}")
+        if self.com_prior not in COM_PRIORS:
+            raise ValueError(f"prior: 'com_prior' must be one of {COM_PRIORS}, got '{self.com_prior}'")
+        if not (np.isfinite(self.com_half_width) and self.com_half_width >= 0):
+            raise ValueError(f"prior: 'com_half_width' must be a finite distance >= 0 [m], got {self.com_half_width}")
         return self
 
     def contact_bounds(self, hand: HandModel) -> tuple[np.ndarray, np.ndarray]:
@@ -677,6 +699,8 @@ class PriorConfig:
         return np.full(hand.N, lim[0]), np.full(hand.N, lim[1])
 
 
+#: Where the rolling model's centre of mass is drawn (PriorConfig.com_prior).
+COM_PRIORS = ("contacts", "balanced")
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
 STIFFNESS_PRIORS = ("log_uniform", "uniform")
 #: What a held hypothesis predicts (FilterConfig.held_motion).
@@ -692,6 +716,8 @@ LIKELIHOODS = ("gaussian", "student_t")
 
 #: Where the filter asks a hypothesis' equilibrium to be stable (FilterConfig.stable_grasps).
 STABLE_GRASPS = ("off", "prior", "always")
+#: How a move carries the hypotheses (FilterConfig.motion_model).
+MOTION_MODELS = ("pinned", "rolling")
 
 
 @dataclass
@@ -891,6 +917,21 @@ class FilterConfig:
     # result (an unstable one weighs nothing, as an unsolved one); "prior", the draws only;
     # "off", neither (the behaviour before 2026-11-27, twenty-third session).
     stable_grasps: str = "off"
+    # The motion model of a move (Gamma and Lambda): "pinned" (default), the paper's Eq. 8-9,
+    # each pad's centre pinned to the object (the object's pose follows from the contacts,
+    # Lambda); or "rolling" (vlr_drake.motion_rolling.move_rolling): the pads roll over the
+    # object, whose pose is an unknown of the equilibrium, with the links' weight and, with
+    # PriorConfig.object_mass_unknown, the object's weight at its centre of mass following
+    # the angles. Each hypothesis then carries the object's outward normals at its contacts
+    # (drawn within ``normal_cone_deg`` of a guess from its contacts' centroid, fixed in the
+    # object's frame, roughened with the rest) and its centre of mass. Started from the
+    # physics plant's true state the rolling model predicts the toy block's motion five times
+    # better than Eq. 9 (the agreement command's rolling_* fields). It needs the elastic
+    # tendon, and does not check stability (stable_grasps "always") or hold moves
+    # elastically (held_motion "elastic"), and takes its tendons' stretch from the motors'
+    # command (tendon_reference "commanded"). About 20 times slower than "pinned" (plain numpy).
+    motion_model: str = "pinned"
+    normal_cone_deg: float = 20.0
 
     def validate(self) -> FilterConfig:
         if not kinematics.is_count(self.particles, 10):
@@ -961,6 +1002,17 @@ class FilterConfig:
         g = np.asarray(self.gravity_palm, float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got {list(self.gravity_palm)}")
+        if self.motion_model not in MOTION_MODELS:
+            raise ValueError(f"filter: 'motion_model' must be one of {MOTION_MODELS}, got '{self.motion_model}'")
+        if not (kinematics.is_number(self.normal_cone_deg) and 0 <= self.normal_cone_deg < 90):
+            raise ValueError(f"filter: 'normal_cone_deg' must be in [0, 90) [deg], got {self.normal_cone_deg!r}")
+        if self.motion_model == "rolling":
+            for name, bad, why in (("tendon", "ideal", "the rolling model has the elastic tendon only"),
+                                   ("tendon_reference", "implied", "the implied stretch would be Eq. 9's equilibrium"),
+                                   ("stable_grasps", "always", "the rolling model does not check stability"),
+                                   ("held_motion", "elastic", "the rolling model holds failed moves still")):
+                if getattr(self, name) == bad:
+                    raise ValueError(f"filter: motion_model 'rolling' does not take {name} '{bad}': {why}")
         return self
 
     def sigmas(self) -> tuple[float, float]:
@@ -988,6 +1040,11 @@ class ParticleSet:
     # The object's weight carried at each contact, as a mass [kg] (M, N) (PriorConfig.
     # object_mass_unknown), or None: a weightless object (Eq. 9).
     object_load: np.ndarray | None = None
+    # FilterConfig.motion_model "rolling": the object's outward unit normals at the contacts
+    # (M, N, 3) and, with an unknown object weight, its centre of mass (M, 3), both in the POM
+    # frame; None otherwise.
+    normals_O: np.ndarray | None = None
+    com_O: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -1005,7 +1062,7 @@ class ParticleSet:
         return ParticleSet(
             rows(self.theta), rows(self.a), pick(self.stiffness), pick(self.link_lengths),
             rows(self.stretch), rows(self.p_O), np.zeros(len(idx)),
-            None if self.object_load is None else rows(self.object_load),
+            *(None if x is None else rows(x) for x in (self.object_load, self.normals_O, self.com_O)),
         )
 
 
@@ -1050,6 +1107,21 @@ CALIBRATED_PARTICLES = 3000
 #: truth (a review found a cloud re-initialised 23 times in 60 iterations around estimates
 #: 11-25 deg off, its box +-8.6 deg).
 REINIT_RECENT = 5
+
+
+def balanced_shares(hand: HandModel) -> np.ndarray:
+    """(N,) shares w >= 0, sum 1, nearest equal shares with sum_i w_i u_i = 0: the barycentre
+    of the contacts at which the fingers' closing directions u_i (in the palm's plane)
+    balance (PriorConfig.com_prior "balanced"; the Model O: 1/2 at the thumb, 1/4 at each
+    finger). Equal shares where no such balance exists (fingers that do not oppose)."""
+    N = hand.N
+    A = np.vstack([hand.u[:, :2].T, np.ones((1, N))])
+    b = np.array([0.0, 0.0, 1.0])
+    w0 = np.full(N, 1.0 / N)
+    w = w0 + np.linalg.lstsq(A, b - A @ w0, rcond=None)[0]  # the least change of w0 onto A w = b
+    if np.any(w < -1e-12) or np.abs(A @ w - b).max() > 1e-9:
+        return w0
+    return np.clip(w, 0.0, None) / np.clip(w, 0.0, None).sum()
 
 
 def _reflect_into(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -1142,7 +1214,10 @@ class SelfIdentificationFilter:
             stretch = self._commanded_stretch(theta)
         p = kinematics.contacts(h, theta, a, links)
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
-        self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load)
+        normals_O = com_O = None
+        if self.config.motion_model == "rolling":
+            normals_O, com_O = self._draw_object(p, p_O, R_PO, load)
+        self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load, normals_O, com_O)
         self._first_move = True  # the next move carries the prior's draws (first_move_substeps)
         self._theta_center, self._a_center = theta_center, a_center
         self.estimates.append(self.estimate())
@@ -1249,6 +1324,41 @@ class SelfIdentificationFilter:
         kw.pop("external_torque", None)
         return motion.stable_equilibria(self.hand, theta, multipliers, a=a, link_lengths=link_lengths,
                                         stiffness=stiffness, tendon=self.config.tendon, **kw)
+
+    def _draw_object(self, p, p_O, R_PO, load):
+        """The rolling model's object (FilterConfig.motion_model "rolling") for hypotheses with
+        contacts ``p`` (M, N, 3) (palm frame) and ``p_O`` (POM frame): the outward normals
+        at the contacts (M, N, 3), each drawn uniformly over the cone of ``normal_cone_deg``
+        around :func:`motion_rolling.guessed_normals`, and, with object loads (M, N), the
+        centre of mass (M, 3) at the contacts' barycentre with the loads' shares, moved along
+        the normal of the contacts' plane uniformly within ``PriorConfig.com_half_width``;
+        both in the POM frame."""
+        M, N = p.shape[:2]
+        guess = motion_rolling.guessed_normals(self.hand, p)
+        # a uniform draw on the spherical cap: cos(angle) uniform, the azimuth uniform
+        cos_c = np.cos(np.deg2rad(self.config.normal_cone_deg))
+        ang = np.arccos(self.rng.uniform(cos_c, 1.0, (M, N)))
+        az = self.rng.uniform(0.0, 2 * np.pi, (M, N))
+        hinge = np.cross(np.array([0.0, 0.0, 1.0]), self.hand.u)  # normal to each finger's plane,
+        e1 = np.broadcast_to(hinge / np.linalg.norm(hinge, axis=1, keepdims=True), guess.shape)  # where the guess lies
+        e2 = np.cross(guess, e1)
+        side = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
+        n_P = np.cos(ang)[..., None] * guess + np.sin(ang)[..., None] * side
+        normals_O = np.einsum("ji,pnj->pni", R_PO, n_P)
+        if load is None:
+            return normals_O, None
+        half = self.prior.com_half_width
+        if self.prior.com_prior == "balanced":
+            centre = np.einsum("n,pni->pi", balanced_shares(self.hand), p_O)
+            ball = self.rng.standard_normal((M, 3))
+            ball *= (half * self.rng.uniform(0, 1, (M, 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1, keepdims=True)
+            return normals_O, centre + ball
+        share = load / np.maximum(load.sum(axis=1, keepdims=True), 1e-300)
+        centre = np.einsum("pn,pni->pi", share, p_O)
+        if N >= 3:  # the normal of the contacts' (least-squares) plane
+            plane = np.linalg.svd(p_O - p_O.mean(axis=1, keepdims=True))[2][:, -1]
+            centre += half * self.rng.uniform(-1, 1, (M, 1)) * plane
+        return normals_O, centre
 
     def _draw_stiffness(self, n, center, scale):
         h, pr = self.hand, self.prior
@@ -1405,24 +1515,31 @@ class SelfIdentificationFilter:
             ps.stretch = self._commanded_stretch(ps.theta)
         if self.tendon_command is not None:
             self.tendon_command = self.tendon_command + dl
-        D2 = motion.contact_distances_sq(h, ps.p_O)
-        if cfg.motion_error > 0:  # each particle's POM pose before the move
-            R_prev, t_prev, _ = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a, ps.link_lengths))
+        rolling = cfg.motion_model == "rolling"
+        if cfg.motion_error > 0 or rolling:  # each particle's POM pose before the move
+            R_prev, t_prev, prev_ok = observation.pom_pose(ps.p_O, kinematics.contacts(h, ps.theta, ps.a,
+                                                                                       ps.link_lengths))
         else:
             R_prev = t_prev = None
         substeps = cfg.max_substeps
         if self._first_move and cfg.first_move_substeps is not None:  # the prior's draws settle
             substeps = cfg.first_move_substeps
         self._first_move = False
-        res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
-                          stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=substeps,
-                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
-                          check_stability=self._check_moves(),
-                          **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
-        if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
-            res = self._move_held(res, dl, D2, substeps)
-        p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
-        R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
+        if rolling:
+            res, R_pred, t_pred = self._move_rolling(dl, R_prev, t_prev)
+            p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
+            pose_ok = prev_ok & np.all(np.isfinite(t_pred), axis=1)
+        else:
+            D2 = motion.contact_distances_sq(h, ps.p_O)
+            res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
+                              stiffness=ps.stiffness, tendon=cfg.tendon, max_substeps=substeps,
+                              tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
+                              check_stability=self._check_moves(),
+                              **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
+            if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
+                res = self._move_held(res, dl, D2, substeps)
+            p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
+            R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = self._feasible(res, pose_ok)
         ps.theta, ps.stretch = res.theta, res.stretch
         lap("move")
@@ -1475,6 +1592,34 @@ class SelfIdentificationFilter:
         self.particles = new
         lap("resample")
         return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
+
+    def _move_rolling(self, dl, R_prev, t_prev):
+        """Move every hypothesis with the rolling model (``motion_model`` "rolling";
+        :func:`motion_rolling.move_rolling`) from its POM pose before the move (R_prev,
+        t_prev): (a :class:`motion.MoveResult`, the predicted POM poses R (M, 3, 3), t (M,
+        3)). A hypothesis whose Newton did not converge keeps its angles and pose, as the
+        pinned model's failures do (held where it was with a ``stuck_probability``,
+        discarded without one)."""
+        cfg, h, ps = self.config, self.hand, self.particles
+        M = ps.size
+        g = np.asarray(cfg.gravity_palm, float)
+        mass = com = None
+        if ps.com_O is not None:
+            mass = ps.object_load.sum(axis=1)
+            com = np.einsum("pij,pj->pi", R_prev, ps.com_O) + t_prev
+        mv = motion_rolling.move_rolling(
+            h, ps.theta, ps.a, R_prev, t_prev, np.einsum("pij,pnj->pni", R_prev, ps.normals_O), ps.stretch, dl=dl,
+            gravity=g if np.any(g) else None, object_mass=mass, com=com, stiffness=ps.stiffness,
+            link_lengths=ps.link_lengths)
+        ok = mv.ok
+        theta = np.where(ok[:, None, None], mv.theta, ps.theta)
+        stretch = np.where(ok[:, None], mv.stretch, ps.stretch + dl)
+        R = np.where(ok[:, None, None], mv.R, R_prev)
+        t = np.where(ok[:, None], mv.t, t_prev)
+        res = motion.MoveResult(theta=theta, stretch=stretch, tension=h.kappa[None] * stretch,
+                                multipliers=np.zeros((M, 0)), ok=ok, iterations=np.full(M, mv.iterations),
+                                residuals=np.zeros((M, 3)), stable=ok.copy())
+        return res, R, t
 
     def _move_held(self, res: motion.MoveResult, dl, D2, substeps: int) -> motion.MoveResult:
         """``held_motion = "elastic"``: each hypothesis whose move under the commanded tendon
@@ -1537,6 +1682,10 @@ class SelfIdentificationFilter:
             cols.append(ps.link_lengths[:, fi, 0][:, None])
         if ps.object_load is not None:
             cols.append(ps.object_load)
+        if ps.normals_O is not None:
+            cols.append(ps.normals_O.reshape(ps.size, -1))
+        if ps.com_O is not None:
+            cols.append(ps.com_O)
         return np.concatenate(cols, axis=1)
 
     def _set_unknowns(self, ps: ParticleSet, x: np.ndarray) -> None:
@@ -1565,6 +1714,13 @@ class SelfIdentificationFilter:
             load *= fix[:, None]
             load[mass <= 0] = lo / h.N
             ps.object_load = load
+            c += h.N
+        if ps.normals_O is not None:  # roughened as vectors, back on the unit sphere
+            n = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
+            ps.normals_O = n / np.linalg.norm(n, axis=-1, keepdims=True)
+            c += 3 * h.N
+        if ps.com_O is not None:
+            ps.com_O = x[:, c : c + 3].copy()
 
     def _roughen(self, ps: ParticleSet) -> None:
         """Liu-West kernel shrinkage with the cloud's full covariance, then each hypothesis'
@@ -1679,6 +1835,12 @@ class SelfIdentificationFilter:
             out[name] = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
             lo, hi = interval95(x, w) if x.shape[0] > 1 else (x[0], x[0])
             out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
+        if ps.normals_O is not None:  # the rolling model's object (POM frame): mean direction, centre of mass
+            n = np.tensordot(w, ps.normals_O, axes=1)
+            out["normals_O"] = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        if ps.com_O is not None:
+            out["object_com_O"] = np.tensordot(w, ps.com_O, axes=1)
+            out["object_com_O_lo"], out["object_com_O_hi"] = interval95(ps.com_O, w)
         out["theta_full_width"] = (out["theta_hi"] - out["theta_lo"]).ravel()
         out["theta_half_width"] = 0.5 * out["theta_full_width"]
         out["contacts"] = kinematics.contacts(self.hand, out["theta"][None], out["a"][None],

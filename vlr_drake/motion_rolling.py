@@ -29,7 +29,7 @@ import numpy as np
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["RollingMove", "move_rolling"]
+__all__ = ["RollingMove", "move_rolling", "guessed_normals"]
 
 #: Newton's stopping tolerances: stationarity [N m, N] and attachments [m].
 GRAD_TOL = 1e-10
@@ -45,6 +45,8 @@ class RollingMove:
     t: np.ndarray  # (P, 3)
     ok: np.ndarray  # (P,) converged
     iterations: int
+    stretch: np.ndarray  # (P, N) the tendons' stretch after the move [m]
+    tension: np.ndarray  # (P, N) their tension kappa * stretch [N]
 
 
 def _cayley(w):
@@ -79,27 +81,52 @@ def _cayley_derivatives(w, h=1e-20, d=1e-6):
     return _cayley(w), dC, d2C
 
 
-def _kinematics(hand: HandModel, theta, a):
+def _kinematics(hand: HandModel, theta, a, link_lengths):
     """Pads' centres (P, N, 3), their Jacobians dp_i/dtheta_ij (P, N, K, 3) and second
-    derivatives d2p_i/dtheta_ij dtheta_ik (P, N, K, K, 3), in the palm frame: the batched
-    Gamma's compiled kernel (:func:`vlr_drake.motion._fk_all`), particles first."""
+    derivatives d2p_i/dtheta_ij dtheta_ik (P, N, K, K, 3), in the palm frame, for link
+    lengths (P or 1, N, K-1): the batched Gamma's compiled kernel
+    (:func:`vlr_drake.motion._fk_all`), particles first."""
     P, N, K = theta.shape
-    L = np.broadcast_to(hand.link_lengths[..., None], (N, K - 1, P))
+    L = np.broadcast_to(np.moveaxis(link_lengths, 0, -1), (N, K - 1, P))
     Pc, Jc, Hc = np.empty((N, 3, P)), np.empty((N, 3, K, P)), np.empty((N, 3, K, K, P))
     motion._fk_all(np.ascontiguousarray(np.moveaxis(theta, 0, -1)), np.ascontiguousarray(L),
                    np.ascontiguousarray(a.T), hand.pad, hand.base, hand.u, Pc, Jc, Hc)
     return np.moveaxis(Pc, -1, 0), np.moveaxis(Jc, (-1, 1), (0, -1)), np.moveaxis(Hc, (-1, 1), (0, -1))
 
 
+def guessed_normals(hand: HandModel, p) -> np.ndarray:
+    """A guess (P, N, 3) of the object's outward unit normals at the contacts ``p`` (P, N, 3)
+    (palm frame): each contact's direction from the contacts' centroid, in its finger's
+    flexion plane (the component along the finger's hinge axis z x u_i removed). On the
+    physics plant's toy block it is 0.2 deg from the block's face normals at the true grasp;
+    a filter draws its hypotheses' normals around it once and keeps them fixed in the
+    object's frame (re-guessed at every step from each hypothesis' own contacts, it turns
+    the normals with the hypothesis' error, which made the filter worse: docs/results.md)."""
+    p = np.asarray(p, float)
+    if p.ndim != 3 or p.shape[1:] != (hand.N, 3):
+        raise ValueError(f"guessed_normals: 'p' must have shape (P, {hand.N}, 3), got {p.shape}")
+    d = p - p.mean(axis=1, keepdims=True)
+    hinge = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)
+    hinge /= np.linalg.norm(hinge, axis=1, keepdims=True)
+    d -= np.einsum("pni,ni->pn", d, hinge)[..., None] * hinge[None]
+    n = np.linalg.norm(d, axis=-1, keepdims=True)
+    if not np.all(n > 1e-9):
+        raise ValueError("guessed_normals: a contact sits at the contacts' centroid (within its finger's plane); "
+                         "no outward direction to guess from")
+    return d / n
+
+
 def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gravity=None, object_mass=None,
-                 com=None, pad_radius=None, stiffness=None, max_iter: int = 50) -> RollingMove:
+                 com=None, pad_radius=None, stiffness=None, link_lengths=None, max_iter: int = 50) -> RollingMove:
     """The rolling equilibrium of each of P hypotheses after the action ``dl``.
 
     theta (P, N, K), a (P, N), R (P, 3, 3) and t (P, 3) the object's pose, normals (P, N, 3)
     the object's outward normals at the contacts (palm frame), stretch (P, N); ``dl`` (N,)
     or (P, N) (default none); ``gravity`` (3,) [m/s^2] (None: no weights); object_mass (P,)
     [kg] and com (P, 3) (palm frame) with gravity; ``pad_radius`` (N,) (default the hand's);
-    ``stiffness`` (P or 1, N, K) per-hypothesis springs (default the hand's). Newton starts
+    ``stiffness`` (P or 1, N, K) per-hypothesis springs and ``link_lengths`` (P or 1, N,
+    K-1) per-hypothesis links (default the hand's; the links' masses follow their lengths,
+    :meth:`HandModel.link_moments`). Newton starts
     at the hypotheses' own angles and pose; ``ok`` is False where it has not converged in
     ``max_iter`` steps (about 1% of hypotheses drawn 0.02 rad and 2 mm around a grasp, which
     wander off by 10-40 deg)."""
@@ -118,8 +145,12 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     k = np.broadcast_to(hand.stiffness if stiffness is None else np.asarray(stiffness, float), (P, N, K)).copy()
     mass = np.zeros(P) if object_mass is None else np.broadcast_to(np.asarray(object_mass, float), (P,)).copy()
+    L = hand.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
+    if L.ndim != 3 or L.shape[0] not in (1, P) or L.shape[1:] != (N, K - 1):
+        raise ValueError(f"move_rolling: 'link_lengths' must have shape (1 or {P}, {N}, {K - 1}), got {L.shape}")
+    L = np.broadcast_to(L, (P, N, K - 1))
     RT = np.swapaxes(R, 1, 2)
-    p0, _, _ = _kinematics(hand, theta, a)
+    p0, _, _ = _kinematics(hand, theta, a, L)
     cO = np.einsum("pij,pnj->pni", RT, p0 - t[:, None])  # centres in the object frame
     nO = np.einsum("pij,pnj->pni", RT, nrm)
     comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, np.asarray(com, float) - t)
@@ -135,7 +166,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     Sn = skew(nO)  # (P, N, 3, 3)
     B = r[None, :, None, None] * np.einsum("pnij,pjk->pnik", Sn, RT)  # dv_i/dw (P, N, 3, 3)
     b = -np.einsum("pnij,nj->pni", B, hinge)  # dv_i/dtheta_ik (P, N, 3), every k of finger i
-    mu = hand.link_moments()[0] if gravity is not None else np.zeros((N, K))
+    mu = np.broadcast_to(hand.link_moments(L) if gravity is not None else np.zeros((1, N, K)), (P, N, K))
     g_u, g_z = hand.gravity_in_finger_planes(g).T
     nx, m = N * K + 6, 3 * N
     x_theta, w, tau = theta.copy(), np.zeros((P, 3)), np.zeros((P, 3))
@@ -149,7 +180,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
             break
         iterations += 1
         rx, rg, KKT = _kkt(hand, act, x_theta, w, tau, lam, theta, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO,
-                           g, mu, g_u, g_z, idx_max, k)
+                           g, mu, g_u, g_z, idx_max, k, L)
         done = (np.abs(rx).max(axis=1) < GRAD_TOL) & (np.abs(rg).max(axis=1) < ATTACH_TOL)
         ok[act[done]] = True
         act, rx, rg, KKT = act[~done], rx[~done], rg[~done], KKT[~done]
@@ -168,20 +199,22 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
         tau[act] += scale * dx[:, N * K + 3:]
         lam[act] += scale * step[:, nx:]
     C = _cayley(w)
-    return RollingMove(x_theta, C @ R, t + tau, ok & np.all(np.isfinite(x_theta.reshape(P, -1)), axis=1), iterations)
+    ok &= np.all(np.isfinite(x_theta.reshape(P, -1)), axis=1) & np.all(np.isfinite(w), axis=1)
+    s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
+    return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new)
 
 
 def _kkt(hand, act, x_theta, w, tau, lam, theta, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z,
-         idx_max, k):
+         idx_max, k, L):
     """Residuals (stationarity (A, nx), attachments (A, 3N)) and KKT matrices (A, nx + 3N,
     nx + 3N) of the particles ``act`` (module docstring)."""
     N, K = hand.N, hand.K
     nx, m = N * K + 6, 3 * N
     x_theta, w, tau, lam = x_theta[act], w[act], tau[act], lam[act]
     theta, a, R, t, cO, B, b = theta[act], a[act], R[act], t[act], cO[act], B[act], b[act]
-    stretch, dl, mass, comO, k = stretch[act], dl[act], mass[act], comO[act], k[act]
+    stretch, dl, mass, comO, k, mu, L = stretch[act], dl[act], mass[act], comO[act], k[act], mu[act], L[act]
     A = act.size
-    p, J1, J2 = _kinematics(hand, x_theta, a)
+    p, J1, J2 = _kinematics(hand, x_theta, a, L)
     C, dC, d2C = _cayley_derivatives(w)
     dphi = (x_theta - theta).sum(axis=-1)  # (A, N)
     v = cO - np.einsum("pnij,pnj->pni", B, dphi[..., None] * hinge[None] - w[:, None])
@@ -199,11 +232,11 @@ def _kkt(hand, act, x_theta, w, tau, lam, theta, a, R, t, cO, B, b, hinge, stret
     grad = np.zeros((A, nx))
     H = np.zeros((A, nx, nx))
     phi = np.cumsum(x_theta, axis=-1)
-    per = mu[None] * (g_u[None, :, None] * np.cos(phi) - g_z[None, :, None] * np.sin(phi))
+    per = mu * (g_u[None, :, None] * np.cos(phi) - g_z[None, :, None] * np.sin(phi))
     link_torque = np.cumsum(per[..., ::-1], axis=-1)[..., ::-1]
     grad[:, : N * K] = (k * (x_theta - hand.rest_angles)
                         - hand.kappa[None, :, None] * s_new[..., None] * hand.moment_arms[None] - link_torque).reshape(A, -1)
-    curv = mu[None] * (g_u[None, :, None] * np.sin(phi) + g_z[None, :, None] * np.cos(phi))
+    curv = mu * (g_u[None, :, None] * np.sin(phi) + g_z[None, :, None] * np.cos(phi))
     tailc = np.cumsum(curv[..., ::-1], axis=-1)[..., ::-1]  # sum over l >= j
     lam3 = lam.reshape(A, N, 3)
     Rb = np.einsum("pij,pnj->pni", R, b)

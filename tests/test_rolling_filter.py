@@ -1,0 +1,167 @@
+"""The filter with the rolling motion model (FilterConfig.motion_model = "rolling")."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from vlr_drake import filter as pf
+from vlr_drake import kinematics, motion, observation
+from vlr_drake.hand import model_o
+from vlr_drake.identify import _truth_grasp
+from vlr_drake.motion_rolling import guessed_normals, move_rolling
+
+GRAVITY = np.array([0.0, 0.0, -9.81])  # palm up
+
+
+class RollingTruth:
+    """A hidden truth that moves as the rolling model says: a grasp, the object's pose, its
+    normals at the contacts (a few degrees off the filter's guess), its mass and centre of
+    mass, and the motors' tendon command."""
+
+    def __init__(self, seed: int):
+        rng = np.random.default_rng(seed)
+        self.hand = h = model_o().model()
+        self.theta, self.a = _truth_grasp(h, rng)
+        self.stretch = motion.equilibrium(h, self.theta[None], a=self.a[None]).stretch[0]
+        self.command = self.stretch + h.tendon_travel(self.theta)
+        self.R, self.t = np.eye(3), np.array([0.0, 0.0, 0.1])
+        p = kinematics.contacts(h, self.theta[None], self.a[None])[0]
+        guess = guessed_normals(h, p[None])[0]
+        tilt = np.deg2rad(rng.uniform(2.0, 6.0, h.N))  # tilted about each finger's own axis u_i
+        self.normals = np.cos(tilt)[:, None] * guess + np.sin(tilt)[:, None] * np.cross(h.u, guess)
+        self.mass, self.com = 0.06, p.mean(axis=0) + np.array([0.0, 0.0, 0.008])
+
+    def move(self, dl):
+        mv = move_rolling(self.hand, self.theta[None], self.a[None], self.R, self.t, self.normals[None],
+                          self.stretch[None], dl=dl, gravity=GRAVITY, object_mass=self.mass, com=self.com[None])
+        assert mv.ok[0]
+        dR, R1 = mv.R[0] @ self.R.T, mv.R[0]
+        self.com = dR @ (self.com - self.t) + mv.t[0]
+        self.normals = self.normals @ dR.T
+        self.theta, self.stretch, self.R, self.t = mv.theta[0], mv.stretch[0], R1, mv.t[0]
+        self.command = self.command + dl
+
+
+def _filter(particles, seed=0, com_prior="contacts"):
+    cfg = pf.FilterConfig(particles=particles, motion_model="rolling", gravity_palm=GRAVITY.tolist(),
+                          gravity_loads="following", sigma_position=0.1e-3, sigma_rotation=np.deg2rad(0.3))
+    prior = pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 0.15), proximal_half_width=0.08,
+                           distal_half_width=0.15, contact_half_width=0.005, com_prior=com_prior)
+    h = model_o().model()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pf.FewParticlesWarning)
+        return pf.SelfIdentificationFilter(h, cfg, prior, np.random.default_rng(seed))
+
+
+def test_bad_rolling_settings_are_named():
+    with pytest.raises(ValueError, match="motion_model"):
+        pf.FilterConfig(motion_model="sliding").validate()
+    with pytest.raises(ValueError, match="tendon 'ideal'"):
+        pf.FilterConfig(motion_model="rolling", tendon="ideal").validate()
+    with pytest.raises(ValueError, match="tendon_reference 'implied'"):
+        pf.FilterConfig(motion_model="rolling", tendon_reference="implied").validate()
+    with pytest.raises(ValueError, match="normal_cone_deg"):
+        pf.FilterConfig(motion_model="rolling", normal_cone_deg=95).validate()
+    with pytest.raises(ValueError, match="com_prior"):
+        pf.PriorConfig(com_prior="centroid").validate()
+    with pytest.raises(ValueError, match="com_half_width"):
+        pf.PriorConfig(com_half_width=-0.01).validate()
+    with pytest.raises(ValueError, match="centroid"):
+        guessed_normals(model_o().model(), np.zeros((1, 3, 3)))
+
+
+def test_the_hypotheses_draw_and_keep_their_object():
+    """Each hypothesis' normals lie in the cone around the guess from its contacts (uniform
+    on the cap: a quarter of them within half the cone's angle... about), its centre of mass
+    within the half-width of its contacts' plane; resampling and roughening keep both, and
+    the normals unit vectors."""
+    truth = RollingTruth(3)
+    f = _filter(2000)
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    p = kinematics.contacts(f.hand, ps.theta, ps.a)
+    guess = guessed_normals(f.hand, p)
+    n_P = np.einsum("ij,pnj->pni", truth.R, ps.normals_O)
+    angle = np.rad2deg(np.arccos(np.clip(np.einsum("pni,pni->pn", n_P, guess), -1, 1)))
+    assert angle.max() <= 20.0 + 1e-9 and angle.min() < 2.0
+    # uniform on the cap: P(angle < c/2) = (1 - cos(c/2)) / (1 - cos c), about 0.25 at 20 deg
+    share = np.mean(angle < 10.0)
+    assert abs(share - (1 - np.cos(np.deg2rad(10))) / (1 - np.cos(np.deg2rad(20)))) < 0.03
+    plane = np.linalg.svd(ps.p_O - ps.p_O.mean(axis=1, keepdims=True))[2][:, -1]
+    offset = np.einsum("pi,pi->p", ps.com_O - ps.p_O.mean(axis=1), plane)
+    assert np.abs(offset).max() <= f.prior.com_half_width + 1e-9 and np.abs(offset).max() > 0.015
+    est = f.estimate()
+    np.testing.assert_allclose(np.linalg.norm(est["normals_O"], axis=-1), 1.0)
+    assert np.all(est["object_com_O_lo"] <= est["object_com_O"]) and np.all(est["object_com_O"] <= est["object_com_O_hi"])
+    idx = np.array([3, 3, 7])
+    taken = ps.take(idx)
+    np.testing.assert_array_equal(taken.normals_O, ps.normals_O[idx])
+    np.testing.assert_array_equal(taken.com_O, ps.com_O[idx])
+    f._roughen(taken)
+    np.testing.assert_allclose(np.linalg.norm(taken.normals_O, axis=-1), 1.0, atol=1e-12)
+    assert not np.allclose(taken.com_O, ps.com_O[idx])
+
+
+def test_the_balanced_centre_of_mass():
+    """The "balanced" prior's centre: shares that balance the fingers' closing directions
+    (the Model O: half at the thumb, a quarter at each finger; equal shares where the
+    fingers do not oppose), and its draws uniform in a ball around it."""
+    h = model_o().model()
+    np.testing.assert_allclose(pf.balanced_shares(h), [0.5, 0.25, 0.25], atol=1e-12)
+    same_way = model_o().model()
+    same_way.u = np.tile([1.0, 0.0, 0.0], (3, 1))
+    np.testing.assert_allclose(pf.balanced_shares(same_way), [1 / 3] * 3)
+    truth = RollingTruth(3)
+    f = _filter(3000, com_prior="balanced")
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    r = np.linalg.norm(ps.com_O - np.einsum("n,pni->pi", [0.5, 0.25, 0.25], ps.p_O), axis=1)
+    half = f.prior.com_half_width
+    assert r.max() <= half + 1e-12
+    assert abs(np.mean(r < half / 2) - 1 / 8) < 0.025  # uniform in the ball: an eighth within half the radius
+
+
+def test_a_hypothesis_at_the_truth_predicts_the_truth():
+    """The filter's plumbing of the rolling model: hypotheses that are the truth (its grasp,
+    pose, normals, mass and centre of mass, expressed as the filter keeps them: contacts and
+    normals in the POM frame, the mass as loads) predict exactly the pose the truth moves to,
+    and move as it does."""
+    truth = RollingTruth(5)
+    f = _filter(10)
+    f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    h, M = f.hand, 10
+    p = kinematics.contacts(h, truth.theta[None], truth.a[None])
+    f.particles = pf.ParticleSet(
+        np.repeat(truth.theta[None], M, 0), np.repeat(truth.a[None], M, 0), h.stiffness[None], h.link_lengths[None],
+        np.repeat(truth.stretch[None], M, 0), np.repeat(observation.attach(p, truth.R[None], truth.t[None]), M, 0),
+        np.zeros(M), np.full((M, h.N), truth.mass / h.N), np.repeat((truth.normals @ truth.R)[None], M, 0),
+        np.repeat((truth.R.T @ (truth.com - truth.t))[None], M, 0))
+    for dl in ([0.6e-3, -0.4e-3, 0.3e-3], [-0.5e-3, 0.5e-3, 0.0]):
+        truth.move(np.array(dl))
+        rep = f.step(np.array(dl), truth.R, truth.t)
+        assert rep.solve_failures == 0 and rep.best_mahalanobis < 1e-4
+        np.testing.assert_allclose(f.estimate()["theta"], truth.theta, atol=1e-7)
+
+
+@pytest.mark.slow
+def test_the_rolling_filter_identifies_a_rolling_hand():
+    """Against a truth that moves as the rolling model says (measured with 0.05 mm / 0.15 deg
+    of noise), the rolling filter, which knows neither the grasp, the normals, the mass nor
+    the centre of mass, brings its proximal joints nearer than the prior had them, with the
+    truth inside its intervals."""
+    truth = RollingTruth(7)
+    f = _filter(1500, seed=2)
+    rng = np.random.default_rng(11)
+    theta_c = truth.theta + np.array([0.04, -0.04, 0.03])[:, None]
+    f.initialise(theta_c, truth.a + 0.002, truth.R, truth.t, tendon_command=truth.command)
+    before = np.abs(f.estimate()["theta"][:, 0] - truth.theta[:, 0])
+    for _ in range(40):
+        dl = rng.uniform(-0.8e-3, 0.8e-3, 3)
+        truth.move(dl)
+        R_meas = observation.rotvec_to_matrix(rng.normal(0, np.deg2rad(0.15), (1, 3)))[0] @ truth.R
+        f.step(dl, R_meas, truth.t + rng.normal(0, 0.05e-3, 3))
+    est = f.estimate()
+    after = np.abs(est["theta"][:, 0] - truth.theta[:, 0])
+    assert after.mean() < 0.5 * before.mean()
+    inside = (est["theta_lo"] <= truth.theta) & (truth.theta <= est["theta_hi"])
+    assert inside.mean() >= 0.8
+    assert est["object_mass_lo"] <= truth.mass <= est["object_mass_hi"]
