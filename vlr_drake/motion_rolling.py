@@ -29,7 +29,7 @@ import numpy as np
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["RollingMove", "move_rolling", "guessed_normals"]
+__all__ = ["RollingMove", "move_rolling", "guessed_normals", "hinge_axes"]
 
 #: Newton's stopping tolerances: stationarity [N m, N] and attachments [m].
 GRAD_TOL = 1e-10
@@ -94,6 +94,12 @@ def _kinematics(hand: HandModel, theta, a, link_lengths):
     return np.moveaxis(Pc, -1, 0), np.moveaxis(Jc, (-1, 1), (0, -1)), np.moveaxis(Hc, (-1, 1), (0, -1))
 
 
+def hinge_axes(hand: HandModel) -> np.ndarray:
+    """(N, 3) unit axes z x u_i of the fingers' joints: the normals of their flexion planes."""
+    h = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)
+    return h / np.linalg.norm(h, axis=1, keepdims=True)
+
+
 def guessed_normals(hand: HandModel, p) -> np.ndarray:
     """A guess (P, N, 3) of the object's outward unit normals at the contacts ``p`` (P, N, 3)
     (palm frame): each contact's direction from the contacts' centroid, in its finger's
@@ -106,8 +112,7 @@ def guessed_normals(hand: HandModel, p) -> np.ndarray:
     if p.ndim != 3 or p.shape[1:] != (hand.N, 3):
         raise ValueError(f"guessed_normals: 'p' must have shape (P, {hand.N}, 3), got {p.shape}")
     d = p - p.mean(axis=1, keepdims=True)
-    hinge = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)
-    hinge /= np.linalg.norm(hinge, axis=1, keepdims=True)
+    hinge = hinge_axes(hand)
     d -= np.einsum("pni,ni->pn", d, hinge)[..., None] * hinge[None]
     n = np.linalg.norm(d, axis=-1, keepdims=True)
     if not np.all(n > 1e-9):
@@ -154,7 +159,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     cO = np.einsum("pij,pnj->pni", RT, p0 - t[:, None])  # centres in the object frame
     nO = np.einsum("pij,pnj->pni", RT, nrm)
     comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, np.asarray(com, float) - t)
-    hinge = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)  # (N, 3)
+    hinge = hinge_axes(hand)  # (N, 3)
 
     def skew(v):  # (..., 3) -> (..., 3, 3), skew(v) y = v x y
         S = np.zeros(v.shape + (3,))
