@@ -69,6 +69,19 @@ def test_bad_rolling_settings_are_named():
         pf.PriorConfig(com_half_width=-0.01).validate()
     with pytest.raises(ValueError, match="centroid"):
         guessed_normals(model_o().model(), np.zeros((1, 3, 3)))
+    # a hand whose grasps are not statically determinate: roughening would settle its
+    # angles with Eq. 9, not the rolling model
+    spec = model_o()
+    for f in spec.fingers:
+        f.link_lengths = [0.035, 0.027]
+        for name in ("moment_arms", "stiffness", "rest_angles", "joint_lower", "joint_upper", "joint_damping"):
+            v = getattr(f, name)
+            setattr(f, name, [v[0], *v])
+    three = spec.validate().model()
+    assert not three.statically_determinate
+    with pytest.raises(ValueError, match="statically determinate"):
+        pf.SelfIdentificationFilter(three, pf.FilterConfig(motion_model="rolling"), pf.PriorConfig(),
+                                    np.random.default_rng(0))
 
 
 def test_the_hypotheses_draw_and_keep_their_object():

@@ -1174,6 +1174,11 @@ class SelfIdentificationFilter:
         N, K = hand.N, hand.K
         prior.validate(N, K)
         self._contact_bounds = prior.contact_bounds(hand)
+        if self.config.motion_model == "rolling" and not hand.statically_determinate:
+            # roughening settles such a hand's angles to Eq. 9's equilibrium (_roughen), which
+            # is not the rolling model's; every hand the project ships is determinate
+            raise ValueError(f"filter: motion_model 'rolling' needs a statically determinate hand (N K = N + "
+                             f"constraints); '{hand.spec.name}' has {N} fingers of {K} joints")
         if prior.object_mass_unknown:
             if not np.any(self.config.gravity_palm):
                 raise ValueError("prior: object_mass_unknown needs gravity: set filter 'gravity_palm' (the gravity "
