@@ -258,6 +258,24 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert t["physics"] + t["render"] + t["detect"] + t["filter"] + t["other"] == pytest.approx(t["total"])
 
 
+def test_bench_rolling_quick(tmp_path):
+    """The rolling move's benchmark: the batched move against IPOPT's MathematicalProgram
+    (the two land on the same equilibrium where both solve) and the pinned move beside it."""
+    r = _run(tmp_path, "bench", "rolling", "--particles", "500")
+    _check_fields(r, "Benchmark", {"particles", "batched_move_s", "ipopt_solve_s", "speedup_per_particle"})
+    assert r["benchmark"] == "rolling" and r["particles"] == 500
+    assert r["speedup_per_particle"] == pytest.approx(r["ipopt_solve_s"] / (r["batched_move_s"] / 500))
+    assert r["batched_success_fraction"] > 0.95 and r["pinned_move_s"] > 0
+    # IPOPT wanders to another stationary point on some (measured 2-5 of 20); every other agrees
+    assert r["reference_compared"] >= 10 and r["reference_agreements"] == r["reference_compared"]
+    assert r["max_angle_difference_rad"] < 1e-6
+    with pytest.raises(ValueError, match="repeats"):
+        from vlr_drake import bench
+
+        bench.bench_rolling(repeats=0)
+    assert main(["bench", "rolling", "--particles", "10", "--iterations", "3"]) == 2
+
+
 def test_bench_refuses_what_it_cannot_run():
     """Counts below their minimum are named (they crashed or gave NaN), and the filter
     benchmark's options are not silently ignored by the motion benchmark."""

@@ -1,10 +1,13 @@
-"""Benchmarks that print their figures (never timed tests): ``vlr-drake bench motion`` and
-``vlr-drake bench filter``.
+"""Benchmarks that print their figures (never timed tests): ``vlr-drake bench motion``,
+``vlr-drake bench rolling`` and ``vlr-drake bench filter``.
 
 The motion benchmark measures, in one run, one batched move of ``particles`` Model O
 hypotheses (numba Newton, DESIGN.md section 4) and single MathematicalProgram solves of
 the same problem with IPOPT and with SNOPT (those that succeed; the failures counted), and
-reports the per-particle speed-up. The filter benchmark times full filter iterations and a
+reports the per-particle speed-up. The rolling benchmark does the same for the rolling
+model's move (:func:`vlr_drake.motion_rolling.move_rolling` against
+:func:`vlr_drake.rolling_reference.solve_rolling`, IPOPT), with the pinned move of the same
+hypotheses beside it. The filter benchmark times full filter iterations and a
 physics-plant identification. Field names follow docs/result-files.md.
 """
 
@@ -102,6 +105,131 @@ def bench_motion(particles: int = 60_000, seed: int = 0, hand: str = "model_o", 
         "speedup_per_particle_filter_tolerance": solve_times["ipopt"] / (batched_filter / particles),
         "threads": _threads(),
     }
+
+
+#: ``bench_rolling`` keeps the drawn grasps that settle under their object's weight within this
+#: [rad] of where they were drawn (larger settles are grasps the weight pulls apart).
+SETTLE_RAD = 0.1
+#: A reference solve that moves a joint further than this [rad] on a 0.5 mm action (such an
+#: action moves one by a few hundredths) found another stationary point: IPOPT has no local
+#: search box on the rolling problem, and about one solve in five goes 0.3-4 rad away.
+WANDER_RAD = 0.2
+
+
+def bench_rolling(particles: int = 20_000, seed: int = 0, repeats: int = 3, reference_solves: int = 20) -> dict:
+    """Time one batched rolling move (:func:`vlr_drake.motion_rolling.move_rolling`, the
+    filter's Gamma with ``motion_model = "rolling"``) of ``particles`` Model O hypotheses
+    and single MathematicalProgram solves of the same problem (IPOPT,
+    :func:`vlr_drake.rolling_reference.solve_rolling`, building and solving), and the pinned
+    move (Eq. 9, :func:`vlr_drake.motion.move`) of the same grasps. The hypotheses are
+    physical grasps (:func:`vlr_drake.grasps.sample_grasps`) holding an object that weighs
+    10-150 g, palm up, its centre of mass within 1 cm of the contacts' centroid and its
+    normals at the contacts within about 10 deg of :func:`motion_rolling.guessed_normals`,
+    as the rolling filter draws them, each settled at its rolling equilibrium under that
+    weight before the timed action (+-0.5 mm per tendon, the exploration's).
+    Medians; the reference's failures are counted, and the solutions that both found are
+    compared (``max_angle_difference_rad``)."""
+    from vlr_drake import kinematics, motion_rolling
+    from vlr_drake import rolling_reference as rref
+
+    _check_counts("rolling", particles=(particles, 1), repeats=(repeats, 1), reference_solves=(reference_solves, 1))
+    h = hand_by_name("model_o").model()
+    rng = np.random.default_rng(seed)
+    base = grasps.sample_grasps(h, rng, min(particles, 2000))
+    idx = rng.integers(0, len(base.theta), particles)
+    theta, a, s, D2 = base.theta[idx], base.a[idx], base.stretch[idx], base.D2[idx]
+    p = kinematics.contacts(h, theta, a)
+    normals = motion_rolling.guessed_normals(h, p) + rng.normal(0.0, 0.05, (particles, h.N, 3))
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    R, t = np.broadcast_to(np.eye(3), (particles, 3, 3)), p.mean(axis=1)
+    mass = rng.uniform(0.01, 0.06, particles)
+    com = t + rng.normal(0.0, 0.003, (particles, 3))
+    g = np.array([0.0, 0.0, -9.81])
+    # each hypothesis settles under its object's weight first (the filter's hypotheses sit at
+    # rolling equilibria before each action); those that find none are redrawn from the rest
+    rest = motion_rolling.move_rolling(h, theta, a, R, t, normals, s, gravity=g, object_mass=mass, com=com)
+    held = rest.ok & (np.abs(rest.theta - theta).max(axis=(1, 2)) < SETTLE_RAD) & h.within_joint_limits(rest.theta)
+    if not held.any():
+        raise RuntimeError(f"bench rolling: no drawn grasp holds its object (seed {seed}); try another --seed")
+    keep = rng.choice(np.flatnonzero(held), particles)
+    dR = np.einsum("pij,pkj->pik", rest.R, R)[keep]  # the settling turn R' R^T
+    theta, a, s, D2 = rest.theta[keep], a[keep], rest.stretch[keep], D2[keep]
+    normals = np.einsum("pij,pnj->pni", dR, normals[keep])
+    com = np.einsum("pij,pj->pi", dR, com[keep] - t[keep]) + rest.t[keep]
+    R, t, mass = rest.R[keep], rest.t[keep], mass[keep]
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta, a))
+    dl = rng.uniform(-0.5e-3, 0.5e-3, h.N)
+
+    def rolling(n=particles):
+        return motion_rolling.move_rolling(h, theta[:n], a[:n], R[:n], t[:n], normals[:n], s[:n], dl=dl, gravity=g,
+                                           object_mass=mass[:n], com=com[:n])
+
+    rolling(10)  # compile
+    motion.move(h, theta[:10], dl, a=a[:10], D2=D2[:10], stretch=s[:10])
+    t_roll, t_pin = [], []
+    for _ in range(repeats):  # interleaved, so that both see the same machine load
+        t0 = time.perf_counter()
+        res = rolling()
+        t_roll.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        motion.move(h, theta, dl, a=a, D2=D2, stretch=s, tolerance="filter")
+        t_pin.append(time.perf_counter() - t0)
+    n_ref = min(reference_solves, particles)
+    ts, failures, wandered, diffs = [], 0, 0, []
+    for q in range(n_ref):
+        state = rref.RollingState(theta[q], a[q], R[q], t[q], normals[q], s[q], float(mass[q]), com[q])
+        t0 = time.perf_counter()
+        try:
+            r = rref.solve_rolling(h, state, dl, gravity=g)
+        except rref.RollingSolveError:
+            failures += 1
+            continue
+        ts.append(time.perf_counter() - t0)
+        if np.abs(r.theta - theta[q]).max() > WANDER_RAD:
+            wandered += 1
+        elif res.ok[q]:
+            diffs.append(float(np.abs(r.theta - res.theta[q]).max()))
+    if not ts:
+        raise RuntimeError(f"bench rolling: every one of the {n_ref} reference solves failed (seed {seed}); "
+                           "try another --seed")
+    batched = float(np.median(t_roll))
+    return {
+        "benchmark": "rolling",
+        "hand": "model_o",
+        "particles": particles,
+        "batched_move_s": batched,
+        "batched_success_fraction": float(res.ok.mean()),
+        "newton_iterations_max": int(res.iterations),
+        # the pinned move (Eq. 9, the filter's default Gamma, "filter" tolerance) of the same grasps
+        "pinned_move_s": float(np.median(t_pin)),
+        "ipopt_solve_s": float(np.median(ts)),
+        "reference_solves": n_ref,
+        "ipopt_failures": failures,
+        # IPOPT's solutions that moved a joint more than WANDER_RAD (another stationary point)
+        "reference_wandered": wandered,
+        # of the other reference solves that the batched move solved too: how many agree to
+        # 1e-6 rad, and the largest joint-angle difference
+        "max_angle_difference_rad": max(diffs, default=float("nan")),
+        "reference_agreements": int(np.sum(np.asarray(diffs) < 1e-6)),
+        "reference_compared": len(diffs),
+        "speedup_per_particle": float(np.median(ts)) / (batched / particles),
+        "threads": _threads(),
+    }
+
+
+def format_rolling(r: dict) -> str:
+    return (
+        f"batched rolling move of {r['particles']} particles ({r['hand']}, {r['threads']} threads): "
+        f"{r['batched_move_s'] * 1e3:.1f} ms ({r['batched_success_fraction'] * 100:.1f}% converged, at most "
+        f"{r['newton_iterations_max']} Newton iterations); the pinned move (Eq. 9) of the same grasps "
+        f"{r['pinned_move_s'] * 1e3:.1f} ms ({r['batched_move_s'] / r['pinned_move_s']:.1f}x)\n"
+        f"MathematicalProgram (IPOPT), one rolling solve (building and solving), median of those that succeeded: "
+        f"{r['ipopt_solve_s'] * 1e3:.2f} ms; failed {r['ipopt_failures']} of {r['reference_solves']}, wandered off "
+        f"(a joint moved over {WANDER_RAD} rad) {r['reference_wandered']}; the same angles "
+        f"(1e-6 rad) as the batched move in {r['reference_agreements']} of {r['reference_compared']} (largest "
+        f"difference {r['max_angle_difference_rad']:.1e} rad)\n"
+        f"speed-up per particle: {r['speedup_per_particle']:.0f}x vs IPOPT"
+    )
 
 
 def _threads() -> int:

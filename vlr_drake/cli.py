@@ -11,7 +11,7 @@
     vlr-drake stack       cup stacking in SE(3) with the rotational weight alpha
     vlr-drake reproduce   the paper's experiments and tasks, its numbers beside ours
     vlr-drake diagrams    write the example scenarios' system diagrams (.dot, and .svg with Graphviz)
-    vlr-drake bench       benchmarks that print their figures (motion, filter)
+    vlr-drake bench       benchmarks that print their figures (motion, rolling, filter)
 
 Every run (identify, write, maze, stack, reproduce, demo) takes ``--scenario`` (a scenario
 YAML file, or the name of an example in diagrams/: default, model_plant, stiffness,
@@ -485,6 +485,8 @@ def task(args) -> dict:
 def bench(args) -> dict:
     from vlr_drake import bench as b
 
+    if args.particles is None:
+        args.particles = 20_000 if args.what == "rolling" else 60_000
     if args.what == "motion":
         given = [flag for flag, value in (("--iterations", args.iterations), ("--run-iterations", args.run_iterations))
                  if value is not None]
@@ -492,6 +494,13 @@ def bench(args) -> dict:
             raise ValueError(f"bench motion: {', '.join(given)} set the filter benchmark ('bench filter')")
         r = b.bench_motion(particles=args.particles, seed=args.seed)
         print(b.format_motion(r))
+    elif args.what == "rolling":
+        given = [flag for flag, value in (("--iterations", args.iterations), ("--run-iterations", args.run_iterations))
+                 if value is not None]
+        if given:
+            raise ValueError(f"bench rolling: {', '.join(given)} set the filter benchmark ('bench filter')")
+        r = b.bench_rolling(particles=args.particles, seed=args.seed)
+        print(b.format_rolling(r))
     else:
         counts = {k: v for k, v in (("iterations", args.iterations), ("run_iterations", args.run_iterations))
                   if v is not None}  # (not given: bench_filter's defaults)
@@ -600,7 +609,8 @@ statics match the plant, and how much of the parameter the motions show).""",
     "diagrams": """Write the system diagram of each example scenario (diagrams/*.yaml) as Graphviz .dot text
 beside it, and render .svg pictures when Graphviz's dot is installed.""",
     "bench": """Benchmarks that print their figures: motion (one batched move of all particles vs one
-MathematicalProgram solve) or filter (full filter iterations on the model plant, then a known-hand
+MathematicalProgram solve), rolling (the same for the rolling model's move, motion_model=rolling, with
+the pinned move of the same grasps beside it) or filter (full filter iterations on the model plant, then a known-hand
 identification on the physics plant with its wall time split into physics, rendering, detection,
 filtering and the rest: building the plant, the grasp). The motion benchmark's reference solves are
 timed as a caller pays them (building the program and solving it, the solver's own part beside it),
@@ -743,8 +753,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-render", action="store_true", help="only the .dot text")
 
     p = _parser("bench", sub, "benchmarks that print their figures")
-    p.add_argument("what", choices=["motion", "filter"])
-    p.add_argument("--particles", type=count(MIN_PARTICLES), default=60_000, help="number of particles (default 60,000)")
+    p.add_argument("what", choices=["motion", "rolling", "filter"])
+    p.add_argument("--particles", type=count(MIN_PARTICLES), default=None,
+                   help="number of particles (default 60,000; rolling 20,000)")
     p.add_argument("--iterations", type=count(1), default=None, help="filter iterations timed (default 10)")
     p.add_argument("--run-iterations", type=count(0), default=None,
                    help="filter: iterations of the known-hand identification on the physics plant whose wall "

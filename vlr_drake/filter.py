@@ -929,8 +929,10 @@ class FilterConfig:
     # better than Eq. 9 (the agreement command's rolling_* fields). It needs the elastic
     # tendon, and does not check stability (stable_grasps "always") or hold moves
     # elastically (held_motion "elastic"), and takes its tendons' stretch from the motors'
-    # command (tendon_reference "commanded"). About 25 times slower than "pinned" (plain
-    # numpy: 0.5 s an iteration at 5,000 particles, 2.2 s at 20,000; docs/results.md).
+    # command (tendon_reference "commanded"). Its Newton is compiled (numba) but its KKT
+    # system is 21 square against Eq. 9's 9: an iteration costs about 17 times the pinned
+    # model's (0.22 s against 0.013 s at 5,000 particles on the stiffness traces, 2 cores;
+    # `vlr-drake bench rolling`; docs/results.md).
     motion_model: str = "pinned"
     normal_cone_deg: float = 20.0
 
@@ -1622,7 +1624,7 @@ class SelfIdentificationFilter:
         R = np.where(ok[:, None, None], mv.R, R_prev)
         t = np.where(ok[:, None], mv.t, t_prev)
         res = motion.MoveResult(theta=theta, stretch=stretch, tension=h.kappa[None] * stretch,
-                                multipliers=np.zeros((M, 0)), ok=ok, iterations=np.full(M, mv.iterations),
+                                multipliers=np.zeros((M, 0)), ok=ok, iterations=mv.newton_iterations,
                                 residuals=np.zeros((M, 3)), stable=ok.copy())
         return res, R, t
 

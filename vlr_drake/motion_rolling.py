@@ -2,22 +2,25 @@
 
 The same problem as :func:`vlr_drake.rolling_reference.solve_rolling` (see its module
 docstring: the pads rolling over the object, the links' and the object's weight, the
-object's pose explicit), solved for P hypotheses together in plain numpy, particles on the
-leading axis. The unknowns of each are x = (theta (N*K), w (3), tau (3)) and the 3N
-attachment multipliers; Newton steps on the Lagrangian's stationarity and the attachments,
+object's pose explicit), solved for P hypotheses together, particles on the leading axis.
+The unknowns of each are x = (theta (N*K), w (3), tau (3)), w the Cayley parameters of
+the object's turn and tau its translation, and the 3N attachment multipliers lambda;
+Newton steps on the Lagrangian's stationarity and the attachments,
 
     [H  J^T] [dx]      [grad E + J^T lambda]
     [J   0 ] [dl]  = - [g                  ],
 
 with H the Lagrangian's Hessian: the springs, the tendons, the links' potential, the
-object's potential, the pads' forward kinematics' curvature and the Cayley rotation's. The
-Cayley rotation's first and second derivatives are taken by complex steps (exact to
-round-off) and central differences of those (1e-10); the pads' kinematics are Gamma's
-compiled kernel; everything else is analytic.
+object's potential, the pads' forward kinematics' curvature and the Cayley rotation's.
+Every derivative is analytic; the pads' kinematics are Gamma's
+(:func:`vlr_drake.motion._fk_all`).
 
-It is not yet Gamma: the filter still moves its hypotheses with Eq. 9
-(:func:`vlr_drake.motion.move`). This is the batched solver a rolling Gamma would use, held
-to the MathematicalProgram reference by the tests.
+The set-up (the contacts and normals in the object's frame, the roll's Jacobians) is
+numpy; the Newton iteration is compiled with numba and runs in parallel over hypotheses,
+each thread one hypothesis at a time: its KKT matrix, N K + 3N + 6 square (21 on the Model
+O), by elimination with partial pivoting (:func:`vlr_drake.motion._solve`), by least
+squares where that finds it singular. With ``FilterConfig.motion_model = "rolling"`` it is
+the filter's Gamma. The tests hold it to the MathematicalProgram reference to 1e-8 rad.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
@@ -36,6 +40,10 @@ GRAD_TOL = 1e-10
 ATTACH_TOL = 1e-12
 #: Cap on one Newton step's largest joint change [rad].
 MAX_STEP = 0.1
+#: [e_a]x, a = 0, 1, 2: the Cayley derivatives' basis (:func:`_cayley_derivatives`'s E).
+SKEW_BASIS = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],
+                       [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]],
+                       [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
 
 
 @dataclass
@@ -44,9 +52,10 @@ class RollingMove:
     R: np.ndarray  # (P, 3, 3) the object's pose after the move
     t: np.ndarray  # (P, 3)
     ok: np.ndarray  # (P,) converged
-    iterations: int
+    iterations: int  # the most Newton steps any hypothesis took
     stretch: np.ndarray  # (P, N) the tendons' stretch after the move [m]
     tension: np.ndarray  # (P, N) their tension kappa * stretch [N]
+    newton_iterations: np.ndarray  # (P,) each hypothesis' Newton steps
 
 
 def _cayley(w):
@@ -57,28 +66,6 @@ def _cayley(w):
     Q[:, 1, 0], Q[:, 2, 0], Q[:, 2, 1] = q[:, 2], -q[:, 1], q[:, 0]
     s = 2.0 / (1.0 + np.einsum("pi,pi->p", q, q))
     return np.eye(3) + s[:, None, None] * (Q + Q @ Q)
-
-
-def _cayley_derivatives(w, h=1e-20, d=1e-6):
-    """C (P, 3, 3), dC/dw_a (P, 3, 3, 3) and d2C/dw_a dw_b (P, 3, 3, 3, 3) at ``w`` (P, 3)."""
-    P = w.shape[0]
-
-    def first(wr):
-        out = np.empty((P, 3, 3, 3))
-        for a in range(3):
-            wc = wr.astype(complex)
-            wc[:, a] += 1j * h
-            out[:, a] = _cayley(wc).imag / h
-        return out
-
-    dC = first(w)
-    d2C = np.empty((P, 3, 3, 3, 3))
-    for b in range(3):
-        plus, minus = w.copy(), w.copy()
-        plus[:, b] += d
-        minus[:, b] -= d
-        d2C[:, :, b] = (first(plus) - first(minus)) / (2 * d)
-    return _cayley(w), dC, d2C
 
 
 def _kinematics(hand: HandModel, theta, a, link_lengths):
@@ -160,109 +147,274 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     nO = np.einsum("pij,pnj->pni", RT, nrm)
     comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, np.asarray(com, float) - t)
     hinge = hinge_axes(hand)  # (N, 3)
-
-    def skew(v):  # (..., 3) -> (..., 3, 3), skew(v) y = v x y
-        S = np.zeros(v.shape + (3,))
-        S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-        S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-        return S
-
     # v_i = cO_i + r_i (R^T (dphi_i h_i - w)) x nO_i = cO_i - r_i [nO_i]x R^T (dphi_i h_i - w)
-    Sn = skew(nO)  # (P, N, 3, 3)
-    B = r[None, :, None, None] * np.einsum("pnij,pjk->pnik", Sn, RT)  # dv_i/dw (P, N, 3, 3)
+    B = r[None, :, None, None] * np.einsum("pnij,pjk->pnik", _skew(nO), RT)  # dv_i/dw (P, N, 3, 3)
     b = -np.einsum("pnij,nj->pni", B, hinge)  # dv_i/dtheta_ik (P, N, 3), every k of finger i
     mu = np.broadcast_to(hand.link_moments(L) if gravity is not None else np.zeros((1, N, K)), (P, N, K))
     g_u, g_z = hand.gravity_in_finger_planes(g).T
-    nx, m = N * K + 6, 3 * N
-    x_theta, w, tau = theta.copy(), np.zeros((P, 3)), np.zeros((P, 3))
-    lam = np.zeros((P, m))
-    ok = np.zeros(P, bool)
-    idx_max = np.maximum.outer(np.arange(K), np.arange(K))
-    iterations = 0
-    for _ in range(max_iter):
-        act = np.flatnonzero(~ok)
-        if act.size == 0:
-            break
-        iterations += 1
-        rx, rg, KKT = _kkt(hand, act, x_theta, w, tau, lam, theta, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO,
-                           g, mu, g_u, g_z, idx_max, k, L)
-        done = (np.abs(rx).max(axis=1) < GRAD_TOL) & (np.abs(rg).max(axis=1) < ATTACH_TOL)
-        ok[act[done]] = True
-        act, rx, rg, KKT = act[~done], rx[~done], rg[~done], KKT[~done]
-        if act.size == 0:
-            break
-        rhs = -np.concatenate([rx, rg], axis=1)
-        try:
-            step = np.linalg.solve(KKT, rhs[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a singular KKT matrix: least squares, particle by particle
-            step = np.stack([np.linalg.lstsq(M, y, rcond=None)[0] for M, y in zip(KKT, rhs, strict=True)])
-        dx = step[:, :nx]
-        big = np.abs(dx[:, : N * K]).max(axis=1)
-        scale = np.where(big > MAX_STEP, MAX_STEP / np.maximum(big, 1e-300), 1.0)[:, None]
-        x_theta[act] += (scale * dx[:, : N * K]).reshape(-1, N, K)
-        w[act] += scale * dx[:, N * K:N * K + 3]
-        tau[act] += scale * dx[:, N * K + 3:]
-        lam[act] += scale * step[:, nx:]
+    x_theta, w, tau = np.empty((P, N, K)), np.empty((P, 3)), np.empty((P, 3))
+    ok, iters = np.zeros(P, bool), np.zeros(P, np.int64)
+
+    def c(x):
+        return np.ascontiguousarray(x, dtype=float)
+
+    _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(hinge), c(stretch), c(dl), c(mass), c(comO), c(g),
+                   c(mu), c(g_u), c(g_z), c(k), c(L), c(hand.pad), c(hand.base), c(hand.u), c(hand.moment_arms),
+                   c(hand.rest_angles), c(hand.kappa), int(max_iter), MAX_STEP, GRAD_TOL, ATTACH_TOL,
+                   x_theta, w, tau, ok, iters)
+    iterations = int(iters.max()) if P else 0
     C = _cayley(w)
     ok &= np.all(np.isfinite(x_theta.reshape(P, -1)), axis=1) & np.all(np.isfinite(w), axis=1)
     s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
-    return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new)
+    return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new, iters)
 
 
-def _kkt(hand, act, x_theta, w, tau, lam, theta, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z,
-         idx_max, k, L):
-    """Residuals (stationarity (A, nx), attachments (A, 3N)) and KKT matrices (A, nx + 3N,
-    nx + 3N) of the particles ``act`` (module docstring)."""
-    N, K = hand.N, hand.K
-    nx, m = N * K + 6, 3 * N
-    x_theta, w, tau, lam = x_theta[act], w[act], tau[act], lam[act]
-    theta, a, R, t, cO, B, b = theta[act], a[act], R[act], t[act], cO[act], B[act], b[act]
-    stretch, dl, mass, comO, k, mu, L = stretch[act], dl[act], mass[act], comO[act], k[act], mu[act], L[act]
-    A = act.size
-    p, J1, J2 = _kinematics(hand, x_theta, a, L)
-    C, dC, d2C = _cayley_derivatives(w)
-    dphi = (x_theta - theta).sum(axis=-1)  # (A, N)
-    v = cO - np.einsum("pnij,pnj->pni", B, dphi[..., None] * hinge[None] - w[:, None])
-    CR = C @ R
-    gvec = p - np.einsum("pij,pnj->pni", CR, v) - (t + tau)[:, None]  # (A, N, 3)
-    J = np.zeros((A, N, 3, nx))
-    CRb = np.einsum("pij,pnj->pni", CR, b)
-    for i in range(N):
-        J[:, i, :, i * K:(i + 1) * K] = np.swapaxes(J1[:, i], 1, 2) - CRb[:, i, :, None]
-    Rv = np.einsum("pij,pnj->pni", R, v)
-    J[..., N * K:N * K + 3] = -np.einsum("paij,pnj->pnia", dC, Rv) - np.einsum("pij,pnjk->pnik", CR, B)
-    J[..., N * K + 3:] = -np.eye(3)
-    J = J.reshape(A, m, nx)
-    s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
-    grad = np.zeros((A, nx))
-    H = np.zeros((A, nx, nx))
-    phi = np.cumsum(x_theta, axis=-1)
-    per = mu * (g_u[None, :, None] * np.cos(phi) - g_z[None, :, None] * np.sin(phi))
-    link_torque = np.cumsum(per[..., ::-1], axis=-1)[..., ::-1]
-    grad[:, : N * K] = (k * (x_theta - hand.rest_angles)
-                        - hand.kappa[None, :, None] * s_new[..., None] * hand.moment_arms[None] - link_torque).reshape(A, -1)
-    curv = mu * (g_u[None, :, None] * np.sin(phi) + g_z[None, :, None] * np.cos(phi))
-    tailc = np.cumsum(curv[..., ::-1], axis=-1)[..., ::-1]  # sum over l >= j
-    lam3 = lam.reshape(A, N, 3)
-    Rb = np.einsum("pij,pnj->pni", R, b)
-    for i in range(N):
-        sl = slice(i * K, (i + 1) * K)
-        H[:, sl, sl] = (k[:, i, :, None] * np.eye(K) + hand.kappa[i] * np.outer(hand.moment_arms[i], hand.moment_arms[i])
-                        + tailc[:, i][:, idx_max] + np.einsum("pc,pjkc->pjk", lam3[:, i], J2[:, i]))
-        cross = -np.einsum("pc,pacj,pj->pa", lam3[:, i], dC, Rb[:, i])  # theta_ik, w_a
-        H[:, sl, N * K:N * K + 3] += cross[:, None, :]
-        H[:, N * K:N * K + 3, sl] += cross[:, :, None]
-    RcomO = np.einsum("pij,pj->pi", R, comO)
-    grad[:, N * K:N * K + 3] = -mass[:, None] * np.einsum("i,paij,pj->pa", g, dC, RcomO)
-    grad[:, N * K + 3:] = -mass[:, None] * g[None]
-    RB = np.einsum("pij,pnjk->pnik", R, B)
-    t1 = -np.einsum("pnc,pacj,pnjb->pab", lam3, dC, RB)
-    H[:, N * K:N * K + 3, N * K:N * K + 3] += (-mass[:, None, None] * np.einsum("i,pabij,pj->pab", g, d2C, RcomO)
-                                               - np.einsum("pnc,pabcj,pnj->pab", lam3, d2C, Rv) + t1
-                                               + np.swapaxes(t1, 1, 2))
-    rx = grad + np.einsum("pmx,pm->px", J, lam)
-    KKT = np.zeros((A, nx + m, nx + m))
-    KKT[:, :nx, :nx] = H
-    KKT[:, :nx, nx:] = np.swapaxes(J, 1, 2)
-    KKT[:, nx:, :nx] = J
-    return rx, gvec.reshape(A, m), KKT
+
+def _skew(v):
+    """(..., 3) -> (..., 3, 3) with _skew(v) y = v x y."""
+    S = np.zeros(v.shape + (3,))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
+@njit(cache=True)
+def _sym_product(A, B, out):  # pragma: no cover - numba
+    """out = A B + B A for 3x3 matrices (no BLAS call: these are too small for one)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = (A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+                         + B[i, 0] * A[0, j] + B[i, 1] * A[1, j] + B[i, 2] * A[2, j])
+
+
+@njit(cache=True)
+def _cayley_derivatives(w, C, dC, d2C, E, W, Nm, Na, Nab):  # pragma: no cover - numba
+    """The Cayley rotation C = I + (4 W + 2 W^2) / (4 + |w|^2), W = [w]x, of ``w`` (3,)
+    (the same rotation as :func:`_cayley`), into C (3, 3), dC[a] = dC/dw_a (3, 3, 3) and
+    d2C[a, b] = d2C/dw_a dw_b (3, 3, 3, 3), analytically. E (3, 3, 3) holds [e_a]x; W,
+    Nm (3, 3), Na (3, 3, 3) and Nab (3, 3) are scratch."""
+    for i in range(3):
+        for j in range(3):
+            W[i, j] = w[0] * E[0, i, j] + w[1] * E[1, i, j] + w[2] * E[2, i, j]
+    _sym_product(W, W, Nm)  # 2 W^2
+    for i in range(3):
+        for j in range(3):
+            Nm[i, j] += 4.0 * W[i, j]  # the numerator N(w) = 4 W + 2 W^2
+    D = 4.0 + w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    for a in range(3):
+        _sym_product(E[a], W, Na[a])
+        for i in range(3):
+            for j in range(3):
+                Na[a, i, j] = 4.0 * E[a, i, j] + 2.0 * Na[a, i, j]  # dN/dw_a
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = (1.0 if i == j else 0.0) + Nm[i, j] / D
+    for a in range(3):
+        for i in range(3):
+            for j in range(3):
+                dC[a, i, j] = Na[a, i, j] / D - 2.0 * w[a] * Nm[i, j] / (D * D)
+    for a in range(3):
+        for b in range(a, 3):
+            _sym_product(E[a], E[b], Nab)  # d2N/dw_a dw_b = 2 (E_a E_b + E_b E_a)
+            for i in range(3):
+                for j in range(3):
+                    v = (2.0 * Nab[i, j] / D - 2.0 * (w[b] * Na[a, i, j] + w[a] * Na[b, i, j]) / (D * D)
+                         + 8.0 * w[a] * w[b] * Nm[i, j] / (D * D * D))
+                    if a == b:
+                        v -= 2.0 * Nm[i, j] / (D * D)
+                    d2C[a, b, i, j] = v
+                    d2C[b, a, i, j] = v
+
+
+@njit(cache=True)
+def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L,
+                  pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+                  x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
+    """Newton on the rolling equilibrium's KKT system (module docstring) for hypotheses
+    ``start:stop``, one at a time; scratch allocated once."""
+    N, K = theta0.shape[1], theta0.shape[2]
+    nK = N * K
+    nx = nK + 6
+    m = 3 * N
+    dim = nx + m
+    th, Ll, al = np.empty((N, K, 1)), np.ones((N, max(K - 1, 1), 1)), np.empty((N, 1))
+    Pc, Jc, Hc = np.empty((N, 3, 1)), np.empty((N, 3, K, 1)), np.empty((N, 3, K, K, 1))
+    C, dC, d2C = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3, 3))
+    E = SKEW_BASIS.copy()
+    Wc, Nm, Na, Nab = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3))
+    x, w, tau, lam = np.empty((N, K)), np.empty(3), np.empty(3), np.empty(m)
+    v, Rv, CRb, Rb = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3))
+    RB, RcomO, CR = np.empty((N, 3, 3)), np.empty(3), np.empty((3, 3))
+    Jm, KKT, KKT0, rhs, rhs0 = np.empty((m, nx)), np.empty((dim, dim)), np.empty((dim, dim)), np.empty(dim), np.empty(dim)
+    phi, per, curv, dphi = np.empty(K), np.empty(K), np.empty(K), np.empty(N)
+    for p in range(start, stop):
+        for i in range(N):
+            al[i, 0] = a[p, i]
+            for k in range(K - 1):
+                Ll[i, k, 0] = L[p, i, k]
+            for k in range(K):
+                x[i, k] = theta0[p, i, k]
+        w[:] = 0.0
+        tau[:] = 0.0
+        lam[:] = 0.0
+        for j in range(3):
+            RcomO[j] = R[p, j, 0] * comO[p, 0] + R[p, j, 1] * comO[p, 1] + R[p, j, 2] * comO[p, 2]
+        for i in range(N):
+            for j in range(3):
+                Rb[i, j] = R[p, j, 0] * b[p, i, 0] + R[p, j, 1] * b[p, i, 1] + R[p, j, 2] * b[p, i, 2]
+                for c in range(3):
+                    RB[i, j, c] = R[p, j, 0] * B[p, i, 0, c] + R[p, j, 1] * B[p, i, 1, c] + R[p, j, 2] * B[p, i, 2, c]
+        ok[p] = False
+        iters[p] = 0
+        for it in range(max_iter):
+            iters[p] = it + 1
+            for i in range(N):
+                for k in range(K):
+                    th[i, k, 0] = x[i, k]
+            motion._fk_all(th, Ll, al, pad, base, u, Pc, Jc, Hc)
+            _cayley_derivatives(w, C, dC, d2C, E, Wc, Nm, Na, Nab)
+            for r in range(3):
+                for c in range(3):
+                    CR[r, c] = C[r, 0] * R[p, 0, c] + C[r, 1] * R[p, 1, c] + C[r, 2] * R[p, 2, c]
+            # the attachments g_i = p_i - C R v_i - (t + tau), and their Jacobian
+            for i in range(N):
+                dphi[i] = 0.0
+                for k in range(K):
+                    dphi[i] += x[i, k] - theta0[p, i, k]
+                for r in range(3):
+                    s = cO[p, i, r]
+                    for c in range(3):
+                        s -= B[p, i, r, c] * (dphi[i] * hinge[i, c] - w[c])
+                    v[i, r] = s
+            for i in range(N):
+                for r in range(3):
+                    Rv[i, r] = R[p, r, 0] * v[i, 0] + R[p, r, 1] * v[i, 1] + R[p, r, 2] * v[i, 2]
+                    CRb[i, r] = CR[r, 0] * b[p, i, 0] + CR[r, 1] * b[p, i, 1] + CR[r, 2] * b[p, i, 2]
+            gmax = 0.0
+            Jm[:, :] = 0.0
+            for i in range(N):
+                for r in range(3):
+                    row = 3 * i + r
+                    gv = Pc[i, r, 0] - t[p, r] - tau[r]
+                    for c in range(3):
+                        gv -= CR[r, c] * v[i, c]
+                    rhs[nx + row] = gv
+                    gmax = max(gmax, abs(gv))
+                    for k in range(K):
+                        Jm[row, i * K + k] = Jc[i, r, k, 0] - CRb[i, r]
+                    for aa in range(3):
+                        s = 0.0
+                        for c in range(3):
+                            s += dC[aa, r, c] * Rv[i, c] + CR[r, c] * B[p, i, c, aa]
+                        Jm[row, nK + aa] = -s
+                    Jm[row, nK + 3 + r] = -1.0
+            # stationarity: grad E + J^T lambda
+            KKT[:, :] = 0.0
+            for i in range(N):
+                s_new = stretch[p, i] + dl[p, i]
+                acc = 0.0
+                for k in range(K):
+                    s_new -= marm[i, k] * (x[i, k] - theta0[p, i, k])
+                    acc += x[i, k]
+                    phi[k] = acc
+                for k in range(K):
+                    cs, sn = np.cos(phi[k]), np.sin(phi[k])
+                    per[k] = mu[p, i, k] * (g_u[i] * cs - g_z[i] * sn)
+                    curv[k] = mu[p, i, k] * (g_u[i] * sn + g_z[i] * cs)
+                for k in range(K - 2, -1, -1):  # suffix sums over l >= k
+                    per[k] += per[k + 1]
+                    curv[k] += curv[k + 1]
+                for k in range(K):
+                    q = i * K + k
+                    rhs[q] = kst[p, i, k] * (x[i, k] - rest[i, k]) - kappa[i] * s_new * marm[i, k] - per[k]
+                    for k2 in range(K):
+                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)]
+                        for c in range(3):
+                            hv += lam[3 * i + c] * Hc[i, c, k, k2, 0]
+                        KKT[q, i * K + k2] = hv
+                    KKT[q, q] += kst[p, i, k]
+                for aa in range(3):  # theta_ik with w_a, the same for every k of finger i
+                    s = 0.0
+                    for c in range(3):
+                        for j in range(3):
+                            s -= lam[3 * i + c] * dC[aa, c, j] * Rb[i, j]
+                    for k in range(K):
+                        KKT[i * K + k, nK + aa] += s
+                        KKT[nK + aa, i * K + k] += s
+            for aa in range(3):
+                s = 0.0
+                for i in range(3):
+                    for j in range(3):
+                        s += g[i] * dC[aa, i, j] * RcomO[j]
+                rhs[nK + aa] = -mass[p] * s
+                rhs[nK + 3 + aa] = -mass[p] * g[aa]
+            for q in range(nx):
+                s = 0.0
+                for row in range(m):
+                    s += Jm[row, q] * lam[row]
+                rhs[q] += s
+            rmax = 0.0
+            for q in range(nx):
+                rmax = max(rmax, abs(rhs[q]))
+            if rmax < grad_tol and gmax < attach_tol:
+                ok[p] = True
+                break
+            # the object's turn: its weight, the attachments' curvature and their cross terms
+            for aa in range(3):
+                for bb in range(3):
+                    hv = 0.0
+                    for i in range(3):
+                        for j in range(3):
+                            hv -= mass[p] * g[i] * d2C[aa, bb, i, j] * RcomO[j]
+                    for n in range(N):
+                        for c in range(3):
+                            for j in range(3):
+                                hv -= lam[3 * n + c] * (d2C[aa, bb, c, j] * Rv[n, j] + dC[aa, c, j] * RB[n, j, bb]
+                                                        + dC[bb, c, j] * RB[n, j, aa])
+                    KKT[nK + aa, nK + bb] += hv
+            for row in range(m):
+                for q in range(nx):
+                    KKT[q, nx + row] = Jm[row, q]
+                    KKT[nx + row, q] = Jm[row, q]
+            for q in range(dim):
+                rhs[q] = -rhs[q]
+            KKT0[:, :] = KKT
+            rhs0[:] = rhs
+            if not motion._solve(KKT, rhs):  # singular: the least-squares step
+                rhs[:] = np.linalg.lstsq(KKT0, rhs0)[0]
+            big = 0.0
+            for q in range(nK):
+                big = max(big, abs(rhs[q]))
+            scale = max_step / big if big > max_step else 1.0
+            for i in range(N):
+                for k in range(K):
+                    x[i, k] += scale * rhs[i * K + k]
+            for c in range(3):
+                w[c] += scale * rhs[nK + c]
+                tau[c] += scale * rhs[nK + 3 + c]
+            for row in range(m):
+                lam[row] += scale * rhs[nx + row]
+        for i in range(N):
+            for k in range(K):
+                x_out[p, i, k] = x[i, k]
+        for c in range(3):
+            w_out[p, c] = w[c]
+            tau_out[p, c] = tau[c]
+
+
+#: Hypotheses per parallel task of :func:`_newton_kernel`.
+CHUNK = 64
+
+
+@njit(cache=True, parallel=True)
+def _newton_kernel(theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L, pad, base, u,
+                   marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+                   x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
+    """Every hypothesis' Newton (:func:`_newton_range`), CHUNK of them per parallel task."""
+    P = theta0.shape[0]
+    tasks = (P + CHUNK - 1) // CHUNK
+    for tk in prange(tasks):
+        start = np.int64(tk) * CHUNK
+        _newton_range(start, min(start + CHUNK, P), theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu,
+                      g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+                      x_out, w_out, tau_out, ok, iters)
