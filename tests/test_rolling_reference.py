@@ -175,3 +175,27 @@ def test_the_cayley_derivatives_are_exact():
         for b in range(3):
             d = np.eye(3)[b] * 1e-6
             np.testing.assert_allclose(d2C[:, b], (first(w + d) - first(w - d)) / 2e-6, atol=1e-8)
+
+
+def test_a_hypothesis_without_an_equilibrium_fails_alone():
+    """A NaN in one hypothesis' angles fails that hypothesis (ok False, at its first Newton
+    step) and moves the others exactly as without it; no hypotheses, no moves."""
+    from vlr_drake.motion_rolling import move_rolling
+
+    h, theta, a, stretch, _ = _grasp()
+    c = kinematics.contacts(h, theta[None], a[None])[0]
+    normals = c - c.mean(0)
+    rng = np.random.default_rng(2)
+    th = theta[None] + rng.normal(0, 0.01, (4, h.N, h.K))
+    args = (a, np.eye(3), c.mean(0), normals, stretch)
+    kw = dict(dl=np.array([0.3e-3, -0.2e-3, 0.1e-3]), gravity=np.array([0.0, 0.0, -9.81]), object_mass=0.05,
+              com=c.mean(0)[None])
+    good = move_rolling(h, th, *args, **kw)
+    th[2, 1, 0] = np.nan
+    bad = move_rolling(h, th, *args, **kw)
+    assert good.ok.all() and bad.ok.tolist() == [True, True, False, True] and bad.newton_iterations[2] == 1
+    keep = [0, 1, 3]
+    np.testing.assert_array_equal(bad.theta[keep], good.theta[keep])
+    np.testing.assert_array_equal(bad.R[keep], good.R[keep])
+    none = move_rolling(h, th[:0], *args, **{**kw, "com": c.mean(0)[None][:0]})
+    assert none.theta.shape == (0, h.N, h.K) and none.ok.shape == (0,) and none.iterations == 0

@@ -164,7 +164,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
                    x_theta, w, tau, ok, iters)
     iterations = int(iters.max()) if P else 0
     C = _cayley(w)
-    ok &= np.all(np.isfinite(x_theta.reshape(P, -1)), axis=1) & np.all(np.isfinite(w), axis=1)
+    ok &= np.isfinite(x_theta).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
     s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
     return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new, iters)
 
@@ -290,7 +290,7 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                 for r in range(3):
                     Rv[i, r] = R[p, r, 0] * v[i, 0] + R[p, r, 1] * v[i, 1] + R[p, r, 2] * v[i, 2]
                     CRb[i, r] = CR[r, 0] * b[p, i, 0] + CR[r, 1] * b[p, i, 1] + CR[r, 2] * b[p, i, 2]
-            gmax = 0.0
+            gmax, finite = 0.0, True
             Jm[:, :] = 0.0
             for i in range(N):
                 for r in range(3):
@@ -300,6 +300,7 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                         gv -= CR[r, c] * v[i, c]
                     rhs[nx + row] = gv
                     gmax = max(gmax, abs(gv))
+                    finite &= np.isfinite(gv)
                     for k in range(K):
                         Jm[row, i * K + k] = Jc[i, r, k, 0] - CRb[i, r]
                     for aa in range(3):
@@ -356,6 +357,9 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
             rmax = 0.0
             for q in range(nx):
                 rmax = max(rmax, abs(rhs[q]))
+                finite &= np.isfinite(rhs[q])
+            if not finite:  # a NaN or an overflow: failed
+                break
             if rmax < grad_tol and gmax < attach_tol:
                 ok[p] = True
                 break
