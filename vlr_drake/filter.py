@@ -929,9 +929,9 @@ class FilterConfig:
     # better than Eq. 9 (the agreement command's rolling_* fields). It needs the elastic
     # tendon, and does not check stability (stable_grasps "always") or hold moves
     # elastically (held_motion "elastic"), and takes its tendons' stretch from the motors'
-    # command (tendon_reference "commanded"). Its Newton is compiled (numba) but its KKT
-    # system is 21 square against Eq. 9's 9: an iteration costs about 17 times the pinned
-    # model's (0.22 s against 0.013 s at 5,000 particles on the stiffness traces, 2 cores;
+    # command (tendon_reference "commanded"). Its Newton is compiled (numba), but its KKT
+    # system is 21 square against Eq. 9's 9: an iteration costs about ten times the pinned
+    # model's (a stiffness trace at 20,000 particles: 0.27 s against 0.03 s, 2 cores;
     # `vlr-drake bench rolling`; docs/results.md).
     motion_model: str = "pinned"
     normal_cone_deg: float = 20.0
