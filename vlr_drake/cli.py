@@ -487,18 +487,15 @@ def bench(args) -> dict:
 
     if args.particles is None:
         args.particles = 20_000 if args.what == "rolling" else 60_000
-    if args.what == "motion":
+    if args.what != "filter":
         given = [flag for flag, value in (("--iterations", args.iterations), ("--run-iterations", args.run_iterations))
                  if value is not None]
         if given:  # the filter benchmark's options: said, not silently ignored
-            raise ValueError(f"bench motion: {', '.join(given)} set the filter benchmark ('bench filter')")
+            raise ValueError(f"bench {args.what}: {', '.join(given)} set the filter benchmark ('bench filter')")
+    if args.what == "motion":
         r = b.bench_motion(particles=args.particles, seed=args.seed)
         print(b.format_motion(r))
     elif args.what == "rolling":
-        given = [flag for flag, value in (("--iterations", args.iterations), ("--run-iterations", args.run_iterations))
-                 if value is not None]
-        if given:
-            raise ValueError(f"bench rolling: {', '.join(given)} set the filter benchmark ('bench filter')")
         r = b.bench_rolling(particles=args.particles, seed=args.seed)
         print(b.format_rolling(r))
     else:
