@@ -137,7 +137,7 @@ def bench_rolling(particles: int = 20_000, seed: int = 0, repeats: int = 3, refe
     rng = np.random.default_rng(seed)
     base = grasps.sample_grasps(h, rng, min(particles, 2000))
     idx = rng.integers(0, len(base.theta), particles)
-    theta, a, s, D2 = base.theta[idx], base.a[idx], base.stretch[idx], base.D2[idx]
+    theta, a, s = base.theta[idx], base.a[idx], base.stretch[idx]
     p = kinematics.contacts(h, theta, a)
     normals = motion_rolling.guessed_normals(h, p) + rng.normal(0.0, 0.05, (particles, h.N, 3))
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
@@ -153,7 +153,7 @@ def bench_rolling(particles: int = 20_000, seed: int = 0, repeats: int = 3, refe
         raise RuntimeError(f"bench rolling: no drawn grasp holds its object (seed {seed}); try another --seed")
     keep = rng.choice(np.flatnonzero(held), particles)
     dR = np.einsum("pij,pkj->pik", rest.R, R)[keep]  # the settling turn R' R^T
-    theta, a, s, D2 = rest.theta[keep], a[keep], rest.stretch[keep], D2[keep]
+    theta, a, s = rest.theta[keep], a[keep], rest.stretch[keep]
     normals = np.einsum("pij,pnj->pni", dR, normals[keep])
     com = np.einsum("pij,pj->pi", dR, com[keep] - t[keep]) + rest.t[keep]
     R, t, mass = rest.R[keep], rest.t[keep], mass[keep]
