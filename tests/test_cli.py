@@ -156,6 +156,41 @@ def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
     assert "--prior 'object_mass_range=heavy'" in capsys.readouterr().err
 
 
+def test_identify_weighed_object_and_config_flags(tmp_path, capsys):
+    """--object-mass gives the filter the object's weighed mass within --object-mass-tolerance
+    (its prior draws the mass there, and the estimate stays inside), and --filter / --prior
+    override the run's settings as replay's do; what the run sets itself, and bad values, are
+    refused by name before the plant starts."""
+    from vlr_drake.trace import IdentificationTrace
+
+    trace = tmp_path / "run.npz"
+    r = _run(tmp_path, "identify", "stiffness", "--object-mass", "0.028", "--object-mass-tolerance", "0.1",
+             "--filter", "motion_model=rolling", "--filter", "likelihood=student_t", "--prior",
+             "stiffness_range=0.1,0.3", "--particles", "300", "--iterations", "2", "--no-progress",
+             "--out", str(tmp_path / "out"), "--trace", str(trace))
+    assert r["object_weight"] and r["object_mass_given_kg"] == 0.028 and r["object_mass_tolerance"] == 0.1
+    assert r["object_mass_range_kg"] == pytest.approx([0.0252, 0.0308])
+    lo, hi = r["object_mass_interval_kg"]
+    assert 0.0252 - 1e-12 <= lo <= r["object_mass_estimate_kg"] <= hi <= 0.0308 + 1e-12
+    assert r["object_mass_true_kg"] == pytest.approx(0.028)
+    k = r["hand_parameters"]["stiffness:thumb/1"]
+    assert 0.1 <= k["interval"][0] <= k["estimate"] <= k["interval"][1] <= 0.3
+    saved = IdentificationTrace.load(trace)
+    assert saved.filter.motion_model == "rolling" and saved.filter.likelihood == "student_t"
+    assert saved.prior.object_mass_range == pytest.approx((0.0252, 0.0308))
+    assert saved.filter.likelihood_width == 1.75  # the experiment's default, kept under the overrides
+    capsys.readouterr()
+    for flags, named in [(["--filter", "particles=5"], "the run sets 'particles' itself; use --particles"),
+                         (["--filter", "gravity_palm=0,0,9.81"], "use --link-weight"),
+                         (["--object-mass", "-1"], "object_mass must be the object's weighed mass"),
+                         (["--object-mass", "0.03", "--object-mass-tolerance", "1"], "object_mass_tolerance"),
+                         (["--object-mass", "0.03", "--no-link-weight"], "needs link_weight"),
+                         (["--filter", "motion_model=sliding"], "'motion_model' must be one of"),
+                         (["--prior", "object_mass_range=heavy"], "--prior 'object_mass_range=heavy'")]:
+        assert main(["identify", "stiffness", *flags, "--out", str(tmp_path / "bad"), "--no-progress"]) == 2, flags
+        assert named in capsys.readouterr().err, flags
+
+
 def test_a_physics_set_up_that_cannot_grasp_or_see_is_named(tmp_path, capsys):
     """No pull at the grasp, or a camera that cannot see the tag: one line naming the
     section to check, exit status 2 (not a traceback)."""

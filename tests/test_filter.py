@@ -942,7 +942,7 @@ def test_link_weight_defaults_per_plant_and_experiment():
     assert resolved(plant="physics", experiment="known_hand", object_weight=True) == (True, "following")
     given = IdentifyOptions(plant="physics", filter=pf.FilterConfig(gravity_loads="following")).validate()
     assert given.filter.gravity_loads == "following"
-    with pytest.raises(ValueError, match="object_weight needs link_weight"):
+    with pytest.raises(ValueError, match=r"object_weight \(or a weighed object_mass\) needs link_weight"):
         IdentifyOptions(plant="physics", object_weight=True, link_weight=False).validate()
     with pytest.raises(ValueError, match="object_weight needs filter gravity_loads"):
         IdentifyOptions(plant="physics", object_weight=True, filter=pf.FilterConfig(gravity_loads="held")).validate()
@@ -1255,6 +1255,37 @@ def test_object_weight_needs_gravity_and_a_mass_range():
                                                        gravity_loads="following"),
                                     pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.2, 0.1)),
                                     np.random.default_rng(0))
+
+
+def test_weighed_object_mass_sets_the_object_weight_and_its_range():
+    """IdentifyOptions.object_mass (a weighed object) identifies the object's weight with the
+    mass drawn within +-object_mass_tolerance of it; a scenario's prior that asks for the
+    object's mass gets the same gravity loads (following); bad masses and tolerances are named;
+    the experiment's unknowns keep the prior's own ranges."""
+    from vlr_drake.identify import _hands
+
+    o = IdentifyOptions(plant="physics", experiment="stiffness", object="toy_block", object_mass=0.028).validate()
+    assert o.object_weight and o.filter.gravity_loads == "following"
+    _, _, prior = _hands(o, np.random.default_rng(0))
+    assert prior.object_mass_unknown and prior.object_mass_range == pytest.approx((0.021, 0.035))
+    o = IdentifyOptions(plant="physics", experiment="known_hand",
+                        prior=pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.05, 0.1))).validate()
+    assert o.object_weight and o.filter.gravity_loads == "following"
+    assert _hands(o, np.random.default_rng(0))[2].object_mass_range == (0.05, 0.1)  # the prior's, not weighed
+    for bad in (0.0, -0.1, float("nan"), "heavy"):
+        with pytest.raises(ValueError, match="object_mass must be the object's weighed mass"):
+            IdentifyOptions(plant="physics", object_mass=bad).validate()
+    for bad in (0.0, 1.0, -0.2):
+        with pytest.raises(ValueError, match="object_mass_tolerance must be a fraction"):
+            IdentifyOptions(plant="physics", object_mass=0.1, object_mass_tolerance=bad).validate()
+    with pytest.raises(ValueError, match="needs link_weight"):
+        IdentifyOptions(plant="model", object_mass=0.1).validate()
+    o = IdentifyOptions(plant="physics", experiment="stiffness", prior=pf.PriorConfig(stiffness_range=(0.1, 0.3)))
+    assert _hands(o.validate(), np.random.default_rng(0))[2].stiffness_range == (0.1, 0.3)
+    o = IdentifyOptions(plant="physics", experiment="novel_fingers", hand="NH2",
+                        prior=pf.PriorConfig(link_range=(0.04, 0.06))).validate()
+    prior = _hands(o, np.random.default_rng(0))[2]
+    assert prior.links_unknown and prior.link_range == (0.04, 0.06)
 
 
 def test_object_weight_result_fields():

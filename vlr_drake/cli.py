@@ -181,7 +181,33 @@ def _identify_options(args):
         opts.link_weight = args.link_weight
     if getattr(args, "object_weight", False):
         opts.object_weight = True
+    if getattr(args, "object_mass", None) is not None:
+        opts.object_mass = args.object_mass
+    if getattr(args, "object_mass_tolerance", None) is not None:
+        opts.object_mass_tolerance = args.object_mass_tolerance
+    _config_flags(args, opts)
     return opts
+
+
+#: Filter settings an identification run sets itself, with the flag that sets them.
+RUN_SET_FILTER = {"particles": "--particles", "gravity_palm": "--link-weight (the physics plant's mounting)"}
+
+
+def _config_flags(args, opts) -> None:
+    """``identify``'s ``--filter`` / ``--prior KEY=VALUE`` overrides (as replay's) on the
+    options' filter and prior, after the scenario's; refuses the filter settings the run sets
+    from its own flags."""
+    from vlr_drake import filter as pf
+    from vlr_drake.scenario import config_overrides
+
+    for item in getattr(args, "filter", None) or []:
+        key = item.partition("=")[0]
+        if key in RUN_SET_FILTER:
+            raise ValueError(f"--filter '{item}': the run sets '{key}' itself; use {RUN_SET_FILTER[key]}")
+    if getattr(args, "filter", None):
+        opts.filter = config_overrides(opts.filter, args.filter, "--filter")
+    if getattr(args, "prior", None):
+        opts.prior = config_overrides(opts.prior if opts.prior is not None else pf.PriorConfig(), args.prior, "--prior")
 
 
 def _preset_hand(text: str) -> str:
@@ -690,6 +716,18 @@ def main(argv: list[str] | None = None) -> int:
                            help="identify the object's weight as well (its mass and how the contacts share it), "
                                 "carried with the links' weight (physics plant only); off by default "
                                 "(IdentifyOptions.object_weight)")
+            p.add_argument("--object-mass", type=float, default=None, metavar="KG",
+                           help="the object's weighed mass [kg]: identify its weight (--object-weight) with the "
+                                "mass known within --object-mass-tolerance (the toy block: 0.028; "
+                                "IdentifyOptions.object_mass)")
+            p.add_argument("--object-mass-tolerance", type=float, default=None, metavar="FRACTION",
+                           help="how well --object-mass is known, a fraction of it (default 0.25)")
+            p.add_argument("--filter", action="append", metavar="KEY=VALUE",
+                           help="override a filter setting (vlr_drake.filter.FilterConfig), after the "
+                                "scenario's, e.g. --filter motion_model=rolling; repeatable")
+            p.add_argument("--prior", action="append", metavar="KEY=VALUE",
+                           help="override a prior setting (vlr_drake.filter.PriorConfig), after the "
+                                "scenario's, e.g. --prior link_range=0.035,0.07; repeatable")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         if name == "identify":  # the demo's hand is the Model O

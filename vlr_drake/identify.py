@@ -313,6 +313,15 @@ class IdentifyOptions:
     # against 0.59; all joints: wine glass 1.17 against 1.73, gelatin box 1.22 against
     # 1.36): the pads' friction moments, which the VLR lacks, oppose the weight on the apple.
     object_weight: bool = False
+    # The object's mass as weighed [kg], known to within +-object_mass_tolerance (a fraction
+    # of it): the filter identifies the object's weight (object_weight) with the mass drawn in
+    # [m (1 - tolerance), m (1 + tolerance)] instead of PriorConfig.object_mass_range's
+    # 0-250 g. None: not weighed. The rolling model (FilterConfig.motion_model "rolling")
+    # needs it on the toy block: 24 stiffness seeds at 20,000 particles, the spring 0.0065
+    # +- 0.0065 N m/rad with the mass within +-25% against 0.0146 (12 seeds) unknown
+    # (docs/results.md, "The rolling model compiled...").
+    object_mass: float | None = None
+    object_mass_tolerance: float = 0.25
     filter: pf.FilterConfig = field(default_factory=pf.FilterConfig)
     # The filter's prior; None: the experiment's. The experiment adds its unknowns (thumb
     # distal spring, replaced fingers' links) when this prior names none.
@@ -356,9 +365,20 @@ class IdentifyOptions:
         if self.link_weight and self.plant != "physics":
             raise ValueError("link_weight needs the physics plant: the model plant's truth is Eq. 9, without the "
                              "links' weight")
+        if self.object_mass is not None:
+            if not (isinstance(self.object_mass, (int, float)) and np.isfinite(self.object_mass)
+                    and self.object_mass > 0):
+                raise ValueError(f"object_mass must be the object's weighed mass, a finite number > 0 [kg], "
+                                 f"got {self.object_mass!r}")
+            if not (isinstance(self.object_mass_tolerance, (int, float)) and 0 < self.object_mass_tolerance < 1):
+                raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got "
+                                 f"{self.object_mass_tolerance!r}")
+            self.object_weight = True  # a weighed object is an object whose weight the filter carries
+        if self.prior is not None and self.prior.object_mass_unknown:
+            self.object_weight = True  # (a scenario's prior may ask for it): the same needs
         if self.object_weight and not self.link_weight:
-            raise ValueError("object_weight needs link_weight (the gravity of the physics plant's mounting): the "
-                             "filter carries the object's weight with the links'")
+            raise ValueError("object_weight (or a weighed object_mass) needs link_weight (the gravity of the physics "
+                             "plant's mounting): the filter carries the object's weight with the links'")
         if self.filter.gravity_loads is None:
             self.filter.gravity_loads = ("following" if self.object_weight
                                          else default_gravity_loads(self.plant, self.experiment))
@@ -541,9 +561,8 @@ def _hands(opts: IdentifyOptions, rng):
     nominal = copy.deepcopy(opts.hand_spec) if opts.hand_spec is not None else hand_by_name(opts.hand)
     true_spec = copy.deepcopy(nominal)
     if opts.experiment == "stiffness":
-        if not prior.stiffness_unknown:
+        if not prior.stiffness_unknown:  # (in the prior's stiffness_range, by default 0.05-0.40 N m/rad)
             prior.stiffness_unknown = [(0, 1)]
-            prior.stiffness_range = (0.05, 0.40)
         if opts.true_stiffness is None:
             fi, j = prior.stiffness_unknown[0]
             k = list(true_spec.fingers[fi].stiffness)
@@ -557,13 +576,16 @@ def _hands(opts: IdentifyOptions, rng):
             finger.link_lengths = [float(x) for x in lengths]
     if opts.object_weight:
         prior.object_mass_unknown = True
+    if opts.object_mass is not None:
+        m, tol = float(opts.object_mass), float(opts.object_mass_tolerance)
+        prior.object_mass_range = (m * (1.0 - tol), m * (1.0 + tol))
     if opts.experiment == "novel_fingers" and not prior.links_unknown:
         # The filter knows which fingers were replaced, not how long their proximal links
         # are: the prior searches a range there.
         replaced = list(NOVEL_HANDS[opts.hand])  # names of the Model O fingers that were swapped
         names = nominal.finger_names()  # replaced fingers are named "<old>_<NFx>"
+        # (in the prior's link_range, by default 30-75 mm)
         prior.links_unknown = [i for i, name in enumerate(names) if any(name.startswith(r + "_") for r in replaced)]
-        prior.link_range = (0.030, 0.075)
     return true_spec, prior.believed_hand(nominal), prior
 
 
@@ -838,6 +860,11 @@ def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, p
         "action_choice": opts.action_choice,
         "link_weight": bool(np.any(opts.filter.gravity_palm)),
         "object_weight": bool(prior.object_mass_unknown),
+        # the weighed mass the filter was given [kg] and its tolerance (a fraction; None: not
+        # weighed), and the range its prior drew the mass from
+        "object_mass_given_kg": opts.object_mass,
+        "object_mass_tolerance": opts.object_mass_tolerance if opts.object_mass is not None else None,
+        "object_mass_range_kg": list(prior.object_mass_range) if prior.object_mass_unknown else None,
     }
     res.update(estimate_errors(hand, prior, est, truth))
     res.update(hand_parameter_report(hand, prior, est, f.estimates[0]))
