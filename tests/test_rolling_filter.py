@@ -43,9 +43,10 @@ class RollingTruth:
         self.command = self.command + dl
 
 
-def _filter(particles, seed=0, com_prior="contacts"):
+def _filter(particles, seed=0, com_prior="contacts", normal_tilt="cone"):
     cfg = pf.FilterConfig(particles=particles, motion_model="rolling", gravity_palm=GRAVITY.tolist(),
-                          gravity_loads="following", sigma_position=0.1e-3, sigma_rotation=np.deg2rad(0.3))
+                          gravity_loads="following", sigma_position=0.1e-3, sigma_rotation=np.deg2rad(0.3),
+                          normal_tilt=normal_tilt)
     prior = pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 0.15), proximal_half_width=0.08,
                            distal_half_width=0.15, contact_half_width=0.005, com_prior=com_prior)
     h = model_o().model()
@@ -63,6 +64,8 @@ def test_bad_rolling_settings_are_named():
         pf.FilterConfig(motion_model="rolling", tendon_reference="implied").validate()
     with pytest.raises(ValueError, match="normal_cone_deg"):
         pf.FilterConfig(motion_model="rolling", normal_cone_deg=95).validate()
+    with pytest.raises(ValueError, match="'normal_tilt' must be one of"):
+        pf.FilterConfig(motion_model="rolling", normal_tilt="sideways").validate()
     with pytest.raises(ValueError, match="com_prior"):
         pf.PriorConfig(com_prior="centroid").validate()
     with pytest.raises(ValueError, match="com_half_width"):
@@ -113,6 +116,31 @@ def test_the_hypotheses_draw_and_keep_their_object():
     f._roughen(taken)
     np.testing.assert_allclose(np.linalg.norm(taken.normals_O, axis=-1), 1.0, atol=1e-12)
     assert not np.allclose(taken.com_O, ps.com_O[idx])
+
+
+def test_normals_tilted_in_their_fingers_planes():
+    """normal_tilt "in_plane": each normal is its guess turned about its finger's hinge axis
+    by an angle uniform in +-normal_cone_deg (half of them within half the angle, both signs
+    alike), with nothing along the hinge axis; resampling and roughening keep them there."""
+    from vlr_drake.motion_rolling import hinge_axes
+
+    truth = RollingTruth(3)
+    f = _filter(2000, normal_tilt="in_plane")
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    guess = guessed_normals(f.hand, kinematics.contacts(f.hand, ps.theta, ps.a))
+    n_P = np.einsum("ij,pnj->pni", truth.R, ps.normals_O)
+    hinge = hinge_axes(f.hand)
+    assert np.abs(np.einsum("pni,ni->pn", n_P, hinge)).max() < 1e-12
+    signed = np.rad2deg(np.arctan2(np.einsum("pni,pni->pn", n_P, np.cross(guess, hinge)),
+                                   np.einsum("pni,pni->pn", n_P, guess)))
+    assert np.abs(signed).max() <= 20.0 + 1e-9
+    assert abs(np.mean(np.abs(signed) < 10.0) - 0.5) < 0.03 and abs(np.mean(signed > 0) - 0.5) < 0.03
+    taken = ps.take(np.arange(0, 2000, 7))
+    before = taken.normals_O.copy()
+    f._roughen(taken)
+    moved = np.einsum("ij,pnj->pni", truth.R, taken.normals_O)
+    assert not np.allclose(taken.normals_O, before)
+    assert np.abs(np.einsum("pni,ni->pn", moved, hinge)).max() < 1e-9
 
 
 def test_the_balanced_centre_of_mass():

@@ -718,6 +718,8 @@ LIKELIHOODS = ("gaussian", "student_t")
 STABLE_GRASPS = ("off", "prior", "always")
 #: How a move carries the hypotheses (FilterConfig.motion_model).
 MOTION_MODELS = ("pinned", "rolling")
+#: How the rolling model's normals are drawn around their guess (FilterConfig.normal_tilt).
+NORMAL_TILTS = ("cone", "in_plane")
 
 
 @dataclass
@@ -935,6 +937,14 @@ class FilterConfig:
     # `vlr-drake bench rolling`; docs/results.md).
     motion_model: str = "pinned"
     normal_cone_deg: float = 20.0
+    # How the rolling model's normals leave their guess (NORMAL_TILTS): "cone", uniformly over
+    # the spherical cap of ``normal_cone_deg``; or "in_plane", tilted only within the finger's
+    # flexion plane, by an angle uniform in +-normal_cone_deg. A tilt out of that plane barely
+    # changes the roll (5 deg: 0.049 against 0.051 mm per action on the toy block), a tilt in
+    # it trades off against the joints' springs (docs/results.md, "The rolling model in the
+    # filter..."): "in_plane" spends the hypotheses on the three angles that matter. The
+    # roughening's covariance keeps such normals in their planes.
+    normal_tilt: str = "cone"
 
     def validate(self) -> FilterConfig:
         if not kinematics.is_count(self.particles, 10):
@@ -1009,6 +1019,8 @@ class FilterConfig:
             raise ValueError(f"filter: 'motion_model' must be one of {MOTION_MODELS}, got '{self.motion_model}'")
         if not (kinematics.is_number(self.normal_cone_deg) and 0 <= self.normal_cone_deg < 90):
             raise ValueError(f"filter: 'normal_cone_deg' must be in [0, 90) [deg], got {self.normal_cone_deg!r}")
+        if self.normal_tilt not in NORMAL_TILTS:
+            raise ValueError(f"filter: 'normal_tilt' must be one of {NORMAL_TILTS}, got '{self.normal_tilt}'")
         if self.motion_model == "rolling":
             for name, bad, why in (("tendon", "ideal", "the rolling model has the elastic tendon only"),
                                    ("tendon_reference", "implied", "the implied stretch would be Eq. 9's equilibrium"),
@@ -1337,19 +1349,24 @@ class SelfIdentificationFilter:
         """The rolling model's object (FilterConfig.motion_model "rolling") for hypotheses with
         contacts ``p`` (M, N, 3) (palm frame) and ``p_O`` (POM frame): the outward normals
         at the contacts (M, N, 3), each drawn uniformly over the cone of ``normal_cone_deg``
-        around :func:`motion_rolling.guessed_normals`, and, with object loads (M, N), the
+        around :func:`motion_rolling.guessed_normals` (``normal_tilt`` "cone"), or tilted
+        from it within its finger's flexion plane by an angle uniform in +-``normal_cone_deg``
+        ("in_plane"), and, with object loads (M, N), the
         centre of mass (M, 3) at the contacts' barycentre with the loads' shares, moved along
         the normal of the contacts' plane uniformly within ``PriorConfig.com_half_width``;
         both in the POM frame."""
         M, N = p.shape[:2]
         guess = motion_rolling.guessed_normals(self.hand, p)
-        # a uniform draw on the spherical cap: cos(angle) uniform, the azimuth uniform
-        cos_c = np.cos(np.deg2rad(self.config.normal_cone_deg))
-        ang = np.arccos(self.rng.uniform(cos_c, 1.0, (M, N)))
-        az = self.rng.uniform(0.0, 2 * np.pi, (M, N))
+        cone = np.deg2rad(self.config.normal_cone_deg)
         e1 = np.broadcast_to(motion_rolling.hinge_axes(self.hand), guess.shape)  # normal to the plane of the guess
-        e2 = np.cross(guess, e1)
-        side = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
+        e2 = np.cross(guess, e1)  # in the finger's flexion plane, across the guess
+        if self.config.normal_tilt == "in_plane":  # a signed tilt about the finger's hinge axis
+            ang = self.rng.uniform(-cone, cone, (M, N))
+            side = e2
+        else:  # a uniform draw on the spherical cap: cos(angle) uniform, the azimuth uniform
+            ang = np.arccos(self.rng.uniform(np.cos(cone), 1.0, (M, N)))
+            az = self.rng.uniform(0.0, 2 * np.pi, (M, N))
+            side = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
         n_P = np.cos(ang)[..., None] * guess + np.sin(ang)[..., None] * side
         normals_O = np.einsum("ji,pnj->pni", R_PO, n_P)
         if load is None:
