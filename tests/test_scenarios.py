@@ -8,7 +8,14 @@ from pydrake.common.yaml import yaml_load_typed
 
 from vlr_drake import filter as pf
 from vlr_drake.hand import HandSpec, model_o
-from vlr_drake.scenario import DIAGRAMS_DIR, PriorSettings, Scenario, example_scenarios, load_scenario
+from vlr_drake.scenario import (
+    DIAGRAMS_DIR,
+    PriorSettings,
+    Scenario,
+    example_scenarios,
+    load_scenario,
+    options_from_scenario,
+)
 
 EXAMPLES = example_scenarios()
 EXPECTED = {
@@ -123,6 +130,27 @@ def test_prior_settings_convert_to_the_filters_tuples():
     assert PriorSettings(contact_limits=[0.004, 0.03]).to_prior().contact_limits == (0.004, 0.03)
 
 
+def test_a_weighed_object_in_the_scenario(tmp_path):
+    """prior.object_mass (a weighed object): the filter's prior identifies the object's weight
+    with its mass within the tolerance, an identification run and the builder's diagram both
+    carry it with the loads following the angles, and --object-mass's flags override it."""
+    from vlr_drake.builder import build_diagram
+
+    path = _write(tmp_path, "object: toy_block\nprior: {object_mass: 0.028, object_mass_tolerance: 0.1}\n")
+    s = load_scenario(path)
+    prior = s.prior.to_prior()
+    assert prior.object_mass_unknown and prior.object_mass_range == pytest.approx((0.0252, 0.0308))
+    o = options_from_scenario(s, path).validate()
+    assert o.object_weight and o.object_mass == 0.028 and o.object_mass_tolerance == 0.1
+    assert o.filter.gravity_loads == "following"
+    assert options_from_scenario(s, path, object_mass=0.03).validate().object_mass == 0.03
+    s.filter.particles = 200
+    built = build_diagram(s)
+    assert built.filter._prior.object_mass_range == pytest.approx((0.0252, 0.0308))
+    assert built.filter._config.gravity_loads == "following" and np.any(built.filter._config.gravity_palm)
+    assert not PriorSettings().to_prior().object_mass_unknown
+
+
 def test_contact_limits_past_a_finger_name_the_finger(tmp_path):
     path = tmp_path / "nh3.yaml"
     path.write_text("hand: NH3\nprior:\n  contact_limits: [0.005, 0.048]\n")
@@ -225,6 +253,9 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nobject_spec: {name: o, size: [0.03], color: [2.0, 0.0, 0.0, 1.0]}\n", "field 'color'"),
         ("plant: model\nhand: \"\"\n", "'hand' must be a preset"),  # an empty name is not the default
         ("plant: model\nprior: {min_tension: -100.0}\n", "'min_tension' must be a finite number >= 0"),
+        ("plant: model\nprior: {object_mass: 0.028}\n", "the model plant's truth (Eq. 9) has no weight"),
+        ("prior: {object_mass: -0.028}\n", "prior: object_mass must be the object's weighed mass"),
+        ("prior: {object_mass: 0.028, object_mass_tolerance: 1.5}\n", "object_mass_tolerance must be a fraction"),
         ("plant: model\nfilter: {gravity_palm: [0.0, 0.0, 9.81]}\n", "'gravity_palm' is a hardware hand's"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (

@@ -403,10 +403,11 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
 
         weight = default_link_weight(s.plant, s.experiment()) if s.link_weight is None else s.link_weight
         config = replace(config, gravity_palm=filter_gravity(s.physics if weight else None))
-    if config.gravity_loads is None:  # how the moves carry the links' weight: the experiment's default
-        from vlr_drake.identify import default_gravity_loads
+    if config.gravity_loads is None:  # how the moves carry the links' weight: the experiment's default,
+        from vlr_drake.identify import default_gravity_loads  # following with a weighed object's
 
-        config = replace(config, gravity_loads=default_gravity_loads(s.plant, s.experiment()))
+        config = replace(config, gravity_loads="following" if prior.object_mass_unknown
+                         else default_gravity_loads(s.plant, s.experiment()))
     if config.stuck_probability is None:  # the plant's and experiment's default
         from vlr_drake.identify import default_stuck_probability
 

@@ -718,6 +718,17 @@ LIKELIHOODS = ("gaussian", "student_t")
 STABLE_GRASPS = ("off", "prior", "always")
 #: How a move carries the hypotheses (FilterConfig.motion_model).
 MOTION_MODELS = ("pinned", "rolling")
+def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
+    """The object's mass range [kg] (PriorConfig.object_mass_range) for an object weighed at
+    ``mass`` [kg] and known within +-``tolerance`` (a fraction of it, in (0, 1)): (mass (1 -
+    tolerance), mass (1 + tolerance)). Raises ``ValueError`` naming a bad mass or tolerance."""
+    if not (kinematics.is_number(mass) and np.isfinite(mass) and mass > 0):
+        raise ValueError(f"object_mass must be the object's weighed mass, a finite number > 0 [kg], got {mass!r}")
+    if not (kinematics.is_number(tolerance) and 0 < tolerance < 1):
+        raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got {tolerance!r}")
+    return float(mass) * (1.0 - tolerance), float(mass) * (1.0 + tolerance)
+
+
 #: How the rolling model's normals are drawn around their guess (FilterConfig.normal_tilt).
 NORMAL_TILTS = ("cone", "in_plane")
 

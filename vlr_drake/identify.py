@@ -366,13 +366,7 @@ class IdentifyOptions:
             raise ValueError("link_weight needs the physics plant: the model plant's truth is Eq. 9, without the "
                              "links' weight")
         if self.object_mass is not None:
-            if not (isinstance(self.object_mass, (int, float)) and np.isfinite(self.object_mass)
-                    and self.object_mass > 0):
-                raise ValueError(f"object_mass must be the object's weighed mass, a finite number > 0 [kg], "
-                                 f"got {self.object_mass!r}")
-            if not (isinstance(self.object_mass_tolerance, (int, float)) and 0 < self.object_mass_tolerance < 1):
-                raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got "
-                                 f"{self.object_mass_tolerance!r}")
+            pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)  # (names a bad one)
             self.object_weight = True  # a weighed object is an object whose weight the filter carries
         if self.prior is not None and self.prior.object_mass_unknown:
             self.object_weight = True  # (a scenario's prior may ask for it): the same needs
@@ -577,8 +571,7 @@ def _hands(opts: IdentifyOptions, rng):
     if opts.object_weight:
         prior.object_mass_unknown = True
     if opts.object_mass is not None:
-        m, tol = float(opts.object_mass), float(opts.object_mass_tolerance)
-        prior.object_mass_range = (m * (1.0 - tol), m * (1.0 + tol))
+        prior.object_mass_range = pf.weighed_mass_range(opts.object_mass, opts.object_mass_tolerance)
     if opts.experiment == "novel_fingers" and not prior.links_unknown:
         # The filter knows which fingers were replaced, not how long their proximal links
         # are: the prior searches a range there.

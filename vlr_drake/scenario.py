@@ -143,9 +143,18 @@ class PriorSettings:
     contact_limits: list[float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+    # The object's weighed mass [kg] (physics and hardware plants): the filter identifies the
+    # object's weight with its mass within +-object_mass_tolerance (a fraction) of this
+    # (vlr_drake.identify.IdentifyOptions.object_mass; ``vlr-drake identify --object-mass``).
+    # None: not weighed, the object weightless (Eq. 9).
+    object_mass: float | None = None
+    object_mass_tolerance: float = 0.25
 
     def to_prior(self) -> pf.PriorConfig:
-        return pf.PriorConfig(
+        weighed = {} if self.object_mass is None else dict(
+            object_mass_unknown=True, object_mass_range=pf.weighed_mass_range(self.object_mass,
+                                                                              self.object_mass_tolerance))
+        return pf.PriorConfig(**weighed,
             proximal_half_width=self.proximal_half_width,
             distal_half_width=self.distal_half_width,
             contact_half_width=self.contact_half_width,
@@ -168,6 +177,8 @@ class PriorSettings:
         for pair in self.stiffness_unknown:
             if len(pair) != 2:
                 raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger, joint] pair")
+        if self.object_mass is not None:
+            _with_section("prior", lambda: pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance))
         self.to_prior().validate(N, K)
         return self
 
@@ -516,6 +527,9 @@ class Scenario:
         if self.plant != "hardware" and np.any(self.filter.gravity_palm):
             raise ValueError(f"filter: 'gravity_palm' is a hardware hand's mounting; the {self.plant} plant sets "
                              "it from its own ('link_weight')")
+        if self.prior.object_mass is not None and self.plant == "model":
+            raise ValueError("prior: 'object_mass': the model plant's truth (Eq. 9) has no weight; a weighed object "
+                             "needs the physics or hardware plant")
         if self.link_weight and self.plant != "physics":
             raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
                              "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
@@ -802,6 +816,8 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         object_spec=copy.deepcopy(s.object_spec),
         filter=copy.deepcopy(s.filter),
         prior=s.prior.to_prior(),
+        object_mass=s.prior.object_mass,
+        object_mass_tolerance=s.prior.object_mass_tolerance,
         link_weight=s.link_weight,
         squeeze_range=s.exploration.squeeze,
         squeeze_window=s.exploration.squeeze_window,
