@@ -65,6 +65,12 @@ def test_identify_quick(tmp_path, experiment, extra):
     assert len(r["proximal_joint_error_deg"]) == 3 and np.all(np.isfinite(r["proximal_joint_error_deg"]))
     assert np.all(np.isfinite(r["contact_error_mm"]))
     assert r["truth_inside_95_theta"] >= 5 / 6  # six iterations: wide intervals, and honest ones
+    # which joints and contacts: the fractions are their means, the errors the proximal ones' too
+    assert np.shape(r["theta_inside_95"]) == (3, 2) and np.shape(r["contact_inside_95"]) == (3,)
+    assert r["truth_inside_95_theta"] == pytest.approx(np.mean(r["theta_inside_95"]))
+    assert r["truth_inside_95_contact"] == pytest.approx(np.mean(r["contact_inside_95"]))
+    np.testing.assert_allclose(np.asarray(r["joint_error_deg"])[:, 0], r["proximal_joint_error_deg"])
+    assert r["joint_error_deg_mean"] == pytest.approx(np.mean(r["joint_error_deg"]))
     if experiment == "stiffness":
         k, lo_hi = r["stiffness_estimate_Nm_per_rad"], r["stiffness_interval_Nm_per_rad"]
         assert r["stiffness_error_Nm_per_rad"] == pytest.approx(abs(k - r["stiffness_true_Nm_per_rad"]))

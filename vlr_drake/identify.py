@@ -790,6 +790,10 @@ def estimate_errors(hand, prior: pf.PriorConfig, est: dict, truth: dict) -> dict
         "interval_full_width_deg_mean": float(np.rad2deg(est["theta_full_width"].mean())),
         "truth_inside_95_theta": float(inside_theta.mean()),
         "truth_inside_95_contact": float(inside_a.mean()),
+        # which: per finger, per joint / per contact (the fractions above are their means)
+        "theta_inside_95": inside_theta.tolist(),
+        "contact_inside_95": inside_a.tolist(),
+        "joint_error_deg": th_err.tolist(),
     }
     if prior.stiffness_unknown:
         fi, j = prior.stiffness_unknown[0]
