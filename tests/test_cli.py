@@ -191,6 +191,7 @@ def test_identify_weighed_object_and_config_flags(tmp_path, capsys):
                          (["--object-mass", "-1"], "object_mass must be the object's weighed mass"),
                          (["--object-mass", "0.03", "--object-mass-tolerance", "1"], "object_mass_tolerance"),
                          (["--object-mass", "0.03", "--no-link-weight"], "needs link_weight"),
+                         (["--object-mass-tolerance", "0.1"], "--object-mass-tolerance needs the object's weighed mass"),
                          (["--filter", "motion_model=sliding"], "'motion_model' must be one of"),
                          (["--prior", "object_mass_range=heavy"], "--prior 'object_mass_range=heavy'")]:
         assert main(["identify", "stiffness", *flags, "--out", str(tmp_path / "bad"), "--no-progress"]) == 2, flags

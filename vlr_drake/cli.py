@@ -184,6 +184,9 @@ def _identify_options(args):
     if getattr(args, "object_mass", None) is not None:
         opts.object_mass = args.object_mass
     if getattr(args, "object_mass_tolerance", None) is not None:
+        if opts.object_mass is None:  # said, not silently dropped
+            raise ValueError("--object-mass-tolerance needs the object's weighed mass: --object-mass (or a "
+                             "scenario's prior.object_mass)")
         opts.object_mass_tolerance = args.object_mass_tolerance
     _config_flags(args, opts)
     return opts
