@@ -43,10 +43,10 @@ class RollingTruth:
         self.command = self.command + dl
 
 
-def _filter(particles, seed=0, com_prior="contacts", normal_tilt="cone"):
+def _filter(particles, seed=0, com_prior="contacts", normal_tilt="cone", normal_guess="flexion_plane"):
     cfg = pf.FilterConfig(particles=particles, motion_model="rolling", gravity_palm=GRAVITY.tolist(),
                           gravity_loads="following", sigma_position=0.1e-3, sigma_rotation=np.deg2rad(0.3),
-                          normal_tilt=normal_tilt)
+                          normal_tilt=normal_tilt, normal_guess=normal_guess)
     prior = pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 0.15), proximal_half_width=0.08,
                            distal_half_width=0.15, contact_half_width=0.005, com_prior=com_prior)
     h = model_o().model()
@@ -66,6 +66,10 @@ def test_bad_rolling_settings_are_named():
         pf.FilterConfig(motion_model="rolling", normal_cone_deg=95).validate()
     with pytest.raises(ValueError, match="'normal_tilt' must be one of"):
         pf.FilterConfig(motion_model="rolling", normal_tilt="sideways").validate()
+    with pytest.raises(ValueError, match="'normal_guess' must be one of"):
+        pf.FilterConfig(motion_model="rolling", normal_guess="sphere").validate()
+    with pytest.raises(ValueError, match="'kind' must be one of"):
+        guessed_normals(model_o().model(), np.ones((1, 3, 3)), "sphere")
     with pytest.raises(ValueError, match="com_prior"):
         pf.PriorConfig(com_prior="centroid").validate()
     with pytest.raises(ValueError, match="com_half_width"):
@@ -141,6 +145,48 @@ def test_normals_tilted_in_their_fingers_planes():
     moved = np.einsum("ij,pnj->pni", truth.R, taken.normals_O)
     assert not np.allclose(taken.normals_O, before)
     assert np.abs(np.einsum("pni,ni->pn", moved, hinge)).max() < 1e-9
+
+
+def test_the_circle_guess_is_a_round_objects_normals():
+    """guessed_normals "circle": the direction from the centre of the circle through the
+    contacts, which is a sphere's normal wherever its centre lies in the contacts' plane
+    (any plane, any three or more contacts); the flexion-plane guess misses it by the
+    fingers' splay. Collinear contacts fall back to their centroid."""
+    from vlr_drake.motion_rolling import _circle_centres
+
+    rng = np.random.default_rng(4)
+    h = model_o().model()
+    centre = rng.normal(0.0, 0.05, (6, 3))
+    frame = np.linalg.qr(rng.normal(size=(6, 3, 3)))[0]  # each sphere's contacts in its own plane
+    ang = rng.uniform(0, 2 * np.pi, (6, 3))
+    n_true = np.cos(ang)[..., None] * frame[:, None, :, 0] + np.sin(ang)[..., None] * frame[:, None, :, 1]
+    p = centre[:, None] + 0.046 * n_true
+    np.testing.assert_allclose(guessed_normals(h, p, "circle"), n_true, atol=1e-9)
+    assert np.max(np.abs(np.einsum("pni,pni->pn", guessed_normals(h, p), n_true) - 1)) > 1e-3
+    four = centre[:1, None] + 0.03 * (np.cos([0.1, 1.5, 3.0, 4.4])[:, None] * frame[0, :, 0]
+                                      + np.sin([0.1, 1.5, 3.0, 4.4])[:, None] * frame[0, :, 1])
+    np.testing.assert_allclose(_circle_centres(four), centre[:1], atol=1e-12)
+    line = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]])
+    np.testing.assert_allclose(_circle_centres(line), line.mean(axis=1))
+
+
+def test_either_guess_draws_half_the_hypotheses_around_each():
+    """normal_guess "either": each hypothesis' normals lie in the cone around one of the two
+    guesses, about half of them around each, and a hypothesis keeps one guess for all its
+    contacts (an object is flat or round, not both)."""
+    truth = RollingTruth(3)
+    f = _filter(2000, normal_guess="either")
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    p = kinematics.contacts(f.hand, ps.theta, ps.a)
+    n_P = np.einsum("ij,pnj->pni", truth.R, ps.normals_O)
+    within = {}
+    for kind in ("flexion_plane", "circle"):
+        cos = np.einsum("pni,pni->pn", n_P, guessed_normals(f.hand, p, kind))
+        within[kind] = np.all(np.rad2deg(np.arccos(np.clip(cos, -1, 1))) <= 20.0 + 1e-9, axis=1)
+    assert np.all(within["flexion_plane"] | within["circle"])
+    only_round = np.mean(within["circle"] & ~within["flexion_plane"])
+    only_flat = np.mean(within["flexion_plane"] & ~within["circle"])
+    assert 0.3 < only_round < 0.55 and 0.3 < only_flat < 0.55
 
 
 def test_the_balanced_centre_of_mass():

@@ -731,6 +731,8 @@ def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
 
 #: How the rolling model's normals are drawn around their guess (FilterConfig.normal_tilt).
 NORMAL_TILTS = ("cone", "in_plane")
+#: Which guess the rolling model's normals are drawn around (FilterConfig.normal_guess).
+NORMAL_GUESS_CHOICES = (*motion_rolling.NORMAL_GUESSES, "either")
 
 
 @dataclass
@@ -956,6 +958,15 @@ class FilterConfig:
     # filter..."): "in_plane" spends the hypotheses on the three angles that matter. The
     # roughening's covariance keeps such normals in their planes.
     normal_tilt: str = "cone"
+    # Which guess the normals are drawn around (NORMAL_GUESSES;
+    # vlr_drake.motion_rolling.guessed_normals): "flexion_plane", the direction from the
+    # contacts' centroid within each finger's flexion plane (a flat-faced object gripped
+    # face-on: 0.2 deg off on the toy block, 34-38 deg off at the apple's side-by-side
+    # fingers); "circle", the direction from the centre of the circle through the contacts (a
+    # round object: within 2 deg on the apple, 35 deg off on the block); or "either", each
+    # hypothesis drawing its guess from one of the two with probability 1/2 (an object of
+    # unknown shape: the measurements weigh the two).
+    normal_guess: str = "flexion_plane"
 
     def validate(self) -> FilterConfig:
         if not kinematics.is_count(self.particles, 10):
@@ -1032,6 +1043,8 @@ class FilterConfig:
             raise ValueError(f"filter: 'normal_cone_deg' must be in [0, 90) [deg], got {self.normal_cone_deg!r}")
         if self.normal_tilt not in NORMAL_TILTS:
             raise ValueError(f"filter: 'normal_tilt' must be one of {NORMAL_TILTS}, got '{self.normal_tilt}'")
+        if self.normal_guess not in NORMAL_GUESS_CHOICES:
+            raise ValueError(f"filter: 'normal_guess' must be one of {NORMAL_GUESS_CHOICES}, got '{self.normal_guess}'")
         if self.motion_model == "rolling":
             for name, bad, why in (("tendon", "ideal", "the rolling model has the elastic tendon only"),
                                    ("tendon_reference", "implied", "the implied stretch would be Eq. 9's equilibrium"),
@@ -1367,9 +1380,18 @@ class SelfIdentificationFilter:
         the normal of the contacts' plane uniformly within ``PriorConfig.com_half_width``;
         both in the POM frame."""
         M, N = p.shape[:2]
-        guess = motion_rolling.guessed_normals(self.hand, p)
+        kind = self.config.normal_guess
+        if kind == "either":  # a flat-faced or a round object, half the hypotheses each
+            round_ = self.rng.random(M) < 0.5
+            guess = np.where(round_[:, None, None], motion_rolling.guessed_normals(self.hand, p, "circle"),
+                             motion_rolling.guessed_normals(self.hand, p))
+        else:
+            guess = motion_rolling.guessed_normals(self.hand, p, kind)
         cone = np.deg2rad(self.config.normal_cone_deg)
         e1 = np.broadcast_to(motion_rolling.hinge_axes(self.hand), guess.shape)  # normal to the plane of the guess
+        if kind != "flexion_plane":  # a guess out of its finger's plane: the hinge axis made square to it
+            e1 = e1 - np.einsum("pni,pni->pn", e1, guess)[..., None] * guess
+            e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
         e2 = np.cross(guess, e1)  # in the finger's flexion plane, across the guess
         if self.config.normal_tilt == "in_plane":  # a signed tilt about the finger's hinge axis
             ang = self.rng.uniform(-cone, cone, (M, N))

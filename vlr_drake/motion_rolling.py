@@ -33,7 +33,7 @@ from numba import njit, prange
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["RollingMove", "move_rolling", "guessed_normals", "hinge_axes"]
+__all__ = ["NORMAL_GUESSES", "RollingMove", "move_rolling", "guessed_normals", "hinge_axes"]
 
 #: Newton's stopping tolerances: stationarity [N m, N] and attachments [m].
 GRAD_TOL = 1e-10
@@ -87,17 +87,40 @@ def hinge_axes(hand: HandModel) -> np.ndarray:
     return h / np.linalg.norm(h, axis=1, keepdims=True)
 
 
-def guessed_normals(hand: HandModel, p) -> np.ndarray:
+#: The guesses of the object's normals at the contacts (guessed_normals' ``kind``).
+NORMAL_GUESSES = ("flexion_plane", "circle")
+
+
+def guessed_normals(hand: HandModel, p, kind: str = "flexion_plane") -> np.ndarray:
     """A guess (P, N, 3) of the object's outward unit normals at the contacts ``p`` (P, N, 3)
-    (palm frame): each contact's direction from the contacts' centroid, in its finger's
-    flexion plane (the component along the finger's hinge axis z x u_i removed). On the
-    physics plant's toy block it is 0.2 deg from the block's face normals at the true grasp;
-    a filter draws its hypotheses' normals around it once and keeps them fixed in the
+    (palm frame).
+
+    ``kind`` "flexion_plane": each contact's direction from the contacts' centroid, in its
+    finger's flexion plane (the component along the finger's hinge axis z x u_i removed): a
+    flat-faced object gripped face-on. On the physics plant's toy block it is 0.2 deg from
+    the block's face normals at the true grasp; on the apple, whose side-by-side fingers
+    touch it 35 deg out of their flexion planes, 34-38 deg off at the fingers.
+
+    ``kind`` "circle": each contact's direction from the centre of the circle through the
+    contacts (least squares in their plane; their centroid where they are collinear or fewer
+    than three): a round object whose centre lies in the contacts' plane. On the apple
+    (NH2's grasp) it is within 2 deg of the sphere's normals.
+
+    A filter draws its hypotheses' normals around a guess once and keeps them fixed in the
     object's frame (re-guessed at every step from each hypothesis' own contacts, it turns
     the normals with the hypothesis' error, which made the filter worse: docs/results.md)."""
     p = np.asarray(p, float)
     if p.ndim != 3 or p.shape[1:] != (hand.N, 3):
         raise ValueError(f"guessed_normals: 'p' must have shape (P, {hand.N}, 3), got {p.shape}")
+    if kind not in NORMAL_GUESSES:
+        raise ValueError(f"guessed_normals: 'kind' must be one of {NORMAL_GUESSES}, got '{kind}'")
+    if kind == "circle":
+        d = p - _circle_centres(p)[:, None]
+        n = np.linalg.norm(d, axis=-1, keepdims=True)
+        if not np.all(n > 1e-9):
+            raise ValueError("guessed_normals: a contact sits at the centre of the contacts' circle; no outward "
+                             "direction to guess from")
+        return d / n
     d = p - p.mean(axis=1, keepdims=True)
     hinge = hinge_axes(hand)
     d -= np.einsum("pni,ni->pn", d, hinge)[..., None] * hinge[None]
@@ -106,6 +129,29 @@ def guessed_normals(hand: HandModel, p) -> np.ndarray:
         raise ValueError("guessed_normals: a contact sits at the contacts' centroid (within its finger's plane); "
                          "no outward direction to guess from")
     return d / n
+
+
+def _circle_centres(p: np.ndarray) -> np.ndarray:
+    """(P, 3) centres of the circles through each hypothesis' contacts ``p`` (P, N, 3): in
+    the contacts' least-squares plane, the centre c minimising sum_i (|p_i - c|^2 - r^2)^2
+    (exact through three contacts); the centroid where the contacts are fewer than three or
+    collinear."""
+    m = p.mean(axis=1)
+    d = p - m[:, None]
+    if p.shape[1] < 3:
+        return m
+    _, sv, vt = np.linalg.svd(d)
+    e1, e2 = vt[:, 0], vt[:, 1]
+    x, y = np.einsum("pni,pi->pn", d, e1), np.einsum("pni,pi->pn", d, e2)
+    A = np.stack([2 * x, 2 * y, np.ones_like(x)], axis=-1)
+    ok = sv[:, 1] > 1e-6 * np.maximum(sv[:, 0], 1e-300)  # not collinear
+    out = m.copy()
+    if np.any(ok):
+        AtA = np.einsum("pni,pnj->pij", A[ok], A[ok])
+        Atb = np.einsum("pni,pn->pi", A[ok], x[ok] ** 2 + y[ok] ** 2)
+        z = np.linalg.solve(AtA, Atb[..., None])[..., 0]
+        out[ok] += z[:, :1] * e1[ok] + z[:, 1:2] * e2[ok]
+    return out
 
 
 def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gravity=None, object_mass=None,
