@@ -152,7 +152,7 @@ def test_the_circle_guess_is_a_round_objects_normals():
     contacts, which is a sphere's normal wherever its centre lies in the contacts' plane
     (any plane, any three or more contacts); the flexion-plane guess misses it by the
     fingers' splay. Collinear contacts fall back to their centroid."""
-    from vlr_drake.motion_rolling import _circle_centres
+    from vlr_drake.motion_rolling import circle_centres
 
     rng = np.random.default_rng(4)
     h = model_o().model()
@@ -165,9 +165,9 @@ def test_the_circle_guess_is_a_round_objects_normals():
     assert np.max(np.abs(np.einsum("pni,pni->pn", guessed_normals(h, p), n_true) - 1)) > 1e-3
     four = centre[:1, None] + 0.03 * (np.cos([0.1, 1.5, 3.0, 4.4])[:, None] * frame[0, :, 0]
                                       + np.sin([0.1, 1.5, 3.0, 4.4])[:, None] * frame[0, :, 1])
-    np.testing.assert_allclose(_circle_centres(four), centre[:1], atol=1e-12)
+    np.testing.assert_allclose(circle_centres(four), centre[:1], atol=1e-12)
     line = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]])
-    np.testing.assert_allclose(_circle_centres(line), line.mean(axis=1))
+    np.testing.assert_allclose(circle_centres(line), line.mean(axis=1))
 
 
 def test_either_guess_draws_half_the_hypotheses_around_each():
@@ -187,6 +187,28 @@ def test_either_guess_draws_half_the_hypotheses_around_each():
     only_round = np.mean(within["circle"] & ~within["flexion_plane"])
     only_flat = np.mean(within["flexion_plane"] & ~within["circle"])
     assert 0.3 < only_round < 0.55 and 0.3 < only_flat < 0.55
+
+
+def test_a_round_objects_centre_of_mass_follows_its_shape():
+    """com_prior "shape": a hypothesis that guesses a round object (normal_guess "circle",
+    or its half of "either") has its centre of mass within com_half_width of the centre of
+    the circle through its contacts, uniform in that ball; the flat-faced half keeps the
+    contacts' barycentre."""
+    from vlr_drake.motion_rolling import circle_centres
+
+    truth = RollingTruth(3)
+    f = _filter(3000, com_prior="shape", normal_guess="circle")
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    r = np.linalg.norm(ps.com_O - circle_centres(ps.p_O), axis=1)
+    half = f.prior.com_half_width
+    assert r.max() <= half + 1e-12 and abs(np.mean(r < half / 2) - 1 / 8) < 0.025
+    near = {}
+    for com_prior in ("shape", "contacts"):
+        f = _filter(3000, com_prior=com_prior, normal_guess="either")
+        ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+        near[com_prior] = np.mean(np.linalg.norm(ps.com_O - circle_centres(ps.p_O), axis=1) <= half + 1e-12)
+    # the round half, and as many of the flat half as the contacts' barycentre puts near
+    assert near["contacts"] < 0.6 and abs(near["shape"] - (0.5 + 0.5 * near["contacts"])) < 0.04
 
 
 def test_the_balanced_centre_of_mass():

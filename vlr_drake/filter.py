@@ -567,7 +567,12 @@ class PriorConfig:
     # (the centre of mass need not lie in that plane); or "balanced", uniformly within a
     # ball of radius ``com_half_width`` around the contacts' balanced barycentre, whose
     # shares balance the fingers' closing directions (sum_i w_i u_i = 0: on the Model O half
-    # at the thumb, a quarter at each finger): an object held near its centre of mass.
+    # at the thumb, a quarter at each finger): an object held near its centre of mass; or
+    # "shape", following each hypothesis' guess of the object's shape (FilterConfig.normal_guess):
+    # a round object's (the "circle" guess) within a ball of ``com_half_width`` around the
+    # centre of the circle through its contacts (a uniform ball's centre of mass), a
+    # flat-faced one's as "contacts". On the apple the contacts' barycentre lies about 13 mm
+    # from its centre, towards the fingers.
     # The rolling model's spring trades off against the centre of mass (on the toy block a
     # stiffer thumb spring by about 1.4% per mm towards the fingers), and the contacts'
     # shares put it 11 mm towards the fingers on average (docs/results.md).
@@ -700,7 +705,7 @@ class PriorConfig:
 
 
 #: Where the rolling model's centre of mass is drawn (PriorConfig.com_prior).
-COM_PRIORS = ("contacts", "balanced")
+COM_PRIORS = ("contacts", "balanced", "shape")
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
 STIFFNESS_PRIORS = ("log_uniform", "uniform")
 #: What a held hypothesis predicts (FilterConfig.held_motion).
@@ -1381,6 +1386,7 @@ class SelfIdentificationFilter:
         both in the POM frame."""
         M, N = p.shape[:2]
         kind = self.config.normal_guess
+        round_ = np.full(M, kind == "circle")  # the hypotheses that guess a round object
         if kind == "either":  # a flat-faced or a round object, half the hypotheses each
             round_ = self.rng.random(M) < 0.5
             guess = np.where(round_[:, None, None], motion_rolling.guessed_normals(self.hand, p, "circle"),
@@ -1415,6 +1421,11 @@ class SelfIdentificationFilter:
         if N >= 3:  # the normal of the contacts' (least-squares) plane
             plane = np.linalg.svd(p_O - p_O.mean(axis=1, keepdims=True))[2][:, -1]
             centre += half * self.rng.uniform(-1, 1, (M, 1)) * plane
+        if self.prior.com_prior == "shape" and np.any(round_):  # a round object's: around its centre
+            ball = self.rng.standard_normal((int(round_.sum()), 3))
+            ball *= (half * self.rng.uniform(0, 1, (len(ball), 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1,
+                                                                                               keepdims=True)
+            centre[round_] = motion_rolling.circle_centres(p_O[round_]) + ball
         return normals_O, centre
 
     def _draw_stiffness(self, n, center, scale):

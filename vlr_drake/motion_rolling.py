@@ -33,7 +33,7 @@ from numba import njit, prange
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["NORMAL_GUESSES", "RollingMove", "move_rolling", "guessed_normals", "hinge_axes"]
+__all__ = ["NORMAL_GUESSES", "RollingMove", "circle_centres", "move_rolling", "guessed_normals", "hinge_axes"]
 
 #: Newton's stopping tolerances: stationarity [N m, N] and attachments [m].
 GRAD_TOL = 1e-10
@@ -115,7 +115,7 @@ def guessed_normals(hand: HandModel, p, kind: str = "flexion_plane") -> np.ndarr
     if kind not in NORMAL_GUESSES:
         raise ValueError(f"guessed_normals: 'kind' must be one of {NORMAL_GUESSES}, got '{kind}'")
     if kind == "circle":
-        d = p - _circle_centres(p)[:, None]
+        d = p - circle_centres(p)[:, None]
         n = np.linalg.norm(d, axis=-1, keepdims=True)
         if not np.all(n > 1e-9):
             raise ValueError("guessed_normals: a contact sits at the centre of the contacts' circle; no outward "
@@ -131,7 +131,7 @@ def guessed_normals(hand: HandModel, p, kind: str = "flexion_plane") -> np.ndarr
     return d / n
 
 
-def _circle_centres(p: np.ndarray) -> np.ndarray:
+def circle_centres(p: np.ndarray) -> np.ndarray:
     """(P, 3) centres of the circles through each hypothesis' contacts ``p`` (P, N, 3): in
     the contacts' least-squares plane, the centre c minimising sum_i (|p_i - c|^2 - r^2)^2
     (exact through three contacts); the centroid where the contacts are fewer than three or
