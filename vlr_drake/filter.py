@@ -723,6 +723,12 @@ LIKELIHOODS = ("gaussian", "student_t")
 STABLE_GRASPS = ("off", "prior", "always")
 #: How a move carries the hypotheses (FilterConfig.motion_model).
 MOTION_MODELS = ("pinned", "rolling")
+#: How the rolling model's normals are drawn around their guess (FilterConfig.normal_tilt).
+NORMAL_TILTS = ("cone", "in_plane")
+#: Which guess the rolling model's normals are drawn around (FilterConfig.normal_guess).
+NORMAL_GUESS_CHOICES = (*motion_rolling.NORMAL_GUESSES, "either")
+
+
 def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
     """The object's mass range [kg] (PriorConfig.object_mass_range) for an object weighed at
     ``mass`` [kg] and known within +-``tolerance`` (a fraction of it, in (0, 1)): (mass (1 -
@@ -732,12 +738,6 @@ def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
     if not (kinematics.is_number(tolerance) and 0 < tolerance < 1):
         raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got {tolerance!r}")
     return float(mass) * (1.0 - tolerance), float(mass) * (1.0 + tolerance)
-
-
-#: How the rolling model's normals are drawn around their guess (FilterConfig.normal_tilt).
-NORMAL_TILTS = ("cone", "in_plane")
-#: Which guess the rolling model's normals are drawn around (FilterConfig.normal_guess).
-NORMAL_GUESS_CHOICES = (*motion_rolling.NORMAL_GUESSES, "either")
 
 
 @dataclass
@@ -1380,10 +1380,12 @@ class SelfIdentificationFilter:
         at the contacts (M, N, 3), each drawn uniformly over the cone of ``normal_cone_deg``
         around :func:`motion_rolling.guessed_normals` (``normal_tilt`` "cone"), or tilted
         from it within its finger's flexion plane by an angle uniform in +-``normal_cone_deg``
-        ("in_plane"), and, with object loads (M, N), the
-        centre of mass (M, 3) at the contacts' barycentre with the loads' shares, moved along
-        the normal of the contacts' plane uniformly within ``PriorConfig.com_half_width``;
-        both in the POM frame."""
+        ("in_plane"); the guess is ``normal_guess``'s, for "either" one of the two per
+        hypothesis. With object loads (M, N), the centre of mass (M, 3) at the contacts'
+        barycentre with the loads' shares, moved along the normal of the contacts' plane
+        uniformly within ``PriorConfig.com_half_width`` (``com_prior`` "contacts"; "shape":
+        a round hypothesis' within that radius of its contacts' circle's centre; "balanced":
+        within it of the balanced barycentre); both in the POM frame."""
         M, N = p.shape[:2]
         kind = self.config.normal_guess
         round_ = np.full(M, kind == "circle")  # the hypotheses that guess a round object
