@@ -669,6 +669,14 @@ def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, 
                         "(default: the scenario's meshcat, else no)")
 
 
+def _config_arguments(p: argparse.ArgumentParser, filter_note: str, prior_note: str) -> None:
+    """``--filter KEY=VALUE`` and ``--prior KEY=VALUE`` (repeatable), for identify and replay."""
+    p.add_argument("--filter", action="append", metavar="KEY=VALUE",
+                   help=f"override a filter setting (vlr_drake.filter.FilterConfig), {filter_note}; repeatable")
+    p.add_argument("--prior", action="append", metavar="KEY=VALUE",
+                   help=f"override a prior setting (vlr_drake.filter.PriorConfig), {prior_note}; repeatable")
+
+
 def _parser(name: str, sub, help_text: str) -> argparse.ArgumentParser:
     return sub.add_parser(name, help=help_text, description=_DESCRIPTIONS[name],
                           formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -725,12 +733,8 @@ def main(argv: list[str] | None = None) -> int:
                                 "IdentifyOptions.object_mass)")
             p.add_argument("--object-mass-tolerance", type=float, default=None, metavar="FRACTION",
                            help="how well --object-mass is known, a fraction of it (default 0.25)")
-            p.add_argument("--filter", action="append", metavar="KEY=VALUE",
-                           help="override a filter setting (vlr_drake.filter.FilterConfig), after the "
-                                "scenario's, e.g. --filter motion_model=rolling; repeatable")
-            p.add_argument("--prior", action="append", metavar="KEY=VALUE",
-                           help="override a prior setting (vlr_drake.filter.PriorConfig), after the "
-                                "scenario's, e.g. --prior link_range=0.035,0.07; repeatable")
+            _config_arguments(p, "after the scenario's, e.g. --filter motion_model=rolling",
+                              "after the scenario's, e.g. --prior link_range=0.035,0.07")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
                                                         "toy_block for stiffness as in the paper, apple otherwise)")
         if name == "identify":  # the demo's hand is the Model O
@@ -764,12 +768,8 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser("replay", sub, "replay an identification's trace offline")
     p.add_argument("trace", nargs="+", help="traces written by vlr-drake identify --trace (or by reproduce, in "
                                             "traces/ of its --out, by default out/reproduce/traces/)")
-    p.add_argument("--filter", action="append", metavar="KEY=VALUE",
-                   help="override a filter setting (vlr_drake.filter.FilterConfig), e.g. --filter particles=60000 "
-                        "--filter sigma_rotation=0.02; repeatable")
-    p.add_argument("--prior", action="append", metavar="KEY=VALUE",
-                   help="override a prior setting (vlr_drake.filter.PriorConfig), e.g. --prior "
-                        "object_mass_unknown=true (with --filter gravity_loads=following); repeatable")
+    _config_arguments(p, "e.g. --filter particles=60000 --filter sigma_rotation=0.02",
+                      "e.g. --prior object_mass_unknown=true (with --filter gravity_loads=following)")
     p.add_argument("--profile", default=None, metavar="PARAMETER",
                    help="fix this identified hand parameter at each of --values and compare the evidence: "
                         "stiffness [N m/rad] or link_length:<finger> [m]")
