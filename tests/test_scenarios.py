@@ -23,6 +23,7 @@ EXPECTED = {
     "model_plant",
     "model_plant_control",
     "stiffness",
+    "stiffness_weighed",
     "novel_NH1",
     "novel_NH2",
     "novel_NH3",
@@ -149,6 +150,41 @@ def test_a_weighed_object_in_the_scenario(tmp_path):
     assert built.filter._prior.object_mass_range == pytest.approx((0.0252, 0.0308))
     assert built.filter._config.gravity_loads == "following" and np.any(built.filter._config.gravity_palm)
     assert not PriorSettings().to_prior().object_mass_unknown
+
+
+def test_the_weighed_stiffness_example_is_the_cli_run_it_names(monkeypatch):
+    """diagrams/stiffness_weighed.yaml is `vlr-drake identify stiffness --object-mass 0.028
+    --filter motion_model=rolling ...` (its comment): the same run's options, field by field."""
+    from vlr_drake import identify
+    from vlr_drake.cli import main
+
+    class Taken(BaseException):
+        pass
+
+    def take(opts, **_):
+        raise Taken(opts)
+
+    monkeypatch.setattr(identify, "run_identification", take)
+    runs = {}
+    for name, argv in [
+        ("file", ["identify", "--scenario", str(DIAGRAMS_DIR / "stiffness_weighed.yaml")]),
+        ("flags", ["identify", "stiffness", "--object", "toy_block", "--object-mass", "0.028",
+                   "--filter", "motion_model=rolling", "--filter", "sigma_position=0.00015",
+                   "--filter", "sigma_rotation=0.00525", "--filter", "likelihood=student_t",
+                   "--filter", "divergence_sigmas=60"]),
+    ]:
+        with pytest.raises(Taken) as taken:
+            main(argv + ["--no-progress"])
+        runs[name] = taken.value.args[0].validate()
+    a, b = runs["file"], runs["flags"]
+    assert (a.experiment, a.plant, a.object, a.hand, a.seed) == (b.experiment, b.plant, b.object, b.hand, b.seed)
+    assert (a.experiment, a.plant, a.object) == ("stiffness", "physics", "toy_block")
+    assert a.filter == b.filter
+    prior_a, prior_b = (identify._hands(o, np.random.default_rng(0))[2] for o in (a, b))  # as the run resolves it
+    assert prior_a == prior_b
+    assert a.filter.motion_model == "rolling" and a.filter.gravity_loads == "following"
+    assert prior_a.object_mass_range == pytest.approx((0.021, 0.035)) and prior_a.stiffness_unknown == [(0, 1)]
+    assert (a.object_mass, a.object_mass_tolerance) == (b.object_mass, b.object_mass_tolerance) == (0.028, 0.25)
 
 
 def test_contact_limits_past_a_finger_name_the_finger(tmp_path):
