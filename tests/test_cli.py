@@ -153,6 +153,19 @@ def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
     assert "object mass [g]" in capsys.readouterr().out
     saved = IdentificationTrace.load(trace)
     assert saved.truths["object_mass"].shape == (saved.steps + 1,) and saved.filter.gravity_loads == "following"
+    # the truths the filter does not see: the object's true pose, centre of mass and touching points
+    T = saved.truths
+    assert T["pom_rotation"].shape == (saved.steps + 1, 3, 3) and T["object_com"].shape == (saved.steps + 1, 3)
+    seen = saved.valid
+    assert seen.any()
+    assert np.abs(T["pom_translation"][1:][seen] - saved.t[seen]).max() < 2e-3  # the camera's error, mm-small
+    turn = np.einsum("sij,sij->s", T["pom_rotation"][1:][seen], saved.R[seen])  # trace(R_true^T R_meas)
+    assert np.rad2deg(np.arccos(np.clip((turn - 1) / 2, -1, 1))).max() < 2.0
+    lever = np.linalg.norm(T["contacts"] - T["touching"], axis=-1)  # the pads' centres one radius from the touch
+    pad = saved.hand.validate().model()
+    radius = pad.pad_surface - pad.pad
+    np.testing.assert_allclose(lever, np.broadcast_to(radius, lever.shape), atol=1e-3)
+    assert np.linalg.norm(T["object_com"] - T["contacts"].mean(axis=1), axis=-1).max() < 0.05
     assert saved.prior.object_mass_unknown
     assert main(["replay", str(trace), "--no-progress"]) == 0  # the run again, the mass with it
     assert "object mass" in capsys.readouterr().out

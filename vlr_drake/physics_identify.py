@@ -150,6 +150,10 @@ class PhysicsAdapter:
         X_PW = plant.EvalBodyPoseInWorld(pctx, self.ph.palm_body).inverse()
         com_P = X_PW @ (plant.EvalBodyPoseInWorld(pctx, body) @ body.default_com())
         mass = float(body.default_mass())
+        X_PO = self.ph.output(self.root, "X_PO_true")
+        touching = np.asarray(self.ph.output(self.root, "contacts_true"), float).reshape(h.N, 3)
         return {"theta": theta, "a": a, "contacts": contacts, "stiffness": h.stiffness.copy(),
                 "link_lengths": h.link_lengths.copy(), "object_mass": mass,
-                "object_load": mass * barycentric_weights(contacts, com_P)}
+                "object_load": mass * barycentric_weights(contacts, com_P),
+                "pom_rotation": X_PO.rotation().matrix().copy(), "pom_translation": X_PO.translation().copy(),
+                "object_com": np.asarray(com_P, float).copy(), "touching": touching}

@@ -53,9 +53,14 @@ TRACE_VERSION = 1
 PROFILE_PARAMETERS = ("stiffness", "link_length:<finger>")
 #: Ground-truth arrays a trace keeps per step (the plant's truth dicts).
 TRUTH_KEYS = ("theta", "a", "contacts", "stiffness", "link_lengths")
-#: Truths a plant may add (the physics plant's object: its mass [kg] and its weight's share
-#: at each contact [kg]); kept where every step has them.
-OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load")
+#: Truths a plant may add, kept where every step has them. The physics plant's object: its
+#: mass [kg] and its weight's share at each contact [kg]; its true POM pose in the palm frame
+#: (``pom_rotation`` (3, 3), ``pom_translation`` (3,) [m]: what the camera measures, without
+#: the camera), its centre of mass (``object_com`` (3,) [m], palm frame) and the points where
+#: the pads touch it (``touching`` (N, 3) [m], palm frame; ``contacts`` minus ``touching`` is
+#: each pad's lever, the rolling model's radius times the object's normal): for analyses
+#: with the truths the filter does not see (the camera's error, the rolling model's normals).
+OPTIONAL_TRUTH_KEYS = ("object_mass", "object_load", "pom_rotation", "pom_translation", "object_com", "touching")
 #: Settings added after traces were first written, with the value that restores the
 #: behaviour of the code that wrote a trace lacking them. A replay is bit-exact only with the
 #: code that recorded the trace: later kernels may round differently (the 2026-11-24 ones do,
@@ -141,7 +146,8 @@ class IdentificationTrace:
                     raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
                                      f"got {self.truths[k].shape[0]}")
             shapes = {"theta": (N, K), "a": (N,), "contacts": (N, 3), "stiffness": (N, K), "link_lengths": (N, K - 1),
-                      "object_mass": (), "object_load": (N,)}
+                      "object_mass": (), "object_load": (N,), "pom_rotation": (3, 3), "pom_translation": (3,),
+                      "object_com": (3,), "touching": (N, 3)}
             for k, shape in shapes.items():
                 if k in self.truths and self.truths[k].shape != (T + 1, *shape):
                     raise ValueError(f"trace: truths '{k}' must have shape {(T + 1, *shape)}, "
