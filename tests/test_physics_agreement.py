@@ -82,6 +82,13 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
         assert row["rolling_one_step_error_mm"] < 0.7 * row["settled_one_step_error_mm"]
         assert row["rolling_one_step_error_deg"] < 0.5 * row["settled_one_step_error_deg"]
     assert np.all(np.abs(np.array(r["joint_motion_slope_rolling"]) - 1.0) < 0.15)
+    # the apple is a sphere: the reference again on its curved surface, with the pads' offsets
+    # (rolling_shaped); at rest it sits at the plant's angles as well (measured 0.01-0.14 deg)
+    for row in r["actions"]:
+        assert np.mean(np.abs(row["rolling_shaped_offset_deg"])) < 0.3
+        assert row["rolling_shaped_one_step_error_mm"] is not None
+    assert r["rolling_shaped_one_step_error_mm_median"] == pytest.approx(
+        np.median([a["rolling_shaped_one_step_error_mm"] for a in r["actions"]]))
 
 
 def test_commanded_equilibrium_holds_a_model_equilibrium_and_follows_the_command():
@@ -188,6 +195,8 @@ def test_the_spring_shows_in_the_motions_to_the_rolling_model():
     contrast_rolling = min(rolling[0], rolling[2]) / rolling[1]
     contrast_eq9 = min(eq9[0], eq9[2]) / eq9[1]
     assert contrast_eq9 < 1.2 and contrast_rolling > 1.5 * contrast_eq9
+    # the toy block is a box: no curved surface to roll over, no rolling_shaped prediction
+    assert r["rolling_shaped_one_step_error_mm_median"] is None and r["joint_motion_slope_rolling_shaped"] is None
     # the profile's scales and spring are checked
     with pytest.raises(ValueError, match="'spring_scales' must be positive"):
         run_agreement("toy_block", actions=1, spring_scales=[0.0])

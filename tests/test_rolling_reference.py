@@ -69,6 +69,69 @@ def test_rolling_and_weights_change_the_move():
     np.testing.assert_allclose(travel, expected, atol=1e-8)
 
 
+def _round_object(h, theta, a, stretch, radius):
+    """The Model O grasp as if it held a ball: the centre of the circle through the pads'
+    centres, each normal from there, the ball's surface ``radius`` short of each centre by
+    the pad radius (a ball of that radius would touch every pad sphere)."""
+    from vlr_drake.motion_rolling import circle_centres
+
+    centres = kinematics.contacts(h, theta[None], a[None])[0]
+    centre = circle_centres(centres[None])[0]
+    normals = (centres - centre) / np.linalg.norm(centres - centre, axis=1, keepdims=True)
+    return centres, centre, normals
+
+
+def test_a_pad_rolls_over_a_round_object_as_a_ball_on_a_ball():
+    """With the object's curvature (RollingState.curvature_radius) each pad's centre keeps its
+    distance, the object's radius plus the pad's, from the object's centre of curvature,
+    which the flat roll (linear in the turn) does not; a very large radius is the flat roll;
+    and on a round object the same action moves the hand differently from the flat roll."""
+    h, theta, a, stretch, _ = _grasp()
+    r = h.pad_surface - h.pad
+    dl = np.array([0.6e-3, -0.4e-3, 0.3e-3])
+    for radius in (0.03, 0.08):
+        centres, centre, normals = _round_object(h, theta, a, stretch, radius)
+        curvature_centres = centres - (radius + r)[:, None] * normals  # one per pad, in the object's frame
+        flat = solve_rolling(h, RollingState(theta, a, np.eye(3), np.zeros(3), normals, stretch), dl)
+        round_ = solve_rolling(h, RollingState(theta, a, np.eye(3), np.zeros(3), normals, stretch,
+                                               curvature_radius=np.full(h.N, radius)), dl)
+        assert np.abs(round_.theta - theta).max() > 5e-3  # the action moved it ...
+        assert np.abs(round_.theta - flat.theta).max() > 1e-5  # ... and the curvature changed the move
+        for sol, holds in ((round_, True), (flat, False)):
+            after = kinematics.contacts(h, sol.theta[None], a[None])[0]
+            kept = np.linalg.norm(after - (sol.R @ curvature_centres.T).T - sol.t, axis=1)
+            if holds:
+                np.testing.assert_allclose(kept, radius + r, atol=1e-9)
+            else:
+                assert np.abs(kept - (radius + r)).max() > 1e-8
+    far = solve_rolling(h, RollingState(theta, a, np.eye(3), np.zeros(3), normals, stretch,
+                                        curvature_radius=np.full(h.N, 1e6)), dl)
+    np.testing.assert_allclose(far.theta, flat.theta, atol=1e-8)
+
+
+def test_a_pad_offset_moves_with_the_pad():
+    """RollingState.pad_offset: the pad sphere that touches sits ``offset`` from the VLR's
+    contact. A zero offset is the plain roll; with one, the contact moves as a point of the
+    pad: an offset across the pad's face changes the move, one along the finger's joint axis,
+    which the pad's turn about that axis keeps, barely does."""
+    h, theta, a, stretch, _ = _grasp()
+    _, _, normals = _round_object(h, theta, a, stretch, 0.04)
+    dl = np.array([0.6e-3, -0.4e-3, 0.3e-3])
+    base = dict(theta=theta, a=a, R=np.eye(3), t=np.zeros(3), normals=normals, stretch=stretch,
+                curvature_radius=np.full(h.N, 0.04))
+    plain = solve_rolling(h, RollingState(**base), dl)
+    zero = solve_rolling(h, RollingState(**base, pad_offset=np.zeros((h.N, 3))), dl)
+    np.testing.assert_allclose(zero.theta, plain.theta, atol=1e-12)
+    hinge = np.cross([0.0, 0.0, 1.0], h.u)
+    hinge /= np.linalg.norm(hinge, axis=1, keepdims=True)
+    along = solve_rolling(h, RollingState(**base, pad_offset=0.006 * hinge), dl)
+    across = solve_rolling(h, RollingState(**base, pad_offset=0.006 * normals), dl)
+    moved_along, moved_across = (np.abs(x.theta - plain.theta).max() for x in (along, across))
+    assert moved_across > 1e-4  # 6 mm across the pad's face: the lever it turns
+    # along the joint axes the pads turn about, only the object's small turn out of the
+    # flexion planes (the hand's planes are parallel) moves the offset
+    assert 0 < moved_along < 0.05 * moved_across
+
 def test_bad_input_is_named():
     h, theta, a, stretch, normals = _grasp()
     good = dict(theta=theta, a=a, R=np.eye(3), t=np.zeros(3), normals=normals, stretch=stretch)
@@ -86,6 +149,10 @@ def test_bad_input_is_named():
         solve_rolling(h, RollingState(**good), pad_radius=-1e-3)
     with pytest.raises(ValueError, match="'gravity' must be a finite"):
         solve_rolling(h, RollingState(**good), gravity=np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match="'curvature_radius' must be 3 radii > 0"):
+        solve_rolling(h, RollingState(**good, curvature_radius=np.array([0.03, 0.0, 0.03])))
+    with pytest.raises(ValueError, match="'pad_offset' must be a finite array of shape \\(3, 3\\)"):
+        solve_rolling(h, RollingState(**good, pad_offset=np.zeros(3)))
 
 
 def test_the_batched_rolling_solver_agrees_with_the_reference():

@@ -62,7 +62,14 @@ class RollingState:
     links; R (3, 3), t (3,): the object's (POM) pose in the palm frame; normals (N, 3): the
     object's outward unit normals at the contacts, in the palm frame; stretch (N,) [m]: the
     tendons' stretch; object_mass [kg] and com (3,): the object's mass and its centre of mass
-    in the palm frame (mass 0: a weightless object)."""
+    in the palm frame (mass 0: a weightless object).
+
+    The object's shape at the contacts, optional: ``curvature_radius`` (N,) [m], the radius of
+    its surface where each pad touches it (inf, or None for all: a flat face, the roll linear
+    in the pad's turn), and ``pad_offset`` (N, 3) [m], palm frame, from the centre of the pad
+    sphere that touches to the VLR's contact (the physics hand's pads are two spheres across
+    the finger, and a side finger touches a round object with the inner one, 6 mm out of its
+    flexion plane; None: zero, the pad's centre of curvature is the VLR's contact)."""
 
     theta: np.ndarray
     a: np.ndarray
@@ -72,6 +79,8 @@ class RollingState:
     stretch: np.ndarray
     object_mass: float = 0.0
     com: np.ndarray | None = None
+    curvature_radius: np.ndarray | None = None
+    pad_offset: np.ndarray | None = None
 
     def checked(self, hand: HandModel) -> RollingState:
         """This state with its arrays shaped and finite, or a ValueError naming the field."""
@@ -97,7 +106,19 @@ class RollingState:
             if com is None or com.shape != (3,) or not np.all(np.isfinite(com)):
                 raise ValueError("rolling state: an object with mass needs 'com', its centre of mass (3,) in the "
                                  "palm frame [m]")
-        return RollingState(com=com, object_mass=mass, **out)
+        curvature = None
+        if self.curvature_radius is not None:
+            curvature = np.asarray(self.curvature_radius, float)
+            if curvature.shape != (N,) or np.any(np.isnan(curvature)) or not np.all(curvature > 0):
+                raise ValueError(f"rolling state: 'curvature_radius' must be {N} radii > 0 [m] (inf: a flat face), "
+                                 f"got {np.asarray(self.curvature_radius).tolist()}")
+        offset = None
+        if self.pad_offset is not None:
+            offset = np.asarray(self.pad_offset, float)
+            if offset.shape != (N, 3) or not np.all(np.isfinite(offset)):
+                raise ValueError(f"rolling state: 'pad_offset' must be a finite array of shape ({N}, 3), got "
+                                 f"{offset.shape if offset.shape != (N, 3) else 'non-finite values'}")
+        return RollingState(com=com, object_mass=mass, curvature_radius=curvature, pad_offset=offset, **out)
 
 
 @dataclass
@@ -113,6 +134,24 @@ def _cayley(w):
     q = 0.5 * np.asarray(w)
     Q = np.array([[0, -q[2], q[1]], [q[2], 0, -q[0]], [-q[1], q[0], 0]], dtype=q.dtype)
     return np.eye(3) + (2.0 / (1.0 + q @ q)) * (Q + Q @ Q)
+
+
+def _rolled_centre(c, n, r, radius, d, rel):
+    """Where the pad's centre ``c`` (object frame, before the move) sits on the object after
+    the pad turns by ``rel`` (3,) relative to it (object frame): the pad sphere that touches,
+    centred at s = c - d (``d`` the pad's offset), rolls without slipping over the object's
+    surface of radius ``radius`` at the touch (outward normal ``n``), and c follows it as a
+    point of the pad. On a flat face (radius inf) s moves by r rel x n; on a round one it
+    keeps its distance rho = radius + r from the surface's centre of curvature, turned by
+    (r / rho) times the tangential part of ``rel`` (a ball rolling on a ball), so its path
+    curves towards the object, which adds the roll's own stiffness to the grasp."""
+    s0 = c - d
+    moved_d = _cayley(rel) @ d if np.any(d) else d
+    if not np.isfinite(radius):
+        return s0 + r * np.cross(rel, n) + moved_d
+    rho = radius + r
+    rel_t = rel - (rel @ n) * n
+    return s0 - rho * n + rho * (_cayley((r / rho) * rel_t) @ n) + moved_d
 
 
 def _centres(hand: HandModel, x, a):
@@ -157,6 +196,8 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     c0 = kinematics.contacts(hand, st.theta[None], st.a[None])[0]
     cO = (st.R.T @ (c0 - st.t).T).T  # the centres in the object's frame
     nO = (st.R.T @ st.normals.T).T
+    rho = np.full(N, np.inf) if st.curvature_radius is None else st.curvature_radius
+    dO = np.zeros((N, 3)) if st.pad_offset is None else (st.R.T @ st.pad_offset.T).T
     hinge = np.cross(np.array([0.0, 0.0, 1.0]), hand.u)  # (N, 3) the links turn about z x u
     mu = hand.link_moments()[0] if gravity is not None else np.zeros((N, K))
     g_u, g_z = hand.gravity_in_finger_planes(g).T
@@ -195,7 +236,7 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
         for i in range(N):
             dphi = sum(x[i * K + k] - x0[i * K + k] for k in range(K))
             rel = st.R.T @ (dphi * hinge[i] - wv)  # the pad's turn relative to the object (object frame)
-            target = C @ (st.R @ (cO[i] + r[i] * np.cross(rel, nO[i]))) + st.t + tv
+            target = C @ (st.R @ _rolled_centre(cO[i], nO[i], r[i], rho[i], dO[i], rel)) + st.t + tv
             res.extend(CONSTRAINT_SCALE * (p[i] - target))
         return np.array(res)
 

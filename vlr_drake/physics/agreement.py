@@ -41,6 +41,17 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   the pads touch it, its mass and centre of mass): ``rolling_offset_deg`` (its angles at
   rest minus the plant's), ``rolling_one_step_error_mm`` / ``_deg``,
   ``rolling_joint_motion_deg`` and the slopes ``joint_motion_slope_rolling``;
+- for a sphere (the apple), the rolling reference again on the object's shape
+  (``rolling_shaped_*``): the pads rolling over its curved surface (a ball on a ball,
+  ``RollingState.curvature_radius``), the normals from its centre, and each pad's offset from
+  the pad sphere that touches (``RollingState.pad_offset``; a side finger touches with its
+  inner sphere, 6 mm out of its flexion plane). Measured on NH2 (20 random actions, seed 0):
+  one-step 0.134 mm / 0.066 deg against the flat roll's 0.193 / 0.095, every joint's slope
+  0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). On the Model O
+  (the same apple, 20 actions) it predicts far worse, 0.739 mm against 0.168: there the
+  apple's centre lies 20 mm nearer the palm than the pads, its normals tilt 22-52 deg from
+  the grip's forces (the statics budget's table, docs/results.md), and the side fingers'
+  pads, loaded beyond a friction of 1, slide rather than roll;
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
@@ -178,18 +189,28 @@ def _object_com(adapter) -> np.ndarray:
     return np.asarray(X_PW @ (plant.EvalBodyPoseInWorld(ctx, body) @ body.default_com()), float)
 
 
-def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com):
+def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com, sphere=None):
     """The rolling reference (:mod:`vlr_drake.rolling_reference`) from the plant's state:
     its equilibria before and after ``dl`` with the pads rolling and the links' and the
     object's weight, the object's normals from the pads' touching points (``touching``,
-    (N, 3) in P), the tendons' stretch of the commands ``l_before``. Returns (offset before
-    [rad] (N, K), (R_pred, t_pred), joint motion [rad] (N, K)), or three Nones where IPOPT
-    finds no equilibrium."""
+    (N, 3) in P), the tendons' stretch of the commands ``l_before``. ``sphere`` (centre (3,)
+    in P, radius) [m]: the object's shape as well, a sphere (``rolling_shaped``): the normals
+    from its centre through the touching points, the pad spheres rolling over its curved
+    surface, and each pad's offset from the sphere that touches to its centre line.
+    Returns (offset before [rad] (N, K), (R_pred, t_pred), joint motion [rad] (N, K)), or
+    three Nones where IPOPT finds no equilibrium."""
     from vlr_drake.rolling_reference import RollingSolveError, RollingState, solve_rolling
 
-    state = RollingState(truth["theta"], truth["a"], R, t, truth["contacts"] - touching,
+    shape = {}
+    normals = truth["contacts"] - touching
+    if sphere is not None:
+        centre, radius = sphere
+        normals = (touching - centre) / np.linalg.norm(touching - centre, axis=1, keepdims=True)
+        touching_sphere = touching + (h.pad_surface - h.pad)[:, None] * normals
+        shape = {"curvature_radius": np.full(h.N, float(radius)), "pad_offset": truth["contacts"] - touching_sphere}
+    state = RollingState(truth["theta"], truth["a"], R, t, normals,
                          np.asarray(l_before, float) - h.tendon_travel(truth["theta"]),
-                         truth["object_mass"], com)
+                         truth["object_mass"], com, **shape)
     try:
         e0 = solve_rolling(h, state, None, gravity=gravity)
         e1 = solve_rolling(h, state, dl, gravity=gravity)
@@ -319,6 +340,11 @@ def run_agreement(
         com = _object_com(adapter)
         rolling_offset, rolling, rolling_motion = _rolling_prediction(
             h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com)
+        # the same with the object's shape where it is a sphere (centred at its centre of mass)
+        sphere = (com, adapter.obj.size[0]) if adapter.obj.shape == "sphere" else None
+        shaped_offset, shaped, shaped_motion = (_rolling_prediction(
+            h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com, sphere=sphere)
+            if sphere is not None else (None, None, None))
         profiled = [(_rolling_prediction(hs, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com)[1],
                      _settled_prediction(hs, truth, adapter.tendon_command(), dl, R, t)[1]) for hs in profile["hands"]]
         loads = with_loads = None
@@ -354,6 +380,11 @@ def run_agreement(
                "rolling_offset_deg": None if rolling_offset is None else np.rad2deg(rolling_offset).tolist(),
                "rolling_joint_motion_deg": None if rolling_motion is None else np.rad2deg(rolling_motion).tolist(),
                "rolling_one_step_error_mm": None, "rolling_one_step_error_deg": None,
+               # the same with the object's shape (a sphere only: rolling_shaped)
+               "rolling_shaped_offset_deg": None if shaped_offset is None else np.rad2deg(shaped_offset).tolist(),
+               "rolling_shaped_joint_motion_deg": (None if shaped_motion is None
+                                                   else np.rad2deg(shaped_motion).tolist()),
+               "rolling_shaped_one_step_error_mm": None, "rolling_shaped_one_step_error_deg": None,
                # the object moved with the plant's true links, attached at link-fixed
                # points: the pads' centres (the VLR) or their touching points [mm], [deg]
                "kinematic_error_mm": {k: v[0] for k, v in kinematic.items()},
@@ -371,7 +402,7 @@ def run_agreement(
                     row["spring_profile"][name + "_mm"].append(err[0])
                     row["spring_profile"][name + "_deg"].append(err[1])
         for key, pred in (("settled_one_step_error", settled), ("settled_one_step_error_with_weights", settled_w),
-                          ("rolling_one_step_error", rolling)):
+                          ("rolling_one_step_error", rolling), ("rolling_shaped_one_step_error", shaped)):
             if pred is not None:
                 row[key + "_mm"], row[key + "_deg"] = _pose_error(pred, R1, t1)
         if one_ok:
@@ -436,6 +467,10 @@ def run_agreement(
                                                    if r["rolling_offset_deg"] is not None]))
                                     if any(r["rolling_offset_deg"] is not None for r in rows) else None),
         "rolling_failures": sum(r["rolling_one_step_error_mm"] is None for r in rows),
+        # with the object's shape, a sphere's (None for other shapes)
+        "joint_motion_slope_rolling_shaped": _slopes(rows, "rolling_shaped_joint_motion_deg"),
+        "rolling_shaped_one_step_error_mm_median": _median(rows, "rolling_shaped_one_step_error_mm"),
+        "rolling_shaped_one_step_error_deg_median": _median(rows, "rolling_shaped_one_step_error_deg"),
         "spring_profile": _profile_summary(rows, profile),
         "wall_s": time.perf_counter() - t_start,
     }
@@ -601,7 +636,8 @@ def main(argv: list[str] | None = None) -> dict:
     print("kinematic check (the object moved by the plant's true links, attached at link-fixed points): "
           + ", ".join(f"{k} {ke[k]:.3f} mm / {kd[k]:.3f} deg" for k in ke) + " (median)")
     for key, what in (("joint_motion_slope", "Eq. 9"), ("joint_motion_slope_with_weights", "the weights following"),
-                      ("joint_motion_slope_rolling", "the pads rolling and the weights")):
+                      ("joint_motion_slope_rolling", "the pads rolling and the weights"),
+                      ("joint_motion_slope_rolling_shaped", "the same on the object's shape")):
         if r[key] is not None:
             print(f"plant's joint motion / the commanded equilibria's, {what} (least-squares slope per joint): "
                   + ", ".join(f"{name} " + "/".join(num(x) for x in row)
@@ -612,6 +648,10 @@ def main(argv: list[str] | None = None) -> dict:
           f"{num(r['rolling_one_step_error_mm_median'])} mm / {num(r['rolling_one_step_error_deg_median'])} deg (median), "
           f"angles at rest off the plant's by {num(r['rolling_offset_deg_mean'])} deg on average, "
           f"{r['rolling_failures']} failures")
+    if r["rolling_shaped_one_step_error_mm_median"] is not None:
+        print(f"with the object's shape (a sphere: the pads rolling over its curved surface, the touching pad "
+              f"sphere's offset): one-step error {num(r['rolling_shaped_one_step_error_mm_median'])} mm / "
+              f"{num(r['rolling_shaped_one_step_error_deg_median'])} deg (median)")
     sp = r["spring_profile"]
     if sp is not None:
         print(f"spring profile ({sp['actions']} actions; sum of squares in units of {PROFILE_UNITS[0]} mm and "
