@@ -50,8 +50,8 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). On the Model O
   (the same apple, 20 actions) it predicts far worse, 0.739 mm against 0.168: there the
   apple's centre lies 20 mm nearer the palm than the pads, its normals tilt 22-52 deg from
-  the grip's forces (the statics budget's table, docs/results.md), and the side fingers'
-  pads, loaded beyond a friction of 1, slide rather than roll;
+  the grip's forces (the statics budget's table, docs/results.md): the side fingers' pads,
+  loaded past a friction of 1, may slip rather than roll (not checked);
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
