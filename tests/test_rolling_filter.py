@@ -43,10 +43,11 @@ class RollingTruth:
         self.command = self.command + dl
 
 
-def _filter(particles, seed=0, com_prior="contacts", normal_tilt="cone", normal_guess="flexion_plane"):
+def _filter(particles, seed=0, com_prior="contacts", normal_tilt="cone", normal_guess="flexion_plane",
+            object_curvature="flat"):
     cfg = pf.FilterConfig(particles=particles, motion_model="rolling", gravity_palm=GRAVITY.tolist(),
                           gravity_loads="following", sigma_position=0.1e-3, sigma_rotation=np.deg2rad(0.3),
-                          normal_tilt=normal_tilt, normal_guess=normal_guess)
+                          normal_tilt=normal_tilt, normal_guess=normal_guess, object_curvature=object_curvature)
     prior = pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 0.15), proximal_half_width=0.08,
                            distal_half_width=0.15, contact_half_width=0.005, com_prior=com_prior)
     h = model_o().model()
@@ -187,6 +188,48 @@ def test_either_guess_draws_half_the_hypotheses_around_each():
     only_round = np.mean(within["circle"] & ~within["flexion_plane"])
     only_flat = np.mean(within["flexion_plane"] & ~within["circle"])
     assert 0.3 < only_round < 0.55 and 0.3 < only_flat < 0.55
+
+
+def test_round_hypotheses_roll_over_their_circles_sphere():
+    """object_curvature "round": a hypothesis that guesses a round object carries, at every
+    contact, the radius of its contacts' circle less the pad radius, a flat one inf; the
+    radii travel with their hypotheses through resampling; and the move rolls each as
+    move_rolling does with those radii (the flat ones as without). Bad settings are named."""
+    from vlr_drake.motion_rolling import circle_centres
+
+    truth = RollingTruth(3)
+    f = _filter(400, normal_guess="either", object_curvature="round")
+    ps = f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    h = f.hand
+    p = kinematics.contacts(h, ps.theta, ps.a)
+    n_P = np.einsum("ij,pnj->pni", truth.R, ps.normals_O)
+    cos = np.einsum("pni,pni->pn", n_P, guessed_normals(h, p, "circle"))
+    round_ = np.isfinite(ps.curvature_radius).all(axis=1)
+    assert np.all(np.isfinite(ps.curvature_radius).any(axis=1) == round_)  # a hypothesis is round or flat
+    assert 0.35 < round_.mean() < 0.65
+    assert np.all(np.rad2deg(np.arccos(np.clip(cos[round_], -1, 1))) <= 20.0 + 1e-9)  # around the circle's guess
+    expected = np.linalg.norm(p - circle_centres(p)[:, None], axis=-1) - (h.pad_surface - h.pad)
+    np.testing.assert_allclose(ps.curvature_radius[round_], np.maximum(expected[round_], pf.MIN_CURVATURE_RADIUS))
+    idx = np.array([3, 3, 0, 7])
+    np.testing.assert_array_equal(ps.take(idx).curvature_radius, ps.curvature_radius[idx])
+    # a step moves them with their radii
+    R_prev, t_prev = truth.R, truth.t
+    dl = np.array([0.4e-3, -0.3e-3, 0.2e-3])
+    res, R, t = f._move_rolling(dl, np.repeat(R_prev[None], ps.size, 0), np.repeat(t_prev[None], ps.size, 0))
+    mass, com = ps.object_load.sum(axis=1), np.einsum("ij,pj->pi", R_prev, ps.com_O) + t_prev
+    args = (h, ps.theta, ps.a, R_prev, t_prev, np.einsum("ij,pnj->pni", R_prev, ps.normals_O), ps.stretch, dl)
+    kw = dict(gravity=GRAVITY, object_mass=mass, com=com, stiffness=ps.stiffness, link_lengths=ps.link_lengths)
+    rolled = move_rolling(*args, curvature_radius=ps.curvature_radius, **kw)
+    flat = move_rolling(*args, **kw)
+    both = res.ok & rolled.ok
+    np.testing.assert_allclose(res.theta[both], rolled.theta[both], atol=1e-12)
+    np.testing.assert_allclose(res.theta[both & ~round_], flat.theta[both & ~round_], atol=1e-12)
+    assert np.abs(res.theta[both & round_] - flat.theta[both & round_]).max() > 1e-5
+    assert _filter(10).particles is None and _filter(10).config.object_curvature == "flat"
+    with pytest.raises(ValueError, match="'object_curvature' must be one of"):
+        pf.FilterConfig(object_curvature="bumpy").validate()
+    with pytest.raises(ValueError, match="normal_guess 'flexion_plane' guesses none"):
+        pf.FilterConfig(motion_model="rolling", object_curvature="round").validate()
 
 
 def test_a_round_objects_centre_of_mass_follows_its_shape():

@@ -727,6 +727,11 @@ MOTION_MODELS = ("pinned", "rolling")
 NORMAL_TILTS = ("cone", "in_plane")
 #: Which guess the rolling model's normals are drawn around (FilterConfig.normal_guess).
 NORMAL_GUESS_CHOICES = (*motion_rolling.NORMAL_GUESSES, "either")
+#: The object's surface under the rolling pads (FilterConfig.object_curvature).
+OBJECT_CURVATURES = ("flat", "round")
+#: The smallest surface radius a round hypothesis takes [m] (its contacts' circle less the
+#: pad radius: three pads on a tiny circle would otherwise give a radius near zero).
+MIN_CURVATURE_RADIUS = 0.005
 
 
 def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
@@ -972,6 +977,16 @@ class FilterConfig:
     # hypothesis drawing its guess from one of the two with probability 1/2 (an object of
     # unknown shape: the measurements weigh the two).
     normal_guess: str = "flexion_plane"
+    # The object's surface under the pads (OBJECT_CURVATURES): "flat" (default), each pad's
+    # roll linear in its turn, as over a flat face; or "round": the hypotheses that guess a
+    # round object (normal_guess "circle", or that half of "either") roll over a sphere whose
+    # radius is their contacts' circle's less the pad radius (a ball on a ball: the pads'
+    # centres keep their distance from the object's centre, which adds the roll's own
+    # stiffness; motion_rolling.move_rolling's curvature_radius), the others as "flat". From
+    # the plant's truth on NH2's apple the rolling reference so predicts an action to 0.134 mm
+    # / 0.066 deg against the flat roll's 0.193 / 0.095, and moves every joint as the plant
+    # does (the agreement command's rolling_shaped fields; docs/results.md).
+    object_curvature: str = "flat"
 
     def validate(self) -> FilterConfig:
         if not kinematics.is_count(self.particles, 10):
@@ -1050,6 +1065,12 @@ class FilterConfig:
             raise ValueError(f"filter: 'normal_tilt' must be one of {NORMAL_TILTS}, got '{self.normal_tilt}'")
         if self.normal_guess not in NORMAL_GUESS_CHOICES:
             raise ValueError(f"filter: 'normal_guess' must be one of {NORMAL_GUESS_CHOICES}, got '{self.normal_guess}'")
+        if self.object_curvature not in OBJECT_CURVATURES:
+            raise ValueError(f"filter: 'object_curvature' must be one of {OBJECT_CURVATURES}, got "
+                             f"'{self.object_curvature}'")
+        if self.object_curvature == "round" and self.normal_guess == "flexion_plane":
+            raise ValueError("filter: object_curvature 'round' rolls the hypotheses that guess a round object, and "
+                             "normal_guess 'flexion_plane' guesses none: use normal_guess 'circle' or 'either'")
         if self.motion_model == "rolling":
             for name, bad, why in (("tendon", "ideal", "the rolling model has the elastic tendon only"),
                                    ("tendon_reference", "implied", "the implied stretch would be Eq. 9's equilibrium"),
@@ -1089,6 +1110,9 @@ class ParticleSet:
     # frame; None otherwise.
     normals_O: np.ndarray | None = None
     com_O: np.ndarray | None = None
+    # FilterConfig.object_curvature "round": the object's surface radius at each contact
+    # (M, N) [m], inf where a hypothesis guesses a flat face; None otherwise.
+    curvature_radius: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -1106,7 +1130,8 @@ class ParticleSet:
         return ParticleSet(
             rows(self.theta), rows(self.a), pick(self.stiffness), pick(self.link_lengths),
             rows(self.stretch), rows(self.p_O), np.zeros(len(idx)),
-            *(None if x is None else rows(x) for x in (self.object_load, self.normals_O, self.com_O)),
+            *(None if x is None else rows(x) for x in (self.object_load, self.normals_O, self.com_O,
+                                                        self.curvature_radius)),
         )
 
 
@@ -1263,10 +1288,10 @@ class SelfIdentificationFilter:
             stretch = self._commanded_stretch(theta)
         p = kinematics.contacts(h, theta, a, links)
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
-        normals_O = com_O = None
+        normals_O = com_O = radius = None
         if self.config.motion_model == "rolling":
-            normals_O, com_O = self._draw_object(p, p_O, R_PO, load)
-        self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load, normals_O, com_O)
+            normals_O, com_O, radius = self._draw_object(p, p_O, R_PO, load)
+        self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load, normals_O, com_O, radius)
         self._first_move = True  # the next move carries the prior's draws (first_move_substeps)
         self._theta_center, self._a_center = theta_center, a_center
         self.estimates.append(self.estimate())
@@ -1385,7 +1410,9 @@ class SelfIdentificationFilter:
         barycentre with the loads' shares, moved along the normal of the contacts' plane
         uniformly within ``PriorConfig.com_half_width`` (``com_prior`` "contacts"; "shape":
         a round hypothesis' within that radius of its contacts' circle's centre; "balanced":
-        within it of the balanced barycentre); both in the POM frame."""
+        within it of the balanced barycentre); both in the POM frame. Third, with
+        ``object_curvature`` "round", the object's surface radius at each contact (M, N) [m]:
+        a round hypothesis' circle's radius less the pad radius, a flat one's inf (else None)."""
         M, N = p.shape[:2]
         kind = self.config.normal_guess
         round_ = np.full(M, kind == "circle")  # the hypotheses that guess a round object
@@ -1410,14 +1437,22 @@ class SelfIdentificationFilter:
             side = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
         n_P = np.cos(ang)[..., None] * guess + np.sin(ang)[..., None] * side
         normals_O = np.einsum("ji,pnj->pni", R_PO, n_P)
+        radius = None
+        if self.config.object_curvature == "round":
+            radius = np.full((M, N), np.inf)
+            if np.any(round_):
+                pr = p[round_]
+                to_centre = np.linalg.norm(pr - motion_rolling.circle_centres(pr)[:, None], axis=-1)
+                pad = self.hand.pad_surface - self.hand.pad
+                radius[round_] = np.maximum(to_centre - pad[None], MIN_CURVATURE_RADIUS)
         if load is None:
-            return normals_O, None
+            return normals_O, None, radius
         half = self.prior.com_half_width
         if self.prior.com_prior == "balanced":
             centre = np.einsum("n,pni->pi", balanced_shares(self.hand), p_O)
             ball = self.rng.standard_normal((M, 3))
             ball *= (half * self.rng.uniform(0, 1, (M, 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1, keepdims=True)
-            return normals_O, centre + ball
+            return normals_O, centre + ball, radius
         share = load / np.maximum(load.sum(axis=1, keepdims=True), 1e-300)
         centre = np.einsum("pn,pni->pi", share, p_O)
         if N >= 3:  # the normal of the contacts' (least-squares) plane
@@ -1428,7 +1463,7 @@ class SelfIdentificationFilter:
             ball *= (half * self.rng.uniform(0, 1, (len(ball), 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1,
                                                                                                keepdims=True)
             centre[round_] = motion_rolling.circle_centres(p_O[round_]) + ball
-        return normals_O, centre
+        return normals_O, centre, radius
 
     def _draw_stiffness(self, n, center, scale):
         h, pr = self.hand, self.prior
@@ -1680,7 +1715,7 @@ class SelfIdentificationFilter:
         mv = motion_rolling.move_rolling(
             h, ps.theta, ps.a, R_prev, t_prev, np.einsum("pij,pnj->pni", R_prev, ps.normals_O), ps.stretch, dl=dl,
             gravity=g if np.any(g) else None, object_mass=mass, com=com, stiffness=ps.stiffness,
-            link_lengths=ps.link_lengths)
+            link_lengths=ps.link_lengths, curvature_radius=ps.curvature_radius)
         ok = mv.ok
         theta = np.where(ok[:, None, None], mv.theta, ps.theta)
         stretch = np.where(ok[:, None], mv.stretch, ps.stretch + dl)

@@ -155,7 +155,8 @@ def circle_centres(p: np.ndarray) -> np.ndarray:
 
 
 def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gravity=None, object_mass=None,
-                 com=None, pad_radius=None, stiffness=None, link_lengths=None, max_iter: int = 50) -> RollingMove:
+                 com=None, pad_radius=None, stiffness=None, link_lengths=None, curvature_radius=None,
+                 max_iter: int = 50) -> RollingMove:
     """The rolling equilibrium of each of P hypotheses after the action ``dl``.
 
     theta (P, N, K), a (P, N), R (P, 3, 3) and t (P, 3) the object's pose, normals (P, N, 3)
@@ -164,7 +165,11 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     [kg] and com (P, 3) (palm frame) with gravity; ``pad_radius`` (N,) (default the hand's);
     ``stiffness`` (P or 1, N, K) per-hypothesis springs and ``link_lengths`` (P or 1, N,
     K-1) per-hypothesis links (default the hand's; the links' masses follow their lengths,
-    :meth:`HandModel.link_moments`). Newton starts
+    :meth:`HandModel.link_moments`); ``curvature_radius`` (P or 1, N) [m] the object's surface
+    radius at each contact (inf, or None for all: a flat face), with which a pad rolls over a
+    round object as a ball on a ball, its centre's path curving towards the object's centre of
+    curvature (:class:`vlr_drake.rolling_reference.RollingState`; here to second order in the
+    pad's turn, the reference exactly). Newton starts
     at the hypotheses' own angles and pose; ``ok`` is False where it has not converged in
     ``max_iter`` steps (about 1% of hypotheses drawn 0.02 rad and 2 mm around a grasp, which
     wander off by 10-40 deg)."""
@@ -196,6 +201,14 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     # v_i = cO_i + r_i (R^T (dphi_i h_i - w)) x nO_i = cO_i - r_i [nO_i]x R^T (dphi_i h_i - w)
     B = r[None, :, None, None] * np.einsum("pnij,pjk->pnik", _skew(nO), RT)  # dv_i/dw (P, N, 3, 3)
     b = -np.einsum("pnij,nj->pni", B, hinge)  # dv_i/dtheta_ik (P, N, 3), every k of finger i
+    # a round object: v_i also moves by -(kap_i / 2) |P_t y_i|^2 nO_i, y_i = dphi_i h_i - w, with
+    # kap_i = r_i^2 / (radius_i + r_i) and P_t the projection off the normal (a ball on a ball)
+    kap = np.zeros((P, N))
+    if curvature_radius is not None:
+        rad = np.broadcast_to(np.asarray(curvature_radius, float), (P, N))
+        if np.any(np.isnan(rad)) or not np.all(rad > 0):
+            raise ValueError("move_rolling: 'curvature_radius' must be radii > 0 [m] (inf: a flat face)")
+        kap = np.where(np.isfinite(rad), r[None] ** 2 / (rad + r[None]), 0.0)
     mu = np.broadcast_to(hand.link_moments(L) if gravity is not None else np.zeros((1, N, K)), (P, N, K))
     g_u, g_z = hand.gravity_in_finger_planes(g).T
     x_theta, w, tau = np.empty((P, N, K)), np.empty((P, 3)), np.empty((P, 3))
@@ -204,7 +217,8 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     def c(x):
         return np.ascontiguousarray(x, dtype=float)
 
-    _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(hinge), c(stretch), c(dl), c(mass), c(comO), c(g),
+    _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(nO), c(kap), c(hinge), c(stretch), c(dl), c(mass),
+                   c(comO), c(g),
                    c(mu), c(g_u), c(g_z), c(k), c(L), c(hand.pad), c(hand.base), c(hand.u), c(hand.moment_arms),
                    c(hand.rest_angles), c(hand.kappa), int(max_iter), MAX_STEP, GRAD_TOL, ATTACH_TOL,
                    x_theta, w, tau, ok, iters)
@@ -273,7 +287,8 @@ def _cayley_derivatives(w, C, dC, d2C, E, W, Nm, Na, Nab):  # pragma: no cover -
 
 
 @njit(cache=True)
-def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L,
+def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z,
+                  kst, L,
                   pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                   x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
     """Newton on the rolling equilibrium's KKT system (module docstring) for hypotheses
@@ -293,6 +308,8 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
     RB, RcomO, CR = np.empty((N, 3, 3)), np.empty(3), np.empty((3, 3))
     Jm, KKT, KKT0, rhs, rhs0 = np.empty((m, nx)), np.empty((dim, dim)), np.empty((dim, dim)), np.empty(dim), np.empty(dim)
     phi, per, curv, dphi = np.empty(K), np.empty(K), np.empty(K), np.empty(N)
+    Rn, CRn, yv, Gy, dCRn = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((3, N, 3))
+    lCRn, hGh, Gyh = np.empty(N), np.empty(N), np.empty(N)
     for p in range(start, stop):
         for i in range(N):
             al[i, 0] = a[p, i]
@@ -305,6 +322,11 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
         lam[:] = 0.0
         for j in range(3):
             RcomO[j] = R[p, j, 0] * comO[p, 0] + R[p, j, 1] * comO[p, 1] + R[p, j, 2] * comO[p, 2]
+        for i in range(N):
+            for j in range(3):
+                Rn[i, j] = R[p, j, 0] * nO[p, i, 0] + R[p, j, 1] * nO[p, i, 1] + R[p, j, 2] * nO[p, i, 2]
+            hn = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]
+            hGh[i] = 1.0 - hn * hn  # h^T G h, G = I - Rn Rn^T
         for i in range(N):
             for j in range(3):
                 Rb[i, j] = R[p, j, 0] * b[p, i, 0] + R[p, j, 1] * b[p, i, 1] + R[p, j, 2] * b[p, i, 2]
@@ -327,14 +349,27 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                 dphi[i] = 0.0
                 for k in range(K):
                     dphi[i] += x[i, k] - theta0[p, i, k]
+                ny = 0.0
+                for c in range(3):
+                    yv[i, c] = dphi[i] * hinge[i, c] - w[c]
+                    ny += Rn[i, c] * yv[i, c]
+                yGy = 0.0
+                Gyh[i] = 0.0
+                for c in range(3):
+                    Gy[i, c] = yv[i, c] - ny * Rn[i, c]
+                    yGy += yv[i, c] * Gy[i, c]
+                    Gyh[i] += Gy[i, c] * hinge[i, c]
                 for r in range(3):
-                    s = cO[p, i, r]
+                    s = cO[p, i, r] - 0.5 * kap[p, i] * yGy * nO[p, i, r]
                     for c in range(3):
-                        s -= B[p, i, r, c] * (dphi[i] * hinge[i, c] - w[c])
+                        s -= B[p, i, r, c] * yv[i, c]
                     v[i, r] = s
             for i in range(N):
                 for r in range(3):
                     Rv[i, r] = R[p, r, 0] * v[i, 0] + R[p, r, 1] * v[i, 1] + R[p, r, 2] * v[i, 2]
+                    CRn[i, r] = CR[r, 0] * nO[p, i, 0] + CR[r, 1] * nO[p, i, 1] + CR[r, 2] * nO[p, i, 2]
+                    for aa in range(3):
+                        dCRn[aa, i, r] = dC[aa, r, 0] * Rn[i, 0] + dC[aa, r, 1] * Rn[i, 1] + dC[aa, r, 2] * Rn[i, 2]
                     CRb[i, r] = CR[r, 0] * b[p, i, 0] + CR[r, 1] * b[p, i, 1] + CR[r, 2] * b[p, i, 2]
             gmax, finite = 0.0, True
             Jm[:, :] = 0.0
@@ -348,15 +383,17 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                     gmax = max(gmax, abs(gv))
                     finite &= np.isfinite(gv)
                     for k in range(K):
-                        Jm[row, i * K + k] = Jc[i, r, k, 0] - CRb[i, r]
+                        Jm[row, i * K + k] = Jc[i, r, k, 0] - CRb[i, r] + kap[p, i] * Gyh[i] * CRn[i, r]
                     for aa in range(3):
                         s = 0.0
                         for c in range(3):
                             s += dC[aa, r, c] * Rv[i, c] + CR[r, c] * B[p, i, c, aa]
-                        Jm[row, nK + aa] = -s
+                        Jm[row, nK + aa] = -s - kap[p, i] * Gy[i, aa] * CRn[i, r]
                     Jm[row, nK + 3 + r] = -1.0
             # stationarity: grad E + J^T lambda
             KKT[:, :] = 0.0
+            for i in range(N):
+                lCRn[i] = lam[3 * i] * CRn[i, 0] + lam[3 * i + 1] * CRn[i, 1] + lam[3 * i + 2] * CRn[i, 2]
             for i in range(N):
                 s_new = stretch[p, i] + dl[p, i]
                 acc = 0.0
@@ -375,16 +412,20 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                     q = i * K + k
                     rhs[q] = kst[p, i, k] * (x[i, k] - rest[i, k]) - kappa[i] * s_new * marm[i, k] - per[k]
                     for k2 in range(K):
-                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)]
+                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)] + kap[p, i] * lCRn[i] * hGh[i]
                         for c in range(3):
                             hv += lam[3 * i + c] * Hc[i, c, k, k2, 0]
                         KKT[q, i * K + k2] = hv
                     KKT[q, q] += kst[p, i, k]
+                hn = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]
                 for aa in range(3):  # theta_ik with w_a, the same for every k of finger i
                     s = 0.0
                     for c in range(3):
                         for j in range(3):
                             s -= lam[3 * i + c] * dC[aa, c, j] * Rb[i, j]
+                    if kap[p, i] != 0.0:  # a round object's roll: kap ((Gy.h) lam.dC_a R n - (lam.CRn) (G h)_a)
+                        ldn = lam[3 * i] * dCRn[aa, i, 0] + lam[3 * i + 1] * dCRn[aa, i, 1] + lam[3 * i + 2] * dCRn[aa, i, 2]
+                        s += kap[p, i] * (Gyh[i] * ldn - lCRn[i] * (hinge[i, aa] - hn * Rn[i, aa]))
                     for k in range(K):
                         KKT[i * K + k, nK + aa] += s
                         KKT[nK + aa, i * K + k] += s
@@ -421,6 +462,12 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, hinge, stretch, dl, ma
                             for j in range(3):
                                 hv -= lam[3 * n + c] * (d2C[aa, bb, c, j] * Rv[n, j] + dC[aa, c, j] * RB[n, j, bb]
                                                         + dC[bb, c, j] * RB[n, j, aa])
+                    for n in range(N):
+                        if kap[p, n] != 0.0:
+                            la = lam[3 * n] * dCRn[aa, n, 0] + lam[3 * n + 1] * dCRn[aa, n, 1] + lam[3 * n + 2] * dCRn[aa, n, 2]
+                            lb = lam[3 * n] * dCRn[bb, n, 0] + lam[3 * n + 1] * dCRn[bb, n, 1] + lam[3 * n + 2] * dCRn[bb, n, 2]
+                            G_ab = (1.0 if aa == bb else 0.0) - Rn[n, aa] * Rn[n, bb]
+                            hv += kap[p, n] * (lCRn[n] * G_ab - la * Gy[n, bb] - lb * Gy[n, aa])
                     KKT[nK + aa, nK + bb] += hv
             for row in range(m):
                 for q in range(nx):
@@ -457,7 +504,8 @@ CHUNK = 64
 
 
 @njit(cache=True, parallel=True)
-def _newton_kernel(theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L, pad, base, u,
+def _newton_kernel(theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L, pad,
+                   base, u,
                    marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                    x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
     """Every hypothesis' Newton (:func:`_newton_range`), CHUNK of them per parallel task."""
@@ -465,6 +513,7 @@ def _newton_kernel(theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g,
     tasks = (P + CHUNK - 1) // CHUNK
     for tk in prange(tasks):
         start = np.int64(tk) * CHUNK
-        _newton_range(start, min(start + CHUNK, P), theta0, a, R, t, cO, B, b, hinge, stretch, dl, mass, comO, g, mu,
+        _newton_range(start, min(start + CHUNK, P), theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO,
+                      g, mu,
                       g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                       x_out, w_out, tau_out, ok, iters)
