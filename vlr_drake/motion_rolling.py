@@ -367,9 +367,14 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretc
             for i in range(N):
                 for r in range(3):
                     Rv[i, r] = R[p, r, 0] * v[i, 0] + R[p, r, 1] * v[i, 1] + R[p, r, 2] * v[i, 2]
-                    CRn[i, r] = CR[r, 0] * nO[p, i, 0] + CR[r, 1] * nO[p, i, 1] + CR[r, 2] * nO[p, i, 2]
-                    for aa in range(3):
-                        dCRn[aa, i, r] = dC[aa, r, 0] * Rn[i, 0] + dC[aa, r, 1] * Rn[i, 1] + dC[aa, r, 2] * Rn[i, 2]
+                    if kap[p, i] != 0.0:  # a round object's roll (else its terms vanish: no work)
+                        CRn[i, r] = CR[r, 0] * nO[p, i, 0] + CR[r, 1] * nO[p, i, 1] + CR[r, 2] * nO[p, i, 2]
+                        for aa in range(3):
+                            dCRn[aa, i, r] = dC[aa, r, 0] * Rn[i, 0] + dC[aa, r, 1] * Rn[i, 1] + dC[aa, r, 2] * Rn[i, 2]
+                    else:
+                        CRn[i, r] = 0.0
+                        for aa in range(3):
+                            dCRn[aa, i, r] = 0.0
                     CRb[i, r] = CR[r, 0] * b[p, i, 0] + CR[r, 1] * b[p, i, 1] + CR[r, 2] * b[p, i, 2]
             gmax, finite = 0.0, True
             Jm[:, :] = 0.0
