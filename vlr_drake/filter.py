@@ -1443,8 +1443,7 @@ class SelfIdentificationFilter:
             if np.any(round_):
                 pr = p[round_]
                 to_centre = np.linalg.norm(pr - motion_rolling.circle_centres(pr)[:, None], axis=-1)
-                pad = self.hand.pad_surface - self.hand.pad
-                radius[round_] = np.maximum(to_centre - pad[None], MIN_CURVATURE_RADIUS)
+                radius[round_] = np.maximum(to_centre - self.hand.pad_radius[None], MIN_CURVATURE_RADIUS)
         if load is None:
             return normals_O, None, radius
         half = self.prior.com_half_width

@@ -276,6 +276,8 @@ class HandModel:
         # n_i of the VLR: the pad's centre of curvature (see FingerSpec.pad_radius).
         self.pad = np.array([x.pad_offset - x.pad_radius for x in f], float)
         self.pad_surface = np.array([x.pad_offset for x in f], float)
+        # the pads' radius of curvature, from the pad's centre to its surface (the rolling model's)
+        self.pad_radius = self.pad_surface - self.pad
         self.moment_arms = np.array([x.moment_arms for x in f], float)
         self.stiffness = np.array([x.stiffness for x in f], float)
         self.rest_angles = np.array([x.rest_angles for x in f], float)

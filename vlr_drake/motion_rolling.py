@@ -184,7 +184,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     nrm = nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)
     stretch = np.broadcast_to(np.asarray(stretch, float), (P, N)).copy()
     dl = np.zeros((P, N)) if dl is None else np.broadcast_to(np.asarray(dl, float), (P, N)).copy()
-    r = (hand.pad_surface - hand.pad) if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
+    r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     k = np.broadcast_to(hand.stiffness if stiffness is None else np.asarray(stiffness, float), (P, N, K)).copy()
     mass = np.zeros(P) if object_mass is None else np.broadcast_to(np.asarray(object_mass, float), (P,)).copy()
@@ -309,7 +309,7 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretc
     Jm, KKT, KKT0, rhs, rhs0 = np.empty((m, nx)), np.empty((dim, dim)), np.empty((dim, dim)), np.empty(dim), np.empty(dim)
     phi, per, curv, dphi = np.empty(K), np.empty(K), np.empty(K), np.empty(N)
     Rn, CRn, yv, Gy, dCRn = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((3, N, 3))
-    lCRn, hGh, Gyh = np.empty(N), np.empty(N), np.empty(N)
+    lCRn, hn, Gyh = np.empty(N), np.empty(N), np.empty(N)
     for p in range(start, stop):
         for i in range(N):
             al[i, 0] = a[p, i]
@@ -325,8 +325,7 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretc
         for i in range(N):
             for j in range(3):
                 Rn[i, j] = R[p, j, 0] * nO[p, i, 0] + R[p, j, 1] * nO[p, i, 1] + R[p, j, 2] * nO[p, i, 2]
-            hn = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]
-            hGh[i] = 1.0 - hn * hn  # h^T G h, G = I - Rn Rn^T
+            hn[i] = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]  # G = I - Rn Rn^T
         for i in range(N):
             for j in range(3):
                 Rb[i, j] = R[p, j, 0] * b[p, i, 0] + R[p, j, 1] * b[p, i, 1] + R[p, j, 2] * b[p, i, 2]
@@ -417,12 +416,11 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretc
                     q = i * K + k
                     rhs[q] = kst[p, i, k] * (x[i, k] - rest[i, k]) - kappa[i] * s_new * marm[i, k] - per[k]
                     for k2 in range(K):
-                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)] + kap[p, i] * lCRn[i] * hGh[i]
+                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)] + kap[p, i] * lCRn[i] * (1.0 - hn[i] * hn[i])
                         for c in range(3):
                             hv += lam[3 * i + c] * Hc[i, c, k, k2, 0]
                         KKT[q, i * K + k2] = hv
                     KKT[q, q] += kst[p, i, k]
-                hn = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]
                 for aa in range(3):  # theta_ik with w_a, the same for every k of finger i
                     s = 0.0
                     for c in range(3):
@@ -430,7 +428,7 @@ def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretc
                             s -= lam[3 * i + c] * dC[aa, c, j] * Rb[i, j]
                     if kap[p, i] != 0.0:  # a round object's roll: kap ((Gy.h) lam.dC_a R n - (lam.CRn) (G h)_a)
                         ldn = lam[3 * i] * dCRn[aa, i, 0] + lam[3 * i + 1] * dCRn[aa, i, 1] + lam[3 * i + 2] * dCRn[aa, i, 2]
-                        s += kap[p, i] * (Gyh[i] * ldn - lCRn[i] * (hinge[i, aa] - hn * Rn[i, aa]))
+                        s += kap[p, i] * (Gyh[i] * ldn - lCRn[i] * (hinge[i, aa] - hn[i] * Rn[i, aa]))
                     for k in range(K):
                         KKT[i * K + k, nK + aa] += s
                         KKT[nK + aa, i * K + k] += s

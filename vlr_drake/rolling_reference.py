@@ -186,7 +186,7 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     dl = np.zeros(N) if dl is None else np.asarray(dl, float)
     if dl.shape != (N,) or not np.all(np.isfinite(dl)):
         raise ValueError(f"rolling: 'dl' must be a finite array of shape ({N},), got {dl.shape}")
-    r = hand.pad_surface - hand.pad if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
+    r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
     if not np.all(np.isfinite(r) & (r >= 0)):
         raise ValueError(f"rolling: 'pad_radius' must be >= 0 [m], got {np.asarray(r).tolist()}")
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)

@@ -206,7 +206,7 @@ def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com, sp
     if sphere is not None:
         centre, radius = sphere
         normals = (touching - centre) / np.linalg.norm(touching - centre, axis=1, keepdims=True)
-        touching_sphere = touching + (h.pad_surface - h.pad)[:, None] * normals
+        touching_sphere = touching + h.pad_radius[:, None] * normals
         shape = {"curvature_radius": np.full(h.N, float(radius)), "pad_offset": truth["contacts"] - touching_sphere}
     state = RollingState(truth["theta"], truth["a"], R, t, normals,
                          np.asarray(l_before, float) - h.tendon_travel(truth["theta"]),
