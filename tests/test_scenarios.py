@@ -26,6 +26,7 @@ EXPECTED = {
     "stiffness_weighed",
     "novel_NH1",
     "novel_NH2",
+    "novel_NH2_weighed",
     "novel_NH3",
     "custom_hand_and_object",
     "hardware",
@@ -152,11 +153,31 @@ def test_a_weighed_object_in_the_scenario(tmp_path):
     assert not PriorSettings().to_prior().object_mass_unknown
 
 
-def test_the_weighed_stiffness_example_is_the_cli_run_it_names(monkeypatch):
-    """diagrams/stiffness_weighed.yaml is `vlr-drake identify stiffness --object-mass 0.028
-    --filter motion_model=rolling ...` (its comment): the same run's options, field by field."""
+ROLLING_FLAGS = ["--filter", "motion_model=rolling", "--filter", "sigma_position=0.00015",
+                 "--filter", "sigma_rotation=0.00525", "--filter", "likelihood=student_t",
+                 "--filter", "divergence_sigmas=60"]
+WEIGHED_EXAMPLES = {
+    # name: (the CLI run its comment names, the experiment, object, hand, what the filter draws [kg])
+    "stiffness_weighed": (["identify", "stiffness", "--object", "toy_block", "--object-mass", "0.028"]
+                          + ROLLING_FLAGS, "stiffness", "toy_block", "model_o", (0.021, 0.035)),
+    "novel_NH2_weighed": (["identify", "novel_fingers", "--hand", "NH2", "--object-mass", "0.068"]
+                          + ROLLING_FLAGS + ["--filter", "likelihood_width=1.75", "--filter", "normal_guess=either",
+                                             "--filter", "object_curvature=round"],
+                          "novel_fingers", "apple", "NH2", (0.051, 0.085)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(WEIGHED_EXAMPLES))
+def test_a_weighed_example_is_the_cli_run_it_names(monkeypatch, name):
+    """diagrams/<name>.yaml is the `vlr-drake identify ... --object-mass M --filter
+    motion_model=rolling ...` run its comment names: the same run's options, field by field."""
     from vlr_drake import identify
     from vlr_drake.cli import main
+
+    flags, experiment, obj, hand, mass_range = WEIGHED_EXAMPLES[name]
+    path = DIAGRAMS_DIR / f"{name}.yaml"
+    mass = flags[flags.index("--object-mass") + 1]
+    assert f"identify {experiment}" in path.read_text() and f"--object-mass {mass}" in path.read_text()
 
     class Taken(BaseException):
         pass
@@ -166,25 +187,23 @@ def test_the_weighed_stiffness_example_is_the_cli_run_it_names(monkeypatch):
 
     monkeypatch.setattr(identify, "run_identification", take)
     runs = {}
-    for name, argv in [
-        ("file", ["identify", "--scenario", str(DIAGRAMS_DIR / "stiffness_weighed.yaml")]),
-        ("flags", ["identify", "stiffness", "--object", "toy_block", "--object-mass", "0.028",
-                   "--filter", "motion_model=rolling", "--filter", "sigma_position=0.00015",
-                   "--filter", "sigma_rotation=0.00525", "--filter", "likelihood=student_t",
-                   "--filter", "divergence_sigmas=60"]),
-    ]:
+    for how, argv in [("file", ["identify", "--scenario", str(path)]), ("flags", flags)]:
         with pytest.raises(Taken) as taken:
             main(argv + ["--no-progress"])
-        runs[name] = taken.value.args[0].validate()
+        runs[how] = taken.value.args[0].validate()
     a, b = runs["file"], runs["flags"]
     assert (a.experiment, a.plant, a.object, a.hand, a.seed) == (b.experiment, b.plant, b.object, b.hand, b.seed)
-    assert (a.experiment, a.plant, a.object) == ("stiffness", "physics", "toy_block")
+    assert (a.experiment, a.plant, a.object, a.hand) == (experiment, "physics", obj, hand)
     assert a.filter == b.filter
     prior_a, prior_b = (identify._hands(o, np.random.default_rng(0))[2] for o in (a, b))  # as the run resolves it
     assert prior_a == prior_b
     assert a.filter.motion_model == "rolling" and a.filter.gravity_loads == "following"
-    assert prior_a.object_mass_range == pytest.approx((0.021, 0.035)) and prior_a.stiffness_unknown == [(0, 1)]
-    assert (a.object_mass, a.object_mass_tolerance) == (b.object_mass, b.object_mass_tolerance) == (0.028, 0.25)
+    assert prior_a.object_mass_unknown and prior_a.object_mass_range == pytest.approx(mass_range)
+    assert a.object_mass_tolerance == b.object_mass_tolerance == 0.25
+    if experiment == "stiffness":
+        assert prior_a.stiffness_unknown == [(0, 1)]
+    else:
+        assert prior_a.links_unknown == [0, 1] and a.filter.object_curvature == "round"
 
 
 def test_contact_limits_past_a_finger_name_the_finger(tmp_path):
