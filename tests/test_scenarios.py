@@ -27,6 +27,7 @@ EXPECTED = {
     "novel_NH1",
     "novel_NH2",
     "novel_NH2_weighed",
+    "novel_NH2_rolling",
     "novel_NH3",
     "custom_hand_and_object",
     "hardware",
@@ -151,6 +152,45 @@ def test_a_weighed_object_in_the_scenario(tmp_path):
     assert built.filter._prior.object_mass_range == pytest.approx((0.0252, 0.0308))
     assert built.filter._config.gravity_loads == "following" and np.any(built.filter._config.gravity_palm)
     assert not PriorSettings().to_prior().object_mass_unknown
+
+
+def test_an_unweighed_object_whose_weight_the_scenario_identifies(tmp_path):
+    """prior.object_mass_unknown (the paper's Omega: the object's weight identified, its
+    mass unknown in object_mass_range): the filter's prior carries it, the run carries the
+    weight following the angles, and a range beside a weighed mass is named as a conflict."""
+    path = _write(tmp_path, "object: apple\nprior: {object_mass_unknown: true, object_mass_range: [0.01, 0.2]}\n")
+    s = load_scenario(path)
+    prior = s.prior.to_prior()
+    assert prior.object_mass_unknown and prior.object_mass_range == (0.01, 0.2)
+    o = options_from_scenario(s, path).validate()
+    assert o.object_weight and o.object_mass is None and o.filter.gravity_loads == "following"
+    assert o.prior.object_mass_range == (0.01, 0.2)
+    assert not PriorSettings().to_prior().object_mass_unknown  # not by default
+    assert PriorSettings().to_prior().object_mass_range == pf.PriorConfig().object_mass_range
+    bad = _write(tmp_path, "prior: {object_mass: 0.068, object_mass_range: [0.0, 0.1]}\n", "both.yaml")
+    with pytest.raises(ValueError, match=r"both.yaml: prior: 'object_mass_range' \(\[0.0, 0.1\]\) and 'object_mass' "
+                                         r"\(0.068\) both say"):
+        load_scenario(bad)
+    for text, match in [("prior: {object_mass_unknown: true, object_mass_range: [0.1]}\n",
+                         r"prior: 'object_mass_range' must be \[min, max\]"),
+                        ("prior: {object_mass_unknown: true, object_mass_range: [0.2, 0.1]}\n",
+                         r"prior: 'object_mass_range' must be 0 <= min < max")]:
+        with pytest.raises(ValueError, match=match):
+            load_scenario(_write(tmp_path, text, "range.yaml"))
+
+
+def test_the_rolling_NH2_example_weighs_nothing():
+    """diagrams/novel_NH2_rolling.yaml is the paper's protocol (no object mass given: the
+    weight identified in 0-250 g) with the rolling model over a round or flat object and
+    1 mm actions in a 2 mm window."""
+    path = DIAGRAMS_DIR / "novel_NH2_rolling.yaml"
+    o = options_from_scenario(load_scenario(path), path).validate()
+    assert (o.experiment, o.plant, o.hand, o.object) == ("novel_fingers", "physics", "NH2", "apple")
+    assert o.object_mass is None and o.object_weight
+    assert o.prior.object_mass_unknown and o.prior.object_mass_range == pf.PriorConfig().object_mass_range
+    assert (o.action_range, o.window) == (0.001, 0.002)
+    assert (o.filter.motion_model, o.filter.normal_guess, o.filter.object_curvature) == ("rolling", "either", "round")
+    assert o.filter.gravity_loads == "following" and o.prior.links_unknown == [0, 1]
 
 
 ROLLING_FLAGS = ["--filter", "motion_model=rolling", "--filter", "sigma_position=0.00015",

@@ -149,12 +149,20 @@ class PriorSettings:
     # None: not weighed, the object weightless (Eq. 9).
     object_mass: float | None = None
     object_mass_tolerance: float = 0.25
+    # Not weighed, the object's weight identified all the same, its mass unknown in
+    # [min, max] [kg] (PriorConfig.object_mass_unknown and object_mass_range; the paper's
+    # Omega, Eq. 4, "object weight"; ``vlr-drake identify --object-weight``).
+    object_mass_unknown: bool = False
+    object_mass_range: list[float] = field(default_factory=lambda: list(pf.PriorConfig().object_mass_range))
 
     def to_prior(self) -> pf.PriorConfig:
-        weighed = {} if self.object_mass is None else dict(
-            object_mass_unknown=True, object_mass_range=pf.weighed_mass_range(self.object_mass,
-                                                                              self.object_mass_tolerance))
-        return pf.PriorConfig(**weighed,
+        if self.object_mass is not None:
+            weight = dict(object_mass_unknown=True,
+                          object_mass_range=pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance))
+        else:
+            weight = dict(object_mass_unknown=bool(self.object_mass_unknown),
+                          object_mass_range=(float(self.object_mass_range[0]), float(self.object_mass_range[1])))
+        return pf.PriorConfig(**weight,
             proximal_half_width=self.proximal_half_width,
             distal_half_width=self.distal_half_width,
             contact_half_width=self.contact_half_width,
@@ -170,7 +178,7 @@ class PriorSettings:
 
     def validate(self, N: int, K: int) -> "PriorSettings":
         # the YAML forms first; the values are checked where the filter checks them
-        for name in ("stiffness_range", "link_range", "contact_limits"):
+        for name in ("stiffness_range", "link_range", "contact_limits", "object_mass_range"):
             v = getattr(self, name)
             if v is not None and len(v) != 2:
                 raise ValueError(f"prior: '{name}' must be [min, max], got {v}")
@@ -179,6 +187,10 @@ class PriorSettings:
                 raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger, joint] pair")
         if self.object_mass is not None:
             _with_section("prior", lambda: pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance))
+            if list(self.object_mass_range) != list(pf.PriorConfig().object_mass_range):
+                raise ValueError(f"prior: 'object_mass_range' ({self.object_mass_range}) and 'object_mass' "
+                                 f"({self.object_mass}) both say what the object weighs: a weighed object's "
+                                 "range is object_mass +- object_mass_tolerance")
         self.to_prior().validate(N, K)
         return self
 
