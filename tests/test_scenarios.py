@@ -174,7 +174,9 @@ def test_an_unweighed_object_whose_weight_the_scenario_identifies(tmp_path):
     for text, match in [("prior: {object_mass_unknown: true, object_mass_range: [0.1]}\n",
                          r"prior: 'object_mass_range' must be \[min, max\]"),
                         ("prior: {object_mass_unknown: true, object_mass_range: [0.2, 0.1]}\n",
-                         r"prior: 'object_mass_range' must be 0 <= min < max")]:
+                         r"prior: 'object_mass_range' must be 0 <= min < max"),
+                        ("prior: {object_mass_range: [0.0, 0.1]}\n",
+                         r"prior: 'object_mass_range' \(\[0.0, 0.1\]\) needs object_mass_unknown: true")]:
         with pytest.raises(ValueError, match=match):
             load_scenario(_write(tmp_path, text, "range.yaml"))
 

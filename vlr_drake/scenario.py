@@ -185,12 +185,16 @@ class PriorSettings:
         for pair in self.stiffness_unknown:
             if len(pair) != 2:
                 raise ValueError(f"prior: 'stiffness_unknown' entry {pair} is not a [finger, joint] pair")
+        ranged = list(self.object_mass_range) != list(pf.PriorConfig().object_mass_range)
         if self.object_mass is not None:
             _with_section("prior", lambda: pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance))
-            if list(self.object_mass_range) != list(pf.PriorConfig().object_mass_range):
+            if ranged:
                 raise ValueError(f"prior: 'object_mass_range' ({self.object_mass_range}) and 'object_mass' "
                                  f"({self.object_mass}) both say what the object weighs: a weighed object's "
                                  "range is object_mass +- object_mass_tolerance")
+        elif ranged and not self.object_mass_unknown:  # said, not silently dropped
+            raise ValueError(f"prior: 'object_mass_range' ({self.object_mass_range}) needs object_mass_unknown: true "
+                             "(the object's weight identified)")
         self.to_prior().validate(N, K)
         return self
 
