@@ -322,3 +322,28 @@ def test_a_bad_finger_is_refused_by_name(changes, field):
 
     with pytest.raises(ValueError, match=field):
         finger_sdf(replace(novel_finger("NF1"), **changes))
+
+
+def test_a_custom_tag_mesh_is_written_outside_the_repository_and_removed_at_exit():
+    """A tag no preset uses gets its mesh in a temporary directory, which is gone when the
+    process that wrote it exits (it had been left behind, one per process)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    from urllib.parse import unquote, urlparse
+
+    used = {preset(n).tag_id for n in preset_names()}
+    tag_id = next(i for i in range(500) if i not in used)
+    code = (
+        "from vlr_drake.objects import tag_mesh_uri\n"
+        f"uri = tag_mesh_uri({tag_id})\n"
+        "from pathlib import Path; from urllib.parse import urlparse, unquote\n"
+        "p = Path(unquote(urlparse(uri).path)); assert p.exists() and p.with_suffix('.mtl').exists(), uri\n"
+        "print(uri)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    uri = out.stdout.strip().splitlines()[-1]
+    assert uri.startswith("file://"), uri
+    path = Path(unquote(urlparse(uri).path))
+    assert models_dir() not in path.parents
+    assert not path.parents[1].exists(), f"{path.parents[1]} was left behind"

@@ -545,7 +545,8 @@ _TAG_TEMP_DIR: Path | None = None
 def tag_mesh_uri(tag_id: int) -> str:
     """URI of the textured tag quad for ``tag_id``: the package's copy under models/objects
     when it exists (the presets' tags), else one written once to a temporary directory (so a
-    custom object never writes into the repository)."""
+    custom object never writes into the repository; that directory is removed when the
+    process exits)."""
     from vlr_drake.models import models_dir
 
     name = _tag_mesh_name(tag_id)
@@ -553,9 +554,12 @@ def tag_mesh_uri(tag_id: int) -> str:
         return f"package://vlr_drake/objects/{name}.obj"
     global _TAG_TEMP_DIR
     if _TAG_TEMP_DIR is None:
+        import atexit
+        import shutil
         import tempfile
 
         _TAG_TEMP_DIR = Path(tempfile.mkdtemp(prefix="vlr_drake_tags_"))
+        atexit.register(shutil.rmtree, _TAG_TEMP_DIR, ignore_errors=True)
     root = _TAG_TEMP_DIR
     obj = root / "objects" / f"{name}.obj"
     if not obj.exists():
