@@ -55,7 +55,23 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
-  experiment's common-mode squeezes to the random actions.
+  experiment's common-mode squeezes to the random actions;
+- per joint, the fraction of the plant's motion each rolling prediction explains, action by
+  action (``joint_motion_explained_rolling``, ``_shaped``: 1 - sum (plant - model)^2 / sum
+  plant^2). A slope near 1 says a model moves a joint as far as the plant on average; this
+  says whether it moves it when the plant does. With ``--hold SECONDS`` the commands are held
+  after the last action and the plant's drift is reported (``hold``). ``--hand NH2`` (or
+  NH1, NH3) grasps with a novel hand.
+
+SAP's regularised friction lets a contact under a tangential load creep, at a rate that
+scales with the time step, and the grasp relaxes through it along a mode no-slip contacts
+forbid: the object turning about the thumb-fingers axis, one side finger's distal joint
+flexing as the other's extends. ``--hand NH2 --actions 30 --span 0.001 --window 0.002
+--hold 2`` (seed 0): at the default 1 ms step the curved roll explains 0.825 of the right
+finger's distal motion (0.933-0.998 of the other joints'), one-step 0.140 mm; held 2 s
+after the last action that joint drifts -0.46 deg and the left distal +0.41. With
+``--physics time_step=0.00025``: 0.965 (0.987-0.998), 0.103 mm, and -0.37 / +0.32 deg in
+2 s (docs/results.md, "The plant creeps").
 
 The one-step and carried models start from the tendon stretch that holds the plant's angles
 in the VLR's equilibrium (a least-squares split of the tensions: for the Model O's two side
@@ -66,6 +82,7 @@ the commanded equilibrium uses the plant's own tendon state.
     python -m vlr_drake.physics.agreement --object apple --direction -1 1 1 --step 0.5e-3 --actions 8
     python -m vlr_drake.physics.agreement --tendon-stiffness 20000 --span 0.3e-3 --window 0.8e-3
     python -m vlr_drake.physics.agreement --object toy_block --actions 20 --squeeze --spring-profile 0.85 1 1.15
+    python -m vlr_drake.physics.agreement --hand NH2 --actions 30 --span 0.001 --window 0.002 --hold 2
 
 Measured with it (apple, seed 0, 2000 N/m tendons): a thumb-vs-fingers pull (-1, 1, 1) moves
 the apple 10.8 mm per mm in the plant and 12.1 mm in the model; past ~1 mm the apple touches
@@ -127,7 +144,7 @@ from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
 from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.grasps import commanded_equilibrium
-from vlr_drake.hand import HandSpec, model_o
+from vlr_drake.hand import HandSpec, hand_by_name, model_o
 from vlr_drake.identify import EXPLORATION, default_squeeze
 from vlr_drake.physics.statics import LOADS, commanded_offsets, plant_loads
 from vlr_drake.systems.physics_plant import PhysicsConfig
@@ -281,6 +298,7 @@ def run_agreement(
     spring_scales=None,
     spring: tuple[int, int] | None = None,
     squeeze: tuple[float, float] | None = None,
+    hold: float = 0.0,
 ) -> dict:
     """Grasp ``object_name`` with the physics hand (``hand``: the Model O by default) and
     compare ``actions`` actions with Gamma's predictions (module docstring). Actions: random,
@@ -292,12 +310,18 @@ def run_agreement(
     Eq. 9's commanded equilibria with the model's spring scaled by each factor
     (``spring_profile``; the plant keeps its own). ``squeeze``: (squeeze, window) [m] of
     common-mode pulls on top of the random actions, as the stiffness experiment's
-    (:func:`vlr_drake.identify.default_squeeze`); default none."""
+    (:func:`vlr_drake.identify.default_squeeze`); default none. ``hold`` [s]: after the last
+    action, hold the commands that long and report how far the plant drifts meanwhile
+    (``hold``: joints [deg], the object [mm, deg]), which an equilibrium model has no room
+    for: SAP's regularised friction lets a contact under a tangential load creep, at a rate
+    that scales with the time step (``PhysicsConfig.time_step``)."""
     from vlr_drake.identify import Exploration, IdentifyOptions
     from vlr_drake.physics_identify import PhysicsAdapter
 
     if actions < 1:
         raise ValueError(f"'actions' must be >= 1, got {actions}")
+    if not (np.isfinite(hold) and hold >= 0):
+        raise ValueError(f"'hold' must be a duration >= 0 [s], got {hold}")
     spec = hand if hand is not None else model_o()
     h = spec.model()
     profile = _profile_hands(spec, spring_scales, spring)
@@ -418,6 +442,16 @@ def run_agreement(
                        carried_joint_error_deg=np.rad2deg(carried.theta[0] - truth["theta"]).tolist())
         rows.append(row)
         R, t = R1, t1
+    held = None
+    if hold > 0:  # the commands held: how far the plant drifts without an action
+        theta0 = truth["theta"]
+        adapter.sim.AdvanceTo(adapter.root.get_time() + hold)
+        R1, t1 = _pose(adapter)
+        theta1 = adapter.truth()["theta"]
+        turn = float(np.rad2deg(observation.rotation_angle(R1[None], R[None])[0]))
+        held = {"seconds": float(hold), "joint_drift_deg": np.rad2deg(theta1 - theta0).tolist(),
+                "object_drift_mm": float(np.linalg.norm(t1 - t) * 1e3), "object_turn_deg": turn,
+                "joint_drift_deg_per_s_max": float(np.rad2deg(np.abs(theta1 - theta0).max()) / hold)}
     ok = [r for r in rows if r["one_step_error_mm"] is not None]
     moved = [r for r in ok if r["true_motion_mm"] > 0.05]
     carried_errors = [r["carried_error_mm"] for r in rows if r["carried_error_mm"] is not None]
@@ -469,6 +503,12 @@ def run_agreement(
         "rolling_failures": sum(r["rolling_one_step_error_mm"] is None for r in rows),
         # with the object's shape, a sphere's (None for other shapes)
         "joint_motion_slope_rolling_shaped": _slopes(rows, "rolling_shaped_joint_motion_deg"),
+        # per joint (N, K): the fraction of the plant's joint motion each rolling prediction
+        # explains, action by action (_explained)
+        "joint_motion_explained_rolling": _explained(rows, "rolling_joint_motion_deg"),
+        "joint_motion_explained_rolling_shaped": _explained(rows, "rolling_shaped_joint_motion_deg"),
+        # the drift while the commands were held after the last action (None: no hold)
+        "hold": held,
         "rolling_shaped_one_step_error_mm_median": _median(rows, "rolling_shaped_one_step_error_mm"),
         "rolling_shaped_one_step_error_deg_median": _median(rows, "rolling_shaped_one_step_error_deg"),
         "spring_profile": _profile_summary(rows, profile),
@@ -545,6 +585,23 @@ def _slopes(rows: list[dict], key: str) -> list | None:
     return [[None if not np.isfinite(x) else float(x) for x in row] for row in slope]
 
 
+def _explained(rows: list[dict], key: str) -> list | None:
+    """Per joint, the fraction of the plant's joint motion (``true_joint_motion_deg``, its sum
+    of squares over the rows) that the model's motion ``key`` explains, 1 - sum (true -
+    model)^2 / sum true^2 (N, K): 1 for a model that moves the joint as the plant does, action
+    by action. Unlike the slope, which only says how far the model moves a joint on average,
+    it falls where the plant moves a joint in ways the model does not (e.g. a slow creep that
+    carries one action's motion into the next). None where the plant never moved the joint."""
+    rows = [r for r in rows if r[key] is not None]
+    if not rows:
+        return None
+    pred = np.array([r[key] for r in rows])
+    true = np.array([r["true_joint_motion_deg"] for r in rows])
+    den = (true * true).sum(0)
+    frac = np.where(den > 0, 1.0 - ((true - pred) ** 2).sum(0) / np.where(den > 0, den, 1.0), np.nan)
+    return [[None if not np.isfinite(x) else float(x) for x in row] for row in frac]
+
+
 def _budget_summary(rows: list[dict]) -> dict:
     """Over the actions: each load's mean joint torque (N, K) [mN m], the largest |residual|
     [mN m], and per group of unmodelled loads the mean |commanded offset| [deg] and its
@@ -564,6 +621,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.agreement", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--object", default="apple", help="object preset (default apple)")
+    ap.add_argument("--hand", default="model_o",
+                    help="the physics hand: model_o (default) or a novel hand, NH1, NH2 or NH3")
     ap.add_argument("--actions", type=count(1), default=40, help="number of actions (default 40)")
     ap.add_argument("--seed", type=count(0), default=0, help="seed of the random actions (default 0)")
     ap.add_argument("--span", type=float, default=EXPLORATION["physics"][0],
@@ -582,14 +641,21 @@ def main(argv: list[str] | None = None) -> dict:
                          "e.g. 0.85 1 1.15 (the rolling reference and Eq. 9)")
     ap.add_argument("--squeeze", action="store_true",
                     help="add the stiffness experiment's common-mode squeezes to the random actions")
+    ap.add_argument("--hold", type=float, default=0.0, metavar="SECONDS",
+                    help="after the last action, hold the commands this long and report the plant's drift")
     ap.add_argument("--json", default=None, help="write the result as JSON to this path")
     args = ap.parse_args(argv)
+    if not (np.isfinite(args.hold) and args.hold >= 0):
+        ap.error(f"--hold: a duration >= 0 [s], got {args.hold}")
     check_output("--json", args.json)
     try:
         physics = physics_overrides(args.physics)
     except ValueError as e:
         ap.error(str(e))
-    spec = model_o()
+    try:
+        spec = hand_by_name(args.hand)
+    except ValueError as e:
+        ap.error(f"--hand: {e}")
     if args.tendon_stiffness is not None:
         for f in spec.fingers:
             f.tendon_stiffness = args.tendon_stiffness
@@ -599,7 +665,7 @@ def main(argv: list[str] | None = None) -> dict:
     r = run_agreement(args.object, hand=spec, actions=args.actions, seed=args.seed, span=args.span,
                       window=args.window, direction=args.direction, step=args.step, physics=physics,
                       spring_scales=args.spring_profile,
-                      squeeze=default_squeeze("physics", "stiffness") if args.squeeze else None)
+                      squeeze=default_squeeze("physics", "stiffness") if args.squeeze else None, hold=args.hold)
     print(f"{r['object']}, {r['hand']}, tendons {r['tendon_stiffness']:.0f} N/m, {len(r['actions'])} actions")
     print(" k   true [mm]  one-step err [mm, deg]  predicted/true  carried err [mm]  other contacts")
     for k, row in enumerate(r["actions"]):
@@ -652,6 +718,18 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"with the object's shape (a sphere: the pads rolling over its curved surface, the touching pad "
               f"sphere's offset): one-step error {num(r['rolling_shaped_one_step_error_mm_median'])} mm / "
               f"{num(r['rolling_shaped_one_step_error_deg_median'])} deg (median)")
+    for key, what in (("joint_motion_explained_rolling", "the rolling reference"),
+                      ("joint_motion_explained_rolling_shaped", "the same on the object's shape")):
+        if r[key] is not None:
+            print(f"fraction of the plant's joint motion explained by {what}, action by action: "
+                  + ", ".join(f"{name} " + "/".join(num(x) for x in row)
+                              for name, row in zip(spec.finger_names(), r[key], strict=True)))
+    if r["hold"] is not None:
+        d = r["hold"]
+        print(f"held {d['seconds']:g} s after the last action: the object drifted {d['object_drift_mm']:.3f} mm / "
+              f"{d['object_turn_deg']:.3f} deg, the joints [deg] "
+              + ", ".join(f"{name} " + "/".join(f"{x:+.3f}" for x in row)
+                          for name, row in zip(spec.finger_names(), d["joint_drift_deg"], strict=True)))
     sp = r["spring_profile"]
     if sp is not None:
         print(f"spring profile ({sp['actions']} actions; sum of squares in units of {PROFILE_UNITS[0]} mm and "
