@@ -572,14 +572,22 @@ def _median(rows: list[dict], key: str) -> float | None:
     return float(np.median(got)) if got else None
 
 
-def _slopes(rows: list[dict], key: str) -> list | None:
-    """Per joint, the least-squares slope of ``true_joint_motion_deg`` on the model's joint
-    motion ``key`` over the rows that have it (N, K), None where the model never moved it."""
+def _motions(rows: list[dict], key: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """(the model's joint motion ``key``, the plant's ``true_joint_motion_deg``), (M, N, K)
+    each, over the M rows that have the model's; None where none has."""
     rows = [r for r in rows if r[key] is not None]
     if not rows:
         return None
-    pred = np.array([r[key] for r in rows])
-    true = np.array([r["true_joint_motion_deg"] for r in rows])
+    return np.array([r[key] for r in rows]), np.array([r["true_joint_motion_deg"] for r in rows])
+
+
+def _slopes(rows: list[dict], key: str) -> list | None:
+    """Per joint, the least-squares slope of ``true_joint_motion_deg`` on the model's joint
+    motion ``key`` over the rows that have it (N, K), None where the model never moved it."""
+    pair = _motions(rows, key)
+    if pair is None:
+        return None
+    pred, true = pair
     den = (pred * pred).sum(0)
     slope = np.where(den > 0, (pred * true).sum(0) / np.where(den > 0, den, 1.0), np.nan)
     return [[None if not np.isfinite(x) else float(x) for x in row] for row in slope]
@@ -592,11 +600,10 @@ def _explained(rows: list[dict], key: str) -> list | None:
     by action. Unlike the slope, which only says how far the model moves a joint on average,
     it falls where the plant moves a joint in ways the model does not (e.g. a slow creep that
     carries one action's motion into the next). None where the plant never moved the joint."""
-    rows = [r for r in rows if r[key] is not None]
-    if not rows:
+    pair = _motions(rows, key)
+    if pair is None:
         return None
-    pred = np.array([r[key] for r in rows])
-    true = np.array([r["true_joint_motion_deg"] for r in rows])
+    pred, true = pair
     den = (true * true).sum(0)
     frac = np.where(den > 0, 1.0 - ((true - pred) ** 2).sum(0) / np.where(den > 0, den, 1.0), np.nan)
     return [[None if not np.isfinite(x) else float(x) for x in row] for row in frac]
