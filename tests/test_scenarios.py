@@ -25,6 +25,7 @@ EXPECTED = {
     "stiffness",
     "stiffness_weighed",
     "novel_NH1",
+    "novel_NH1_rolling",
     "novel_NH2",
     "novel_NH2_weighed",
     "novel_NH2_rolling",
@@ -181,18 +182,19 @@ def test_an_unweighed_object_whose_weight_the_scenario_identifies(tmp_path):
             load_scenario(_write(tmp_path, text, "range.yaml"))
 
 
-def test_the_rolling_NH2_example_weighs_nothing():
-    """diagrams/novel_NH2_rolling.yaml is the paper's protocol (no object mass given: the
-    weight identified in 0-250 g) with the rolling model over a round or flat object and
-    1 mm actions in a 2 mm window."""
-    path = DIAGRAMS_DIR / "novel_NH2_rolling.yaml"
+@pytest.mark.parametrize(("name", "hand", "links"), [("novel_NH1_rolling", "NH1", [0]), ("novel_NH2_rolling", "NH2", [0, 1])])
+def test_the_rolling_novel_hand_examples_weigh_nothing(name, hand, links):
+    """diagrams/novel_NH1_rolling.yaml and novel_NH2_rolling.yaml are the paper's protocol
+    (no object mass given: the weight identified in 0-250 g) with the rolling model over a
+    round or flat object and 1 mm actions in a 2 mm window."""
+    path = DIAGRAMS_DIR / f"{name}.yaml"
     o = options_from_scenario(load_scenario(path), path).validate()
-    assert (o.experiment, o.plant, o.hand, o.object) == ("novel_fingers", "physics", "NH2", "apple")
+    assert (o.experiment, o.plant, o.hand, o.object) == ("novel_fingers", "physics", hand, "apple")
     assert o.object_mass is None and o.object_weight
     assert o.prior.object_mass_unknown and o.prior.object_mass_range == pf.PriorConfig().object_mass_range
     assert (o.action_range, o.window) == (0.001, 0.002)
     assert (o.filter.motion_model, o.filter.normal_guess, o.filter.object_curvature) == ("rolling", "either", "round")
-    assert o.filter.gravity_loads == "following" and o.prior.links_unknown == [0, 1]
+    assert o.filter.gravity_loads == "following" and o.prior.links_unknown == links
 
 
 ROLLING_FLAGS = ["--filter", "motion_model=rolling", "--filter", "sigma_position=0.00015",
