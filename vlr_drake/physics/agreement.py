@@ -63,8 +63,8 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   after the last action and the plant's drift is reported (``hold``). ``--hand NH2`` (or
   NH1, NH3) grasps with a novel hand.
 
-SAP's regularised friction lets a contact under a tangential load creep, at a rate that
-scales with the time step, and the grasp relaxes through it along a mode no-slip contacts
+SAP's regularised friction lets a contact under a tangential load creep, more slowly at a
+smaller time step, and the grasp relaxes through it along a mode no-slip contacts
 forbid: the object turning about the thumb-fingers axis, one side finger's distal joint
 flexing as the other's extends. ``--hand NH2 --actions 30 --span 0.001 --window 0.002
 --hold 2`` (seed 0): at the default 1 ms step the curved roll explains 0.825 of the right
@@ -313,8 +313,8 @@ def run_agreement(
     (:func:`vlr_drake.identify.default_squeeze`); default none. ``hold`` [s]: after the last
     action, hold the commands that long and report how far the plant drifts meanwhile
     (``hold``: joints [deg], the object [mm, deg]), which an equilibrium model has no room
-    for: SAP's regularised friction lets a contact under a tangential load creep, at a rate
-    that scales with the time step (``PhysicsConfig.time_step``)."""
+    for: SAP's regularised friction lets a contact under a tangential load creep, more
+    slowly at a smaller time step (``PhysicsConfig.time_step``)."""
     from vlr_drake.identify import Exploration, IdentifyOptions
     from vlr_drake.physics_identify import PhysicsAdapter
 
