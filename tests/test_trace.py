@@ -389,6 +389,41 @@ def test_a_replay_stops_where_a_run_with_its_settings_would_stop(tmp_path, capsy
     assert "--all-steps is for a replay" in capsys.readouterr().err
 
 
+def test_a_replay_reports_its_errors_after_the_steps_asked_for(tmp_path, capsys):
+    """--at K,...: the estimate after K steps against the plant's truth then, as a replay of
+    the trace's first K steps alone gives it (what a budget of K would have given)."""
+    r = _run("stiffness", particles=600, iterations=12, seed=2,
+             filter=pf.FilterConfig(particles=600, convergence_deg=0.0))  # never converges: every step recorded
+    trace = r["_trace"]
+    T = trace.steps
+    assert T > 6
+    whole = replay(trace, at_steps=[5, T, 5])
+    assert [e["steps"] for e in whole["errors_at"]] == [5, T]
+    assert whole["errors_at"][-1] == {"steps": T, **whole["errors"]}
+    first = {k: getattr(trace, k)[:5] for k in ("actions", "R", "t", "valid", "tendon_commands")}
+    short = IdentificationTrace(**{**trace.__dict__, **first, "truths": {k: v[:6] for k, v in trace.truths.items()}})
+    assert whole["errors_at"][0] == {"steps": 5, **replay(short)["errors"]}
+    assert whole["errors_at"][0] != whole["errors_at"][-1]
+    for bad in (0, T + 1, 2.0, True):
+        with pytest.raises(ValueError, match=f"at_steps: {bad!r} is not an iteration count of this trace \\(1-{T}\\)"):
+            replay(trace, at_steps=[bad])
+    with pytest.raises(ValueError, match="at_steps: the trace has no truths"):
+        replay(IdentificationTrace(**{**trace.__dict__, "truths": None}), at_steps=[2])
+    # the command line: printed and in the JSON; a count past the trace, a bad list, a profile are named
+    path = trace.save(tmp_path / "run.npz")
+    out = tmp_path / "at.json"
+    assert main(["replay", str(path), "--at", f"5,{T}", "--no-progress", "--json", str(out)]) == 0
+    assert f"after 5 steps: mean joint error {whole['errors_at'][0]['joint_error_deg_mean']:.2f} deg" in \
+        capsys.readouterr().out
+    assert json.loads(out.read_text())["runs"][0]["errors_at"] == json.loads(json.dumps(whole["errors_at"]))
+    for at, message in [(f"5,{T + 1}", f"--at '5,{T + 1}': {path} has {T} steps"),
+                        ("5,x", "--at '5,x': expected comma-separated iteration counts")]:
+        assert main(["replay", str(path), "--at", at, "--no-progress"]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["replay", str(path), "--at", "5", "--profile", "stiffness", "--values", "0.1"]) == 2
+    assert "--at is for a replay, not for a profile" in capsys.readouterr().err
+
+
 def test_iterations_count_filter_steps_as_a_replay_does():
     """Refused actions are not iterations: the result's ``iterations`` at convergence is the
     filter step its replay converges at (seed 2 of this run has refused actions)."""

@@ -338,6 +338,14 @@ def replay_trace(args) -> dict:
         raise ValueError("--statics needs --profile and --values")
     if args.all_steps and args.profile is not None:
         raise ValueError("--all-steps is for a replay: an evidence profile always replays every step")
+    at_steps = []
+    if args.at is not None:
+        if args.profile is not None:
+            raise ValueError("--at is for a replay, not for a profile")
+        try:
+            at_steps = [int(k) for k in args.at.split(",")]
+        except ValueError:
+            raise ValueError(f"--at '{args.at}': expected comma-separated iteration counts, e.g. 60,120,240") from None
     values = None
     if args.profile is not None:
         if args.values is None:
@@ -358,7 +366,10 @@ def replay_trace(args) -> dict:
         print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
               f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
         if values is None:
-            r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps)
+            if any(not 1 <= k <= trace.steps for k in at_steps):
+                raise ValueError(f"--at '{args.at}': {path} has {trace.steps} steps (iteration counts 1-{trace.steps})")
+            r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
+                       at_steps=at_steps)
             run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
                    "steps": r["steps"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
@@ -371,6 +382,12 @@ def replay_trace(args) -> dict:
                 print("  weakly identified: " + ", ".join(
                     f"{n} (interval {100 * r['hand_parameters'][n]['narrowed_to']:.0f}% as wide as the prior's)"
                     for n in r["weakly_identified"]))
+            if at_steps:
+                run["errors_at"] = r["errors_at"]
+                for e in r["errors_at"]:
+                    print(f"  after {e['steps']} steps: {_errors_line(e)}")
+                if len(r["errors_at"]) < len(set(at_steps)):
+                    print(f"  (the replay stopped after {r['steps']} steps; --all-steps replays every step)")
             if r.get("errors"):
                 print(f"  {_errors_line(r['errors'])}")
                 experiment = meta.get("experiment")
@@ -782,6 +799,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--all-steps", action="store_true",
                    help="replay every step of the trace; by default a replay stops where a run with its settings "
                         "would have stopped, at convergence (plus the run's extra iterations)")
+    p.add_argument("--at", default=None, metavar="STEPS",
+                   help="comma-separated iteration counts, e.g. 60,120,240: also the errors of the estimate "
+                        "after each (what a shorter budget would have given; simulation traces)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -294,7 +294,8 @@ class TraceRecorder:
 
 # ---------------------------------------------------------------------- replay
 def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, prior: pf.PriorConfig | None = None,
-           hand: HandSpec | None = None, progress: bool = False, stop_at_convergence: bool = False) -> dict:
+           hand: HandSpec | None = None, progress: bool = False, stop_at_convergence: bool = False,
+           at_steps=()) -> dict:
     """Run the filter over the trace's measurements.
 
     ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
@@ -305,6 +306,11 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     :func:`vlr_drake.identify.hand_parameter_report`) and, where the trace has truths,
     ``errors`` (the result fields of docs/result-files.md that compare the final estimate with
     the truth at that step).
+
+    ``at_steps`` (iteration counts in 1..the trace's steps, a simulation trace's): also
+    ``errors_at``, the same fields for the estimate after each of those steps against the
+    truth then, one ``{"steps": k, ...}`` per count the replay reached, in order: what a
+    shorter budget would have given, from one replay of a long trace.
 
     ``stop_at_convergence``: stop where a run with these settings would have stopped, at the
     step where the filter converged plus the run's ``extra_iterations`` (the trace's
@@ -320,6 +326,9 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
 
     from vlr_drake.identify import estimate_errors, hand_parameter_report
 
+    at_steps = sorted({_step_count(k, trace.steps) for k in at_steps})
+    if at_steps and trace.truths is None:
+        raise ValueError("at_steps: the trace has no truths to measure the estimates against (a hardware trace)")
     config = copy.deepcopy(trace.filter if config is None else config)
     prior = copy.deepcopy(trace.prior if prior is None else prior)
     spec = trace.hand if hand is None else hand
@@ -344,10 +353,21 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
            "converged_at": next((r.iteration for r in f.history if r.converged), None),
            **hand_parameter_report(h, prior, f.estimates[-1], f.estimates[0])}
     if trace.truths is not None:
-        # truths[0] is the grasp's, truths[i] the plant's after step i
-        truth = {k: v[len(f.history)] for k, v in trace.truths.items()}
-        out["errors"] = estimate_errors(h, prior, f.estimates[-1], truth)
+        # truths[0] is the grasp's, truths[i] the plant's after step i (estimates[i] likewise)
+        def errors(i):
+            return estimate_errors(h, prior, f.estimates[i], {k: v[i] for k, v in trace.truths.items()})
+
+        out["errors"] = errors(len(f.history))
+        if at_steps:
+            out["errors_at"] = [{"steps": i, **errors(i)} for i in at_steps if i <= len(f.history)]
     return out
+
+
+def _step_count(k, steps: int) -> int:
+    """``k`` as an iteration count of a trace of ``steps`` steps (1..steps), or a ValueError naming it."""
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 1 <= k <= steps:
+        raise ValueError(f"at_steps: {k!r} is not an iteration count of this trace (1-{steps})")
+    return int(k)
 
 
 def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str):
