@@ -422,6 +422,14 @@ def test_a_replay_reports_its_errors_after_the_steps_asked_for(tmp_path, capsys)
         assert message in capsys.readouterr().err
     assert main(["replay", str(path), "--at", "5", "--profile", "stiffness", "--values", "0.1"]) == 2
     assert "--at is for a replay, not for a profile" in capsys.readouterr().err
+    # a replay that stops at its convergence reports the counts it reached, and says why not the rest
+    early = replay(trace, config_overrides(trace.filter, ["convergence_deg=90", "parameter_convergence=10"], "--filter"),
+                   stop_at_convergence=True, at_steps=[1, T])
+    assert early["steps"] < T and [e["steps"] for e in early["errors_at"]] == [1]
+    assert main(["replay", str(path), "--at", f"1,{T}", "--filter", "convergence_deg=90", "--filter",
+                 "parameter_convergence=10", "--no-progress"]) == 0
+    assert f"(the replay stopped after {early['steps']} steps; --all-steps replays every step)" in \
+        capsys.readouterr().out
 
 
 def test_iterations_count_filter_steps_as_a_replay_does():
