@@ -41,6 +41,7 @@ from vlr_drake.hand import (
     link_mass,
     novel_finger,
 )
+from vlr_drake.resources import data_dir
 
 __all__ = [
     "PACKAGE_NAME",
@@ -82,12 +83,13 @@ _COLORS = {
 
 def package_map_path() -> Path:
     """Path of ``models/package.xml`` (the ``vlr_drake`` package's root is ``models/``)."""
-    return Path(__file__).resolve().parent.parent / "models" / "package.xml"
+    return models_dir() / "package.xml"
 
 
 def models_dir() -> Path:
-    """The ``models/`` directory of the repository."""
-    return package_map_path().parent
+    """The ``models/`` directory: the repository's, or an installed wheel's copy
+    (:func:`vlr_drake.resources.data_dir`)."""
+    return data_dir("models")
 
 
 def configure_parser(parser) -> None:

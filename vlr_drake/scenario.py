@@ -41,6 +41,7 @@ from vlr_drake.kinematics import is_count
 from vlr_drake.objects import ObjectSpec, preset, preset_names
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.perception.tag_pose import TagObserverConfig
+from vlr_drake.resources import data_dir
 from vlr_drake.systems.physics_plant import PhysicsConfig
 
 # No ``from __future__ import annotations`` here: yaml_load_typed reads the field types.
@@ -74,8 +75,9 @@ FILTER_ACTIONS = ("measured", "commanded")
 HARDWARE_UPDATES_PER_ACTION_MIN = 4
 #: Hand preset names accepted by ``Scenario.hand`` (see :func:`vlr_drake.hand.hand_by_name`).
 HAND_PRESETS = ("model_o", "NH1", "NH2", "NH3")
-#: The folder of the example scenarios and their rendered diagrams.
-DIAGRAMS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+#: The folder of the example scenarios and their rendered diagrams (the repository's
+#: ``diagrams/``, or an installed wheel's copy: :func:`vlr_drake.resources.data_dir`).
+DIAGRAMS_DIR = data_dir("diagrams")
 
 
 def _shape_of(value) -> tuple | None:
