@@ -1601,7 +1601,9 @@ class SelfIdentificationFilter:
         """One iteration of Algorithm 1 for action ``dl`` (N,) and the measured POM pose.
 
         With ``valid`` False (lost tag) the particles are moved but not weighed,
-        resampled or re-anchored: nothing is learnt and nothing is corrupted.
+        resampled or re-anchored: nothing is learnt and nothing is corrupted (with the
+        rolling model each hypothesis' contacts are re-expressed in the object pose its move
+        predicts, as the pads rolled over the object).
         ``tendon_command`` (N,) [m]: the absolute tendon pull after the action, where the
         motors report it (hardware); by default the previous command plus ``dl``.
         """
@@ -1648,6 +1650,9 @@ class SelfIdentificationFilter:
         ps.theta, ps.stretch = res.theta, res.stretch
         lap("move")
         if not valid or R_meas is None:
+            if rolling:  # the pads rolled over the object: the contacts in the pose it predicts
+                p_O = observation.in_frame(p_new, R_pred, t_pred)
+                ps.p_O = np.where(np.isfinite(p_O).all(axis=(1, 2))[:, None, None], p_O, ps.p_O)
             return self._report(False, float(ps.size), 1.0, res, feasible, False, np.nan, lap=lap)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
