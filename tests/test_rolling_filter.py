@@ -305,6 +305,36 @@ def test_a_hypothesis_at_the_truth_predicts_the_truth(lost):
         np.testing.assert_allclose(R, np.broadcast_to(truth.R, R.shape), atol=1e-7)
 
 
+def test_a_rolling_filter_scores_actions_with_the_rolling_model():
+    """action_information moves its subsample as the filter does: hypotheses that differ in
+    nothing but their object's normals (the same grasp, pose and weight) predict different
+    motions under the rolling model, so the candidates score (normals +-10 deg apart in their
+    fingers' planes: 0.013-0.015); the same hypotheses with one normal each score nothing (the pinned model, which had scored every rolling filter's
+    candidates, cannot tell the first apart either). Nothing in the filter changes."""
+    truth = RollingTruth(5)
+    f = _filter(10)
+    f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    h, M = f.hand, 64
+    p = kinematics.contacts(h, truth.theta[None], truth.a[None])
+    rng = np.random.default_rng(3)
+    n_O = truth.normals @ truth.R  # the object's frame
+    tilt = np.deg2rad(rng.uniform(-10.0, 10.0, (M, h.N)))[..., None]
+    tilted = np.cos(tilt) * n_O + np.sin(tilt) * np.cross(h.u, n_O)  # about each finger's axis u_i
+    f.particles = pf.ParticleSet(
+        np.repeat(truth.theta[None], M, 0), np.repeat(truth.a[None], M, 0), h.stiffness[None], h.link_lengths[None],
+        np.repeat(truth.stretch[None], M, 0), np.repeat(observation.attach(p, truth.R[None], truth.t[None]), M, 0),
+        np.zeros(M), np.full((M, h.N), truth.mass / h.N), tilted, np.repeat((truth.R.T @ (truth.com - truth.t))[None], M, 0))
+    before = {k: np.copy(getattr(f.particles, k)) for k in ("theta", "stretch", "p_O", "normals_O", "log_w")}
+    actions = np.array([[0.6e-3, -0.4e-3, 0.3e-3], [-0.5e-3, 0.5e-3, 0.0], [0.3e-3, 0.3e-3, 0.3e-3]])
+    score = f.action_information(actions, np.random.default_rng(0), samples=M)
+    assert np.all(np.isfinite(score)) and np.all(score > 1e-3), score
+    for k, v in before.items():
+        np.testing.assert_array_equal(getattr(f.particles, k), v)
+    f.particles.normals_O = np.repeat(n_O[None], M, 0)
+    same = f.action_information(actions, np.random.default_rng(0), samples=M)
+    np.testing.assert_allclose(same, 0.0, atol=1e-9)
+
+
 @pytest.mark.slow
 def test_the_rolling_filter_identifies_a_rolling_hand():
     """Against a truth that moves as the rolling model says (measured with 0.05 mm / 0.15 deg

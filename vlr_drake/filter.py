@@ -1554,7 +1554,9 @@ class SelfIdentificationFilter:
         """Expected information (C,) of each candidate action (C, N) about the hypotheses.
 
         A weighted subsample of ``samples`` hypotheses (systematic, drawn with ``rng``) is
-        moved by every candidate with Gamma, and each predicts the POM's motion (translation
+        moved by every candidate with Gamma (the filter's ``motion_model``: with "rolling",
+        each from its own POM pose, its object's normals, weight and centre of mass), and
+        each predicts the POM's motion (translation
         and rotation vector in its own frame, in units of sigma_p and sigma_r). Where the
         hypotheses disagree the camera can tell them apart: the score is the Gaussian
         mutual information between hypothesis and measurement, 0.5 log det(I + Cov), over
@@ -1579,15 +1581,24 @@ class SelfIdentificationFilter:
         def tile(x):  # candidate-major: row c * S + s is hypothesis s under candidate c
             return x if x.shape[0] == 1 else np.tile(x, (C,) + (1,) * (x.ndim - 1))
 
-        theta, a, L, p_O = tile(sub.theta), tile(sub.a), tile(sub.link_lengths), tile(sub.p_O)
-        load = None if sub.object_load is None else tile(sub.object_load)
-        res = motion.move(h, theta, np.repeat(actions, S, axis=0), a=a, D2=motion.contact_distances_sq(h, p_O),
-                          stretch=tile(stretch), link_lengths=L, stiffness=tile(sub.stiffness), tendon=cfg.tendon,
-                          tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
-                          check_stability=self._check_moves(),
-                          **self._loads(theta, a, L, load))
-        R0, t0, ok0 = observation.pom_pose(p_O, kinematics.contacts(h, theta, a, L))
-        R1, t1, ok1 = observation.pom_pose(p_O, kinematics.contacts(h, res.theta, a, L))
+        dl = np.repeat(actions, S, axis=0)
+        if cfg.motion_model == "rolling":  # each hypothesis rolls from its own POM pose
+            tiled = sub.take(np.tile(np.arange(S), C))
+            tiled.stretch = tile(stretch)
+            R0, t0, ok0 = observation.pom_pose(tiled.p_O, kinematics.contacts(h, tiled.theta, tiled.a,
+                                                                              tiled.link_lengths))
+            res, R1, t1 = self._move_rolling(dl, R0, t0, tiled)
+            ok1 = np.all(np.isfinite(t1), axis=1)
+        else:
+            theta, a, L, p_O = tile(sub.theta), tile(sub.a), tile(sub.link_lengths), tile(sub.p_O)
+            load = None if sub.object_load is None else tile(sub.object_load)
+            res = motion.move(h, theta, dl, a=a, D2=motion.contact_distances_sq(h, p_O),
+                              stretch=tile(stretch), link_lengths=L, stiffness=tile(sub.stiffness), tendon=cfg.tendon,
+                              tolerance=cfg.newton_tolerance, loose_after=cfg.newton_loose_after,
+                              check_stability=self._check_moves(),
+                              **self._loads(theta, a, L, load))
+            R0, t0, ok0 = observation.pom_pose(p_O, kinematics.contacts(h, theta, a, L))
+            R1, t1, ok1 = observation.pom_pose(p_O, kinematics.contacts(h, res.theta, a, L))
         solved = (res.ok & ok0 & ok1).reshape(C, S)
         live = self._feasible(res, ok0 & ok1).reshape(C, S)
         turn = observation.rotvec(np.einsum("pji,pjk->pik", R0, R1))
@@ -1702,14 +1713,16 @@ class SelfIdentificationFilter:
         lap("resample")
         return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
 
-    def _move_rolling(self, dl, R_prev, t_prev):
-        """Move every hypothesis with the rolling model (``motion_model`` "rolling";
+    def _move_rolling(self, dl, R_prev, t_prev, ps: ParticleSet | None = None):
+        """Move every hypothesis of ``ps`` (default the filter's) by the action ``dl`` (N,)
+        or (M, N) with the rolling model (``motion_model`` "rolling";
         :func:`motion_rolling.move_rolling`) from its POM pose before the move (R_prev,
         t_prev): (a :class:`motion.MoveResult`, the predicted POM poses R (M, 3, 3), t (M,
         3)). A hypothesis whose Newton did not converge keeps its angles and pose, as the
         pinned model's failures do (held where it was with a ``stuck_probability``,
         discarded without one)."""
-        cfg, h, ps = self.config, self.hand, self.particles
+        cfg, h = self.config, self.hand
+        ps = self.particles if ps is None else ps
         M = ps.size
         g = np.asarray(cfg.gravity_palm, float)
         mass = com = None
