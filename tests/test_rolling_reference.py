@@ -212,6 +212,9 @@ def test_the_batched_rolling_solver_agrees_with_the_reference():
     assert np.abs(mixed.theta[1] - moved.theta[1]).max() > 1e-3
     with pytest.raises(ValueError, match="'theta' must have shape"):
         move_rolling(h, theta[:, :2], a, stack("R"), stack("t"), stack("normals"), stack("stretch"))
+    with pytest.raises(ValueError, match="an object with mass needs its centre of mass 'com'"):
+        move_rolling(h, stack("theta"), stack("a"), stack("R"), stack("t"), stack("normals"), stack("stretch"),
+                     np.array(dls), gravity=g, object_mass=stack("object_mass"))
 
 
 def test_the_batched_solver_rolls_over_a_round_object_as_the_reference():

@@ -188,6 +188,8 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     k = np.broadcast_to(hand.stiffness if stiffness is None else np.asarray(stiffness, float), (P, N, K)).copy()
     mass = np.zeros(P) if object_mass is None else np.broadcast_to(np.asarray(object_mass, float), (P,)).copy()
+    if com is None and gravity is not None and np.any(mass != 0):  # else its weight would act at t
+        raise ValueError("move_rolling: an object with mass needs its centre of mass 'com' (P, 3)")
     L = hand.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
     if L.ndim != 3 or L.shape[0] not in (1, P) or L.shape[1:] != (N, K - 1):
         raise ValueError(f"move_rolling: 'link_lengths' must have shape (1 or {P}, {N}, {K - 1}), got {L.shape}")
