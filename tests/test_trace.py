@@ -422,6 +422,14 @@ def test_a_replay_reports_its_errors_after_the_steps_asked_for(tmp_path, capsys)
         assert message in capsys.readouterr().err
     assert main(["replay", str(path), "--at", "5", "--profile", "stiffness", "--values", "0.1"]) == 2
     assert "--at is for a replay, not for a profile" in capsys.readouterr().err
+    # every trace is checked before the first replay: a later one's error loses no run's time
+    short_path = short.save(tmp_path / "short.npz")
+    hardware = IdentificationTrace(**{**trace.__dict__, "truths": None}).save(tmp_path / "hardware.npz")
+    for later, message in [(short_path, f"--at '{T}': {short_path} has 5 steps"),
+                           (hardware, f"--at '{T}': {hardware} has no truths to measure the estimates against")]:
+        assert main(["replay", str(path), str(later), "--at", str(T), "--no-progress"]) == 2
+        captured = capsys.readouterr()
+        assert message in captured.err and "log evidence" not in captured.out
     # a replay that stops at its convergence reports the counts it reached, and says why not the rest
     early = replay(trace, config_overrides(trace.filter, ["convergence_deg=90", "parameter_convergence=10"], "--filter"),
                    stop_at_convergence=True, at_steps=[1, T])

@@ -358,6 +358,12 @@ def replay_trace(args) -> dict:
         if not all(np.isfinite(values)):
             raise ValueError(f"--values '{args.values}': expected finite numbers")
     traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
+    for path, trace in traces if at_steps else ():  # and all checked: no replay is lost to a later trace's error
+        if any(not 1 <= k <= trace.steps for k in at_steps):
+            raise ValueError(f"--at '{args.at}': {path} has {trace.steps} steps (iteration counts 1-{trace.steps})")
+        if trace.truths is None:
+            raise ValueError(f"--at '{args.at}': {path} has no truths to measure the estimates against "
+                             "(a hardware trace)")
     runs, measured = [], {}
     for path, trace in traces:
         config = config_overrides(trace.filter, args.filter or [], "--filter")
@@ -366,8 +372,6 @@ def replay_trace(args) -> dict:
         print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
               f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
         if values is None:
-            if any(not 1 <= k <= trace.steps for k in at_steps):
-                raise ValueError(f"--at '{args.at}': {path} has {trace.steps} steps (iteration counts 1-{trace.steps})")
             r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
                        at_steps=at_steps)
             run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
