@@ -63,6 +63,11 @@ def test_bad_rolling_settings_are_named():
         pf.FilterConfig(motion_model="rolling", tendon="ideal").validate()
     with pytest.raises(ValueError, match="tendon_reference 'implied'"):
         pf.FilterConfig(motion_model="rolling", tendon_reference="implied").validate()
+    # the prior's draws settled or checked by Eq. 9, not by the model that moves them
+    with pytest.raises(ValueError, match="settle_prior 'True'"):
+        pf.FilterConfig(motion_model="rolling", settle_prior=True).validate()
+    with pytest.raises(ValueError, match="stable_grasps 'prior'"):
+        pf.FilterConfig(motion_model="rolling", stable_grasps="prior").validate()
     with pytest.raises(ValueError, match="normal_cone_deg"):
         pf.FilterConfig(motion_model="rolling", normal_cone_deg=95).validate()
     with pytest.raises(ValueError, match="'normal_tilt' must be one of"):

@@ -952,8 +952,9 @@ class FilterConfig:
     # object's frame, roughened with the rest) and its centre of mass. Started from the
     # physics plant's true state the rolling model predicts the toy block's motion five times
     # better than Eq. 9 (the agreement command's rolling_* fields). It needs the elastic
-    # tendon, and does not check stability (stable_grasps "always") or hold moves
-    # elastically (held_motion "elastic"), and takes its tendons' stretch from the motors'
+    # tendon, and does not check stability (stable_grasps "always" or "prior") or hold moves
+    # elastically (held_motion "elastic") or settle the prior's draws (settle_prior), all of
+    # which Eq. 9 would do, and takes its tendons' stretch from the motors'
     # command (tendon_reference "commanded"). Its Newton is compiled (numba), but its KKT
     # system is 21 square against Eq. 9's 9: an iteration costs about ten times the pinned
     # model's (a stiffness trace at 20,000 particles: 0.27 s against 0.03 s, 2 cores;
@@ -1075,6 +1076,8 @@ class FilterConfig:
             for name, bad, why in (("tendon", "ideal", "the rolling model has the elastic tendon only"),
                                    ("tendon_reference", "implied", "the implied stretch would be Eq. 9's equilibrium"),
                                    ("stable_grasps", "always", "the rolling model does not check stability"),
+                                   ("stable_grasps", "prior", "the draws' stability would be Eq. 9's"),
+                                   ("settle_prior", True, "the draws would settle at Eq. 9's equilibrium"),
                                    ("held_motion", "elastic", "the rolling model holds failed moves still")):
                 if getattr(self, name) == bad:
                     raise ValueError(f"filter: motion_model 'rolling' does not take {name} '{bad}': {why}")
