@@ -266,13 +266,14 @@ def test_the_batched_solver_rolls_over_a_round_object_as_the_reference():
 def test_the_cayley_derivatives_are_exact():
     """The compiled solver's analytic first and second derivatives of the Cayley rotation
     against complex steps of the rotation itself (first) and central differences of those
-    (second), at turns up to 0.5 rad."""
-    from vlr_drake.motion_rolling import SKEW_BASIS, _cayley, _cayley_derivatives
+    (second), at turns up to 0.5 rad, five lanes side by side."""
+    from vlr_drake.motion_rolling import SKEW_BASIS, SKEW_PRODUCTS, _cayley, _cayley_lanes
 
     rng = np.random.default_rng(1)
     for a in range(3):  # [e_a]x y = e_a x y
         np.testing.assert_array_equal(SKEW_BASIS[a] @ np.eye(3), np.cross(np.eye(3)[a], np.eye(3)).T)
-    scratch = [np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3))]
+        for b in range(3):
+            np.testing.assert_array_equal(SKEW_PRODUCTS[a, b], SKEW_BASIS[a] @ SKEW_BASIS[b] + SKEW_BASIS[b] @ SKEW_BASIS[a])
 
     def first(w):  # complex step, exact to round-off
         out = np.empty((3, 3, 3))
@@ -282,15 +283,18 @@ def test_the_cayley_derivatives_are_exact():
             out[a] = _cayley(wc[None])[0].imag / 1e-20
         return out
 
-    for w in rng.uniform(-0.5, 0.5, (5, 3)):
-        C, dC, d2C = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3, 3))
-        _cayley_derivatives(w, C, dC, d2C, SKEW_BASIS, *scratch)
-        np.testing.assert_allclose(C, _cayley(w[None])[0], atol=1e-15)
-        np.testing.assert_allclose(C @ C.T, np.eye(3), atol=1e-14)
-        np.testing.assert_allclose(dC, first(w), atol=1e-14)
+    ws = rng.uniform(-0.5, 0.5, (5, 3))
+    W = len(ws)
+    C, dC, d2C = np.empty((3, 3, W)), np.empty((3, 3, 3, W)), np.empty((3, 3, 3, 3, W))
+    scratch = np.empty((3, 3, W)), np.empty((3, 3, W)), np.empty((3, 3, 3, W)), np.empty(W)
+    _cayley_lanes(np.ascontiguousarray(ws.T), SKEW_BASIS, SKEW_PRODUCTS, C, dC, d2C, *scratch)
+    for q, w in enumerate(ws):
+        np.testing.assert_allclose(C[..., q], _cayley(w[None])[0], atol=1e-15)
+        np.testing.assert_allclose(C[..., q] @ C[..., q].T, np.eye(3), atol=1e-14)
+        np.testing.assert_allclose(dC[..., q], first(w), atol=1e-14)
         for b in range(3):
             d = np.eye(3)[b] * 1e-6
-            np.testing.assert_allclose(d2C[:, b], (first(w + d) - first(w - d)) / 2e-6, atol=1e-8)
+            np.testing.assert_allclose(d2C[:, b, ..., q], (first(w + d) - first(w - d)) / 2e-6, atol=1e-8)
 
 
 def test_a_hypothesis_without_an_equilibrium_fails_alone():
@@ -315,3 +319,37 @@ def test_a_hypothesis_without_an_equilibrium_fails_alone():
     np.testing.assert_array_equal(bad.R[keep], good.R[keep])
     none = move_rolling(h, th[:0], *args, **{**kw, "com": c.mean(0)[None][:0]})
     assert none.theta.shape == (0, h.N, h.K) and none.ok.shape == (0,) and none.iterations == 0
+
+
+def test_each_hypothesis_moves_as_it_would_alone():
+    """The compiled solver runs LANES hypotheses side by side per thread, each lane taking
+    the next hypothesis as its own is done: every hypothesis' result is bit for bit the same
+    whatever batch, order or lane it is solved in (so that a replay reproduces a run), here
+    for 150 hypotheses (more than two lanes' worth) with weightless and weighted objects,
+    round contacts and their own actions, moved together, in reverse and in batches of 7."""
+    from vlr_drake.motion_rolling import LANES, move_rolling
+
+    h, theta, a, stretch, _ = _grasp()
+    P = 150
+    assert P > 2 * LANES
+    rng = np.random.default_rng(4)
+    th = theta[None] + rng.normal(0, 0.01, (P, h.N, h.K))
+    c = kinematics.contacts(h, th, np.broadcast_to(a, (P, h.N)))
+    normals = c - c.mean(axis=1, keepdims=True) + rng.normal(0, 0.003, (P, h.N, 3))
+    mass = np.where(rng.random(P) < 0.3, 0.0, rng.uniform(0.01, 0.1, P))
+    radius = np.where(rng.random((P, h.N)) < 0.3, rng.uniform(0.02, 0.08, (P, h.N)), np.inf)
+    args = dict(a=np.broadcast_to(a, (P, h.N)), R=np.broadcast_to(np.eye(3), (P, 3, 3)), t=c.mean(axis=1),
+                normals=normals, stretch=np.broadcast_to(stretch, (P, h.N)), dl=rng.uniform(-0.5e-3, 0.5e-3, (P, h.N)),
+                object_mass=mass, com=c.mean(axis=1) + rng.normal(0, 0.005, (P, 3)), curvature_radius=radius)
+
+    def move(idx):
+        return move_rolling(h, th[idx], **{k: v[idx] for k, v in args.items()}, gravity=np.array([0.0, 0.0, -9.81]))
+
+    whole = move(np.arange(P))
+    assert whole.ok.mean() > 0.9 and whole.newton_iterations.max() > whole.newton_iterations.min()
+    back = move(np.arange(P)[::-1])
+    parts = [move(np.arange(s, min(s + 7, P))) for s in range(0, P, 7)]
+    for name in ("theta", "R", "t", "ok", "newton_iterations", "stretch"):
+        np.testing.assert_array_equal(getattr(back, name)[::-1], getattr(whole, name), err_msg=name)
+        np.testing.assert_array_equal(np.concatenate([getattr(x, name) for x in parts]), getattr(whole, name),
+                                      err_msg=name)

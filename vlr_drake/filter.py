@@ -955,10 +955,11 @@ class FilterConfig:
     # tendon, and does not check stability (stable_grasps "always" or "prior") or hold moves
     # elastically (held_motion "elastic") or settle the prior's draws (settle_prior), all of
     # which Eq. 9 would do, and takes its tendons' stretch from the motors'
-    # command (tendon_reference "commanded"). Its Newton is compiled (numba), but its KKT
-    # system is 21 square against Eq. 9's 9: an iteration costs about ten times the pinned
-    # model's (a stiffness trace at 20,000 particles: 0.27 s against 0.03 s, 2 cores;
-    # `vlr-drake bench rolling`; docs/results.md).
+    # command (tendon_reference "commanded"). Its Newton is compiled (numba, 64 hypotheses
+    # side by side per thread), but its KKT system is 21 square against Eq. 9's 9: a move
+    # of 60,000 hypotheses costs about seven times the pinned model's (0.42 s against 0.056
+    # s, 2 cores; `vlr-drake bench rolling`), a replay of a 240-step stiffness trace at
+    # 20,000 particles 43 s (docs/results.md).
     motion_model: str = "pinned"
     normal_cone_deg: float = 20.0
     # How the rolling model's normals leave their guess (NORMAL_TILTS): "cone", uniformly over

@@ -17,9 +17,13 @@ Every derivative is analytic; the pads' kinematics are Gamma's
 
 The set-up (the contacts and normals in the object's frame, the roll's Jacobians) is
 numpy; the Newton iteration is compiled with numba and runs in parallel over hypotheses,
-each thread one hypothesis at a time: its KKT matrix, N K + 3N + 6 square (21 on the Model
-O), by elimination with partial pivoting (:func:`vlr_drake.motion._solve`), by least
-squares where that finds it singular. With ``FilterConfig.motion_model = "rolling"`` it is
+each thread LANES of them side by side as SIMD loops, as Gamma's does: their KKT matrices,
+N K + 3N + 6 square (21 on the Model O), by elimination without pivoting in the augmented
+form H + rho J^T J (the same solution; H alone is singular in the object's translation and,
+before the multipliers grow, in its turn about the vertical), by partial pivoting
+(:func:`vlr_drake.motion._solve`) for the rare lane whose pivot vanishes all the same, by
+least squares where that finds it singular. Each hypothesis' result is the same, bit for
+bit, whatever batch or lane it is solved in. With ``FilterConfig.motion_model = "rolling"`` it is
 the filter's Gamma. The tests hold it to the MathematicalProgram reference to 1e-8 rad.
 """
 
@@ -40,10 +44,13 @@ GRAD_TOL = 1e-10
 ATTACH_TOL = 1e-12
 #: Cap on one Newton step's largest joint change [rad].
 MAX_STEP = 0.1
-#: [e_a]x, a = 0, 1, 2: the Cayley derivatives' basis (:func:`_cayley_derivatives`'s E).
+#: [e_a]x, a = 0, 1, 2: the Cayley derivatives' basis (:func:`_cayley_lanes`'s E).
 SKEW_BASIS = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],
                        [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]],
                        [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
+#: E_a E_b + E_b E_a (3, 3, 3, 3): half the Cayley numerator's second derivatives.
+SKEW_PRODUCTS = (np.einsum("aij,bjk->abik", SKEW_BASIS, SKEW_BASIS)
+                 + np.einsum("bij,ajk->abik", SKEW_BASIS, SKEW_BASIS))
 
 
 @dataclass
@@ -223,7 +230,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
                    c(comO), c(g),
                    c(mu), c(g_u), c(g_z), c(k), c(L), c(hand.pad), c(hand.base), c(hand.u), c(hand.moment_arms),
                    c(hand.rest_angles), c(hand.kappa), int(max_iter), MAX_STEP, GRAD_TOL, ATTACH_TOL,
-                   x_theta, w, tau, ok, iters)
+                   x_theta, w, tau, ok, iters, motion._move_tasks(P))
     iterations = int(iters.max()) if P else 0
     C = _cayley(w)
     ok &= np.isfinite(x_theta).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
@@ -240,285 +247,479 @@ def _skew(v):
     return S
 
 
-@njit(cache=True)
-def _sym_product(A, B, out):  # pragma: no cover - numba
-    """out = A B + B A for 3x3 matrices (no BLAS call: these are too small for one)."""
+@njit(cache=True, error_model="numpy")
+def _cayley_lanes(w, E, E2, C, dC, d2C, Wm, Nm, Na, D):  # pragma: no cover - numba
+    """The Cayley rotation C = I + (4 W + 2 W^2) / (4 + |w|^2), W = [w]x (the same rotation
+    as :func:`_cayley`), of every lane's ``w`` (3, W), into C (3, 3, W), dC[a] = dC/dw_a
+    (3, 3, 3, W) and d2C[a, b] = d2C/dw_a dw_b (3, 3, 3, 3, W), analytically. E (3, 3, 3)
+    holds [e_a]x and E2[a, b] (3, 3, 3, 3) the constant E_a E_b + E_b E_a; Wm, Nm (3, 3, W),
+    Na (3, 3, 3, W) and D (W,) are scratch."""
+    L = w.shape[1]
     for i in range(3):
         for j in range(3):
-            out[i, j] = (A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-                         + B[i, 0] * A[0, j] + B[i, 1] * A[1, j] + B[i, 2] * A[2, j])
-
-
-@njit(cache=True)
-def _cayley_derivatives(w, C, dC, d2C, E, W, Nm, Na, Nab):  # pragma: no cover - numba
-    """The Cayley rotation C = I + (4 W + 2 W^2) / (4 + |w|^2), W = [w]x, of ``w`` (3,)
-    (the same rotation as :func:`_cayley`), into C (3, 3), dC[a] = dC/dw_a (3, 3, 3) and
-    d2C[a, b] = d2C/dw_a dw_b (3, 3, 3, 3), analytically. E (3, 3, 3) holds [e_a]x; W,
-    Nm (3, 3), Na (3, 3, 3) and Nab (3, 3) are scratch."""
+            for q in range(L):
+                Wm[i, j, q] = w[0, q] * E[0, i, j] + w[1, q] * E[1, i, j] + w[2, q] * E[2, i, j]
+    for q in range(L):
+        D[q] = 4.0 + w[0, q] * w[0, q] + w[1, q] * w[1, q] + w[2, q] * w[2, q]
     for i in range(3):
         for j in range(3):
-            W[i, j] = w[0] * E[0, i, j] + w[1] * E[1, i, j] + w[2] * E[2, i, j]
-    _sym_product(W, W, Nm)  # 2 W^2
-    for i in range(3):
-        for j in range(3):
-            Nm[i, j] += 4.0 * W[i, j]  # the numerator N(w) = 4 W + 2 W^2
-    D = 4.0 + w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
-    for a in range(3):
-        _sym_product(E[a], W, Na[a])
-        for i in range(3):
-            for j in range(3):
-                Na[a, i, j] = 4.0 * E[a, i, j] + 2.0 * Na[a, i, j]  # dN/dw_a
-    for i in range(3):
-        for j in range(3):
-            C[i, j] = (1.0 if i == j else 0.0) + Nm[i, j] / D
+            for q in range(L):  # the numerator N(w) = 4 W + 2 W^2
+                Nm[i, j, q] = 4.0 * Wm[i, j, q] + 2.0 * (Wm[i, 0, q] * Wm[0, j, q] + Wm[i, 1, q] * Wm[1, j, q]
+                                                       + Wm[i, 2, q] * Wm[2, j, q])
+                C[i, j, q] = (1.0 if i == j else 0.0) + Nm[i, j, q] / D[q]
     for a in range(3):
         for i in range(3):
             for j in range(3):
-                dC[a, i, j] = Na[a, i, j] / D - 2.0 * w[a] * Nm[i, j] / (D * D)
+                for q in range(L):  # dN/dw_a = 4 E_a + 2 (E_a W + W E_a)
+                    Na[a, i, j, q] = 4.0 * E[a, i, j] + 2.0 * (
+                        E[a, i, 0] * Wm[0, j, q] + E[a, i, 1] * Wm[1, j, q] + E[a, i, 2] * Wm[2, j, q]
+                        + Wm[i, 0, q] * E[a, 0, j] + Wm[i, 1, q] * E[a, 1, j] + Wm[i, 2, q] * E[a, 2, j])
+                    dC[a, i, j, q] = Na[a, i, j, q] / D[q] - 2.0 * w[a, q] * Nm[i, j, q] / (D[q] * D[q])
     for a in range(3):
         for b in range(a, 3):
-            _sym_product(E[a], E[b], Nab)  # d2N/dw_a dw_b = 2 (E_a E_b + E_b E_a)
             for i in range(3):
                 for j in range(3):
-                    v = (2.0 * Nab[i, j] / D - 2.0 * (w[b] * Na[a, i, j] + w[a] * Na[b, i, j]) / (D * D)
-                         + 8.0 * w[a] * w[b] * Nm[i, j] / (D * D * D))
-                    if a == b:
-                        v -= 2.0 * Nm[i, j] / (D * D)
-                    d2C[a, b, i, j] = v
-                    d2C[b, a, i, j] = v
+                    for q in range(L):  # d2N/dw_a dw_b = 2 (E_a E_b + E_b E_a)
+                        D2 = D[q] * D[q]
+                        v = (2.0 * E2[a, b, i, j] / D[q] - 2.0 * (w[b, q] * Na[a, i, j, q] + w[a, q] * Na[b, i, j, q]) / D2
+                             + 8.0 * w[a, q] * w[b, q] * Nm[i, j, q] / (D2 * D[q]))
+                        if a == b:
+                            v -= 2.0 * Nm[i, j, q] / D2
+                        d2C[a, b, i, j, q] = v
+                        d2C[b, a, i, j, q] = v
+
+
+#: Hypotheses solved side by side by one thread of the Newton kernel ("lanes", as Gamma's:
+#: :data:`vlr_drake.motion.LANES`); every array of a solve has them on its last axis.
+LANES = motion.LANES
 
 
 @njit(cache=True)
-def _newton_range(start, stop, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z,
-                  kst, L,
-                  pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+def _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
+               x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
+               RcomO, Rn, hn, Rb, RB, w, tau, lam):  # pragma: no cover - numba
+    """Hypothesis ``p``'s numbers into lane ``q``, its Newton started at its own angles and
+    pose (w = tau = 0) with zero multipliers; the products with its pose that stay fixed
+    through the solve (R com_O, R n_O and its hinge component, R b, R B) computed once."""
+    N, K = x.shape[0], x.shape[1]
+    for i in range(N):
+        al[i, q] = a[p, i]
+        kapl[i, q] = kap[p, i]
+        strl[i, q] = stretch[p, i]
+        dll[i, q] = dl[p, i]
+        for k in range(K - 1):
+            Ll[i, k, q] = L[p, i, k]
+        for k in range(K):
+            x[i, k, q] = theta0[p, i, k]
+            x0[i, k, q] = theta0[p, i, k]
+            mul[i, k, q] = mu[p, i, k]
+            kstl[i, k, q] = kst[p, i, k]
+        for r in range(3):
+            cOl[i, r, q] = cO[p, i, r]
+            bl[i, r, q] = b[p, i, r]
+            nOl[i, r, q] = nO[p, i, r]
+            for c in range(3):
+                Bl[i, r, c, q] = B[p, i, r, c]
+    massl[q] = mass[p]
+    for r in range(3):
+        tl[r, q] = t[p, r]
+        w[r, q] = 0.0
+        tau[r, q] = 0.0
+        RcomO[r, q] = R[p, r, 0] * comO[p, 0] + R[p, r, 1] * comO[p, 1] + R[p, r, 2] * comO[p, 2]
+        for c in range(3):
+            Rl[r, c, q] = R[p, r, c]
+    for i in range(N):
+        h = 0.0
+        for j in range(3):
+            Rn[i, j, q] = R[p, j, 0] * nO[p, i, 0] + R[p, j, 1] * nO[p, i, 1] + R[p, j, 2] * nO[p, i, 2]
+            h += Rn[i, j, q] * hinge[i, j]
+            Rb[i, j, q] = R[p, j, 0] * b[p, i, 0] + R[p, j, 1] * b[p, i, 1] + R[p, j, 2] * b[p, i, 2]
+            for c in range(3):
+                RB[i, j, c, q] = R[p, j, 0] * B[p, i, 0, c] + R[p, j, 1] * B[p, i, 1, c] + R[p, j, 2] * B[p, i, 2, c]
+        hn[i, q] = h  # G = I - Rn Rn^T
+    for r in range(lam.shape[0]):
+        lam[r, q] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu,
+                  g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                   x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
     """Newton on the rolling equilibrium's KKT system (module docstring) for hypotheses
-    ``start:stop``, one at a time; scratch allocated once."""
+    ``start:stop:stride``, LANES at a time: each lane runs its own hypothesis' iteration (its
+    own step count, step cap and convergence test, those of a one-hypothesis Newton method),
+    and a lane whose hypothesis is done takes the next one, so the lanes stay busy. The KKT
+    systems are solved side by side without pivoting (:func:`vlr_drake.motion._lu_lanes`) in
+    their augmented form (below), the unknowns ordered (theta, w, tau, lambda). A lane with
+    a pivot that vanishes all the same (3% of hypotheses, once) is solved again with partial
+    pivoting (:func:`vlr_drake.motion._solve`), by least squares where that finds it
+    singular."""
+    if start >= stop:
+        return
     N, K = theta0.shape[1], theta0.shape[2]
     nK = N * K
-    nx = nK + 6
     m = 3 * N
-    dim = nx + m
-    th, Ll, al = np.empty((N, K, 1)), np.ones((N, max(K - 1, 1), 1)), np.empty((N, 1))
-    Pc, Jc, Hc = np.empty((N, 3, 1)), np.empty((N, 3, K, 1)), np.empty((N, 3, K, K, 1))
-    C, dC, d2C = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3, 3))
+    OW, OT, OL = nK, nK + 3, nK + 6  # the KKT's blocks: theta, w, tau, lambda
+    dim = OL + m
+    W = LANES
     E = SKEW_BASIS.copy()
-    Wc, Nm, Na, Nab = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3))
-    x, w, tau, lam = np.empty((N, K)), np.empty(3), np.empty(3), np.empty(m)
-    v, Rv, CRb, Rb = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3))
-    RB, RcomO, CR = np.empty((N, 3, 3)), np.empty(3), np.empty((3, 3))
-    Jm, KKT, KKT0, rhs, rhs0 = np.empty((m, nx)), np.empty((dim, dim)), np.empty((dim, dim)), np.empty(dim), np.empty(dim)
-    phi, per, curv, dphi = np.empty(K), np.empty(K), np.empty(K), np.empty(N)
-    Rn, CRn, yv, Gy, dCRn = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, 3)), np.empty((3, N, 3))
-    lCRn, hn, Gyh = np.empty(N), np.empty(N), np.empty(N)
-    for p in range(start, stop):
+    E2 = SKEW_PRODUCTS.copy()
+    # the lanes' hypotheses
+    x, x0 = np.empty((N, K, W)), np.empty((N, K, W))
+    al, Ll = np.empty((N, W)), np.ones((N, max(K - 1, 1), W))
+    Rl, tl = np.empty((3, 3, W)), np.empty((3, W))
+    cOl, Bl, bl, nOl = np.empty((N, 3, W)), np.empty((N, 3, 3, W)), np.empty((N, 3, W)), np.empty((N, 3, W))
+    kapl, strl, dll, massl = np.empty((N, W)), np.empty((N, W)), np.empty((N, W)), np.empty(W)
+    mul, kstl = np.empty((N, K, W)), np.empty((N, K, W))
+    RcomO, Rn, hn = np.empty((3, W)), np.empty((N, 3, W)), np.empty((N, W))
+    Rb, RB = np.empty((N, 3, W)), np.empty((N, 3, 3, W))
+    w, tau, lam = np.empty((3, W)), np.empty((3, W)), np.empty((m, W))
+    # scratch
+    Pc, Jc, Hc = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
+    C, dC, d2C = np.empty((3, 3, W)), np.empty((3, 3, 3, W)), np.empty((3, 3, 3, 3, W))
+    Wm, Nm, Na, Dc = np.empty((3, 3, W)), np.empty((3, 3, W)), np.empty((3, 3, 3, W)), np.empty(W)
+    CR = np.empty((3, 3, W))
+    v, Rv, CRb, CRn = np.empty((N, 3, W)), np.empty((N, 3, W)), np.empty((N, 3, W)), np.empty((N, 3, W))
+    yv, Gy, dCRn = np.empty((N, 3, W)), np.empty((N, 3, W)), np.empty((3, N, 3, W))
+    dphi, Gyh, lCRn, yGy, ny = np.empty((N, W)), np.empty((N, W)), np.empty((N, W)), np.empty(W), np.empty(W)
+    Jth, Jw, gv = np.empty((N, 3, K, W)), np.empty((m, 3, W)), np.empty((m, W))  # the attachments' Jacobian
+    per, curv, phi, snew = np.empty((N, K, W)), np.empty((N, K, W)), np.empty((K, W)), np.empty(W)
+    A, F = np.empty((dim, dim, W)), np.empty((dim, W))  # KKT matrix and right-hand side
+    A2, F2 = np.empty((dim, dim, W)), np.empty((dim, W))  # their copies for a pivoted re-solve
+    A1, F1, A0 = np.empty((dim, dim)), np.empty(dim), np.empty((dim, dim))
+    gmax, rmax, hscale, gscale, rho = np.empty(W), np.empty(W), np.empty(W), np.empty(W), np.empty(W)
+    cols, vals = np.empty(K + 4, np.int64), np.empty((K + 4, W))  # one attachment row's nonzeros
+    tiny1, tiny2 = np.empty(W), np.empty(W)
+    finite, bad, stepping = np.empty(W, np.bool_), np.zeros(W, np.bool_), np.zeros(W, np.bool_)
+    done = np.zeros(W, np.int64)  # 0 running, 1 converged, 2 failed
+    pid, itn = np.full(W, -1, np.int64), np.zeros(W, np.int64)
+    nxt = start
+    for q in range(W):  # every lane computes on valid numbers, the first hypothesis' where it has none
+        p = nxt if nxt < stop else start
+        if nxt < stop:
+            pid[q] = nxt
+            nxt += stride
+        _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
+                   x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
+                   RcomO, Rn, hn, Rb, RB, w, tau, lam)
+    while True:
+        busy = False
+        for q in range(W):
+            busy = busy or pid[q] >= 0
+        if not busy:
+            break
+        for q in range(W):
+            itn[q] += 1
+        motion._fk_all(x, Ll, al, pad, base, u, Pc, Jc, Hc)
+        _cayley_lanes(w, E, E2, C, dC, d2C, Wm, Nm, Na, Dc)
+        for r in range(3):
+            for c in range(3):
+                for q in range(W):
+                    CR[r, c, q] = C[r, 0, q] * Rl[0, c, q] + C[r, 1, q] * Rl[1, c, q] + C[r, 2, q] * Rl[2, c, q]
+        # the rolled attachment points v_i (object frame) and the roll's terms
         for i in range(N):
-            al[i, 0] = a[p, i]
-            for k in range(K - 1):
-                Ll[i, k, 0] = L[p, i, k]
-            for k in range(K):
-                x[i, k] = theta0[p, i, k]
-        w[:] = 0.0
-        tau[:] = 0.0
-        lam[:] = 0.0
-        for j in range(3):
-            RcomO[j] = R[p, j, 0] * comO[p, 0] + R[p, j, 1] * comO[p, 1] + R[p, j, 2] * comO[p, 2]
-        for i in range(N):
-            for j in range(3):
-                Rn[i, j] = R[p, j, 0] * nO[p, i, 0] + R[p, j, 1] * nO[p, i, 1] + R[p, j, 2] * nO[p, i, 2]
-            hn[i] = Rn[i, 0] * hinge[i, 0] + Rn[i, 1] * hinge[i, 1] + Rn[i, 2] * hinge[i, 2]  # G = I - Rn Rn^T
-        for i in range(N):
-            for j in range(3):
-                Rb[i, j] = R[p, j, 0] * b[p, i, 0] + R[p, j, 1] * b[p, i, 1] + R[p, j, 2] * b[p, i, 2]
-                for c in range(3):
-                    RB[i, j, c] = R[p, j, 0] * B[p, i, 0, c] + R[p, j, 1] * B[p, i, 1, c] + R[p, j, 2] * B[p, i, 2, c]
-        ok[p] = False
-        iters[p] = 0
-        for it in range(max_iter):
-            iters[p] = it + 1
-            for i in range(N):
+            for q in range(W):
+                s = 0.0
                 for k in range(K):
-                    th[i, k, 0] = x[i, k]
-            motion._fk_all(th, Ll, al, pad, base, u, Pc, Jc, Hc)
-            _cayley_derivatives(w, C, dC, d2C, E, Wc, Nm, Na, Nab)
+                    s += x[i, k, q] - x0[i, k, q]
+                dphi[i, q] = s
+                ny[q] = 0.0
+            for c in range(3):
+                for q in range(W):
+                    yv[i, c, q] = dphi[i, q] * hinge[i, c] - w[c, q]
+                    ny[q] += Rn[i, c, q] * yv[i, c, q]
+            for q in range(W):
+                yGy[q] = 0.0
+                Gyh[i, q] = 0.0
+            for c in range(3):
+                for q in range(W):
+                    Gy[i, c, q] = yv[i, c, q] - ny[q] * Rn[i, c, q]
+                    yGy[q] += yv[i, c, q] * Gy[i, c, q]
+                    Gyh[i, q] += Gy[i, c, q] * hinge[i, c]
             for r in range(3):
-                for c in range(3):
-                    CR[r, c] = C[r, 0] * R[p, 0, c] + C[r, 1] * R[p, 1, c] + C[r, 2] * R[p, 2, c]
-            # the attachments g_i = p_i - C R v_i - (t + tau), and their Jacobian
-            for i in range(N):
-                dphi[i] = 0.0
-                for k in range(K):
-                    dphi[i] += x[i, k] - theta0[p, i, k]
-                ny = 0.0
-                for c in range(3):
-                    yv[i, c] = dphi[i] * hinge[i, c] - w[c]
-                    ny += Rn[i, c] * yv[i, c]
-                yGy = 0.0
-                Gyh[i] = 0.0
-                for c in range(3):
-                    Gy[i, c] = yv[i, c] - ny * Rn[i, c]
-                    yGy += yv[i, c] * Gy[i, c]
-                    Gyh[i] += Gy[i, c] * hinge[i, c]
-                for r in range(3):
-                    s = cO[p, i, r] - 0.5 * kap[p, i] * yGy * nO[p, i, r]
-                    for c in range(3):
-                        s -= B[p, i, r, c] * yv[i, c]
-                    v[i, r] = s
-            for i in range(N):
-                for r in range(3):
-                    Rv[i, r] = R[p, r, 0] * v[i, 0] + R[p, r, 1] * v[i, 1] + R[p, r, 2] * v[i, 2]
-                    if kap[p, i] != 0.0:  # a round object's roll (else its terms vanish: no work)
-                        CRn[i, r] = CR[r, 0] * nO[p, i, 0] + CR[r, 1] * nO[p, i, 1] + CR[r, 2] * nO[p, i, 2]
-                        for aa in range(3):
-                            dCRn[aa, i, r] = dC[aa, r, 0] * Rn[i, 0] + dC[aa, r, 1] * Rn[i, 1] + dC[aa, r, 2] * Rn[i, 2]
-                    else:
-                        CRn[i, r] = 0.0
-                        for aa in range(3):
-                            dCRn[aa, i, r] = 0.0
-                    CRb[i, r] = CR[r, 0] * b[p, i, 0] + CR[r, 1] * b[p, i, 1] + CR[r, 2] * b[p, i, 2]
-            gmax, finite = 0.0, True
-            Jm[:, :] = 0.0
-            for i in range(N):
-                for r in range(3):
-                    row = 3 * i + r
-                    gv = Pc[i, r, 0] - t[p, r] - tau[r]
-                    for c in range(3):
-                        gv -= CR[r, c] * v[i, c]
-                    rhs[nx + row] = gv
-                    gmax = max(gmax, abs(gv))
-                    finite &= np.isfinite(gv)
-                    for k in range(K):
-                        Jm[row, i * K + k] = Jc[i, r, k, 0] - CRb[i, r] + kap[p, i] * Gyh[i] * CRn[i, r]
+                for q in range(W):
+                    v[i, r, q] = (cOl[i, r, q] - 0.5 * kapl[i, q] * yGy[q] * nOl[i, r, q]
+                                  - Bl[i, r, 0, q] * yv[i, 0, q] - Bl[i, r, 1, q] * yv[i, 1, q]
+                                  - Bl[i, r, 2, q] * yv[i, 2, q])
+        for i in range(N):
+            for r in range(3):
+                for q in range(W):
+                    Rv[i, r, q] = Rl[r, 0, q] * v[i, 0, q] + Rl[r, 1, q] * v[i, 1, q] + Rl[r, 2, q] * v[i, 2, q]
+                    CRn[i, r, q] = CR[r, 0, q] * nOl[i, 0, q] + CR[r, 1, q] * nOl[i, 1, q] + CR[r, 2, q] * nOl[i, 2, q]
+                    CRb[i, r, q] = CR[r, 0, q] * bl[i, 0, q] + CR[r, 1, q] * bl[i, 1, q] + CR[r, 2, q] * bl[i, 2, q]
                     for aa in range(3):
+                        dCRn[aa, i, r, q] = (dC[aa, r, 0, q] * Rn[i, 0, q] + dC[aa, r, 1, q] * Rn[i, 1, q]
+                                             + dC[aa, r, 2, q] * Rn[i, 2, q])
+        # the attachments g_i = p_i - C R v_i - (t + tau) and their Jacobian (theta, w; tau's is -I)
+        for q in range(W):
+            gmax[q] = 0.0
+            finite[q] = True
+        for i in range(N):
+            for r in range(3):
+                row = 3 * i + r
+                for q in range(W):
+                    s = (Pc[i, r, q] - tl[r, q] - tau[r, q] - CR[r, 0, q] * v[i, 0, q] - CR[r, 1, q] * v[i, 1, q]
+                         - CR[r, 2, q] * v[i, 2, q])
+                    gv[row, q] = s
+                    gmax[q] = max(gmax[q], abs(s))
+                    finite[q] = finite[q] and np.isfinite(s)
+                for k in range(K):
+                    for q in range(W):
+                        Jth[i, r, k, q] = Jc[i, r, k, q] - CRb[i, r, q] + kapl[i, q] * Gyh[i, q] * CRn[i, r, q]
+                for aa in range(3):
+                    for q in range(W):
                         s = 0.0
                         for c in range(3):
-                            s += dC[aa, r, c] * Rv[i, c] + CR[r, c] * B[p, i, c, aa]
-                        Jm[row, nK + aa] = -s - kap[p, i] * Gy[i, aa] * CRn[i, r]
-                    Jm[row, nK + 3 + r] = -1.0
-            # stationarity: grad E + J^T lambda
-            KKT[:, :] = 0.0
-            for i in range(N):
-                lCRn[i] = lam[3 * i] * CRn[i, 0] + lam[3 * i + 1] * CRn[i, 1] + lam[3 * i + 2] * CRn[i, 2]
-            for i in range(N):
-                s_new = stretch[p, i] + dl[p, i]
-                acc = 0.0
-                for k in range(K):
-                    s_new -= marm[i, k] * (x[i, k] - theta0[p, i, k])
-                    acc += x[i, k]
-                    phi[k] = acc
-                for k in range(K):
-                    cs, sn = np.cos(phi[k]), np.sin(phi[k])
-                    per[k] = mu[p, i, k] * (g_u[i] * cs - g_z[i] * sn)
-                    curv[k] = mu[p, i, k] * (g_u[i] * sn + g_z[i] * cs)
-                for k in range(K - 2, -1, -1):  # suffix sums over l >= k
-                    per[k] += per[k + 1]
-                    curv[k] += curv[k + 1]
-                for k in range(K):
-                    q = i * K + k
-                    rhs[q] = kst[p, i, k] * (x[i, k] - rest[i, k]) - kappa[i] * s_new * marm[i, k] - per[k]
-                    for k2 in range(K):
-                        hv = kappa[i] * marm[i, k] * marm[i, k2] + curv[max(k, k2)] + kap[p, i] * lCRn[i] * (1.0 - hn[i] * hn[i])
-                        for c in range(3):
-                            hv += lam[3 * i + c] * Hc[i, c, k, k2, 0]
-                        KKT[q, i * K + k2] = hv
-                    KKT[q, q] += kst[p, i, k]
-                for aa in range(3):  # theta_ik with w_a, the same for every k of finger i
-                    s = 0.0
-                    for c in range(3):
-                        for j in range(3):
-                            s -= lam[3 * i + c] * dC[aa, c, j] * Rb[i, j]
-                    if kap[p, i] != 0.0:  # a round object's roll: kap ((Gy.h) lam.dC_a R n - (lam.CRn) (G h)_a)
-                        ldn = lam[3 * i] * dCRn[aa, i, 0] + lam[3 * i + 1] * dCRn[aa, i, 1] + lam[3 * i + 2] * dCRn[aa, i, 2]
-                        s += kap[p, i] * (Gyh[i] * ldn - lCRn[i] * (hinge[i, aa] - hn[i] * Rn[i, aa]))
-                    for k in range(K):
-                        KKT[i * K + k, nK + aa] += s
-                        KKT[nK + aa, i * K + k] += s
-            for aa in range(3):
+                            s += dC[aa, r, c, q] * Rv[i, c, q] + CR[r, c, q] * Bl[i, c, aa, q]
+                        Jw[row, aa, q] = -s - kapl[i, q] * Gy[i, aa, q] * CRn[i, r, q]
+        for i in range(N):
+            for q in range(W):
+                lCRn[i, q] = lam[3 * i, q] * CRn[i, 0, q] + lam[3 * i + 1, q] * CRn[i, 1, q] + lam[3 * i + 2, q] * CRn[i, 2, q]
+        # stationarity: grad E + J^T lambda, into F in the KKT's order (negated below)
+        for i in range(N):
+            for q in range(W):
+                snew[q] = strl[i, q] + dll[i, q]
+            for k in range(K):
+                for q in range(W):
+                    snew[q] -= marm[i, k] * (x[i, k, q] - x0[i, k, q])
+                    phi[k, q] = x[i, k, q] + (phi[k - 1, q] if k > 0 else 0.0)
+            for k in range(K):
+                for q in range(W):
+                    cs, sn = np.cos(phi[k, q]), np.sin(phi[k, q])
+                    per[i, k, q] = mul[i, k, q] * (g_u[i] * cs - g_z[i] * sn)
+                    curv[i, k, q] = mul[i, k, q] * (g_u[i] * sn + g_z[i] * cs)
+            for k in range(K - 2, -1, -1):  # suffix sums over l >= k
+                for q in range(W):
+                    per[i, k, q] += per[i, k + 1, q]
+                    curv[i, k, q] += curv[i, k + 1, q]
+            for k in range(K):
+                for q in range(W):
+                    F[i * K + k, q] = (kstl[i, k, q] * (x[i, k, q] - rest[i, k]) - kappa[i] * snew[q] * marm[i, k]
+                                       - per[i, k, q] + Jth[i, 0, k, q] * lam[3 * i, q]
+                                       + Jth[i, 1, k, q] * lam[3 * i + 1, q] + Jth[i, 2, k, q] * lam[3 * i + 2, q])
+        for aa in range(3):
+            for q in range(W):
                 s = 0.0
                 for i in range(3):
                     for j in range(3):
-                        s += g[i] * dC[aa, i, j] * RcomO[j]
-                rhs[nK + aa] = -mass[p] * s
-                rhs[nK + 3 + aa] = -mass[p] * g[aa]
-            for q in range(nx):
-                s = 0.0
+                        s += g[i] * dC[aa, i, j, q] * RcomO[j, q]
+                s = -massl[q] * s
+                st = -massl[q] * g[aa]
                 for row in range(m):
-                    s += Jm[row, q] * lam[row]
-                rhs[q] += s
-            rmax = 0.0
-            for q in range(nx):
-                rmax = max(rmax, abs(rhs[q]))
-                finite &= np.isfinite(rhs[q])
-            if not finite:  # a NaN or an overflow: failed
-                break
-            if rmax < grad_tol and gmax < attach_tol:
-                ok[p] = True
-                break
-            # the object's turn: its weight, the attachments' curvature and their cross terms
-            for aa in range(3):
-                for bb in range(3):
-                    hv = 0.0
-                    for i in range(3):
-                        for j in range(3):
-                            hv -= mass[p] * g[i] * d2C[aa, bb, i, j] * RcomO[j]
-                    for n in range(N):
-                        for c in range(3):
-                            for j in range(3):
-                                hv -= lam[3 * n + c] * (d2C[aa, bb, c, j] * Rv[n, j] + dC[aa, c, j] * RB[n, j, bb]
-                                                        + dC[bb, c, j] * RB[n, j, aa])
-                    for n in range(N):
-                        if kap[p, n] != 0.0:
-                            la = lam[3 * n] * dCRn[aa, n, 0] + lam[3 * n + 1] * dCRn[aa, n, 1] + lam[3 * n + 2] * dCRn[aa, n, 2]
-                            lb = lam[3 * n] * dCRn[bb, n, 0] + lam[3 * n + 1] * dCRn[bb, n, 1] + lam[3 * n + 2] * dCRn[bb, n, 2]
-                            G_ab = (1.0 if aa == bb else 0.0) - Rn[n, aa] * Rn[n, bb]
-                            hv += kap[p, n] * (lCRn[n] * G_ab - la * Gy[n, bb] - lb * Gy[n, aa])
-                    KKT[nK + aa, nK + bb] += hv
-            for row in range(m):
-                for q in range(nx):
-                    KKT[q, nx + row] = Jm[row, q]
-                    KKT[nx + row, q] = Jm[row, q]
-            for q in range(dim):
-                rhs[q] = -rhs[q]
-            KKT0[:, :] = KKT
-            rhs0[:] = rhs
-            if not motion._solve(KKT, rhs):  # singular: the least-squares step
-                rhs[:] = np.linalg.lstsq(KKT0, rhs0)[0]
-            big = 0.0
-            for q in range(nK):
-                big = max(big, abs(rhs[q]))
-            scale = max_step / big if big > max_step else 1.0
+                    s += Jw[row, aa, q] * lam[row, q]
+                for i in range(N):
+                    st -= lam[3 * i + aa, q]
+                F[OW + aa, q] = s
+                F[OT + aa, q] = st
+        for q in range(W):
+            rmax[q] = 0.0
+        for c in range(OL):
+            for q in range(W):
+                rmax[q] = max(rmax[q], abs(F[c, q]))
+                finite[q] = finite[q] and np.isfinite(F[c, q])
+        # each lane's decision, as in a one-hypothesis Newton method
+        any_step = False
+        for q in range(W):
+            stepping[q] = False
+            if pid[q] < 0:
+                continue
+            if not finite[q]:  # a NaN or an overflow: failed
+                done[q] = 2
+            elif rmax[q] < grad_tol and gmax[q] < attach_tol:
+                done[q] = 1
+            else:
+                stepping[q] = True
+                any_step = True
+        if any_step:
+            # the KKT matrix (both triangles; the lanes' elimination reads the upper one)
+            for c1 in range(dim):
+                for c2 in range(dim):
+                    for q in range(W):
+                        A[c1, c2, q] = 0.0
             for i in range(N):
                 for k in range(K):
-                    x[i, k] += scale * rhs[i * K + k]
+                    qk = i * K + k
+                    for k2 in range(K):
+                        for q in range(W):
+                            hv = (kappa[i] * marm[i, k] * marm[i, k2] + curv[i, max(k, k2), q]
+                                  + kapl[i, q] * lCRn[i, q] * (1.0 - hn[i, q] * hn[i, q])
+                                  + lam[3 * i, q] * Hc[i, 0, k, k2, q] + lam[3 * i + 1, q] * Hc[i, 1, k, k2, q]
+                                  + lam[3 * i + 2, q] * Hc[i, 2, k, k2, q])
+                            A[qk, i * K + k2, q] = hv
+                    for q in range(W):
+                        A[qk, qk, q] += kstl[i, k, q]
+                for aa in range(3):  # theta_ik with w_a, the same for every k of finger i
+                    for q in range(W):
+                        s = 0.0
+                        for c in range(3):
+                            s -= lam[3 * i + c, q] * (dC[aa, c, 0, q] * Rb[i, 0, q] + dC[aa, c, 1, q] * Rb[i, 1, q]
+                                                      + dC[aa, c, 2, q] * Rb[i, 2, q])
+                        # a round object's roll: kap ((Gy.h) lam.dC_a R n - (lam.CRn) (G h)_a)
+                        ldn = (lam[3 * i, q] * dCRn[aa, i, 0, q] + lam[3 * i + 1, q] * dCRn[aa, i, 1, q]
+                               + lam[3 * i + 2, q] * dCRn[aa, i, 2, q])
+                        s += kapl[i, q] * (Gyh[i, q] * ldn - lCRn[i, q] * (hinge[i, aa] - hn[i, q] * Rn[i, aa, q]))
+                        for k in range(K):
+                            A[i * K + k, OW + aa, q] = s
+                            A[OW + aa, i * K + k, q] = s
+            # the object's turn: its weight, the attachments' curvature and their cross terms
+            for aa in range(3):
+                for bb in range(aa, 3):
+                    for q in range(W):
+                        hv = 0.0
+                        for i in range(3):
+                            for j in range(3):
+                                hv -= massl[q] * g[i] * d2C[aa, bb, i, j, q] * RcomO[j, q]
+                        for n in range(N):
+                            for c in range(3):
+                                for j in range(3):
+                                    hv -= lam[3 * n + c, q] * (d2C[aa, bb, c, j, q] * Rv[n, j, q]
+                                                               + dC[aa, c, j, q] * RB[n, j, bb, q]
+                                                               + dC[bb, c, j, q] * RB[n, j, aa, q])
+                        for n in range(N):
+                            la = (lam[3 * n, q] * dCRn[aa, n, 0, q] + lam[3 * n + 1, q] * dCRn[aa, n, 1, q]
+                                  + lam[3 * n + 2, q] * dCRn[aa, n, 2, q])
+                            lb = (lam[3 * n, q] * dCRn[bb, n, 0, q] + lam[3 * n + 1, q] * dCRn[bb, n, 1, q]
+                                  + lam[3 * n + 2, q] * dCRn[bb, n, 2, q])
+                            G_ab = (1.0 if aa == bb else 0.0) - Rn[n, aa, q] * Rn[n, bb, q]
+                            hv += kapl[n, q] * (lCRn[n, q] * G_ab - la * Gy[n, bb, q] - lb * Gy[n, aa, q])
+                        A[OW + aa, OW + bb, q] = hv
+                        A[OW + bb, OW + aa, q] = hv
+            for i in range(N):  # the attachments' rows and columns
+                for r in range(3):
+                    row = OL + 3 * i + r
+                    for k in range(K):
+                        for q in range(W):
+                            A[i * K + k, row, q] = Jth[i, r, k, q]
+                            A[row, i * K + k, q] = Jth[i, r, k, q]
+                    for aa in range(3):
+                        for q in range(W):
+                            A[OW + aa, row, q] = Jw[3 * i + r, aa, q]
+                            A[row, OW + aa, q] = Jw[3 * i + r, aa, q]
+                    for q in range(W):
+                        A[OT + r, row, q] = -1.0
+                        A[row, OT + r, q] = -1.0
+            for i in range(N):
+                for r in range(3):
+                    for q in range(W):
+                        F[OL + 3 * i + r, q] = gv[3 * i + r, q]
+            for c in range(dim):
+                for q in range(W):
+                    F[c, q] = -F[c, q]
+            # The Hessian alone is singular (tau has none; w's is the weight's, zero about
+            # the vertical before the multipliers grow), so the system is solved in its
+            # augmented form: rho J^T times the attachments' rows added to the stationarity
+            # rows, H + rho J^T J dx + J^T dlambda = -r - rho J^T g, the same solution,
+            # whose (theta, w, tau) block is regular where the grasp's reduced Hessian is.
+            # rho = |H| / |J|^2 puts the two on one scale (|J| over theta's and w's
+            # columns, in metres; tau's entries are 1).
+            for q in range(W):
+                hscale[q] = 0.0
+                gscale[q] = 0.0
+            for c in range(nK):
+                for q in range(W):
+                    hscale[q] = max(hscale[q], abs(A[c, c, q]))
+            for c in range(OT):
+                for r in range(OL, dim):
+                    for q in range(W):
+                        gscale[q] = max(gscale[q], abs(A[c, r, q]))
+            for q in range(W):
+                rho[q] = hscale[q] / max(gscale[q] * gscale[q], 1e-300)
+            for i in range(N):
+                for r in range(3):
+                    row = OL + 3 * i + r
+                    for k in range(K):
+                        cols[k] = i * K + k
+                    for aa in range(3):
+                        cols[K + aa] = OW + aa
+                    cols[K + 3] = OT + r
+                    for e in range(K + 4):
+                        for q in range(W):
+                            vals[e, q] = A[row, cols[e], q]
+                    for e1 in range(K + 4):
+                        c1 = cols[e1]
+                        for q in range(W):
+                            F[c1, q] += rho[q] * vals[e1, q] * F[row, q]
+                        for e2 in range(K + 4):
+                            c2 = cols[e2]
+                            for q in range(W):
+                                A[c1, c2, q] += rho[q] * vals[e1, q] * vals[e2, q]
+            # the pivots' scales: |H| for theta's, w's and tau's columns, |J|^2 / |H| (a
+            # Schur complement) for lambda's
+            for q in range(W):
+                hscale[q] = 0.0
+                gscale[q] = max(gscale[q], 1.0)
+            for c in range(OL):
+                for q in range(W):
+                    hscale[q] = max(hscale[q], abs(A[c, c, q]))
+            for q in range(W):
+                bad[q] = False
+                tiny1[q] = 1e-9 * hscale[q]
+                tiny2[q] = 1e-9 * gscale[q] * gscale[q] / hscale[q]
+            A2[:, :, :] = A
+            F2[:, :] = F
+            motion._lu_lanes(A, F, OL, tiny1, tiny2, bad)
+            for q in range(W):
+                if not stepping[q]:
+                    continue
+                if bad[q]:  # a vanishing pivot: this lane again, with partial pivoting
+                    for c1 in range(dim):
+                        F1[c1] = F2[c1, q]
+                        for c2 in range(dim):
+                            A1[c1, c2] = A2[c1, c2, q]
+                    A0[:, :] = A1
+                    if not motion._solve(A1, F1):  # singular: the least-squares step
+                        for c1 in range(dim):
+                            F1[c1] = F2[c1, q]
+                        F1[:] = np.linalg.lstsq(A0, F1)[0]
+                    for c1 in range(dim):
+                        F[c1, q] = F1[c1]
+                big = 0.0
+                for c1 in range(nK):
+                    big = max(big, abs(F[c1, q]))
+                sc = max_step / big if big > max_step else 1.0
+                for i in range(N):
+                    for k in range(K):
+                        x[i, k, q] += sc * F[i * K + k, q]
+                for c in range(3):
+                    w[c, q] += sc * F[OW + c, q]
+                    tau[c, q] += sc * F[OT + c, q]
+                for row in range(m):
+                    lam[row, q] += sc * F[OL + row, q]
+                if itn[q] >= max_iter:  # out of iterations
+                    done[q] = 2
+        # the lanes that are done write their hypothesis out and take the next one
+        for q in range(W):
+            if pid[q] < 0 or done[q] == 0:
+                continue
+            p = pid[q]
+            ok[p] = done[q] == 1
+            iters[p] = itn[q]
+            for i in range(N):
+                for k in range(K):
+                    x_out[p, i, k] = x[i, k, q]
             for c in range(3):
-                w[c] += scale * rhs[nK + c]
-                tau[c] += scale * rhs[nK + 3 + c]
-            for row in range(m):
-                lam[row] += scale * rhs[nx + row]
-        for i in range(N):
-            for k in range(K):
-                x_out[p, i, k] = x[i, k]
-        for c in range(3):
-            w_out[p, c] = w[c]
-            tau_out[p, c] = tau[c]
-
-
-#: Hypotheses per parallel task of :func:`_newton_kernel`.
-CHUNK = 64
+                w_out[p, c] = w[c, q]
+                tau_out[p, c] = tau[c, q]
+            done[q] = 0
+            itn[q] = 0
+            if nxt < stop:
+                pid[q] = nxt
+                _load_lane(q, nxt, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
+                           x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
+                           RcomO, Rn, hn, Rb, RB, w, tau, lam)
+                nxt += stride
+            else:
+                pid[q] = -1
 
 
 @njit(cache=True, parallel=True)
 def _newton_kernel(theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L, pad,
-                   base, u,
-                   marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
-                   x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
-    """Every hypothesis' Newton (:func:`_newton_range`), CHUNK of them per parallel task."""
+                   base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+                   x_out, w_out, tau_out, ok, iters, tasks):  # pragma: no cover - numba
+    """Every hypothesis' Newton (:func:`_newton_lanes`) in ``tasks`` parallel tasks, task k
+    taking hypotheses k, k + tasks, k + 2 tasks, ... (:func:`vlr_drake.motion._move_tasks`)."""
     P = theta0.shape[0]
-    tasks = (P + CHUNK - 1) // CHUNK
-    for tk in prange(tasks):
-        start = np.int64(tk) * CHUNK
-        _newton_range(start, min(start + CHUNK, P), theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO,
-                      g, mu,
-                      g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
-                      x_out, w_out, tau_out, ok, iters)
+    for k in prange(tasks):
+        _newton_lanes(np.int64(k), P, tasks, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g,
+                      mu, g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol,
+                      attach_tol, x_out, w_out, tau_out, ok, iters)
