@@ -1,6 +1,7 @@
 """Identification traces: a run's filter inputs saved, replayed exactly, replayed with other
 settings, and the evidence profile of an identified hand parameter."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -438,6 +439,29 @@ def test_a_replay_reports_its_errors_after_the_steps_asked_for(tmp_path, capsys)
                  "parameter_convergence=10", "--no-progress"]) == 0
     assert f"(the replay stopped after {early['steps']} steps; --all-steps replays every step)" in \
         capsys.readouterr().out
+
+
+def test_a_replay_under_another_filter_seed(tmp_path, capsys):
+    """--filter-seed: the same measurements under another draw of the filter's own random
+    numbers (its prior, resampling and roughening): the run's own seed replays the run, another
+    gives another estimate; the seed used is in the JSON, and a negative one is named."""
+    r = _run("stiffness", particles=600, iterations=12, seed=2)
+    trace = r["_trace"]
+    path = trace.save(tmp_path / "run.npz")
+    outs = {}
+    for seed in (None, trace.filter_seed, trace.filter_seed + 1):
+        out = tmp_path / f"{seed}.json"
+        extra = [] if seed is None else ["--filter-seed", str(seed)]
+        assert main(["replay", str(path), "--no-progress", "--json", str(out), *extra]) == 0
+        outs[seed] = json.loads(out.read_text())["runs"][0]
+    assert outs[None] == outs[trace.filter_seed] and outs[None]["filter_seed"] == trace.filter_seed
+    other = outs[trace.filter_seed + 1]
+    assert other["filter_seed"] == trace.filter_seed + 1 and other["log_evidence"] != outs[None]["log_evidence"]
+    assert other["log_evidence"] == replay(dataclasses.replace(trace, filter_seed=trace.filter_seed + 1))["log_evidence"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:  # argparse's own error, exit status 2
+        main(["replay", str(path), "--filter-seed", "-1"])
+    assert e.value.code == 2 and "--filter-seed: must be >= 0, got -1" in capsys.readouterr().err
 
 
 def test_iterations_count_filter_steps_as_a_replay_does():

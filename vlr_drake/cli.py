@@ -25,6 +25,7 @@ value in a scenario file) exits with status 2 and one line on stderr.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -358,6 +359,8 @@ def replay_trace(args) -> dict:
         if not all(np.isfinite(values)):
             raise ValueError(f"--values '{args.values}': expected finite numbers")
     traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
+    if args.filter_seed is not None:
+        traces = [(path, dataclasses.replace(trace, filter_seed=args.filter_seed)) for path, trace in traces]
     for path, trace in traces if at_steps else ():  # and all checked: no replay is lost to a later trace's error
         if any(not 1 <= k <= trace.steps for k in at_steps):
             raise ValueError(f"--at '{args.at}': {path} has {trace.steps} steps (iteration counts 1-{trace.steps})")
@@ -374,7 +377,8 @@ def replay_trace(args) -> dict:
         if values is None:
             r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
                        at_steps=at_steps)
-            run = {"trace": str(path), "log_evidence": r["log_evidence"], "converged_at": r["converged_at"],
+            run = {"trace": str(path), "filter_seed": trace.filter_seed, "log_evidence": r["log_evidence"],
+                   "converged_at": r["converged_at"],
                    "steps": r["steps"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
                    "weakly_identified": r["weakly_identified"], **(r.get("errors") or {})}
@@ -806,6 +810,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--at", default=None, metavar="STEPS",
                    help="comma-separated iteration counts, e.g. 60,120,240: also the errors of the estimate "
                         "after each (what a shorter budget would have given; simulation traces)")
+    p.add_argument("--filter-seed", type=count(0), default=None, metavar="SEED",
+                   help="seed of the filter's own random draws (the prior's, resampling's and roughening's) "
+                        "instead of the run's: the same measurements under another draw, the filter's own spread")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
