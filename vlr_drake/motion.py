@@ -652,12 +652,7 @@ def _move_lanes(
         D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
         nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
     )
-    while True:
-        busy = False
-        for w in range(W):
-            busy = busy or pid[w] >= 0
-        if not busy:
-            break
+    while _lanes_busy(pid):
         _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
         _constraint_jacobian(Pc, Jc, pairs, D2, g, G)
         if loaded:
@@ -748,6 +743,15 @@ def _move_lanes(
             D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
             nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
         )
+
+
+@njit(cache=True)
+def _lanes_busy(pid):  # pragma: no cover - numba
+    """Whether any lane still holds a particle (``pid`` (W,) >= 0; -1 for none)."""
+    for w in range(pid.shape[0]):
+        if pid[w] >= 0:
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -402,12 +402,7 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
         _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
                    x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
                    RcomO, Rn, hn, Rb, RB, w, tau, lam)
-    while True:
-        busy = False
-        for q in range(W):
-            busy = busy or pid[q] >= 0
-        if not busy:
-            break
+    while motion._lanes_busy(pid):
         for q in range(W):
             itn[q] += 1
         motion._fk_all(x, Ll, al, pad, base, u, Pc, Jc, Hc)
