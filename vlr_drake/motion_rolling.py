@@ -603,7 +603,7 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
             # The Hessian alone is singular (tau has none; w's is the weight's, zero about
             # the vertical before the multipliers grow), so the system is solved in its
             # augmented form: rho J^T times the attachments' rows added to the stationarity
-            # rows, H + rho J^T J dx + J^T dlambda = -r - rho J^T g, the same solution,
+            # rows, (H + rho J^T J) dx + J^T dlambda = -r - rho J^T g, the same solution,
             # whose (theta, w, tau) block is regular where the grasp's reduced Hessian is.
             # rho = |H| / |J|^2 puts the two on one scale (|J| over theta's and w's
             # columns, in metres; tau's entries are 1).
