@@ -3,6 +3,7 @@ settings, and the evidence profile of an identified hand parameter."""
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -462,6 +463,43 @@ def test_a_replay_under_another_filter_seed(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:  # argparse's own error, exit status 2
         main(["replay", str(path), "--filter-seed", "-1"])
     assert e.value.code == 2 and "--filter-seed: must be >= 0, got -1" in capsys.readouterr().err
+
+
+def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
+    """--draws K: each trace replayed under K draws of the filter's randomness, the first its
+    run's own; the rows over every run, each trace's mean over its draws and the draws' spread
+    within a trace match their definitions; bad uses are named."""
+    from vlr_drake.cli import draw_seed
+
+    r = _run("stiffness", particles=600, iterations=10, seed=2)
+    trace = r["_trace"]
+    a, b = trace.save(tmp_path / "a.npz"), trace.save(tmp_path / "b.npz")
+    one, many = tmp_path / "one.json", tmp_path / "many.json"
+    assert main(["replay", str(a), "--no-progress", "--json", str(one)]) == 0
+    assert main(["replay", str(a), str(b), "--draws", "3", "--no-progress", "--json", str(many)]) == 0
+    out = capsys.readouterr().out
+    assert "draw 2 of 3 (filter seed" in out and "2 traces x 3 draws" in out
+    single, res = json.loads(one.read_text())["runs"][0], json.loads(many.read_text())
+    runs = res["runs"]
+    assert res["draws"] == 3 and [(Path(x["trace"]).name, x["draw"]) for x in runs] == \
+        [(n, j) for n in ("a.npz", "b.npz") for j in range(3)]
+    assert runs[0] == single  # draw 0 is the run's own replay
+    seeds = [x["filter_seed"] for x in runs[:3]]
+    assert seeds == [trace.filter_seed, draw_seed(trace.filter_seed, 1), draw_seed(trace.filter_seed, 2)]
+    assert len(set(seeds)) == 3 and [x["filter_seed"] for x in runs[3:]] == seeds
+    assert runs[3:] == [{**x, "trace": str(b)} for x in runs[:3]]  # the same trace: the same draws
+    errors = np.array([x["stiffness_error_Nm_per_rad"] for x in runs])
+    assert len(set(errors[:3].tolist())) == 3  # the draws differ
+    row = res["rows"]["stiffness"]
+    assert row["trials"] == 6 and row["traces"] == 2
+    assert row["mean"] == pytest.approx(errors.mean()) and row["sd"] == pytest.approx(errors.std())
+    assert row["trace_mean"] == pytest.approx(errors[:3].mean()) and row["trace_mean_sd"] == pytest.approx(0.0, abs=1e-15)
+    assert row["draw_sd"] == pytest.approx(errors[:3].std())
+    assert main(["replay", str(a), "--draws", "2", "--profile", "stiffness", "--values", "0.1,0.2"]) == 2
+    assert "--draws is for a replay, not for a profile" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main(["replay", str(a), "--draws", "0"])
+    assert e.value.code == 2 and "--draws: must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_iterations_count_filter_steps_as_a_replay_does():

@@ -339,6 +339,8 @@ def replay_trace(args) -> dict:
         raise ValueError("--statics needs --profile and --values")
     if args.all_steps and args.profile is not None:
         raise ValueError("--all-steps is for a replay: an evidence profile always replays every step")
+    if args.draws > 1 and args.profile is not None:
+        raise ValueError("--draws is for a replay, not for a profile")
     at_steps = []
     if args.at is not None:
         if args.profile is not None:
@@ -368,16 +370,20 @@ def replay_trace(args) -> dict:
             raise ValueError(f"--at '{args.at}': {path} has no truths to measure the estimates against "
                              "(a hardware trace)")
     runs, measured = [], {}
-    for path, trace in traces:
+    jobs = [(i, path, dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)), j)
+            for i, (path, trace) in enumerate(traces) for j in range(args.draws)]
+    for i, path, trace, draw in jobs:
         config = config_overrides(trace.filter, args.filter or [], "--filter")
         prior = config_overrides(trace.prior, args.prior or [], "--prior")
         meta = trace.meta
+        which = f", draw {draw + 1} of {args.draws} (filter seed {trace.filter_seed})" if args.draws > 1 else ""
         print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
-              f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles")
+              f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles"
+              f"{which}")
         if values is None:
             r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
                        at_steps=at_steps)
-            run = {"trace": str(path), "filter_seed": trace.filter_seed, "log_evidence": r["log_evidence"],
+            run = {"trace": str(path), "filter_seed": trace.filter_seed, "draw": draw, "log_evidence": r["log_evidence"],
                    "converged_at": r["converged_at"],
                    "steps": r["steps"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
@@ -402,7 +408,7 @@ def replay_trace(args) -> dict:
                 if experiment in IDENTIFICATION_MEASURES:
                     for row, measure in identification_rows(experiment, meta.get("hand")):
                         measured.setdefault(row, []).append(
-                            (float(measure(r["errors"])), r["errors"]["truth_inside_95_theta"]))
+                            (i, float(measure(r["errors"])), r["errors"]["truth_inside_95_theta"]))
         elif args.statics:
             rows = statics_profile(trace, args.profile, values)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
@@ -425,18 +431,48 @@ def replay_trace(args) -> dict:
             run = {"trace": str(path), "parameter": args.profile,
                    "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
         runs.append(run)
-    table = {row: {"mean": float(np.mean([m for m, _ in v])), "sd": float(np.std([m for m, _ in v])),
-                   "truth_inside_95_theta": float(np.mean([c for _, c in v])), "trials": len(v)}
-             for row, v in measured.items()}
-    if len(traces) > 1 and table:
-        print("rows (the paper's measure, mean +- SD over the traces):")
+    table = {row: _replay_row(v, args.draws) for row, v in measured.items()}
+    if len(jobs) > 1 and table:
+        over = "the traces" if args.draws == 1 else "every draw of every trace"
+        print(f"rows (the paper's measure, mean +- SD over {over}):")
         for row, t in table.items():
             print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} runs; truth inside "
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
+            if args.draws > 1:
+                print(f"    {t['traces']} traces x {args.draws} draws: the traces' means over their draws "
+                      f"{t['trace_mean']:.4g} +- {t['trace_mean_sd']:.3g}; one draw moves it by {t['draw_sd']:.3g} "
+                      f"(SD over a trace's draws, mean over the traces)")
     out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
-           "profile": args.profile, "values": values, "statics": bool(args.statics), "runs": runs, "rows": table}
+           "draws": args.draws, "profile": args.profile, "values": values, "statics": bool(args.statics),
+           "runs": runs, "rows": table}
     write_json(out, args.json)
     return out
+
+
+def draw_seed(seed: int, draw: int) -> int:
+    """The filter seed of ``vlr-drake replay --draws``' draw ``draw`` of a trace whose filter
+    seed is ``seed``: draw 0 is the seed itself (the run's own draw), each later one a seed
+    derived from both (numpy's SeedSequence), unlike any other trace's run seed."""
+    if draw == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(draw)]).generate_state(1, np.uint32)[0])
+
+
+def _replay_row(values: list, draws: int) -> dict:
+    """One row of a replay's table from ``values``, (trace index, measure, truth inside) per
+    run: the mean +- SD over every run and, over the traces, each trace's mean over its
+    ``draws`` draws (mean, SD) and the draws' own spread (SD within a trace, mean over them)."""
+    idx = np.array([i for i, _, _ in values])
+    m = np.array([v for _, v, _ in values], float)
+    row = {"mean": float(m.mean()), "sd": float(m.std()),
+           "truth_inside_95_theta": float(np.mean([c for _, _, c in values])), "trials": len(values),
+           "traces": len(set(idx.tolist()))}
+    if draws > 1:
+        per = [m[idx == i] for i in sorted(set(idx.tolist()))]
+        means = np.array([x.mean() for x in per])
+        row.update(trace_mean=float(means.mean()), trace_mean_sd=float(means.std()),
+                   draw_sd=float(np.mean([x.std() for x in per])))
+    return row
 
 
 def _errors_line(e: dict) -> str:
@@ -813,6 +849,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--filter-seed", type=count(0), default=None, metavar="SEED",
                    help="seed of the filter's own random draws (the prior's, resampling's and roughening's) "
                         "instead of the run's: the same measurements under another draw, the filter's own spread")
+    p.add_argument("--draws", type=count(1), default=1, metavar="K",
+                   help="replay each trace K times under K draws of the filter's own randomness (the first "
+                        "with the run's seed, or --filter-seed's; vlr_drake.cli.draw_seed), and give the rows "
+                        "with the traces' means over their draws and how far one draw moves them: compare "
+                        "settings with several draws, since one draw can move an estimate as much as its error")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
