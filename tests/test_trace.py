@@ -495,6 +495,12 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     assert row["mean"] == pytest.approx(errors.mean()) and row["sd"] == pytest.approx(errors.std())
     assert row["trace_mean"] == pytest.approx(errors[:3].mean()) and row["trace_mean_sd"] == pytest.approx(0.0, abs=1e-15)
     assert row["draw_sd"] == pytest.approx(errors[:3].std())
+    # the draws' spread of the identified spring's estimate, which needs no truth
+    (name, p), = runs[0]["hand_parameters"].items()
+    estimates = [x["hand_parameters"][name]["estimate"] for x in runs[:3]]
+    assert res["draw_spread"] == {name: {"sd_mean": pytest.approx(np.std(estimates)),
+                                         "sd_max": pytest.approx(np.std(estimates)), "unit": p["unit"]}}
+    assert np.std(estimates) > 0 and json.loads(one.read_text())["draw_spread"] == {}
     assert main(["replay", str(a), "--draws", "2", "--profile", "stiffness", "--values", "0.1,0.2"]) == 2
     assert "--draws is for a replay, not for a profile" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:

@@ -442,9 +442,15 @@ def replay_trace(args) -> dict:
                 print(f"    {t['traces']} traces x {args.draws} draws: the traces' means over their draws "
                       f"{t['trace_mean']:.4g} +- {t['trace_mean_sd']:.3g}; one draw moves it by {t['draw_sd']:.3g} "
                       f"(SD over a trace's draws, mean over the traces)")
+    spread = draw_spread([(i, run) for (i, *_), run in zip(jobs, runs, strict=True)]) if args.draws > 1 and values is None else {}
+    if spread:
+        print("the identified hand parameters' estimates, one draw of the filter against another (SD over a "
+              "trace's draws; no truth needed):")
+        for name, d in spread.items():
+            print(f"  {name}: {d['sd_mean']:.4g} {d['unit']} (mean over the traces; largest {d['sd_max']:.4g})")
     out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
            "draws": args.draws, "profile": args.profile, "values": values, "statics": bool(args.statics),
-           "runs": runs, "rows": table}
+           "runs": runs, "rows": table, "draw_spread": spread}
     write_json(out, args.json)
     return out
 
@@ -456,6 +462,23 @@ def draw_seed(seed: int, draw: int) -> int:
     if draw == 0:
         return int(seed)
     return int(np.random.SeedSequence([int(seed), int(draw)]).generate_state(1, np.uint32)[0])
+
+
+def draw_spread(runs: list) -> dict:
+    """How far one draw of the filter moves each identified hand parameter's estimate, from
+    ``runs``, (trace index, replay run) per draw: {parameter: ``sd_mean`` and ``sd_max``,
+    the SD of its estimate over a trace's draws, mean and largest over the traces, and its
+    ``unit``}. It needs no truth: on a hardware trace it is the one measure of the filter's
+    own noise. Empty where no hand parameter was identified."""
+    by = {}
+    for i, run in runs:
+        for name, p in (run.get("hand_parameters") or {}).items():
+            by.setdefault(name, {"unit": p["unit"], "draws": {}})["draws"].setdefault(i, []).append(p["estimate"])
+    out = {}
+    for name, d in by.items():
+        sds = [float(np.std(v)) for v in d["draws"].values()]
+        out[name] = {"sd_mean": float(np.mean(sds)), "sd_max": float(np.max(sds)), "unit": d["unit"]}
+    return out
 
 
 def _replay_row(values: list, draws: int) -> dict:
