@@ -458,7 +458,8 @@ def replay_trace(args) -> dict:
 def draw_seed(seed: int, draw: int) -> int:
     """The filter seed of ``vlr-drake replay --draws``' draw ``draw`` of a trace whose filter
     seed is ``seed``: draw 0 is the seed itself (the run's own draw), each later one a seed
-    derived from both (numpy's SeedSequence), unlike any other trace's run seed."""
+    derived from both (numpy's SeedSequence), unrelated to the next trace's run seed (a run
+    seed plus one would replay trace S + 1's own draw on trace S)."""
     if draw == 0:
         return int(seed)
     return int(np.random.SeedSequence([int(seed), int(draw)]).generate_state(1, np.uint32)[0])
