@@ -1,6 +1,8 @@
 """The particle filter: its building blocks against their definitions, and honest
 self-identification on the model plant (exact truth)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -187,6 +189,40 @@ def _sorted_weighted_quantile(x, w, q):
     order = np.argsort(x, kind="stable")
     cw = np.cumsum(w[order])
     return x[order[np.argmax(cw / cw[-1] >= q)]]
+
+
+def test_pooled_clouds_are_their_equal_mixture():
+    """ParticleSet.pool: each cloud's weights normalised and scaled by 1/K whatever its size,
+    so the pooled mean is the clouds' means' mean and its 95% interval lies between the
+    clouds' own bounds; a known (shared) quantity stays one row; mixed sets are named."""
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)])
+    h, f = _initialised(prior, pf.FilterConfig(particles=300), seed=3)
+    a = f.particles
+    _, g = _initialised(prior, pf.FilterConfig(particles=500), seed=4)
+    b = g.particles
+    b.log_w = np.random.default_rng(0).normal(0.0, 2.0, b.size)  # unequal weights, a different scale
+    b.log_w[:7] = -np.inf  # hypotheses of weight 0 stay so
+    pooled = pf.ParticleSet.pool([a, b])
+    assert pooled.size == 800 and pooled.stiffness.shape[0] == 800
+    w = pf.normalise(pooled.log_w)
+    assert w[:300].sum() == pytest.approx(0.5) and w[300:].sum() == pytest.approx(0.5) and not w[300:307].any()
+    est, ea, eb = (pf.cloud_estimate(h, x) for x in (pooled, a, b))
+    for key in ("theta", "a", "stiffness"):
+        np.testing.assert_allclose(est[key], 0.5 * (ea[key] + eb[key]), atol=1e-12)
+        assert np.all(est[f"{key}_lo"] >= np.minimum(ea[f"{key}_lo"], eb[f"{key}_lo"]))
+        assert np.all(est[f"{key}_lo"] <= np.maximum(ea[f"{key}_lo"], eb[f"{key}_lo"]))
+        assert np.all(est[f"{key}_hi"] >= np.minimum(ea[f"{key}_hi"], eb[f"{key}_hi"]))
+        assert np.all(est[f"{key}_hi"] <= np.maximum(ea[f"{key}_hi"], eb[f"{key}_hi"]))
+    assert pf.cloud_estimate(h, a)["theta"] == pytest.approx(f.estimate()["theta"])  # the filter's estimate
+    # one cloud pooled is itself; the link lengths (known here) stay one shared row
+    np.testing.assert_allclose(pf.cloud_estimate(h, pf.ParticleSet.pool([b]))["theta"], eb["theta"])
+    assert pooled.link_lengths.shape[0] == 1
+    with pytest.raises(ValueError, match="'link_lengths' is known .* not the same"):
+        pf.ParticleSet.pool([a, dataclasses.replace(b, link_lengths=b.link_lengths * 1.1)])
+    with pytest.raises(ValueError, match="'object_load' is in some sets and not in others"):
+        pf.ParticleSet.pool([a, dataclasses.replace(b, object_load=np.zeros((b.size, h.N)))])
+    with pytest.raises(ValueError, match="no particle sets"):
+        pf.ParticleSet.pool([])
 
 
 def test_weighted_interval_selection_matches_the_sorted_definition():

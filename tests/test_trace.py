@@ -501,6 +501,28 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     assert res["draw_spread"] == {name: {"sd_mean": pytest.approx(np.std(estimates)),
                                          "sd_max": pytest.approx(np.std(estimates)), "unit": p["unit"]}}
     assert np.std(estimates) > 0 and json.loads(one.read_text())["draw_spread"] == {}
+    # each trace's pooled estimate: the mixture of its draws' clouds, whose mean is their mean
+    # and whose interval lies between theirs
+    assert [Path(x["trace"]).name for x in res["pooled"]] == ["a.npz", "b.npz"]
+    pool = res["pooled"][0]
+    assert pool["draws"] == 3 and pool["steps"] == runs[0]["steps"] and res["pooled"][1] == {**pool, "trace": str(b)}
+    q = pool["hand_parameters"][name]
+    assert q["estimate"] == pytest.approx(np.mean(estimates))
+    lows, highs = ([x["hand_parameters"][name]["interval"][k] for x in runs[:3]] for k in (0, 1))
+    assert min(lows) <= q["interval"][0] <= max(lows) and min(highs) <= q["interval"][1] <= max(highs)
+    truth = runs[0]["stiffness_true_Nm_per_rad"]
+    assert pool["stiffness_estimate_Nm_per_rad"] == pytest.approx(np.mean(estimates))
+    assert pool["stiffness_error_Nm_per_rad"] == pytest.approx(abs(np.mean(estimates) - truth))
+    assert pool["stiffness_inside_95"] == (q["interval"][0] <= truth <= q["interval"][1])
+    assert res["pooled_rows"]["stiffness"]["mean"] == pytest.approx(pool["stiffness_error_Nm_per_rad"])
+    assert res["pooled_rows"]["stiffness"]["trials"] == 2 and "pooled over its 3 draws" in out
+    assert json.loads(one.read_text())["pooled"] == []
+    from vlr_drake.trace import pool_replays
+
+    with pytest.raises(ValueError, match=r"stopped at different steps \(\[9, 10\]\)"):
+        pool_replays(trace, [replay(trace), {**replay(trace), "steps": 9}])
+    with pytest.raises(ValueError, match="no replays to pool"):
+        pool_replays(trace, [])
     assert main(["replay", str(a), "--draws", "2", "--profile", "stiffness", "--values", "0.1,0.2"]) == 2
     assert "--draws is for a replay, not for a profile" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:

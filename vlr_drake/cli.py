@@ -329,7 +329,6 @@ def replay_trace(args) -> dict:
     """``vlr-drake replay``: each trace's run again with ``--filter`` overrides, and for
     several traces the table's rows (mean +- SD of the paper's measures); or, with
     ``--profile``, each trace's evidence profile over ``--values``."""
-    from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_rows
     from vlr_drake.scenario import config_overrides
     from vlr_drake.trace import IdentificationTrace, evidence_profile, replay, statics_profile
 
@@ -369,7 +368,7 @@ def replay_trace(args) -> dict:
         if trace.truths is None:
             raise ValueError(f"--at '{args.at}': {path} has no truths to measure the estimates against "
                              "(a hardware trace)")
-    runs, measured = [], {}
+    runs, measured, pooled, pooled_measured, draws_of = [], {}, [], {}, []
     jobs = [(i, path, dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)), j)
             for i, (path, trace) in enumerate(traces) for j in range(args.draws)]
     for i, path, trace, draw in jobs:
@@ -404,11 +403,14 @@ def replay_trace(args) -> dict:
                     print(f"  (the replay stopped after {r['steps']} steps; --all-steps replays every step)")
             if r.get("errors"):
                 print(f"  {_errors_line(r['errors'])}")
-                experiment = meta.get("experiment")
-                if experiment in IDENTIFICATION_MEASURES:
-                    for row, measure in identification_rows(experiment, meta.get("hand")):
-                        measured.setdefault(row, []).append(
-                            (i, float(measure(r["errors"])), r["errors"]["truth_inside_95_theta"]))
+                _measure(measured, i, meta, r["errors"])
+            draws_of.append(r)
+            if args.draws > 1 and draw == args.draws - 1:  # the trace's last draw: pool its draws
+                p, errors = _pooled_run(path, trace, draws_of, prior)
+                pooled.append(p)
+                if errors:
+                    _measure(pooled_measured, i, meta, errors)
+                draws_of = []
         elif args.statics:
             rows = statics_profile(trace, args.profile, values)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
@@ -442,6 +444,12 @@ def replay_trace(args) -> dict:
                 print(f"    {t['traces']} traces x {args.draws} draws: the traces' means over their draws "
                       f"{t['trace_mean']:.4g} +- {t['trace_mean_sd']:.3g}; one draw moves it by {t['draw_sd']:.3g} "
                       f"(SD over a trace's draws, mean over the traces)")
+    pooled_table = {row: _replay_row(v, 1) for row, v in pooled_measured.items()}
+    if len(pooled) > 1 and pooled_table:
+        print(f"rows of the pooled estimates (mean +- SD over the traces, each its {args.draws} draws' mixture):")
+        for row, t in pooled_table.items():
+            print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} traces; truth inside "
+                  f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
     spread = draw_spread([(i, run) for (i, *_), run in zip(jobs, runs, strict=True)]) if args.draws > 1 and values is None else {}
     if spread:
         print("the identified hand parameters' estimates, one draw of the filter against another (SD over a "
@@ -450,9 +458,39 @@ def replay_trace(args) -> dict:
             print(f"  {name}: {d['sd_mean']:.4g} {d['unit']} (mean over the traces; largest {d['sd_max']:.4g})")
     out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
            "draws": args.draws, "profile": args.profile, "values": values, "statics": bool(args.statics),
-           "runs": runs, "rows": table, "draw_spread": spread}
+           "runs": runs, "rows": table, "draw_spread": spread, "pooled": pooled, "pooled_rows": pooled_table}
     write_json(out, args.json)
     return out
+
+
+def _measure(measured: dict, i: int, meta: dict, errors: dict) -> None:
+    """Add trace ``i``'s paper measures (its experiment's table rows) from ``errors`` to ``measured``."""
+    from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_rows
+
+    experiment = meta.get("experiment")
+    if experiment in IDENTIFICATION_MEASURES:
+        for row, measure in identification_rows(experiment, meta.get("hand")):
+            measured.setdefault(row, []).append((i, float(measure(errors)), errors["truth_inside_95_theta"]))
+
+
+def _pooled_run(path, trace, replays: list, prior) -> tuple[dict, dict | None]:
+    """``replay --draws``' pooled estimate of one trace (:func:`vlr_drake.trace.pool_replays`),
+    printed, as a JSON ``pooled`` item and its errors (None without truths); where the draws
+    stopped at different steps, no estimate and the ``reason``."""
+    from vlr_drake.trace import pool_replays
+
+    try:
+        p = pool_replays(trace, replays, prior)
+    except ValueError as e:
+        print(f"  not pooled: {e}")
+        return {"trace": str(path), "draws": len(replays), "reason": str(e)}, None
+    print(f"  pooled over its {len(replays)} draws (the mixture of their clouds after {p['steps']} steps):")
+    for name, q in p["hand_parameters"].items():
+        print(f"    {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]")
+    if p.get("errors"):
+        print(f"    {_errors_line(p['errors'])}")
+    errors = p.pop("errors", None)
+    return {"trace": str(path), **p, **(errors or {})}, errors
 
 
 def draw_seed(seed: int, draw: int) -> int:

@@ -1138,6 +1138,37 @@ class ParticleSet:
                                                         self.curvature_radius)),
         )
 
+    @classmethod
+    def pool(cls, sets: list[ParticleSet]) -> ParticleSet:
+        """The equal mixture of ``sets``, independent clouds of the same filter (one per draw
+        of its randomness): every cloud's weights normalised and scaled by 1/len(sets), so
+        that each cloud counts as one of the mixture's components whatever its size or its
+        evidence (an evidence-weighted mixture collapses onto one draw: the log evidences of
+        a trace's draws differ by 3-4 nats). The pooled cloud's weighted mean is the mean of
+        the clouds' means. A quantity every cloud shares (a known spring or link, one row)
+        stays one row, and must be the same in each."""
+        if not sets:
+            raise ValueError("ParticleSet.pool: no particle sets to pool")
+        with np.errstate(divide="ignore"):  # a hypothesis of weight 0 stays one (log 0 = -inf)
+            log_w = np.concatenate([np.log(normalise(s.log_w)) - np.log(len(sets)) for s in sets])
+
+        def cat(name):
+            xs = [getattr(s, name) for s in sets]
+            if any(x is None for x in xs):
+                if not all(x is None for x in xs):
+                    raise ValueError(f"ParticleSet.pool: '{name}' is in some sets and not in others")
+                return None
+            shared = [x.shape[0] == 1 and s.size > 1 for x, s in zip(xs, sets, strict=True)]
+            if any(shared):
+                if not all(shared) or any(not np.array_equal(x, xs[0]) for x in xs[1:]):
+                    raise ValueError(f"ParticleSet.pool: '{name}' is known (one row) in some sets but not "
+                                     "the same in all of them")
+                return xs[0]
+            return np.concatenate(xs, axis=0)
+
+        return cls(cat("theta"), cat("a"), cat("stiffness"), cat("link_lengths"), cat("stretch"), cat("p_O"),
+                   log_w, *(cat(n) for n in ("object_load", "normals_O", "com_O", "curvature_radius")))
+
 
 @dataclass
 class StepReport:
@@ -1220,6 +1251,40 @@ def warn_if_few_particles(config: FilterConfig, stacklevel: int = 2) -> None:
             f"intervals that are too narrow (0.81 of the truths inside at 1,000, 0.40 at 100; "
             f"vlr_drake.filter.CALIBRATED_PARTICLES): use them for quick checks, not for results"),
             stacklevel=stacklevel + 1)
+
+
+def cloud_estimate(hand: HandModel, ps: ParticleSet) -> dict:
+    """Weighted mean and 95% intervals (:func:`interval95`) of every identified quantity of
+    the cloud ``ps``: ``theta``, ``a``, ``stiffness``, ``link_lengths``, ``object_load``,
+    ``object_mass`` (each with ``_lo`` and ``_hi``), the rolling model's mean ``normals_O``
+    and ``object_com_O``, the joints' interval widths and the mean's ``contacts``."""
+    w = normalise(ps.log_w)
+    out = {}
+    for name, x in [("theta", ps.theta), ("a", ps.a), ("stiffness", ps.stiffness),
+                    ("link_lengths", ps.link_lengths)]:
+        mean = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
+        out[name] = mean
+        if x.shape[0] > 1:
+            lo, hi = interval95(x, w)
+        else:
+            lo = hi = x[0]
+        out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
+    load = np.zeros((1, hand.N)) if ps.object_load is None else ps.object_load
+    for name, x in [("object_load", load), ("object_mass", load.sum(axis=1))]:
+        out[name] = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
+        lo, hi = interval95(x, w) if x.shape[0] > 1 else (x[0], x[0])
+        out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
+    if ps.normals_O is not None:  # the rolling model's object (POM frame): mean direction, centre of mass
+        n = np.tensordot(w, ps.normals_O, axes=1)
+        out["normals_O"] = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    if ps.com_O is not None:
+        out["object_com_O"] = np.tensordot(w, ps.com_O, axes=1)
+        out["object_com_O_lo"], out["object_com_O_hi"] = interval95(ps.com_O, w)
+    out["theta_full_width"] = (out["theta_hi"] - out["theta_lo"]).ravel()
+    out["theta_half_width"] = 0.5 * out["theta_full_width"]
+    out["contacts"] = kinematics.contacts(hand, out["theta"][None], out["a"][None],
+                                          out["link_lengths"][None])[0]
+    return out
 
 
 class SelfIdentificationFilter:
@@ -1943,35 +2008,8 @@ class SelfIdentificationFilter:
 
     # ---------------------------------------------------------------- estimate
     def estimate(self) -> dict:
-        """Weighted mean and 95% intervals of every identified quantity."""
-        ps = self.particles
-        w = normalise(ps.log_w)
-        out = {}
-        for name, x in [("theta", ps.theta), ("a", ps.a), ("stiffness", ps.stiffness),
-                        ("link_lengths", ps.link_lengths)]:
-            mean = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
-            out[name] = mean
-            if x.shape[0] > 1:
-                lo, hi = interval95(x, w)
-            else:
-                lo = hi = x[0]
-            out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
-        load = np.zeros((1, self.hand.N)) if ps.object_load is None else ps.object_load
-        for name, x in [("object_load", load), ("object_mass", load.sum(axis=1))]:
-            out[name] = np.tensordot(w, x, axes=1) if x.shape[0] > 1 else x[0]
-            lo, hi = interval95(x, w) if x.shape[0] > 1 else (x[0], x[0])
-            out[f"{name}_lo"], out[f"{name}_hi"] = lo, hi
-        if ps.normals_O is not None:  # the rolling model's object (POM frame): mean direction, centre of mass
-            n = np.tensordot(w, ps.normals_O, axes=1)
-            out["normals_O"] = n / np.linalg.norm(n, axis=-1, keepdims=True)
-        if ps.com_O is not None:
-            out["object_com_O"] = np.tensordot(w, ps.com_O, axes=1)
-            out["object_com_O_lo"], out["object_com_O_hi"] = interval95(ps.com_O, w)
-        out["theta_full_width"] = (out["theta_hi"] - out["theta_lo"]).ravel()
-        out["theta_half_width"] = 0.5 * out["theta_full_width"]
-        out["contacts"] = kinematics.contacts(self.hand, out["theta"][None], out["a"][None],
-                                              out["link_lengths"][None])[0]
-        return out
+        """Weighted mean and 95% intervals of every identified quantity (:func:`cloud_estimate`)."""
+        return cloud_estimate(self.hand, self.particles)
 
     def nearest_hypotheses(self, count: int = 1) -> list[dict]:
         """The ``count`` live hypotheses nearest the weighted mean, nearest first, as estimate

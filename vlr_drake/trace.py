@@ -43,8 +43,8 @@ from vlr_drake import motion
 from vlr_drake.hand import FingerSpec, HandSpec
 from vlr_drake.kinematics import is_count
 
-__all__ = ["IdentificationTrace", "TraceRecorder", "replay", "evidence_profile", "statics_profile",
-           "PROFILE_PARAMETERS"]
+__all__ = ["IdentificationTrace", "TraceRecorder", "replay", "pool_replays", "evidence_profile",
+           "statics_profile", "PROFILE_PARAMETERS"]
 
 #: Format version written into every trace file.
 TRACE_VERSION = 1
@@ -301,7 +301,8 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     ``config``, ``prior`` and ``hand`` replace the trace's own (the filter's random seed is
     the run's). Returns ``estimates`` (one per step and the initial one), ``history`` (the
     StepReports), ``log_evidence`` (their sum of ``log_evidence``, NaN steps skipped),
-    ``log_evidence_steps`` (one per replayed step), ``steps`` (how many were replayed), ``hand_parameters`` and
+    ``log_evidence_steps`` (one per replayed step), ``steps`` (how many were replayed), ``particles`` and
+    ``initial_particles`` (the final and the prior cloud, :func:`pool_replays`), ``hand_parameters`` and
     ``weakly_identified`` (the identified springs and links,
     :func:`vlr_drake.identify.hand_parameter_report`) and, where the trace has truths,
     ``errors`` (the result fields of docs/result-files.md that compare the final estimate with
@@ -335,6 +336,7 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     h = spec.validate().model()
     f = pf.SelfIdentificationFilter(h, config, prior, np.random.default_rng(trace.filter_seed))
     f.initialise(trace.theta_center, trace.a_center, trace.R0, trace.t0, tendon_command=trace.tendon_command0)
+    initial = copy.deepcopy(f.particles)
     extra = int(trace.meta.get("extra_iterations", 0) or 0)
     stop_at_convergence = stop_at_convergence and trace.meta.get("stops_at_convergence",
                                                                  "action_choice" in trace.meta)
@@ -351,6 +353,7 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
     out = {"estimates": f.estimates, "history": f.history, "log_evidence_steps": steps, "steps": len(f.history),
            "log_evidence": float(np.nansum(steps)), "reinitialisations": f.reinitialisations,
            "converged_at": next((r.iteration for r in f.history if r.converged), None),
+           "particles": f.particles, "initial_particles": initial,
            **hand_parameter_report(h, prior, f.estimates[-1], f.estimates[0])}
     if trace.truths is not None:
         # truths[0] is the grasp's, truths[i] the plant's after step i (estimates[i] likewise)
@@ -360,6 +363,34 @@ def replay(trace: IdentificationTrace, config: pf.FilterConfig | None = None, pr
         out["errors"] = errors(len(f.history))
         if at_steps:
             out["errors_at"] = [{"steps": i, **errors(i)} for i in at_steps if i <= len(f.history)]
+    return out
+
+
+def pool_replays(trace: IdentificationTrace, replays: list[dict], prior: pf.PriorConfig | None = None,
+                 hand: HandSpec | None = None) -> dict:
+    """One estimate from several :func:`replay` s of ``trace`` under independent draws of the
+    filter's randomness: the equal mixture of their final clouds (:meth:`~vlr_drake.filter.
+    ParticleSet.pool`), whose mean is the mean of the draws' estimates and whose 95% intervals
+    hold the spread between the draws as well as within each. Returns ``draws``, ``steps``,
+    ``hand_parameters`` and ``weakly_identified`` (as a replay's, against the pooled prior
+    clouds) and, where the trace has truths, ``errors`` (the result fields) against the truth
+    at that step. ``prior`` and ``hand`` are the replays' (the trace's by default). The
+    replays must have stopped at the same step: the clouds must describe the same instant."""
+    from vlr_drake.identify import estimate_errors, hand_parameter_report
+
+    if not replays:
+        raise ValueError("pool_replays: no replays to pool")
+    steps = sorted({int(r["steps"]) for r in replays})
+    if len(steps) > 1:
+        raise ValueError(f"pool_replays: the replays stopped at different steps ({steps}); their clouds describe "
+                         "different instants (replay every step to pool them)")
+    prior = trace.prior if prior is None else prior
+    h = (trace.hand if hand is None else hand).validate().model()
+    est = pf.cloud_estimate(h, pf.ParticleSet.pool([r["particles"] for r in replays]))
+    est0 = pf.cloud_estimate(h, pf.ParticleSet.pool([r["initial_particles"] for r in replays]))
+    out = {"draws": len(replays), "steps": steps[0], **hand_parameter_report(h, prior, est, est0)}
+    if trace.truths is not None:
+        out["errors"] = estimate_errors(h, prior, est, {k: v[steps[0]] for k, v in trace.truths.items()})
     return out
 
 
