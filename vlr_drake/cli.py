@@ -915,7 +915,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="replay each trace K times under K draws of the filter's own randomness (the first "
                         "with the run's seed, or --filter-seed's; vlr_drake.cli.draw_seed), and give the rows "
                         "with the traces' means over their draws and how far one draw moves them: compare "
-                        "settings with several draws, since one draw can move an estimate as much as its error")
+                        "settings with several draws, since one draw can move an estimate as much as its error; "
+                        "also each trace's pooled estimate, the equal mixture of its draws' clouds (its mean "
+                        "the draws' mean, its intervals their spread as well; --all-steps where draws would "
+                        "stop at different steps)")
     p.add_argument("--json", default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
