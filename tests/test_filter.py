@@ -219,6 +219,10 @@ def test_pooled_clouds_are_their_equal_mixture():
     assert pooled.link_lengths.shape[0] == 1
     with pytest.raises(ValueError, match="'link_lengths' is known .* not the same"):
         pf.ParticleSet.pool([a, dataclasses.replace(b, link_lengths=b.link_lengths * 1.1)])
+    with pytest.raises(ValueError, match="'stiffness' is known \\(one row\\) in some sets and one per particle"):
+        pf.ParticleSet.pool([a, dataclasses.replace(b, stiffness=b.stiffness[:1])])
+    one = a.take(np.array([5]))  # a one-particle cloud: its one row is per particle and known alike
+    assert pf.ParticleSet.pool([one, b]).size == 1 + b.size and pf.ParticleSet.pool([one, b]).link_lengths.shape[0] == 1
     with pytest.raises(ValueError, match="'object_load' is in some sets and not in others"):
         pf.ParticleSet.pool([a, dataclasses.replace(b, object_load=np.zeros((b.size, h.N)))])
     with pytest.raises(ValueError, match="no particle sets"):

@@ -187,8 +187,19 @@ def test_bad_trace_headers_arrays_and_truths_are_named(tmp_path):
     with pytest.raises(ValueError, match="k.npz: trace: truths 'stiffness' must be finite numbers"):
         IdentificationTrace.load(write("k.npz", truth_stiffness=np.full_like(arrays["truth_stiffness"], np.nan)))
     # settings of the wrong type ended in an AttributeError or a TypeError from deep inside
-    with pytest.raises(ValueError, match="hand.npz: "):
+    with pytest.raises(ValueError, match="hand.npz: the header's 'hand' must be a JSON object of settings, got list"):
         IdentificationTrace.load(write("hand.npz", {**header, "hand": [1, 2]}))
+    with pytest.raises(ValueError, match="prior5.npz: the header's 'prior' must be a JSON object of settings, got int"):
+        IdentificationTrace.load(write("prior5.npz", {**header, "prior": 5}))
+    for value in ([[0]], 5):  # a traceback from unpacking
+        with pytest.raises(ValueError, match=r"su.npz: trace: PriorConfig 'stiffness_unknown' must be a list of "
+                                             r"\(finger, joint\) pairs"):
+            IdentificationTrace.load(write("su.npz", {**header, "prior": {**header["prior"], "stiffness_unknown": value}}))
+    # a truth of no rows (an IndexError), an array of objects (numpy's message, no member named)
+    with pytest.raises(ValueError, match=r"0d.npz: trace: truths 'object_mass' must have 4 rows .*got shape \(\)"):
+        IdentificationTrace.load(write("0d.npz", truth_object_mass=np.array(0.03)))
+    with pytest.raises(ValueError, match="obj.npz: member 'actions' is not an array of numbers or flags"):
+        IdentificationTrace.load(write("obj.npz", actions=np.array([{"a": 1}], dtype=object)))
     for value in ("abc", 2000.5):
         with pytest.raises(ValueError, match=rf"m.npz: filter: 'particles' must be an integer >= 10, got {value!r}"):
             IdentificationTrace.load(write("m.npz", {**header, "filter": {**header["filter"], "particles": value}}))
@@ -494,12 +505,12 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     assert row["trials"] == 6 and row["traces"] == 2
     assert row["mean"] == pytest.approx(errors.mean()) and row["sd"] == pytest.approx(errors.std())
     assert row["trace_mean"] == pytest.approx(errors[:3].mean()) and row["trace_mean_sd"] == pytest.approx(0.0, abs=1e-15)
-    assert row["draw_sd"] == pytest.approx(errors[:3].std())
+    assert row["draw_sd"] == pytest.approx(errors[:3].std(ddof=1))  # the sample SD: 3 draws
     # the draws' spread of the identified spring's estimate, which needs no truth
     (name, p), = runs[0]["hand_parameters"].items()
     estimates = [x["hand_parameters"][name]["estimate"] for x in runs[:3]]
-    assert res["draw_spread"] == {name: {"sd_mean": pytest.approx(np.std(estimates)),
-                                         "sd_max": pytest.approx(np.std(estimates)), "unit": p["unit"]}}
+    assert res["draw_spread"] == {name: {"sd_mean": pytest.approx(np.std(estimates, ddof=1)),
+                                         "sd_max": pytest.approx(np.std(estimates, ddof=1)), "unit": p["unit"]}}
     assert np.std(estimates) > 0 and json.loads(one.read_text())["draw_spread"] == {}
     # each trace's pooled estimate: the mixture of its draws' clouds, whose mean is their mean
     # and whose interval lies between theirs
@@ -525,6 +536,9 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
         pool_replays(trace, [])
     assert main(["replay", str(a), "--draws", "2", "--profile", "stiffness", "--values", "0.1,0.2"]) == 2
     assert "--draws is for a replay, not for a profile" in capsys.readouterr().err
+    # one file given twice would count twice in the rows (an SD of 0 over two "traces")
+    assert main(["replay", str(a), str(tmp_path / "." / "a.npz"), "--no-progress"]) == 2
+    assert f"is given twice (as {a} before)" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
         main(["replay", str(a), "--draws", "0"])
     assert e.value.code == 2 and "--draws: must be >= 1, got 0" in capsys.readouterr().err

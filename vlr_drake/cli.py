@@ -359,6 +359,12 @@ def replay_trace(args) -> dict:
                              f"(a negative first value as --values=-0.1,0.2)") from None
         if not all(np.isfinite(values)):
             raise ValueError(f"--values '{args.values}': expected finite numbers")
+    seen = {}
+    for path in args.trace:
+        if Path(path).resolve() in seen:
+            raise ValueError(f"trace {path} is given twice (as {seen[Path(path).resolve()]} before): each trace "
+                             "counts once in the rows (--draws replays one several times)")
+        seen[Path(path).resolve()] = path
     traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
     if args.filter_seed is not None:
         traces = [(path, dataclasses.replace(trace, filter_seed=args.filter_seed)) for path, trace in traces]
@@ -404,7 +410,8 @@ def replay_trace(args) -> dict:
             if r.get("errors"):
                 print(f"  {_errors_line(r['errors'])}")
                 _measure(measured, i, meta, r["errors"])
-            draws_of.append(r)
+            if args.draws > 1:  # kept for the trace's pooled estimate, until its last draw
+                draws_of.append(r)
             if args.draws > 1 and draw == args.draws - 1:  # the trace's last draw: pool its draws
                 p, errors = _pooled_run(path, trace, draws_of, prior)
                 pooled.append(p)
@@ -515,7 +522,7 @@ def draw_spread(runs: list) -> dict:
             by.setdefault(name, {"unit": p["unit"], "draws": {}})["draws"].setdefault(i, []).append(p["estimate"])
     out = {}
     for name, d in by.items():
-        sds = [float(np.std(v)) for v in d["draws"].values()]
+        sds = [float(np.std(v, ddof=1)) for v in d["draws"].values()]  # unbiased variance: few draws
         out[name] = {"sd_mean": float(np.mean(sds)), "sd_max": float(np.max(sds)), "unit": d["unit"]}
     return out
 
@@ -533,7 +540,7 @@ def _replay_row(values: list, draws: int) -> dict:
         per = [m[idx == i] for i in sorted(set(idx.tolist()))]
         means = np.array([x.mean() for x in per])
         row.update(trace_mean=float(means.mean()), trace_mean_sd=float(means.std()),
-                   draw_sd=float(np.mean([x.std() for x in per])))
+                   draw_sd=float(np.mean([x.std(ddof=1) for x in per])))
     return row
 
 

@@ -1158,11 +1158,13 @@ class ParticleSet:
                 if not all(x is None for x in xs):
                     raise ValueError(f"ParticleSet.pool: '{name}' is in some sets and not in others")
                 return None
-            shared = [x.shape[0] == 1 and s.size > 1 for x, s in zip(xs, sets, strict=True)]
-            if any(shared):
-                if not all(shared) or any(not np.array_equal(x, xs[0]) for x in xs[1:]):
-                    raise ValueError(f"ParticleSet.pool: '{name}' is known (one row) in some sets but not "
-                                     "the same in all of them")
+            # known: one row in a set of several particles (a one-particle set's row is both)
+            if any(x.shape[0] == 1 and s.size > 1 for x, s in zip(xs, sets, strict=True)):
+                if any(x.shape[0] != 1 for x in xs):
+                    raise ValueError(f"ParticleSet.pool: '{name}' is known (one row) in some sets and one per "
+                                     "particle in others")
+                if any(not np.array_equal(x, xs[0]) for x in xs[1:]):
+                    raise ValueError(f"ParticleSet.pool: '{name}' is known in every set but not the same in all")
                 return xs[0]
             return np.concatenate(xs, axis=0)
 

@@ -142,9 +142,9 @@ class IdentificationTrace:
             if missing:
                 raise ValueError(f"trace: truths lack {missing}")
             for k in self.truths:
-                if self.truths[k].shape[0] != T + 1:
+                if np.ndim(self.truths[k]) == 0 or self.truths[k].shape[0] != T + 1:
                     raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
-                                     f"got {self.truths[k].shape[0]}")
+                                     f"got shape {np.shape(self.truths[k])}")
             shapes = {"theta": (N, K), "a": (N,), "contacts": (N, 3), "stiffness": (N, K), "link_lengths": (N, K - 1),
                       "object_mass": (), "object_load": (N,), "pom_rotation": (3, 3), "pom_translation": (3,),
                       "object_com": (3,), "touching": (N, 3)}
@@ -198,7 +198,15 @@ class IdentificationTrace:
                 raise ValueError(f"{path}: not an identification trace (its header is not a JSON object)")
             if header.get("version") != TRACE_VERSION:
                 raise ValueError(f"{path}: trace version {header.get('version')}, this vlr_drake reads {TRACE_VERSION}")
-            return header, {k: z[k] for k in z.files if k != "header"}
+            arrays = {}
+            for k in z.files:
+                if k == "header":
+                    continue
+                try:
+                    arrays[k] = z[k]
+                except ValueError as e:  # an object array (numpy's message speaks of pickles)
+                    raise ValueError(f"{path}: member '{k}' is not an array of numbers or flags ({e})") from None
+            return header, arrays
 
     @classmethod
     def load(cls, path: str | Path) -> IdentificationTrace:
@@ -212,6 +220,10 @@ class IdentificationTrace:
             header, arrays = cls._read(path)
         except (zipfile.BadZipFile, zlib.error, EOFError) as e:  # truncated or damaged (an interrupted copy)
             raise ValueError(f"{path}: a damaged .npz archive ({e}); copy or record the trace again") from e
+        for key in ("hand", "filter", "prior"):
+            if key in header and not isinstance(header[key], dict):
+                raise ValueError(f"{path}: the header's '{key}' must be a JSON object of settings, "
+                                 f"got {type(header[key]).__name__}")
         try:
             truths = ({k: arrays[f"truth_{k}"] for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS if f"truth_{k}" in arrays}
                       if header["has_truths"] else None)
@@ -382,8 +394,9 @@ def pool_replays(trace: IdentificationTrace, replays: list[dict], prior: pf.Prio
         raise ValueError("pool_replays: no replays to pool")
     steps = sorted({int(r["steps"]) for r in replays})
     if len(steps) > 1:
-        raise ValueError(f"pool_replays: the replays stopped at different steps ({steps}); their clouds describe "
-                         "different instants (replay every step to pool them)")
+        raise ValueError(f"the draws stopped at different steps ({steps}), where each converged; their clouds "
+                         "describe different instants (replay every step to pool them: vlr-drake replay "
+                         "--all-steps)")
     prior = trace.prior if prior is None else prior
     h = (trace.hand if hand is None else hand).validate().model()
     est = pf.cloud_estimate(h, pf.ParticleSet.pool([r["particles"] for r in replays]))
@@ -539,6 +552,9 @@ def _config_from_dict(cls, data: dict):
         if isinstance(d, tuple) and isinstance(value, list):
             value = tuple(value)
         elif name == "stiffness_unknown":
+            if not (isinstance(value, list) and all(isinstance(p, list) and len(p) == 2 for p in value)):
+                raise ValueError(f"trace: PriorConfig 'stiffness_unknown' must be a list of (finger, joint) pairs, "
+                                 f"got {value!r}")
             value = [tuple(int(x) for x in p) for p in value]
         elif name == "contact_limits" and value is not None:
             value = tuple(value)
