@@ -544,6 +544,28 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     assert e.value.code == 2 and "--draws: must be >= 1, got 0" in capsys.readouterr().err
 
 
+def test_identify_pools_draws_of_its_own_measurements(tmp_path, capsys):
+    """identify --draws K: the run's measurements filtered under K draws, the first the run's
+    own, and pooled: the same as replay --draws K --all-steps of its trace."""
+    out, trace = tmp_path / "run.json", tmp_path / "run.npz"
+    args = ["identify", "stiffness", "--plant", "model", "--particles", "600", "--iterations", "8", "--seed", "3",
+            "--no-progress", "--out", str(tmp_path), "--json", str(out), "--trace", str(trace)]
+    assert main([*args, "--draws", "3"]) == 0
+    assert "pooled over 3 draws" in capsys.readouterr().out
+    res = json.loads(out.read_text())
+    assert res["draws"] == 3 and res["pooled"]["draws"] == 3 and res["pooled"]["steps"] == res["iterations"]
+    again = tmp_path / "replay.json"
+    assert main(["replay", str(trace), "--draws", "3", "--all-steps", "--no-progress", "--json", str(again)]) == 0
+    rep = json.loads(again.read_text())
+    assert res["pooled"] == {k: v for k, v in rep["pooled"][0].items() if k != "trace"}
+    (name, q), = res["pooled"]["hand_parameters"].items()
+    assert q["estimate"] == pytest.approx(np.mean([r["hand_parameters"][name]["estimate"] for r in rep["runs"]]))
+    # the first draw is the run's own
+    assert rep["runs"][0]["stiffness_estimate_Nm_per_rad"] == pytest.approx(res["stiffness_estimate_Nm_per_rad"])
+    assert main([*args, "--json", str(tmp_path / "one.json")]) == 0
+    assert "pooled" not in json.loads((tmp_path / "one.json").read_text())
+
+
 def test_iterations_count_filter_steps_as_a_replay_does():
     """Refused actions are not iterations: the result's ``iterations`` at convergence is the
     filter step its replay converges at (seed 2 of this run has refused actions)."""

@@ -315,6 +315,9 @@ def identify(args) -> dict:
     on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
     result = run_identification(opts, on_iteration=on_iteration)
     print_summary(result)
+    result["draws"] = args.draws
+    if args.draws > 1:
+        result["pooled"] = pool_run_draws(result["_trace"], args.draws, progress=not args.no_progress)
     if finish is not None:
         result["recording"] = str(finish())
     if getattr(args, "trace", None):
@@ -323,6 +326,28 @@ def identify(args) -> dict:
     write_json(result, args.json or str(out / f"{stem}.json"))  # first: the result is kept whatever the plots do
     _plots(result, out / name)
     return result
+
+
+def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
+    """``vlr-drake identify --draws K``: the run's measurements (its ``trace``) filtered under
+    ``draws`` draws of the filter's randomness, the first the run's own (:func:`draw_seed`),
+    every step of the run each, and the draws pooled (:func:`vlr_drake.trace.pool_replays`):
+    the result's ``pooled``, printed."""
+    from vlr_drake.trace import pool_replays, replay
+
+    replays = []
+    for j in range(draws):
+        print(f"draw {j + 1} of {draws} of the filter over the run's {trace.steps} measurements")
+        replays.append(replay(dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)),
+                              progress=progress))
+    p = pool_replays(trace, replays)
+    errors = p.pop("errors", None)
+    print(f"pooled over {draws} draws (the mixture of their clouds after {p['steps']} steps):")
+    for name, q in p["hand_parameters"].items():
+        print(f"  {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]")
+    if errors:
+        print(f"  {_errors_line(errors)}")
+    return {**p, **(errors or {})}
 
 
 def replay_trace(args) -> dict:
@@ -845,6 +870,12 @@ def main(argv: list[str] | None = None) -> int:
             p.add_argument("--trace", default=None, metavar="PATH",
                            help="also save the run's trace (the filter's inputs and the truth) as .npz, for "
                                 "vlr-drake replay")
+            p.add_argument("--draws", type=count(1), default=1, metavar="K",
+                           help="after the run, filter its measurements again under K draws of the filter's "
+                                "randomness (the first the run's own) and pool them: the result's 'pooled', "
+                                "the mixture of their clouds, whose intervals are honest where one draw's are "
+                                "too sure (a spring, a link; as vlr-drake replay --draws; K times the "
+                                "filter's time)")
             p.add_argument("--stuck-probability", type=float, default=None, metavar="P",
                            help="probability that a hypothesis with no equilibrium after an action is held "
                                 "where it was by friction (0 discards it; default: 1 for novel fingers on the "
