@@ -315,9 +315,9 @@ def identify(args) -> dict:
     on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
     result = run_identification(opts, on_iteration=on_iteration)
     print_summary(result)
-    result["draws"] = args.draws
-    if args.draws > 1:
-        result["pooled"] = pool_run_draws(result["_trace"], args.draws, progress=not args.no_progress)
+    result["draws"] = draws = getattr(args, "draws", 1)  # (the demo's identification has one)
+    if draws > 1:
+        result["pooled"] = pool_run_draws(result["_trace"], draws, progress=not args.no_progress)
     if finish is not None:
         result["recording"] = str(finish())
     if getattr(args, "trace", None):
