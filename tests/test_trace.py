@@ -526,7 +526,7 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     assert pool["stiffness_error_Nm_per_rad"] == pytest.approx(abs(np.mean(estimates) - truth))
     assert pool["stiffness_inside_95"] == (q["interval"][0] <= truth <= q["interval"][1])
     assert res["pooled_rows"]["stiffness"]["mean"] == pytest.approx(pool["stiffness_error_Nm_per_rad"])
-    assert res["pooled_rows"]["stiffness"]["trials"] == 2 and "pooled over its 3 draws" in out
+    assert res["pooled_rows"]["stiffness"]["trials"] == 2 and "pooled over 3 draws" in out
     assert json.loads(one.read_text())["pooled"] == []
     from vlr_drake.trace import pool_replays
 

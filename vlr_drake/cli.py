@@ -340,14 +340,21 @@ def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
         print(f"draw {j + 1} of {draws} of the filter over the run's {trace.steps} measurements")
         replays.append(replay(dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)),
                               progress=progress))
-    p = pool_replays(trace, replays)
-    errors = p.pop("errors", None)
-    print(f"pooled over {draws} draws (the mixture of their clouds after {p['steps']} steps):")
-    for name, q in p["hand_parameters"].items():
-        print(f"  {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]")
-    if errors:
-        print(f"  {_errors_line(errors)}")
+    p, errors = _print_pooled(pool_replays(trace, replays), "")
     return {**p, **(errors or {})}
+
+
+def _print_pooled(p: dict, indent: str) -> tuple[dict, dict | None]:
+    """Print a pooled estimate (:func:`vlr_drake.trace.pool_replays`' ``p``); returns it
+    without its ``errors``, and them (None without truths)."""
+    errors = p.pop("errors", None)
+    print(f"{indent}pooled over {p['draws']} draws (the mixture of their clouds after {p['steps']} steps):")
+    for name, q in p["hand_parameters"].items():
+        print(f"{indent}  {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, "
+              f"{q['interval'][1]:.4g}]")
+    if errors:
+        print(f"{indent}  {_errors_line(errors)}")
+    return p, errors
 
 
 def replay_trace(args) -> dict:
@@ -516,12 +523,7 @@ def _pooled_run(path, trace, replays: list, prior) -> tuple[dict, dict | None]:
     except ValueError as e:
         print(f"  not pooled: {e}")
         return {"trace": str(path), "draws": len(replays), "reason": str(e)}, None
-    print(f"  pooled over its {len(replays)} draws (the mixture of their clouds after {p['steps']} steps):")
-    for name, q in p["hand_parameters"].items():
-        print(f"    {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]")
-    if p.get("errors"):
-        print(f"    {_errors_line(p['errors'])}")
-    errors = p.pop("errors", None)
+    p, errors = _print_pooled(p, "  ")
     return {"trace": str(path), **p, **(errors or {})}, errors
 
 
