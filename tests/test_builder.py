@@ -323,6 +323,42 @@ def test_the_diagram_s_filter_keeps_a_trace_that_replays_its_estimate(tmp_path: 
     assert r["trace"] is not None and run(s, iterations=1)["trace"] is None
 
 
+def test_a_run_reports_its_hand_parameters_and_pools_draws_of_its_measurements(tmp_path: Path, capsys):
+    """A scenario run with an unknown spring gives the spring's estimate and interval (a
+    hardware stiffness run's answer) and, with draws, the pooled estimate of its own
+    measurements under that many draws of the filter: the same as pool_draws of its trace."""
+    from vlr_drake.builder import main, run
+    from vlr_drake.trace import IdentificationTrace, pool_draws
+
+    s = load_scenario(DIAGRAMS_DIR / "stiffness.yaml", FAST)
+    r = run(s, iterations=3, trace=tmp_path / "st.npz", draws=3)
+    (name, q), = r["hand_parameters"].items()
+    assert name == "stiffness:thumb/1" and q["interval"][0] <= q["estimate"] <= q["interval"][1]
+    assert r["draws"] == 3 and r["pooled"]["draws"] == 3 and r["pooled"]["steps"] == r["iterations"] == 3
+    assert "errors" not in r["pooled"] and r["pooled"]["wall_s"] > 0  # the diagram's trace has no truths
+    again = pool_draws(IdentificationTrace.load(r["trace"]), 3)
+    assert again["hand_parameters"] == r["pooled"]["hand_parameters"]
+    # the first draw is the run's own: its estimate is the run's
+    one = pool_draws(IdentificationTrace.load(r["trace"]), 1)
+    assert one["hand_parameters"][name]["estimate"] == pytest.approx(q["estimate"], rel=1e-12)
+    # a known hand has no hand parameters; one draw pools nothing
+    r = run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST), iterations=1)
+    assert r["hand_parameters"] == {} and r["draws"] == 1 and "pooled" not in r
+    with pytest.raises(ValueError, match="'draws' must be a count of at least 1, got 0"):
+        run(s, iterations=1, draws=0)
+    with pytest.raises(ValueError, match="pooled draws need at least one iteration"):
+        run(s, iterations=0, draws=2)
+    with pytest.raises(ValueError, match="draws must be a count of at least 1, got 1.5"):
+        pool_draws(IdentificationTrace.load(tmp_path / "st.npz"), 1.5)
+    assert main(["--run", str(DIAGRAMS_DIR / "stiffness.yaml"), "--set", FAST, "--iterations", "2",
+                 "--draws", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "stiffness:thumb/1: " in out and "pooled over 2 draws (the mixture of their clouds after 2 steps):" in out
+    with pytest.raises(SystemExit):
+        main(["--draws", "2", "--no-render"])
+    assert "--draws needs --run" in capsys.readouterr().err
+
+
 def test_hardware_scenario_runs_against_the_dynamixel_emulator(tmp_path: Path):
     """hardware.yaml with the bus on the emulator and a video file for the camera: the
     grasp reaches the motors, one limited step per update; without a tag in view the filter

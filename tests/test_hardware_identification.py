@@ -91,8 +91,11 @@ def test_a_hardware_scenario_runs_in_real_time(tmp_path):
     video = _apple_tag_video(tmp_path, frames=60)
     ids = [1, 2, 3]
     with DynamixelEmulator(ids, initial_positions={i: 2048 for i in ids}) as emu:
-        r = run(load_scenario(DIAGRAMS_DIR / "hardware.yaml", _hardware_overrides(emu, video)), iterations=3)
+        r = run(load_scenario(DIAGRAMS_DIR / "hardware.yaml", _hardware_overrides(emu, video)), iterations=3,
+                draws=2)
         assert r["iterations"] >= 2
+        # its measurements pooled under two draws of the filter, offline (no truths on hardware)
+        assert r["pooled"]["draws"] == 2 and r["pooled"]["steps"] == r["iterations"] and "errors" not in r["pooled"]
         assert r["sim_time"] == pytest.approx(3.95 * 0.25)
         assert 0.0 < r["realtime_rate"] <= 1.05  # sim time over wall time, from the end of the grasp
         assert not any(emu.torque_enabled(i) for i in ids)  # closed at the end

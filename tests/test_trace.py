@@ -480,7 +480,7 @@ def test_replays_under_several_draws_of_the_filter(tmp_path, capsys):
     """--draws K: each trace replayed under K draws of the filter's randomness, the first its
     run's own; the rows over every run, each trace's mean over its draws and the draws' spread
     within a trace match their definitions; bad uses are named."""
-    from vlr_drake.cli import draw_seed
+    from vlr_drake.trace import draw_seed
 
     r = _run("stiffness", particles=600, iterations=10, seed=2)
     trace = r["_trace"]

@@ -50,7 +50,8 @@ from vlr_drake import filter as pf
 from vlr_drake.entry import check_output, count, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
-from vlr_drake.identify import _truth_grasp, contact_guess_rng
+from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
+from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
@@ -70,6 +71,7 @@ from vlr_drake.systems.self_identification import (
     SelfIdentificationSystem,
 )
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver
+from vlr_drake.trace import pool_draws
 
 __all__ = [
     "BuiltDiagram",
@@ -647,7 +649,8 @@ def _hardware_summary(plant) -> dict | None:
             "grasp": plant.grasp_report}
 
 
-def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, trace: str | Path | None = None) -> dict:
+def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, trace: str | Path | None = None,
+        draws: int = 1, progress: bool = False) -> dict:
     """Build ``scenario``'s diagram, :func:`initialize` it and simulate ``iterations`` filter
     iterations (to (iterations + 0.95) T: the filter starts at 0.9 T). Returns the filter's
     last estimate and the truth (``theta_estimate``, ``theta_true`` (N, K) [rad],
@@ -657,13 +660,23 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     clipped and ramped commands and its grasp report (None on the simulated plants);
     ``control``: with a control section, each goal left and its errors (``_GoalRecorder``),
     else None; ``trace``: where the filter's trace was saved, for ``vlr-drake replay``, when
-    ``trace`` names a file). A hardware interface is closed (torque off) at the end."""
+    ``trace`` names a file; ``hand_parameters`` and ``weakly_identified``: the identified
+    springs and links, estimate and 95% interval, as :func:`vlr_drake.identify.hand_parameter_report`
+    gives them (empty where none is unknown); ``draws`` and, with ``draws`` > 1, ``pooled``: the
+    run's measurements filtered again under that many draws of the filter's randomness, the
+    first the run's own, and pooled, :func:`vlr_drake.trace.pool_draws`, with its ``wall_s``; a
+    single draw of a spring or a link is often too sure, the pooled intervals are honest).
+    A hardware interface is closed (torque off) at the end, before the draws are filtered."""
     import time
 
     if iterations < 0:
         raise ValueError(f"'iterations' must be >= 0, got {iterations}")
     if trace is not None and iterations == 0:
         raise ValueError("'iterations' is 0: a trace needs at least one iteration (the filter starts at the first)")
+    if not is_count(draws, 1):
+        raise ValueError(f"'draws' must be a count of at least 1, got {draws!r}")
+    if draws > 1 and iterations == 0:
+        raise ValueError("'iterations' is 0: pooled draws need at least one iteration (the filter starts at the first)")
     t0 = time.perf_counter()
     built = build_diagram(scenario, meshcat)
     simulator = Simulator(built.diagram)
@@ -689,14 +702,14 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
                 f"scenario '{scenario.name}': the self-identification never started in {iterations} action "
                 f"periods: no POM measurement arrived (the camera never detected the tag; check the object's "
                 f"tag_face and tag_size, and the camera)")
-        recorded = built.filter.trace(sys_ctx) if trace is not None else None
+        recorded = built.filter.trace(sys_ctx) if trace is not None or draws > 1 else None
         if recorded is not None:
             recorded.meta.update(
                 scenario=scenario.name, plant=scenario.plant, seed=scenario.seed, experiment=scenario.experiment(),
                 hand=scenario.hand_spec.name if scenario.hand_spec is not None else scenario.hand,
                 object=scenario.object_spec.name if scenario.object_spec is not None else scenario.object)
-        return {
-            "trace": None if recorded is None else str(recorded.save(trace)),
+        result = {
+            "trace": None if trace is None else str(recorded.save(trace)),
             "scenario": scenario.name,
             "iterations": 0 if flt is None else int(flt.iteration),
             "theta_estimate": d.GetOutputPort("self_identification.theta_estimate")
@@ -716,10 +729,18 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "realtime_rate": rate,
             "hardware": _hardware_summary(built.plant),
             "control": None if goals is None else goals.report(),
+            **(hand_parameter_report(flt.hand, flt.prior, flt.estimates[-1], flt.estimates[0]) if flt is not None
+               else {"hand_parameters": {}, "weakly_identified": []}),
+            "draws": draws,
         }
     finally:
         if hasattr(built.plant, "close"):
             built.plant.close()
+    if draws > 1:  # offline, from the run's measurements: the motors are off by now
+        t1 = time.perf_counter()
+        result["pooled"] = pool_draws(recorded, draws, progress=progress)
+        result["pooled"]["wall_s"] = time.perf_counter() - t1
+    return result
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -736,8 +757,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
+    parser.add_argument("--draws", type=count(1), default=None, metavar="K",
+                        help="after --run, filter its measurements again under K draws of the filter's randomness "
+                             "(the first the run's own) and pool them: the mixture of their clouds, whose intervals "
+                             "are honest where one draw's are too sure (a spring, a link); offline, K times the "
+                             "filter's time, with a hardware run's motors off (default 1: none)")
     args = parser.parse_args(argv)
-    for flag, value in (("--set", args.set), ("--trace", args.trace), ("--iterations", args.iterations)):
+    for flag, value in (("--set", args.set), ("--trace", args.trace), ("--iterations", args.iterations),
+                        ("--draws", args.draws)):
         if value is not None and not args.run:
             parser.error(f"{flag} needs --run SCENARIO")
     for flag, value in (("--write-diagrams", args.write_diagrams), ("--folder", args.folder),
@@ -748,7 +775,8 @@ def main(argv: list[str] | None = None) -> int:
         check_output("--trace", args.trace)  # before the run, not after it
         iterations = 10 if args.iterations is None else args.iterations
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
-        r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace)
+        r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace,
+                draws=args.draws or 1)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
@@ -757,6 +785,13 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
+        for name, q in r["hand_parameters"].items():
+            print(f"{name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]"
+                  + (" (weakly identified)" if name in r["weakly_identified"] else ""))
+        if "pooled" in r:
+            from vlr_drake.cli import print_pooled
+
+            print_pooled(dict(r["pooled"]), "")
         if r["control"] is not None:
             c = r["control"]
             print(f"control: {len(c['goals'])} goals left ({c['reached']} reached within tolerance)"

@@ -330,21 +330,15 @@ def identify(args) -> dict:
 
 def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
     """``vlr-drake identify --draws K``: the run's measurements (its ``trace``) filtered under
-    ``draws`` draws of the filter's randomness, the first the run's own (:func:`draw_seed`),
-    every step of the run each, and the draws pooled (:func:`vlr_drake.trace.pool_replays`):
+    ``draws`` draws of the filter's randomness and pooled (:func:`vlr_drake.trace.pool_draws`):
     the result's ``pooled``, printed."""
-    from vlr_drake.trace import pool_replays, replay
+    from vlr_drake.trace import pool_draws
 
-    replays = []
-    for j in range(draws):
-        print(f"draw {j + 1} of {draws} of the filter over the run's {trace.steps} measurements")
-        replays.append(replay(dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)),
-                              progress=progress))
-    p, errors = _print_pooled(pool_replays(trace, replays), "")
+    p, errors = print_pooled(pool_draws(trace, draws, progress=progress, announce=print), "")
     return {**p, **(errors or {})}
 
 
-def _print_pooled(p: dict, indent: str) -> tuple[dict, dict | None]:
+def print_pooled(p: dict, indent: str) -> tuple[dict, dict | None]:
     """Print a pooled estimate (:func:`vlr_drake.trace.pool_replays`' ``p``); returns it
     without its ``errors``, and them (None without truths)."""
     errors = p.pop("errors", None)
@@ -362,7 +356,7 @@ def replay_trace(args) -> dict:
     several traces the table's rows (mean +- SD of the paper's measures); or, with
     ``--profile``, each trace's evidence profile over ``--values``."""
     from vlr_drake.scenario import config_overrides
-    from vlr_drake.trace import IdentificationTrace, evidence_profile, replay, statics_profile
+    from vlr_drake.trace import IdentificationTrace, draw_seed, evidence_profile, replay, statics_profile
 
     if args.profile is None and args.values is not None:
         raise ValueError("--values needs --profile")
@@ -523,18 +517,8 @@ def _pooled_run(path, trace, replays: list, prior) -> tuple[dict, dict | None]:
     except ValueError as e:
         print(f"  not pooled: {e}")
         return {"trace": str(path), "draws": len(replays), "reason": str(e)}, None
-    p, errors = _print_pooled(p, "  ")
+    p, errors = print_pooled(p, "  ")
     return {"trace": str(path), **p, **(errors or {})}, errors
-
-
-def draw_seed(seed: int, draw: int) -> int:
-    """The filter seed of ``vlr-drake replay --draws``' draw ``draw`` of a trace whose filter
-    seed is ``seed``: draw 0 is the seed itself (the run's own draw), each later one a seed
-    derived from both (numpy's SeedSequence), unrelated to the next trace's run seed (a run
-    seed plus one would replay trace S + 1's own draw on trace S)."""
-    if draw == 0:
-        return int(seed)
-    return int(np.random.SeedSequence([int(seed), int(draw)]).generate_state(1, np.uint32)[0])
 
 
 def draw_spread(runs: list) -> dict:
@@ -953,7 +937,7 @@ def main(argv: list[str] | None = None) -> int:
                         "instead of the run's: the same measurements under another draw, the filter's own spread")
     p.add_argument("--draws", type=count(1), default=1, metavar="K",
                    help="replay each trace K times under K draws of the filter's own randomness (the first "
-                        "with the run's seed, or --filter-seed's; vlr_drake.cli.draw_seed), and give the rows "
+                        "with the run's seed, or --filter-seed's; vlr_drake.trace.draw_seed), and give the rows "
                         "with the traces' means over their draws and how far one draw moves them: compare "
                         "settings with several draws, since one draw can move an estimate as much as its error; "
                         "also each trace's pooled estimate, the equal mixture of its draws' clouds (its mean "

@@ -407,6 +407,35 @@ def pool_replays(trace: IdentificationTrace, replays: list[dict], prior: pf.Prio
     return out
 
 
+def draw_seed(seed: int, draw: int) -> int:
+    """The filter seed of draw ``draw`` of a trace whose filter seed is ``seed`` (``vlr-drake
+    replay --draws``, :func:`pool_draws`): draw 0 is the seed itself (the run's own draw), each
+    later one a seed derived from both (numpy's SeedSequence), unrelated to the next trace's
+    run seed (a run seed plus one would replay trace S + 1's own draw on trace S)."""
+    if draw == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(draw)]).generate_state(1, np.uint32)[0])
+
+
+def pool_draws(trace: IdentificationTrace, draws: int, progress: bool = False, announce=None) -> dict:
+    """The trace's measurements filtered under ``draws`` draws of the filter's randomness
+    (:func:`draw_seed`; the first is the run's own), every step each (a draw that converges
+    early goes on: the clouds must describe the same instant), and pooled
+    (:func:`pool_replays`; its dict). What ``vlr-drake identify --draws`` and a scenario run's
+    ``--draws`` (``python -m vlr_drake.builder --run``) add to a run: it costs ``draws`` times
+    the filter's time and nothing of the plant's, so a hardware run pools offline, after the
+    motors are off. ``announce``, if given, is called with a line before each draw."""
+    if not is_count(draws, 1):
+        raise ValueError(f"draws must be a count of at least 1, got {draws!r}")
+    replays = []
+    for j in range(draws):
+        if announce is not None:
+            announce(f"draw {j + 1} of {draws} of the filter over the run's {trace.steps} measurements")
+        replays.append(replay(dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)),
+                              progress=progress))
+    return pool_replays(trace, replays)
+
+
 def _step_count(k, steps: int) -> int:
     """``k`` as an iteration count of a trace of ``steps`` steps (1..steps), or a ValueError naming it."""
     if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 1 <= k <= steps:
