@@ -837,8 +837,9 @@ def main(argv: list[str] | None = None) -> int:
         p = _parser(name, sub, help_text)
         if name == "identify":  # None: the experiment's (IdentifyOptions.max_iterations)
             _common(p, particles=20_000, iterations=None,
-                    iterations_help="120; 240 for the stiffness and the novel fingers on the physics plant, "
-                                    "whose hand parameters narrow slowly: vlr_drake.identify.ITERATIONS")
+                    iterations_help="120; 240 for the stiffness and the novel fingers on the physics plant, and the "
+                                    "stiffness on the model plant too, whose hand parameters narrow slowly: "
+                                    "vlr_drake.identify.ITERATIONS")
         else:  # the demo's identification is the Model O's known hand
             _common(p, particles=20_000, iterations=120,
                     scenario_help="a known-hand scenario of the Model O: a YAML file, or the name of an example "
@@ -905,7 +906,8 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser("reproduce", sub, "the paper's table: experiments and tasks, paper vs ours")
     _common(p, particles=20_000, iterations=None, out="out/reproduce",
             iterations_help="each experiment's, as identify's: 120, 240 for the stiffness and the novel "
-                            "fingers on the physics plant; 100 for the tasks' self-identification")
+                            "fingers on the physics plant and the stiffness on the model plant; 100 for the "
+                            "tasks' self-identification")
     p.add_argument("--trials", type=count(1), default=5, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,

@@ -252,7 +252,8 @@ class IdentifyOptions:
     # another is drawn; a plant that refuses as many as the budget stops the run); the run
     # stops earlier once converged (plus ``extra_iterations``).
     # None: the plant's and experiment's (ITERATIONS: 240 for the stiffness and the novel
-    # fingers on the physics plant, else DEFAULT_ITERATIONS, 120).
+    # fingers on the physics plant and the stiffness on the model plant, else
+    # DEFAULT_ITERATIONS, 120).
     max_iterations: int | None = None
     # Filter steps to go on after convergence (0: stop there).
     extra_iterations: int = 0
