@@ -354,6 +354,7 @@ def test_a_run_reports_its_hand_parameters_and_pools_draws_of_its_measurements(t
                  "--draws", "2"]) == 0
     out = capsys.readouterr().out
     assert "stiffness:thumb/1: " in out and "pooled over 2 draws (the mixture of their clouds after 2 steps):" in out
+    assert "draw 2 of 2 of the filter over the run's 2 measurements" in out  # the command says what it is doing
     with pytest.raises(SystemExit):
         main(["--draws", "2", "--no-render"])
     assert "--draws needs --run" in capsys.readouterr().err

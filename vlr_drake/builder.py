@@ -665,7 +665,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     gives them (empty where none is unknown); ``draws`` and, with ``draws`` > 1, ``pooled``: the
     run's measurements filtered again under that many draws of the filter's randomness, the
     first the run's own, and pooled, :func:`vlr_drake.trace.pool_draws`, with its ``wall_s``; a
-    single draw of a spring or a link is often too sure, the pooled intervals are honest).
+    single draw of a spring or a link is often too sure, the pooled intervals are honest;
+    ``progress``: a line and a progress bar per draw).
     A hardware interface is closed (torque off) at the end, before the draws are filtered."""
     import time
 
@@ -738,7 +739,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             built.plant.close()
     if draws > 1:  # offline, from the run's measurements: the motors are off by now
         t1 = time.perf_counter()
-        result["pooled"] = pool_draws(recorded, draws, progress=progress)
+        result["pooled"] = pool_draws(recorded, draws, progress=progress, announce=print if progress else None)
         result["pooled"]["wall_s"] = time.perf_counter() - t1
     return result
 
@@ -776,7 +777,7 @@ def main(argv: list[str] | None = None) -> int:
         iterations = 10 if args.iterations is None else args.iterations
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
         r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace,
-                draws=args.draws or 1)
+                draws=args.draws or 1, progress=True)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
