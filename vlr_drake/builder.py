@@ -786,12 +786,11 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
-        for name, q in r["hand_parameters"].items():
-            print(f"{name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]"
-                  + (" (weakly identified)" if name in r["weakly_identified"] else ""))
-        if "pooled" in r:
-            from vlr_drake.cli import print_pooled
+        from vlr_drake.cli import hand_parameter_line, print_pooled
 
+        for name, q in r["hand_parameters"].items():
+            print(hand_parameter_line(name, q) + (" (weakly identified)" if name in r["weakly_identified"] else ""))
+        if "pooled" in r:
             print_pooled(dict(r["pooled"]), "")
         if r["control"] is not None:
             c = r["control"]

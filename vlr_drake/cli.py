@@ -338,14 +338,18 @@ def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
     return {**p, **(errors or {})}
 
 
+def hand_parameter_line(name: str, q: dict) -> str:
+    """One identified hand parameter (a ``hand_parameters`` item) as a line: estimate, unit, 95% interval."""
+    return f"{name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, {q['interval'][1]:.4g}]"
+
+
 def print_pooled(p: dict, indent: str) -> tuple[dict, dict | None]:
     """Print a pooled estimate (:func:`vlr_drake.trace.pool_replays`' ``p``); returns it
     without its ``errors``, and them (None without truths)."""
     errors = p.pop("errors", None)
     print(f"{indent}pooled over {p['draws']} draws (the mixture of their clouds after {p['steps']} steps):")
     for name, q in p["hand_parameters"].items():
-        print(f"{indent}  {name}: {q['estimate']:.4g} {q['unit']}, 95% [{q['interval'][0]:.4g}, "
-              f"{q['interval'][1]:.4g}]")
+        print(f"{indent}  {hand_parameter_line(name, q)}")
     if errors:
         print(f"{indent}  {_errors_line(errors)}")
     return p, errors
