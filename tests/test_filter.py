@@ -1573,3 +1573,62 @@ def test_a_cloud_whose_weighted_hypotheses_all_fail_is_reinitialised(monkeypatch
     rep = f.step(dl, R, t, tendon_command=plant.state.tendon_command)
     assert rep.reinitialised and f.reinitialisations == 1
     assert np.isfinite(f.particles.log_w).all()
+
+
+def test_prior_angles_can_be_drawn_where_each_hypothesis_own_springs_and_links_settle():
+    """PriorConfig.angle_centers "settled": the nominal grasp settled by the model under the
+    tendon command with the unknowns at their middles is the new centre, and each
+    hypothesis' angles are drawn around it moved by the settled angles' difference between
+    its own spring and link and the middles (SettledAngles, interpolated in log k and in L).
+    The same random draws as "nominal", so the difference is that shift exactly."""
+    from vlr_drake.grasps import commanded_equilibrium
+
+    h = model_o().model()
+    theta0, a0 = _truth_grasp(h, np.random.default_rng(0))
+    l = h.tendon_travel(theta0[None])[0] + 0.004  # a squeeze
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], links_unknown=[2], angle_centers="settled")
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), prior, np.random.default_rng(5))
+    with pytest.raises(ValueError, match="angle_centers 'settled' needs the absolute tendon command"):
+        f.settled_angles(theta0, a0)
+    f.tendon_command = l
+    center, tables = f.settled_angles(theta0, a0)
+    k_mid, L_mid = h.stiffness.copy(), h.link_lengths.copy()
+    k_mid[0, 1], L_mid[2, 0] = prior.stiffness_middle(), 0.5 * sum(prior.link_range)
+    expected, ok = commanded_equilibrium(h, theta0, a0, l, L_mid, k_mid[None])
+    assert ok and np.abs(center - theta0).max() > np.deg2rad(1.0)  # the squeeze moves the grasp
+    np.testing.assert_allclose(center, expected, atol=1e-12)
+    assert [(t.parameter, t.finger, t.joint) for t in tables] == [("stiffness", 0, 1), ("link", 2, 0)]
+    k_tab, L_tab = tables
+    np.testing.assert_allclose(k_tab.at(np.array([prior.stiffness_middle()]))[0], center, atol=1e-8)
+    np.testing.assert_allclose(L_tab.at(np.array([0.5 * sum(prior.link_range)]))[0], center, atol=1e-8)
+    assert np.all(np.diff(k_tab.theta[:, 0, 1]) < 0)  # a stiffer spring gives way less to the squeeze
+    for v, row in zip(k_tab.values, k_tab.theta, strict=True):  # each node: the model's own settle
+        k = k_mid.copy()
+        k[0, 1] = v
+        np.testing.assert_allclose(row, commanded_equilibrium(h, theta0, a0, l, L_mid, k[None])[0], atol=1e-12)
+    mid = np.sqrt(k_tab.values[1] * k_tab.values[2])  # between two nodes in log k; held beyond the ends
+    np.testing.assert_allclose(k_tab.at(np.array([mid, 1e-3, 10.0])),
+                               [0.5 * (k_tab.theta[1] + k_tab.theta[2]), k_tab.theta[0], k_tab.theta[-1]])
+    # the draws: the nominal filter's around theta0, the settled one's around each own settle
+    draws = {}
+    for mode, c, tabs in (("nominal", theta0, []), ("settled", center, tables)):
+        g = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500),
+                                        dataclasses.replace(prior, angle_centers=mode), np.random.default_rng(5))
+        g.settled = tabs
+        draws[mode] = g._draw_grasps(2000, c, a0, 1.0, (None, None, None))
+    (th_n, _, k_n, L_n, *_), (th_s, _, k_s, L_s, *_) = draws["nominal"], draws["settled"]
+    np.testing.assert_array_equal(k_n, k_s)
+    np.testing.assert_array_equal(L_n, L_s)
+    shift = (center - theta0) + (k_tab.at(k_s[:, 0, 1]) - center) + (L_tab.at(L_s[:, 2, 0]) - center)
+    np.testing.assert_allclose(th_s - th_n, shift, atol=1e-12)
+    # a re-initialisation's centre: no shift for a draw at the centre's own spring and link
+    k_c, L_c = k_mid.copy(), L_mid.copy()
+    k_c[0, 1], L_c[2, 0] = 0.2, 0.06
+    np.testing.assert_allclose(g._settled_shift(k_c[None], L_c[None], k_c, L_c), 0.0, atol=1e-12)
+    # initialise settles once and keeps the tables and the centre for the re-initialisations
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), prior, np.random.default_rng(5))
+    f.initialise(theta0, a0, np.eye(3), np.array([0.0, 0.0, 0.1]), tendon_command=l)
+    np.testing.assert_allclose(f._theta_center, center, atol=1e-12)
+    assert len(f.settled) == 2
+    with pytest.raises(ValueError, match="'angle_centers' must be one of"):
+        pf.PriorConfig(angle_centers="placed").validate()

@@ -132,6 +132,9 @@ def test_prior_settings_convert_to_the_filters_tuples():
     assert p.stiffness_unknown == [(0, 1)] and p.stiffness_range == (0.1, 0.3) and p.links_unknown == [2]
     assert p.link_range == pf.PriorConfig().link_range and p.contact_limits is None is pf.PriorConfig().contact_limits
     assert PriorSettings(contact_limits=[0.004, 0.03]).to_prior().contact_limits == (0.004, 0.03)
+    assert p.angle_centers == "nominal" and PriorSettings(angle_centers="settled").to_prior().angle_centers == "settled"
+    with pytest.raises(ValueError, match="'angle_centers' must be one of"):
+        PriorSettings(angle_centers="placed").validate(3, 2)
 
 
 def test_a_weighed_object_in_the_scenario(tmp_path):
@@ -207,7 +210,8 @@ ROLLING_FLAGS = ["--filter", "motion_model=rolling", "--filter", "sigma_position
 WEIGHED_EXAMPLES = {
     # name: (the CLI run its comment names, the experiment, object, hand, what the filter draws [kg])
     "stiffness_weighed": (["identify", "stiffness", "--object", "toy_block", "--object-mass", "0.028"]
-                          + ROLLING_FLAGS, "stiffness", "toy_block", "model_o", (0.021, 0.035)),
+                          + ROLLING_FLAGS + ["--prior", "angle_centers=settled"], "stiffness", "toy_block", "model_o",
+                          (0.021, 0.035)),
     "novel_NH2_weighed": (["identify", "novel_fingers", "--hand", "NH2", "--object-mass", "0.068"]
                           + ROLLING_FLAGS + ["--filter", "likelihood_width=1.75", "--filter", "normal_guess=either",
                                              "--filter", "object_curvature=round"],
@@ -249,7 +253,7 @@ def test_a_weighed_example_is_the_cli_run_it_names(monkeypatch, name):
     assert prior_a.object_mass_unknown and prior_a.object_mass_range == pytest.approx(mass_range)
     assert a.object_mass_tolerance == b.object_mass_tolerance == 0.25
     if experiment == "stiffness":
-        assert prior_a.stiffness_unknown == [(0, 1)]
+        assert prior_a.stiffness_unknown == [(0, 1)] and prior_a.angle_centers == "settled"
     else:
         assert prior_a.links_unknown == [0, 1] and a.filter.object_curvature == "round"
 

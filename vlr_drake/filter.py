@@ -63,6 +63,7 @@ __all__ = [
     "FilterConfig",
     "TENDON_REFERENCES",
     "PriorConfig",
+    "SettledAngles",
     "ParticleSet",
     "StepReport",
     "SelfIdentificationFilter",
@@ -585,6 +586,17 @@ class PriorConfig:
     contact_limits: tuple[float, float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+    # Where each hypothesis' joint angles are drawn: "nominal", in the boxes around the
+    # nominal grasp whatever its springs and links (the physics plant's nominal grasp is
+    # placed with the believed hand, believed_hand: unknowns at their middles); "settled",
+    # around the grasp the filter's model settles to under the grasp's tendon command with
+    # the hypothesis' own unknown springs and links (SettledAngles: settled at a few values
+    # of each across its range, interpolated), so that the prior's angles carry no spring
+    # or link of their own. On the Model O holding the toy block the thumb's distal joint
+    # settles at 9 deg with a 0.40 N m/rad spring and 43 deg with a 0.10 one, against the
+    # 3.5 deg it is placed at: a hypothesis near the placed angles is at rest under the
+    # command only with a stiff spring.
+    angle_centers: str = "nominal"
 
     def believed_hand(self, spec: HandSpec) -> HandSpec:
         """The hand the filter believes in before any measurement: a copy of ``spec`` whose
@@ -650,6 +662,8 @@ class PriorConfig:
             if not (np.isfinite([lo, hi]).all() and 0 < lo < hi):
                 raise ValueError(f"prior: '{name}' must be finite [min, max] with 0 < min < max, "
                                  f"got {getattr(self, name)}")
+        if self.angle_centers not in ANGLE_CENTERS:
+            raise ValueError(f"prior: 'angle_centers' must be one of {ANGLE_CENTERS}, got '{self.angle_centers}'")
         if self.stiffness_prior not in STIFFNESS_PRIORS:
             raise ValueError(f"prior: 'stiffness_prior' must be one of {STIFFNESS_PRIORS}, got '{self.stiffness_prior}'")
         if not (np.isfinite(self.min_tension) and self.min_tension >= 0):
@@ -705,6 +719,35 @@ class PriorConfig:
 
 
 #: Where the rolling model's centre of mass is drawn (PriorConfig.com_prior).
+@dataclass
+class SettledAngles:
+    """How the grasp's settled angles follow one unknown hand parameter
+    (``PriorConfig.angle_centers`` "settled"): the filter's model settled under the grasp's
+    tendon command from the nominal grasp with that parameter at each of ``values`` and
+    every other unknown at its prior middle (:meth:`SelfIdentificationFilter.settled_angles`)."""
+
+    parameter: str  # "stiffness" or "link" (a finger's proximal link)
+    finger: int
+    joint: int  # the spring's joint; 0 for a link
+    values: np.ndarray  # (S,) increasing [N m/rad] or [m]
+    theta: np.ndarray  # (S, N, K) the settled angles at each value [rad]
+
+    def at(self, v) -> np.ndarray:
+        """(P, N, K) angles at the parameter values ``v`` (P,): linear interpolation (in log v
+        for a spring, a scale parameter), held at the table's ends."""
+        x = np.log(self.values) if self.parameter == "stiffness" else self.values
+        u = np.log(v) if self.parameter == "stiffness" else np.asarray(v, float)
+        flat = self.theta.reshape(x.shape[0], -1)
+        out = np.stack([np.interp(u, x, flat[:, c]) for c in range(flat.shape[1])], axis=-1)
+        return out.reshape(np.shape(v) + self.theta.shape[1:])
+
+
+#: PriorConfig.angle_centers
+ANGLE_CENTERS = ("nominal", "settled")
+#: How many values of each unknown spring or link SettledAngles settles the grasp at (an
+#: odd count puts the prior's middle on a node).
+SETTLED_VALUES = 7
+
 COM_PRIORS = ("contacts", "balanced", "shape")
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
 STIFFNESS_PRIORS = ("log_uniform", "uniform")
@@ -1310,6 +1353,7 @@ class SelfIdentificationFilter:
         self._last_reinit: int | None = None  # the iteration of the last re-initialisation
         self.resamples = 0
         self.tendon_command: np.ndarray | None = None  # absolute tendon pull l (N,) [m]
+        self.settled: list[SettledAngles] = []  # PriorConfig.angle_centers "settled"
         N, K = hand.N, hand.K
         prior.validate(N, K)
         self._contact_bounds = prior.contact_bounds(hand)
@@ -1337,7 +1381,9 @@ class SelfIdentificationFilter:
 
         ``tendon_command`` (N,) [m] is the absolute tendon pull l at this grasp; the filter
         advances it by each action (or takes it from ``step``). It is required with the
-        elastic tendon and ``tendon_reference="commanded"``."""
+        elastic tendon and ``tendon_reference="commanded"``, and with the prior's
+        ``angle_centers`` "settled", whose angles the first initialise settles under it
+        (:meth:`settled_angles`; kept, with their centre, for the re-initialisations)."""
         h, M = self.hand, self.config.particles
         if tendon_command is not None:
             self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,))
@@ -1353,6 +1399,8 @@ class SelfIdentificationFilter:
                              f"[m]; {np.round(a_center, 4).tolist()} is off finger(s) "
                              f"{[h.names[i] for i in np.flatnonzero(off)]}")
         R_PO, t_PO = _pose("initial", R_PO, t_PO)
+        if self.prior.angle_centers == "settled" and self.reinitialisations == 0:
+            theta_center, self.settled = self.settled_angles(theta_center, a_center)
         centers = (stiffness_center, link_center, mass_center)
         theta, a, stiff, links, load, stretch = self._grasps(theta_center, a_center, scale, centers)
         if self._uses_command():
@@ -1383,6 +1431,8 @@ class SelfIdentificationFilter:
         stiff = self._draw_stiffness(n, stiffness_center, scale)
         links = self._draw_links(n, link_center, scale)
         load = self._draw_load(n, mass_center, scale)
+        if self.settled:  # each around the angles settled with its own springs and links
+            theta += self._settled_shift(stiff, links, stiffness_center, link_center)
         eq = motion.equilibrium(h, theta, a=a, link_lengths=links, stiffness=stiff,
                                 **self._loads(theta, a, links, load))
         good = eq.ok & np.all(eq.tension >= pr.min_tension, axis=1) & h.within_joint_limits(eq.theta)
@@ -1534,6 +1584,83 @@ class SelfIdentificationFilter:
                                                                                                keepdims=True)
             centre[round_] = motion_rolling.circle_centres(p_O[round_]) + ball
         return normals_O, centre, radius
+
+    def settled_angles(self, theta_center, a_center) -> tuple[np.ndarray, list[SettledAngles]]:
+        """``PriorConfig.angle_centers`` "settled": the nominal grasp ``theta_center`` (N, K)
+        settled by the filter's model under the tendon command (:attr:`tendon_command`), the
+        contacts ``a_center`` held at their mutual distances, with every unknown spring and
+        link at its prior middle (the new centre), and again with each unknown at
+        :data:`SETTLED_VALUES` values across its range (log-spaced for a spring), the others
+        at their middles (the tables). The model's loads as in a move: the links' weight and
+        a weighed object's middle mass at its balanced shares (:func:`balanced_shares`).
+        Values where the model finds no pulling equilibrium are left out of a table (a
+        spring too soft for the command); a table with fewer than two values, or a centre
+        with no equilibrium, falls back to the nominal grasp, with a warning."""
+        from vlr_drake.grasps import commanded_equilibrium
+
+        h, pr = self.hand, self.prior
+        if self.tendon_command is None:
+            raise ValueError("prior: angle_centers 'settled' needs the absolute tendon command: pass "
+                             "tendon_command=(N,) [m] to initialise()")
+        k_mid, L_mid = h.stiffness.copy(), h.link_lengths.copy()
+        for fi, j in pr.stiffness_unknown:
+            k_mid[fi, j] = pr.stiffness_middle()
+        for fi in pr.links_unknown:
+            L_mid[fi, 0] = 0.5 * sum(pr.link_range)
+        load = None
+        if pr.object_mass_unknown:
+            load = 0.5 * sum(pr.object_mass_range) * balanced_shares(h)[None]
+
+        def settle(k, L):
+            kw = self._loads(theta_center[None], a_center[None], L[None], load)
+            if "external_torque" in kw:
+                kw["external_torque"] = kw["external_torque"][0]
+            return commanded_equilibrium(h, theta_center, a_center, self.tendon_command, L, k[None], **kw)
+
+        center, ok = settle(k_mid, L_mid)
+        if not ok:
+            warnings.warn("prior: angle_centers 'settled': the model finds no equilibrium of the nominal grasp "
+                          "under the tendon command; the angles are drawn around the nominal grasp", stacklevel=3)
+            return theta_center, []
+        tables = []
+        unknowns = [("stiffness", fi, j) for fi, j in pr.stiffness_unknown] + [("link", fi, 0) for fi in pr.links_unknown]
+        for parameter, fi, j in unknowns:
+            values = (np.geomspace(*pr.stiffness_range, SETTLED_VALUES) if parameter == "stiffness"
+                      else np.linspace(*pr.link_range, SETTLED_VALUES))
+            kept, rows = [], []
+            for v in values:
+                k, L = k_mid.copy(), L_mid.copy()
+                if parameter == "stiffness":
+                    k[fi, j] = v
+                else:
+                    L[fi, 0] = v
+                th, ok = settle(k, L)
+                if ok:
+                    kept.append(v)
+                    rows.append(th)
+            if len(kept) < 2:
+                warnings.warn(f"prior: angle_centers 'settled': the model settles the grasp at {len(kept)} of "
+                              f"{values.size} values of the {parameter} of finger {fi}; its hypotheses' angles are "
+                              "drawn around the settled centre", stacklevel=3)
+                continue
+            tables.append(SettledAngles(parameter, int(fi), int(j), np.array(kept), np.array(rows)))
+        return center, tables
+
+    def _settled_shift(self, stiff, links, stiffness_center, link_center) -> np.ndarray:
+        """(n, N, K) how far the angles settled with each draw's springs and links
+        (:attr:`settled`) lie from those settled with the draws' centre: the prior's middle,
+        or the re-initialisation's centre."""
+        pr, shift = self.prior, 0.0
+        for tab in self.settled:
+            if tab.parameter == "stiffness":
+                v = stiff[:, tab.finger, tab.joint]
+                c = (pr.stiffness_middle() if stiffness_center is None
+                     else np.clip(stiffness_center[tab.finger, tab.joint], *pr.stiffness_range))
+            else:
+                v = links[:, tab.finger, 0]
+                c = 0.5 * sum(pr.link_range) if link_center is None else link_center[tab.finger, 0]
+            shift = shift + tab.at(v) - tab.at(np.array([c]))
+        return shift
 
     def _draw_stiffness(self, n, center, scale):
         h, pr = self.hand, self.prior

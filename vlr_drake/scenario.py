@@ -145,6 +145,10 @@ class PriorSettings:
     contact_limits: list[float] | None = None
     # Smallest implied tendon tension of a prior draw [N].
     min_tension: float = 0.0
+    # Where each hypothesis' angles are drawn: "nominal", around the nominal grasp; "settled",
+    # around the grasp the model settles to under the grasp's tendon command with its own
+    # unknown springs and links (PriorConfig.angle_centers).
+    angle_centers: str = "nominal"
     # The object's weighed mass [kg] (physics and hardware plants): the filter identifies the
     # object's weight with its mass within +-object_mass_tolerance (a fraction) of this
     # (vlr_drake.identify.IdentifyOptions.object_mass; ``vlr-drake identify --object-mass``).
@@ -176,6 +180,7 @@ class PriorSettings:
             contact_limits=None if self.contact_limits is None
             else (float(self.contact_limits[0]), float(self.contact_limits[1])),
             min_tension=self.min_tension,
+            angle_centers=self.angle_centers,
         )
 
     def validate(self, N: int, K: int) -> "PriorSettings":
