@@ -593,7 +593,7 @@ class PriorConfig:
     # the hypothesis' own unknown springs and links (SettledAngles: settled at a few values
     # of each across its range, interpolated), so that the prior's angles carry no spring
     # or link of their own. On the Model O holding the toy block the thumb's distal joint
-    # settles at 9 deg with a 0.40 N m/rad spring and 43 deg with a 0.10 one, against the
+    # settles at 9 deg with a 0.40 N m/rad spring and 40 deg with a 0.10 one, against the
     # 3.5 deg it is placed at: a hypothesis near the placed angles is at rest under the
     # command only with a stiff spring.
     angle_centers: str = "nominal"
