@@ -607,7 +607,7 @@ class PriorConfig:
         placed angles, which follow the springs' closing path), so that no true length of a
         replaced finger and no true spring reaches the filter."""
         believed = copy.deepcopy(spec)
-        middle = 0.5 * (self.link_range[0] + self.link_range[1])
+        middle = self.link_middle()
         for fi in self.links_unknown:
             lengths = list(believed.fingers[fi].link_lengths)
             lengths[0] = middle
@@ -617,6 +617,10 @@ class PriorConfig:
             k[j] = self.stiffness_middle()
             believed.fingers[fi].stiffness = k
         return believed
+
+    def link_middle(self) -> float:
+        """The middle of ``link_range`` [m]."""
+        return 0.5 * (self.link_range[0] + self.link_range[1])
 
     def stiffness_middle(self) -> float:
         """The middle of ``stiffness_range`` in the prior's space: the geometric mean for
@@ -718,7 +722,6 @@ class PriorConfig:
         return np.full(hand.N, lim[0]), np.full(hand.N, lim[1])
 
 
-#: Where the rolling model's centre of mass is drawn (PriorConfig.com_prior).
 @dataclass
 class SettledAngles:
     """How the grasp's settled angles follow one unknown hand parameter
@@ -748,6 +751,7 @@ ANGLE_CENTERS = ("nominal", "settled")
 #: odd count puts the prior's middle on a node).
 SETTLED_VALUES = 7
 
+#: Where the rolling model's centre of mass is drawn (PriorConfig.com_prior).
 COM_PRIORS = ("contacts", "balanced", "shape")
 #: Distributions of an unknown stiffness in its range (PriorConfig.stiffness_prior).
 STIFFNESS_PRIORS = ("log_uniform", "uniform")
@@ -1606,7 +1610,7 @@ class SelfIdentificationFilter:
         for fi, j in pr.stiffness_unknown:
             k_mid[fi, j] = pr.stiffness_middle()
         for fi in pr.links_unknown:
-            L_mid[fi, 0] = 0.5 * sum(pr.link_range)
+            L_mid[fi, 0] = pr.link_middle()
         load = None
         if pr.object_mass_unknown:
             load = 0.5 * sum(pr.object_mass_range) * balanced_shares(h)[None]
@@ -1658,7 +1662,7 @@ class SelfIdentificationFilter:
                      else np.clip(stiffness_center[tab.finger, tab.joint], *pr.stiffness_range))
             else:
                 v = links[:, tab.finger, 0]
-                c = 0.5 * sum(pr.link_range) if link_center is None else link_center[tab.finger, 0]
+                c = pr.link_middle() if link_center is None else link_center[tab.finger, 0]
             shift = shift + tab.at(v) - tab.at(np.array([c]))
         return shift
 
