@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vlr_drake import filter as pf
-from vlr_drake import observation
+from vlr_drake import kinematics, motion, observation
 from vlr_drake.hand import model_o
 from vlr_drake.identify import IdentifyOptions, _truth_grasp, run_identification
 from vlr_drake.model_plant import ModelPlant
@@ -1606,6 +1606,17 @@ def test_prior_angles_can_be_drawn_where_each_hypothesis_own_springs_and_links_s
         k = k_mid.copy()
         k[0, 1] = v
         np.testing.assert_allclose(row, commanded_equilibrium(h, theta0, a0, l, L_mid, k[None])[0], atol=1e-12)
+    # each link row holds the object the nominal grasp holds: its contacts at the same mutual
+    # distances (a review found each row recomputing them with its own link, a smaller or
+    # larger object for each link, which barely moved the angles)
+    D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta0[None], a0[None], L_mid[None]))
+    assert L_tab.values.size >= 3
+    for v, row in zip(L_tab.values, L_tab.theta, strict=True):
+        L = L_mid.copy()
+        L[2, 0] = v
+        np.testing.assert_allclose(motion.contact_distances_sq(h, kinematics.contacts(h, row[None], a0[None], L[None])),
+                                   D2, rtol=1e-7)
+    assert np.abs(L_tab.theta[0] - center).max() > np.deg2rad(5.0)  # a short link must close further on it
     mid = np.sqrt(k_tab.values[1] * k_tab.values[2])  # between two nodes in log k; held beyond the ends
     np.testing.assert_allclose(k_tab.at(np.array([mid, 1e-3, 10.0])),
                                [0.5 * (k_tab.theta[1] + k_tab.theta[2]), k_tab.theta[0], k_tab.theta[-1]])
@@ -1632,3 +1643,57 @@ def test_prior_angles_can_be_drawn_where_each_hypothesis_own_springs_and_links_s
     assert len(f.settled) == 2
     with pytest.raises(ValueError, match="'angle_centers' must be one of"):
         pf.PriorConfig(angle_centers="placed").validate()
+
+
+def test_settled_prior_settles_with_the_weighed_object_once_and_says_what_it_leaves_out(monkeypatch):
+    """The settled prior (review): a weighed object's weight moves the settled grasp as a
+    move carries it (its middle mass at the balanced shares, following the angles); a spring
+    range the command cannot hold everywhere leaves values out with a warning that names
+    them; the ideal tendon, which has no stretch to settle through, is refused; and a
+    re-initialisation keeps the first settle's tables instead of settling again."""
+    from vlr_drake.grasps import commanded_equilibrium
+
+    h = model_o().model()
+    theta0, a0 = _truth_grasp(h, np.random.default_rng(0))
+    l = h.tendon_travel(theta0[None])[0] + 0.004
+    g = np.asarray(PhysicsConfig().gravity_in_palm())  # the physics plant's, in the palm frame
+    k_mid = h.stiffness.copy()
+    centers = {}
+    for lo, hi in ((0.027, 0.029), (0.24, 0.26)):
+        prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], angle_centers="settled", object_mass_unknown=True,
+                               object_mass_range=(lo, hi))
+        f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500, gravity_palm=g.tolist(),
+                                                           gravity_loads="following"), prior, np.random.default_rng(5))
+        f.tendon_command = l
+        centers[lo], _ = f.settled_angles(theta0, a0)
+        k_mid[0, 1] = prior.stiffness_middle()
+        expected, ok = commanded_equilibrium(h, theta0, a0, l, h.link_lengths, k_mid[None], gravity=g,
+                                             object_load=0.5 * (lo + hi) * pf.balanced_shares(h))
+        assert ok
+        np.testing.assert_allclose(centers[lo], expected, atol=1e-12)
+    assert np.abs(centers[0.24] - centers[0.027]).max() > np.deg2rad(0.3)  # a heavier object settles elsewhere
+
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], angle_centers="settled", stiffness_range=(0.001, 10.0))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), prior, np.random.default_rng(5))
+    f.tendon_command = l
+    with pytest.warns(UserWarning, match=r"no equilibrium of the grasp with the stiffness of finger 0 at \["):
+        _, (tab,) = f.settled_angles(theta0, a0)
+    assert 2 <= tab.values.size < pf.SETTLED_VALUES
+    with pytest.raises(ValueError, match="angle_centers 'settled' needs filter tendon 'elastic'"):
+        pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500, tendon="ideal", tendon_reference="implied"),
+                                    prior, np.random.default_rng(5))
+
+    prior = pf.PriorConfig(stiffness_unknown=[(0, 1)], angle_centers="settled")
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=2000), prior, np.random.default_rng(5))
+    R, t = np.eye(3), np.array([0.0, 0.0, 0.1])
+    f.initialise(theta0, a0, R, t, tendon_command=l)
+    tables, center = f.settled, f._theta_center.copy()
+
+    def settle_again(*args):
+        raise AssertionError("a re-initialisation settled the grasp again")
+
+    monkeypatch.setattr(f, "settled_angles", settle_again)
+    for _ in range(2):  # around the estimate, then (recent) around the kept centre
+        f._reinitialise(R, t)
+    assert f.reinitialisations == 2 and f.settled is tables
+    np.testing.assert_array_equal(f._theta_center, center)

@@ -1366,6 +1366,10 @@ class SelfIdentificationFilter:
             # is not the rolling model's; every hand the project ships is determinate
             raise ValueError(f"filter: motion_model 'rolling' needs a statically determinate hand (N K = N + "
                              f"constraints); '{hand.spec.name}' has {N} fingers of {K} joints")
+        if prior.angle_centers == "settled" and self.config.tendon != "elastic":
+            raise ValueError("prior: angle_centers 'settled' needs filter tendon 'elastic': the grasp settles "
+                             "under the motors' command through the tendons' stretch, which the ideal tendon "
+                             "does not have")
         if prior.object_mass_unknown:
             if not np.any(self.config.gravity_palm):
                 raise ValueError("prior: object_mass_unknown needs gravity: set filter 'gravity_palm' (the gravity "
@@ -1591,15 +1595,20 @@ class SelfIdentificationFilter:
 
     def settled_angles(self, theta_center, a_center) -> tuple[np.ndarray, list[SettledAngles]]:
         """``PriorConfig.angle_centers`` "settled": the nominal grasp ``theta_center`` (N, K)
-        settled by the filter's model under the tendon command (:attr:`tendon_command`), the
-        contacts ``a_center`` held at their mutual distances, with every unknown spring and
-        link at its prior middle (the new centre), and again with each unknown at
+        settled under the tendon command (:attr:`tendon_command`), with every unknown spring
+        and link at its prior middle (the new centre), and again with each unknown at
         :data:`SETTLED_VALUES` values across its range (log-spaced for a spring), the others
-        at their middles (the tables). The model's loads as in a move: the links' weight and
-        a weighed object's middle mass at its balanced shares (:func:`balanced_shares`).
-        Values where the model finds no pulling equilibrium are left out of a table (a
-        spring too soft for the command); a table with fewer than two values, or a centre
-        with no equilibrium, falls back to the nominal grasp, with a warning."""
+        at their middles (the tables). Every settle holds the same object: the contacts
+        ``a_center`` at the mutual distances they have in the nominal grasp with the middle
+        links, so that a table row says where a hand with that link would hold the object
+        the nominal grasp holds. The model is Eq. 9's (:func:`grasps.commanded_equilibrium`),
+        also for a rolling filter (whose pads' roll is not in a settle from rest), with the
+        loads of a move: the links' weight and a weighed object's middle mass at its
+        balanced shares (:func:`balanced_shares`). Values where the model finds no pulling
+        equilibrium within the joints' limits are left out of a table (a spring too soft for
+        the command, a link too short for the object), with a warning that names them; a
+        table with fewer than two values, or a centre with no such equilibrium, falls back
+        to the nominal grasp, with a warning."""
         from vlr_drake.grasps import commanded_equilibrium
 
         h, pr = self.hand, self.prior
@@ -1615,16 +1624,21 @@ class SelfIdentificationFilter:
         if pr.object_mass_unknown:
             load = 0.5 * sum(pr.object_mass_range) * balanced_shares(h)[None]
 
+        # the object every settle holds: the nominal grasp's contact distances (middle links)
+        D2 = motion.contact_distances_sq(h, kinematics.contacts(h, theta_center[None], a_center[None], L_mid[None]))
+
         def settle(k, L):
             kw = self._loads(theta_center[None], a_center[None], L[None], load)
             if "external_torque" in kw:
                 kw["external_torque"] = kw["external_torque"][0]
-            return commanded_equilibrium(h, theta_center, a_center, self.tendon_command, L, k[None], **kw)
+            th, ok = commanded_equilibrium(h, theta_center, a_center, self.tendon_command, L, k[None], D2=D2, **kw)
+            return th, ok and bool(h.within_joint_limits(th[None])[0])
 
         center, ok = settle(k_mid, L_mid)
         if not ok:
             warnings.warn("prior: angle_centers 'settled': the model finds no equilibrium of the nominal grasp "
-                          "under the tendon command; the angles are drawn around the nominal grasp", stacklevel=3)
+                          "under the tendon command within the joints' limits; the angles are drawn around the "
+                          "nominal grasp", stacklevel=3)
             return theta_center, []
         tables = []
         unknowns = [("stiffness", fi, j) for fi, j in pr.stiffness_unknown] + [("link", fi, 0) for fi in pr.links_unknown]
@@ -1647,6 +1661,11 @@ class SelfIdentificationFilter:
                               f"{values.size} values of the {parameter} of finger {fi}; its hypotheses' angles are "
                               "drawn around the settled centre", stacklevel=3)
                 continue
+            if len(kept) < values.size:
+                dropped = np.round(np.setdiff1d(values, kept), 4).tolist()
+                warnings.warn(f"prior: angle_centers 'settled': the model finds no equilibrium of the grasp with the "
+                              f"{parameter} of finger {fi} at {dropped}; draws there take angles interpolated between the "
+                              f"values it settles ({np.round(kept, 4).tolist()}), or the nearest one's beyond them", stacklevel=3)
             tables.append(SettledAngles(parameter, int(fi), int(j), np.array(kept), np.array(rows)))
         return center, tables
 
