@@ -88,6 +88,11 @@ def test_example_scenario_builds_and_runs(path: Path):
                                                                             s.physics)[0])
             assert not np.allclose(b.theta_center.ravel(), start["theta_placed"])  # placed with the true links
             np.testing.assert_array_equal(b.filter._hand.link_lengths, believed.model().link_lengths)
+            # nor an unknown spring's true value (a review found the filter's hand, which a
+            # trace keeps, holding it)
+            np.testing.assert_array_equal(b.filter._hand.stiffness, believed.model().stiffness)
+            for fi, j in prior.stiffness_unknown:
+                assert b.filter._hand.stiffness[fi, j] != spec.model().stiffness[fi, j]
         else:
             np.testing.assert_allclose(b.theta_center.ravel(), start["theta_placed"])
         pad = PAD_FRACTION * b.hand.distal_length
@@ -175,7 +180,9 @@ def test_stiffness_scenario_true_hand_differs_from_the_filters():
     true_plant = b.plant.GetMyContextFromRoot(ctx)
     truth = b.plant._p(true_plant)
     assert truth.stiffness[0, 1] == pytest.approx(0.22)
-    assert b.hand.stiffness[0, 1] == pytest.approx(0.16)
+    # the filter's hand: the unknown spring at its prior's middle, not the preset's 0.16
+    assert b.hand.stiffness[0, 1] == pytest.approx(b.scenario.prior.to_prior().stiffness_middle())
+    assert b.filter._hand.stiffness[0, 1] == b.hand.stiffness[0, 1]
 
 
 def test_novel_finger_scenarios_hold_failed_hypotheses_on_the_physics_plant():

@@ -418,7 +418,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
         from vlr_drake.identify import default_likelihood_width
 
         config = replace(config, likelihood_width=default_likelihood_width(s.plant, s.experiment()))
-    h_filter = believed.model() if prior.links_unknown else h  # no replaced link's true length
+    h_filter = believed.model()  # no replaced link's true length, no unknown spring's true value
     flt = SelfIdentificationSystem(h_filter, config, prior, theta_c, a_c, T, seed=s.seed + SEED_FILTER)
     ctrl = _add_control(builder, s, h_filter, l0, T, window) if s.control.goals_mm else None
     wire_identification(builder, policy, plant, sensor, flt, sensor_name, s.filter_action,
