@@ -473,14 +473,14 @@ def replay_trace(args) -> dict:
     table = {row: _replay_row(v, args.draws) for row, v in measured.items()}
     if len(jobs) > 1 and table:
         over = "the traces" if args.draws == 1 else "every draw of every trace"
-        print(f"rows (the paper's measure, mean +- SD over {over}):")
+        print(f"rows (the paper's measure, mean +- SD over {over}; the population SD, as reproduce's):")
         for row, t in table.items():
             print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} runs; truth inside "
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
             if args.draws > 1:
                 print(f"    {t['traces']} traces x {args.draws} draws: the traces' means over their draws "
                       f"{t['trace_mean']:.4g} +- {t['trace_mean_sd']:.3g}; one draw moves it by {t['draw_sd']:.3g} "
-                      f"(SD over a trace's draws, mean over the traces)")
+                      f"(the sample SD over a trace's draws, few as they are, mean over the traces)")
     pooled_table = {row: _replay_row(v, 1) for row, v in pooled_measured.items()}
     if len(pooled) > 1 and pooled_table:
         print(f"rows of the pooled estimates (mean +- SD over the traces, each its {args.draws} draws' mixture):")
@@ -489,8 +489,8 @@ def replay_trace(args) -> dict:
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
     spread = draw_spread([(i, run) for (i, *_), run in zip(jobs, runs, strict=True)]) if args.draws > 1 and values is None else {}
     if spread:
-        print("the identified hand parameters' estimates, one draw of the filter against another (SD over a "
-              "trace's draws; no truth needed):")
+        print("the identified hand parameters' estimates, one draw of the filter against another (the sample SD "
+              "over a trace's draws; no truth needed):")
         for name, d in spread.items():
             print(f"  {name}: {d['sd_mean']:.4g} {d['unit']} (mean over the traces; largest {d['sd_max']:.4g})")
     out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
@@ -545,7 +545,9 @@ def draw_spread(runs: list) -> dict:
 def _replay_row(values: list, draws: int) -> dict:
     """One row of a replay's table from ``values``, (trace index, measure, truth inside) per
     run: the mean +- SD over every run and, over the traces, each trace's mean over its
-    ``draws`` draws (mean, SD) and the draws' own spread (SD within a trace, mean over them)."""
+    ``draws`` draws (mean, SD) and the draws' own spread (SD within a trace, mean over them).
+    The SDs across runs and traces are population SDs, as ``reproduce``'s rows; the one within
+    a trace's few draws is the sample SD."""
     idx = np.array([i for i, _, _ in values])
     m = np.array([v for _, v, _ in values], float)
     row = {"mean": float(m.mean()), "sd": float(m.std()),
