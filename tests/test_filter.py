@@ -1265,12 +1265,15 @@ def test_object_weight_is_identified_where_the_truth_has_it():
     and has narrowed from the prior's (0-250 g), each contact's share lies inside its interval,
     and the joints are found; a filter that knows only the links' weight is further off.
     Measured (seeds 0-2): mass 92 / 151 / 107 g, joints 1.04 / 0.61 / 1.32 deg against
-    1.93 / 2.88 / 2.12 without the object's weight."""
+    1.93 / 2.88 / 2.12 without the object's weight. Since roughening folds the mass back at
+    its range's ends instead of clipping it there (2026-12-06; seeds 0-3): mass 114 / 125 /
+    102 / 148 g in intervals 149 / 182 / 97 / 140 g wide (the prior cloud's: 238 g), joints
+    1.02 / 0.35 / 1.21 / 0.78 deg."""
     load_true = 0.12 * np.array([0.5, 0.25, 0.25])
     for seed in (0, 1):
         est, truth = _run_weighed(seed, load_true, True)
         lo, hi = float(est["object_mass_lo"]), float(est["object_mass_hi"])
-        assert lo <= 0.12 <= hi and hi - lo < 0.6 * 0.25, (seed, lo, float(est["object_mass"]), hi)
+        assert lo <= 0.12 <= hi and hi - lo < 0.8 * 0.25, (seed, lo, float(est["object_mass"]), hi)
         # the split is weakly identified in 40 actions, but honestly: each share inside its interval
         assert np.all((est["object_load_lo"] <= load_true) & (load_true <= est["object_load_hi"])), est["object_load"]
         err = np.rad2deg(np.abs(est["theta"] - truth.theta)).mean()
@@ -1320,6 +1323,21 @@ def test_weighed_object_mass_sets_the_object_weight_and_its_range():
             IdentifyOptions(plant="physics", object_mass=0.1, object_mass_tolerance=bad).validate()
     with pytest.raises(ValueError, match="needs link_weight"):
         IdentifyOptions(plant="model", object_mass=0.1).validate()
+    # a range given beside the weighed mass was replaced by the weighed one without a word (review)
+    with pytest.raises(ValueError, match=r"'object_mass_range' \(\(0.05, 0.1\)\) and the weighed object_mass"):
+        IdentifyOptions(plant="physics", object_mass=0.028,
+                        prior=pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.05, 0.1))).validate()
+    weighed = pf.PriorConfig(object_mass_unknown=True, object_mass_range=pf.weighed_mass_range(0.028, 0.25))
+    IdentifyOptions(plant="physics", object_mass=0.028, prior=weighed).validate()  # a weighed scenario's own range
+    # a range without the weight identified was dropped; a malformed one failed unnamed; grams
+    with pytest.raises(ValueError, match="'object_mass_range' \\(\\(0.05, 0.1\\)\\) needs object_mass_unknown"):
+        pf.PriorConfig(object_mass_range=(0.05, 0.1)).validate()
+    with pytest.raises(ValueError, match="'object_mass_range' must be \\(min, max\\)"):
+        pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 0.1, 0.2)).validate()
+    with pytest.warns(UserWarning, match="28 kg .*was it given in grams"):
+        pf.weighed_mass_range(28.0, 0.25)
+    with pytest.warns(UserWarning, match="was it given in grams"):
+        pf.PriorConfig(object_mass_unknown=True, object_mass_range=(0.0, 250.0)).validate()
     o = IdentifyOptions(plant="physics", experiment="stiffness", prior=pf.PriorConfig(stiffness_range=(0.1, 0.3)))
     assert _hands(o.validate(), np.random.default_rng(0))[2].stiffness_range == (0.1, 0.3)
     o = IdentifyOptions(plant="physics", experiment="novel_fingers", hand="NH2",
@@ -1353,6 +1371,22 @@ def test_object_weight_result_fields():
     assert len(res["object_load_estimate_kg"]) == h.N
     plain = estimate_errors(h, pf.PriorConfig(), est, truth)
     assert "object_mass_error_kg" not in plain
+    # the identified mass needs no truth (a hardware run's report): a skewed cloud's weighted
+    # estimate and quantiles against the prior cloud's (review)
+    from vlr_drake.identify import hand_parameter_report
+
+    est0 = est
+    m = load.sum(axis=1)
+    f.particles.log_w = np.where(m < 0.1, 0.0, -np.inf)  # only the hypotheses lighter than 100 g
+    est = f.estimate()
+    q = hand_parameter_report(h, f.prior, est, est0)["object_mass_identified"]
+    assert q["unit"] == "kg" and q["prior_range"] == [0.0, 0.25]
+    assert q["estimate"] == pytest.approx(m[m < 0.1].mean(), rel=1e-12)
+    assert 0.0 <= q["interval"][0] < q["estimate"] < q["interval"][1] < 0.1 <= q["prior_interval"][1]
+    assert q["narrowed_to"] == pytest.approx((q["interval"][1] - q["interval"][0])
+                                             / (q["prior_interval"][1] - q["prior_interval"][0]))
+    assert 0.3 < q["narrowed_to"] < 0.5  # a cloud cut to 100 of its 250 g
+    assert hand_parameter_report(h, pf.PriorConfig(), est, est0)["object_mass_identified"] is None
 
 
 def test_contact_drift_keeps_the_model_plant_physical():

@@ -126,6 +126,35 @@ def test_the_hypotheses_draw_and_keep_their_object():
     f._roughen(taken)
     np.testing.assert_allclose(np.linalg.norm(taken.normals_O, axis=-1), 1.0, atol=1e-12)
     assert not np.allclose(taken.com_O, ps.com_O[idx])
+    # the roughened mass stays in its range, folded back at its ends: clipped, 4-5% of a
+    # weighed cloud sat on them after each roughening and its interval ended there (review)
+    f.prior.object_mass_range = (0.06, 0.09)
+    shares = ps.object_load / ps.object_load.sum(axis=1, keepdims=True)
+    ps.object_load = shares * np.linspace(0.06, 0.09, ps.size)[:, None]
+    f._roughen(ps)
+    m = ps.object_load.sum(axis=1)
+    assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12))
+    assert np.mean(np.isclose(m, 0.06) | np.isclose(m, 0.09)) < 0.002
+    assert abs(np.mean(m) - 0.075) < 0.002 and np.all(ps.object_load >= 0)
+
+
+def test_a_rolling_filter_refuses_what_it_would_not_use():
+    """The weights held through the prior's test while the moves carry them following the
+    angles, and the rolling model's object settings on the pinned model, were accepted and
+    silently mixed or dropped (review): each is refused by name."""
+    h = model_o().model()
+    g = GRAVITY.tolist()
+    for loads in (None, "held"):
+        with pytest.raises(ValueError, match="carries the weights following the angles"):
+            pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=3000, motion_model="rolling", gravity_palm=g,
+                                                           gravity_loads=loads), pf.PriorConfig(),
+                                        np.random.default_rng(0))
+    for cfg, prior, name in ((dict(object_curvature="round", normal_guess="circle"), {}, "object_curvature"),
+                             (dict(normal_guess="circle"), {}, "normal_guess"),
+                             ({}, dict(com_prior="balanced"), "com_prior")):
+        with pytest.raises(ValueError, match=f"{name} '.*' is the rolling model's"):
+            pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=3000, **cfg), pf.PriorConfig(**prior),
+                                        np.random.default_rng(0))
 
 
 def test_normals_tilted_in_their_fingers_planes():
@@ -362,4 +391,5 @@ def test_the_rolling_filter_identifies_a_rolling_hand():
     assert after.mean() < 0.5 * before.mean()
     inside = (est["theta_lo"] <= truth.theta) & (truth.theta <= est["theta_hi"])
     assert inside.mean() >= 0.8
-    assert est["object_mass_lo"] <= truth.mass <= est["object_mass_hi"]
+    # (the mass is not checked: 40 actions of 0.8 mm leave its interval most of the prior's
+    # 0-150 g, 24-149 g here, which would hold the truth untouched: a review)

@@ -408,7 +408,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     if config.gravity_loads is None:  # how the moves carry the links' weight: the experiment's default,
         from vlr_drake.identify import default_gravity_loads  # following with a weighed object's
 
-        config = replace(config, gravity_loads="following" if prior.object_mass_unknown
+        config = replace(config, gravity_loads="following" if prior.object_mass_unknown or config.motion_model == "rolling"
                          else default_gravity_loads(s.plant, s.experiment()))
     if config.stuck_probability is None:  # the plant's and experiment's default
         from vlr_drake.identify import default_stuck_probability
@@ -731,7 +731,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "hardware": _hardware_summary(built.plant),
             "control": None if goals is None else goals.report(),
             **(hand_parameter_report(flt.hand, flt.prior, flt.estimates[-1], flt.estimates[0]) if flt is not None
-               else {"hand_parameters": {}, "weakly_identified": []}),
+               else {"hand_parameters": {}, "weakly_identified": [], "object_mass_identified": None}),
             "draws": draws,
         }
     finally:
@@ -790,6 +790,8 @@ def main(argv: list[str] | None = None) -> int:
 
         for name, q in r["hand_parameters"].items():
             print(hand_parameter_line(name, q) + (" (weakly identified)" if name in r["weakly_identified"] else ""))
+        if r.get("object_mass_identified"):
+            print(hand_parameter_line("object mass", r["object_mass_identified"]))
         if "pooled" in r:
             print_pooled(dict(r["pooled"]), "")
         if r["control"] is not None:

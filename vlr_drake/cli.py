@@ -350,6 +350,8 @@ def print_pooled(p: dict, indent: str) -> tuple[dict, dict | None]:
     print(f"{indent}pooled over {p['draws']} draws (the mixture of their clouds after {p['steps']} steps):")
     for name, q in p["hand_parameters"].items():
         print(f"{indent}  {hand_parameter_line(name, q)}")
+    if p.get("object_mass_identified"):
+        print(f"{indent}  {hand_parameter_line('object mass', p['object_mass_identified'])}")
     if errors:
         print(f"{indent}  {_errors_line(errors)}")
     return p, errors
@@ -422,7 +424,8 @@ def replay_trace(args) -> dict:
                    "converged_at": r["converged_at"],
                    "steps": r["steps"],
                    "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
-                   "weakly_identified": r["weakly_identified"], **(r.get("errors") or {})}
+                   "weakly_identified": r["weakly_identified"], "object_mass_identified": r["object_mass_identified"],
+                   **(r.get("errors") or {})}
             conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
             if r["steps"] < trace.steps:
                 conv += f", where a run stops: {r['steps']} of the trace's {trace.steps} steps replayed"

@@ -685,10 +685,17 @@ class PriorConfig:
             repeated = sorted({e for e in entries if entries.count(e) > 1})
             if repeated:
                 raise ValueError(f"prior: {name} names {repeated} more than once")
+        if np.shape(self.object_mass_range) != (2,):
+            raise ValueError(f"prior: 'object_mass_range' must be (min, max) [kg], got {self.object_mass_range}")
         if self.object_mass_unknown:
             lo, hi = self.object_mass_range
             if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
                 raise ValueError(f"prior: 'object_mass_range' must be 0 <= min < max [kg], got {self.object_mass_range}")
+            _warn_if_grams(hi, "prior: 'object_mass_range'")
+        elif tuple(self.object_mass_range) != PriorConfig.object_mass_range:  # said, not silently dropped
+            raise ValueError(f"prior: 'object_mass_range' ({tuple(self.object_mass_range)}) needs object_mass_unknown "
+                             "(the object's weight identified); without it the filter carries no object weight, and a "
+                             "weighed object_mass makes its own range")
         if self.com_prior not in COM_PRIORS:
             raise ValueError(f"prior: 'com_prior' must be one of {COM_PRIORS}, got '{self.com_prior}'")
         if not (np.isfinite(self.com_half_width) and self.com_half_width >= 0):
@@ -781,6 +788,17 @@ OBJECT_CURVATURES = ("flat", "round")
 MIN_CURVATURE_RADIUS = 0.005
 
 
+#: Heavier than this [kg] an object mass is taken for grams given as kilograms (a warning):
+#: the hands here hold tens to hundreds of grams (the objects in vlr_drake.objects: 28-133 g).
+HEAVY_OBJECT = 5.0
+
+
+def _warn_if_grams(mass, what: str) -> None:
+    if mass > HEAVY_OBJECT:
+        warnings.warn(f"{what}: {mass:g} kg is more than any object these hands hold (the objects here "
+                      f"weigh 28-133 g); masses are in kilograms: was it given in grams?", stacklevel=3)
+
+
 def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
     """The object's mass range [kg] (PriorConfig.object_mass_range) for an object weighed at
     ``mass`` [kg] and known within +-``tolerance`` (a fraction of it, in (0, 1)): (mass (1 -
@@ -789,6 +807,7 @@ def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
         raise ValueError(f"object_mass must be the object's weighed mass, a finite number > 0 [kg], got {mass!r}")
     if not (kinematics.is_number(tolerance) and 0 < tolerance < 1):
         raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got {tolerance!r}")
+    _warn_if_grams(mass, "object_mass")
     return float(mass) * (1.0 - tolerance), float(mass) * (1.0 + tolerance)
 
 
@@ -1366,6 +1385,18 @@ class SelfIdentificationFilter:
             # is not the rolling model's; every hand the project ships is determinate
             raise ValueError(f"filter: motion_model 'rolling' needs a statically determinate hand (N K = N + "
                              f"constraints); '{hand.spec.name}' has {N} fingers of {K} joints")
+        if self.config.motion_model == "rolling" and np.any(self.config.gravity_palm) \
+                and self.config.gravity_loads != "following":  # None is "held"
+            raise ValueError(f"filter: motion_model 'rolling' carries the weights following the angles in every move; "
+                             f"gravity_loads '{self.config.gravity_loads or 'held'}' would hold them through the "
+                             "prior's test of a physical grasp: set gravity_loads 'following'")
+        if self.config.motion_model != "rolling":  # the rolling model's object: said, not silently dropped
+            for name, value, default in (("com_prior", prior.com_prior, "contacts"),
+                                         ("object_curvature", self.config.object_curvature, "flat"),
+                                         ("normal_guess", self.config.normal_guess, "flexion_plane")):
+                if value != default:
+                    raise ValueError(f"filter: {name} '{value}' is the rolling model's (the object's centre of mass, "
+                                     f"shape and normals); motion_model '{self.config.motion_model}' has none")
         if prior.angle_centers == "settled" and self.config.tendon != "elastic":
             raise ValueError("prior: angle_centers 'settled' needs filter tendon 'elastic': the grasp settles "
                              "under the motors' command through the tendons' stretch, which the ideal tendon "
@@ -2053,7 +2084,10 @@ class SelfIdentificationFilter:
             load = np.maximum(x[:, c : c + h.N], 0.0)
             lo, hi = pr.object_mass_range
             mass = load.sum(axis=1)
-            fix = np.clip(mass, lo, hi) / np.where(mass > 0, mass, 1.0)
+            # the roughened mass folded back at the range's ends (clipped, 4-5% of a weighed
+            # cloud sat on them after each roughening and the interval ended on the bound: a
+            # review), the shares kept
+            fix = _reflect_into(mass, lo, hi) / np.where(mass > 0, mass, 1.0)
             load *= fix[:, None]
             load[mass <= 0] = lo / h.N
             ps.object_load = load

@@ -369,13 +369,20 @@ class IdentifyOptions:
         if self.object_mass is not None:
             pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)  # (names a bad one)
             self.object_weight = True  # a weighed object is an object whose weight the filter carries
+            given = None if self.prior is None else tuple(self.prior.object_mass_range)
+            weighed = pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)
+            if given not in (None, tuple(pf.PriorConfig().object_mass_range), weighed):
+                # the weighed range would replace it without a word
+                raise ValueError(f"prior 'object_mass_range' ({given}) and the weighed "
+                                 f"object_mass ({self.object_mass}) both say what the object weighs: a weighed "
+                                 "object's range is object_mass +- object_mass_tolerance")
         if self.prior is not None and self.prior.object_mass_unknown:
             self.object_weight = True  # (a scenario's prior may ask for it): the same needs
         if self.object_weight and not self.link_weight:
             raise ValueError("object_weight (or a weighed object_mass) needs link_weight (the gravity of the physics "
                              "plant's mounting): the filter carries the object's weight with the links'")
         if self.filter.gravity_loads is None:
-            self.filter.gravity_loads = ("following" if self.object_weight
+            self.filter.gravity_loads = ("following" if self.object_weight or self.filter.motion_model == "rolling"
                                          else default_gravity_loads(self.plant, self.experiment))
         if self.object_weight and self.filter.gravity_loads != "following":
             raise ValueError("object_weight needs filter gravity_loads 'following' (held through a move, the "
@@ -748,7 +755,9 @@ def hand_parameter_report(hand, prior: pf.PriorConfig, est: dict, est0: dict) ->
     prior range, and ``narrowed_to``, the interval's width as a fraction of the prior cloud's;
     with the names of those still weakly identified (``narrowed_to`` above
     :data:`WEAKLY_IDENTIFIED`). Needs no truth, so it holds for a hardware run as well. Names:
-    ``stiffness:<finger>/<joint>`` and ``link_length:<finger>``; values in SI units."""
+    ``stiffness:<finger>/<joint>`` and ``link_length:<finger>``; values in SI units. Beside
+    them ``object_mass_identified``: the same fields for the object's mass [kg] where the
+    filter identifies its weight (a hardware run's only report of it), else None."""
     out = {}
     for name, key, (fi, j), (p_lo, p_hi), unit in _identified_parameters(hand, prior):
         lo, hi, lo0, hi0 = (float(e[k][fi, j]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
@@ -757,9 +766,18 @@ def hand_parameter_report(hand, prior: pf.PriorConfig, est: dict, est0: dict) ->
         out[name] = {"finger": fi, "joint": j, "estimate": float(est[key][fi, j]), "interval": [lo, hi],
                      "prior_interval": [lo0, hi0], "prior_range": [float(p_lo), float(p_hi)],
                      "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": unit}
+    mass = None  # the object's identified mass (PriorConfig.object_mass_unknown), the same fields
+    if prior.object_mass_unknown and est.get("object_mass") is not None:
+        lo, hi, lo0, hi0 = (float(e[k]) for e, k in ((est, "object_mass_lo"), (est, "object_mass_hi"),
+                                                     (est0, "object_mass_lo"), (est0, "object_mass_hi")))
+        defined = np.isfinite([lo, hi, lo0, hi0]).all() and hi0 > lo0
+        mass = {"estimate": float(est["object_mass"]), "interval": [lo, hi], "prior_interval": [lo0, hi0],
+                "prior_range": [float(x) for x in prior.object_mass_range],
+                "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": "kg"}
     return {"hand_parameters": out,
             "weakly_identified": [n for n, v in out.items()
-                                  if v["narrowed_to"] is not None and v["narrowed_to"] > WEAKLY_IDENTIFIED]}
+                                  if v["narrowed_to"] is not None and v["narrowed_to"] > WEAKLY_IDENTIFIED],
+            "object_mass_identified": mass}
 
 
 def _identified_parameters(hand, prior: pf.PriorConfig):

@@ -199,6 +199,9 @@ class PriorSettings:
                 raise ValueError(f"prior: 'object_mass_range' ({self.object_mass_range}) and 'object_mass' "
                                  f"({self.object_mass}) both say what the object weighs: a weighed object's "
                                  "range is object_mass +- object_mass_tolerance")
+        elif self.object_mass_tolerance != PriorSettings.object_mass_tolerance:  # said, not silently dropped
+            raise ValueError(f"prior: 'object_mass_tolerance' ({self.object_mass_tolerance}) needs the object's "
+                             "weighed mass: 'object_mass'")
         elif ranged and not self.object_mass_unknown:  # said, not silently dropped
             raise ValueError(f"prior: 'object_mass_range' ({self.object_mass_range}) needs object_mass_unknown: true "
                              "(the object's weight identified)")
@@ -838,7 +841,10 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         object=s.object,
         object_spec=copy.deepcopy(s.object_spec),
         filter=copy.deepcopy(s.filter),
-        prior=s.prior.to_prior(),
+        # a weighed object's range is the run's to make from object_mass and its tolerance
+        # (IdentifyOptions), which a flag may weigh again
+        prior=dataclasses.replace(s.prior, object_mass=None, object_mass_unknown=True).to_prior()
+        if s.prior.object_mass is not None else s.prior.to_prior(),
         object_mass=s.prior.object_mass,
         object_mass_tolerance=s.prior.object_mass_tolerance,
         link_weight=s.link_weight,
