@@ -68,7 +68,8 @@ def test_hand_parameter_report_measures_how_far_the_data_narrowed_each_parameter
     rep = hand_parameter_report(h, prior, point, point)
     assert all(v["narrowed_to"] is None for v in rep["hand_parameters"].values()) and rep["weakly_identified"] == []
     # nothing unknown: nothing to report
-    assert hand_parameter_report(h, pf.PriorConfig(), start, start) == {"hand_parameters": {}, "weakly_identified": []}
+    assert hand_parameter_report(h, pf.PriorConfig(), start, start) == {"hand_parameters": {}, "weakly_identified": [],
+                                                                           "object_mass_identified": None}
     for bad in (0, True, 8.5, pf.motion.MAX_ITER + 1):
         with pytest.raises(ValueError, match="newton_loose_after"):
             pf.FilterConfig(newton_loose_after=bad).validate()

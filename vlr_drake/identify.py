@@ -758,22 +758,19 @@ def hand_parameter_report(hand, prior: pf.PriorConfig, est: dict, est0: dict) ->
     ``stiffness:<finger>/<joint>`` and ``link_length:<finger>``; values in SI units. Beside
     them ``object_mass_identified``: the same fields for the object's mass [kg] where the
     filter identifies its weight (a hardware run's only report of it), else None."""
-    out = {}
-    for name, key, (fi, j), (p_lo, p_hi), unit in _identified_parameters(hand, prior):
-        lo, hi, lo0, hi0 = (float(e[k][fi, j]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
-                                                             (est0, f"{key}_lo"), (est0, f"{key}_hi")))
+    def entry(key, at, prior_range, unit):  # est[key][at] with its interval, against the prior cloud's
+        lo, hi, lo0, hi0 = (float(np.asarray(e[k])[at]) for e, k in ((est, f"{key}_lo"), (est, f"{key}_hi"),
+                                                                     (est0, f"{key}_lo"), (est0, f"{key}_hi")))
         defined = np.isfinite([lo, hi, lo0, hi0]).all() and hi0 > lo0  # else None: nothing to compare
-        out[name] = {"finger": fi, "joint": j, "estimate": float(est[key][fi, j]), "interval": [lo, hi],
-                     "prior_interval": [lo0, hi0], "prior_range": [float(p_lo), float(p_hi)],
-                     "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": unit}
-    mass = None  # the object's identified mass (PriorConfig.object_mass_unknown), the same fields
-    if prior.object_mass_unknown and est.get("object_mass") is not None:
-        lo, hi, lo0, hi0 = (float(e[k]) for e, k in ((est, "object_mass_lo"), (est, "object_mass_hi"),
-                                                     (est0, "object_mass_lo"), (est0, "object_mass_hi")))
-        defined = np.isfinite([lo, hi, lo0, hi0]).all() and hi0 > lo0
-        mass = {"estimate": float(est["object_mass"]), "interval": [lo, hi], "prior_interval": [lo0, hi0],
-                "prior_range": [float(x) for x in prior.object_mass_range],
-                "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": "kg"}
+        return {"estimate": float(np.asarray(est[key])[at]), "interval": [lo, hi], "prior_interval": [lo0, hi0],
+                "prior_range": [float(x) for x in prior_range],
+                "narrowed_to": (hi - lo) / (hi0 - lo0) if defined else None, "unit": unit}
+
+    out = {name: {"finger": fi, "joint": j, **entry(key, (fi, j), p_range, unit)}
+           for name, key, (fi, j), p_range, unit in _identified_parameters(hand, prior)}
+    # the object's identified mass (PriorConfig.object_mass_unknown), the same fields
+    mass = (entry("object_mass", (), prior.object_mass_range, "kg")
+            if prior.object_mass_unknown and est.get("object_mass") is not None else None)
     return {"hand_parameters": out,
             "weakly_identified": [n for n, v in out.items()
                                   if v["narrowed_to"] is not None and v["narrowed_to"] > WEAKLY_IDENTIFIED],
