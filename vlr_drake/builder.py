@@ -408,8 +408,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     if config.gravity_loads is None:  # how the moves carry the links' weight: the experiment's default,
         from vlr_drake.identify import default_gravity_loads  # following with a weighed object's
 
-        config = replace(config, gravity_loads="following" if prior.object_mass_unknown or config.motion_model == "rolling"
-                         else default_gravity_loads(s.plant, s.experiment()))
+        config = replace(config, gravity_loads=default_gravity_loads(s.plant, s.experiment(), prior.object_mass_unknown,
+                                                                     config.motion_model))
     if config.stuck_probability is None:  # the plant's and experiment's default
         from vlr_drake.identify import default_stuck_probability
 

@@ -1391,9 +1391,9 @@ class SelfIdentificationFilter:
                              f"gravity_loads '{self.config.gravity_loads or 'held'}' would hold them through the "
                              "prior's test of a physical grasp: set gravity_loads 'following'")
         if self.config.motion_model != "rolling":  # the rolling model's object: said, not silently dropped
-            for name, value, default in (("com_prior", prior.com_prior, "contacts"),
-                                         ("object_curvature", self.config.object_curvature, "flat"),
-                                         ("normal_guess", self.config.normal_guess, "flexion_plane")):
+            for name, value, default in (("com_prior", prior.com_prior, PriorConfig.com_prior),
+                                         ("object_curvature", self.config.object_curvature, FilterConfig.object_curvature),
+                                         ("normal_guess", self.config.normal_guess, FilterConfig.normal_guess)):
                 if value != default:
                     raise ValueError(f"filter: {name} '{value}' is the rolling model's (the object's centre of mass, "
                                      f"shape and normals); motion_model '{self.config.motion_model}' has none")

@@ -195,9 +195,13 @@ def default_link_weight(plant: str, experiment: str) -> bool:
     return LINK_WEIGHT.get((plant, experiment), False)
 
 
-def default_gravity_loads(plant: str, experiment: str) -> str:
-    """FilterConfig.gravity_loads of ``experiment`` on ``plant``: its entry in GRAVITY_LOADS,
-    else "held"."""
+def default_gravity_loads(plant: str, experiment: str, object_weight: bool = False,
+                          motion_model: str = "pinned") -> str:
+    """FilterConfig.gravity_loads of ``experiment`` on ``plant``: "following" where the filter
+    carries the object's weight (``object_weight``) or moves with the rolling model (whose
+    moves always follow), else the experiment's entry in GRAVITY_LOADS, else "held"."""
+    if object_weight or motion_model == "rolling":
+        return "following"
     return GRAVITY_LOADS.get(("model" if plant == "model" else "physics", experiment), "held")
 
 
@@ -367,10 +371,9 @@ class IdentifyOptions:
             raise ValueError("link_weight needs the physics plant: the model plant's truth is Eq. 9, without the "
                              "links' weight")
         if self.object_mass is not None:
-            pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)  # (names a bad one)
+            weighed = pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)  # (names a bad one)
             self.object_weight = True  # a weighed object is an object whose weight the filter carries
             given = None if self.prior is None else tuple(self.prior.object_mass_range)
-            weighed = pf.weighed_mass_range(self.object_mass, self.object_mass_tolerance)
             if given not in (None, tuple(pf.PriorConfig().object_mass_range), weighed):
                 # the weighed range would replace it without a word
                 raise ValueError(f"prior 'object_mass_range' ({given}) and the weighed "
@@ -382,8 +385,8 @@ class IdentifyOptions:
             raise ValueError("object_weight (or a weighed object_mass) needs link_weight (the gravity of the physics "
                              "plant's mounting): the filter carries the object's weight with the links'")
         if self.filter.gravity_loads is None:
-            self.filter.gravity_loads = ("following" if self.object_weight or self.filter.motion_model == "rolling"
-                                         else default_gravity_loads(self.plant, self.experiment))
+            self.filter.gravity_loads = default_gravity_loads(self.plant, self.experiment, self.object_weight,
+                                                              self.filter.motion_model)
         if self.object_weight and self.filter.gravity_loads != "following":
             raise ValueError("object_weight needs filter gravity_loads 'following' (held through a move, the "
                              "object's weight misses its stiffness)")
