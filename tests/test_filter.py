@@ -816,6 +816,38 @@ def test_centred_draws_fold_back_at_the_prior_bounds():
     np.testing.assert_allclose(pf._reflect_into(np.array([0.5, 1.2, -0.3, 2.7]), 0.0, 1.0), [0.5, 0.8, 0.3, 0.7])
 
 
+def test_roughening_folds_springs_links_and_contacts_back_at_their_ranges():
+    """A cloud spread over its whole range, roughened: every spring, link and contact stays
+    in its range and none piles on a bound (clipped, 4-5% of each sat exactly on one), and
+    the cloud keeps its mean."""
+    from vlr_drake.hand import hand_by_name
+
+    h = hand_by_name("NH2").model()
+    prior = pf.PriorConfig(links_unknown=[0, 1], stiffness_unknown=[(0, 1)])
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=20000, roughening=0.3), prior,
+                                    np.random.default_rng(2))
+    ps = f.initialise(th, a, *plant.measure()[:2], tendon_command=plant.state.tendon_command)
+    n = ps.size
+    (llo, lhi), (klo, khi) = prior.link_range, prior.stiffness_range
+    alo, ahi = f._contact_bounds
+    L = ps.link_lengths.copy()
+    L[:, :2, 0] = np.linspace(llo, lhi, n)[:, None]
+    k = ps.stiffness.copy()
+    k[:, 0, 1] = np.linspace(klo, khi, n)
+    ps.link_lengths, ps.stiffness = L, k
+    ps.a = alo + (ahi - alo) * np.linspace(0.0, 1.0, n)[:, None]
+    before = f._unknowns(ps).mean(0)
+    f._roughen(ps)
+    for v, lo, hi in ((ps.link_lengths[:, :2, 0], llo, lhi), (ps.stiffness[:, 0, 1], klo, khi), (ps.a, alo, ahi)):
+        assert np.all((v >= lo - 1e-15) & (v <= hi + 1e-15))
+        assert np.mean(np.isclose(v, lo, rtol=0, atol=1e-9) | np.isclose(v, hi, rtol=0, atol=1e-9)) < 0.002
+    after = f._unknowns(ps).mean(0)
+    c = h.N * h.K + h.N  # the hand parameters' columns after the angles and contacts
+    np.testing.assert_allclose(after[c:], before[c:], rtol=0.01)
+
+
 def test_tendon_state_follows_the_commanded_pull():
     """tendon_reference "commanded": every hypothesis' stretch is l - R theta for the motors'
     absolute pull l, after initialisation, moves, resampling and roughening alike (so the

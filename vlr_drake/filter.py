@@ -2066,18 +2066,20 @@ class SelfIdentificationFilter:
         h, pr = self.hand, self.prior
         n = h.N * h.K
         ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
-        ps.a = np.clip(x[:, n : n + h.N], *self._contact_bounds)
+        # contacts, springs and links folded back at their ranges' ends, as the prior's draws
+        # are (clipped, up to 4% of an NH1 cloud's link sat on a bound after a roughening)
+        ps.a = _reflect_into(x[:, n : n + h.N], *self._contact_bounds)
         c = n + h.N
         if pr.stiffness_unknown:
             k = ps.stiffness.copy()
             for fi, j in pr.stiffness_unknown:
-                k[:, fi, j] = np.clip(x[:, c], *pr.stiffness_range)
+                k[:, fi, j] = _reflect_into(x[:, c], *pr.stiffness_range)
                 c += 1
             ps.stiffness = k
         if pr.links_unknown:
             L = ps.link_lengths.copy()
             for fi in pr.links_unknown:
-                L[:, fi, 0] = np.clip(x[:, c], *pr.link_range)
+                L[:, fi, 0] = _reflect_into(x[:, c], *pr.link_range)
                 c += 1
             ps.link_lengths = L
         if ps.object_load is not None:  # loads >= 0 with their sum, the mass, inside its range
