@@ -262,9 +262,10 @@ def test_hand_presets_are_taken_in_any_case(tmp_path):
 
 
 def test_a_true_hand_with_no_grasp_is_named(tmp_path, capsys):
-    """Model-plant truths no fingertip grasp can reach (5 m proximal links): the run says
-    which settings to check, as the diagram builder does."""
-    path = _scenario_file(tmp_path, "name: far\nplant: model\nmodel_plant: {link_lengths: [[5.0], [5.0], [5.0]]}\n")
+    """Model-plant truths no fingertip grasp can reach (3 mm proximal links; 5 m ones, the
+    test's until 2026-12-06, are refused as millimetres now): the run says which settings to
+    check, as the diagram builder does."""
+    path = _scenario_file(tmp_path, "name: short\nplant: model\nmodel_plant: {link_lengths: [[0.003], [0.003], [0.003]]}\n")
     assert main(["identify", "--scenario", str(path), "--iterations", "1", "--particles", "200", "--no-progress",
                  "--out", str(tmp_path)]) == 2
     assert "the true hand has no stable fingertip grasp to start from" in capsys.readouterr().err

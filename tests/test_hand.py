@@ -56,6 +56,11 @@ def test_novel_hands_replace_the_right_fingers():
         ("stiffness", 0.08, "field 'stiffness' must be a list of 2 numbers, got 0.08"),
         ("moment_arms", ["a", "b"], "field 'moment_arms' must be a list of 2 numbers"),
         ("distal_length", "long", "field 'distal_length' must be a number, got 'long'"),
+        # in another unit: each ran, and gave a wrong result or none (review)
+        ("link_lengths", [62.0], r"'link_lengths': \[62.0\] m .*given in millimetres"),
+        ("tendon_range", [0.0, 45.0], "'tendon_range'.*given in millimetres"),
+        ("joint_upper", [110.0, 110.0], "'joint_upper'.*given in degrees"),
+        ("link_density", 1.1, "'link_density'.*given in g/cm"),
     ],
 )
 def test_bad_finger_fields_are_named(field, value, message):
@@ -69,6 +74,8 @@ def test_too_few_fingers_and_unknown_names():
     spec = model_o()
     with pytest.raises(ValueError, match="at least 3 fingers"):
         HandSpec(name="two", fingers=spec.fingers[:2]).validate()
+    with pytest.raises(ValueError, match="'palm_radius': 75.0 m .*millimetres"):
+        HandSpec(name="mm", fingers=spec.fingers, palm_radius=75.0).validate()
     with pytest.raises(ValueError, match="unknown hand"):
         hand_by_name("NH9")
     with pytest.raises(ValueError, match="no finger 'pinky'"):

@@ -1,5 +1,6 @@
 """Scenario files: every example loads and validates; bad files fail naming the field and file."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -495,3 +496,28 @@ def test_a_field_given_twice_is_named(tmp_path):
     path.write_text("filter: &x {particles: 500, extra: *x}\n")
     with pytest.raises(ValueError, match=r"unknown field 'filter.extra'"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize("base, override, named", [
+    ("custom_hand_and_object.yaml", "prior: {links_unknown: [0], link_range: [30, 75]}", "prior: 'link_range'"),
+    ("model_plant.yaml", "prior: {contact_half_width: 8.0}", "prior: 'contact_half_width'"),
+    ("model_plant.yaml", "prior: {proximal_half_width: 20.0}", "prior: 'proximal_half_width'.*degrees"),
+    ("hardware.yaml", "filter: {gravity_palm: [0.0, 0.0, 9810.0]}", "filter: 'gravity_palm'.*mm/s"),
+    ("model_plant.yaml", "exploration: {span: 0.5, window: 6.0}", "exploration: 'window'"),
+    ("hardware.yaml", "hardware: {spool_radius: 5.0}", "'spool_radius'"),
+    ("custom_hand_and_object.yaml", "object_spec: {size: [80.0, 60.0, 40.0]}", "field 'size'"),
+])
+def test_values_in_another_unit_are_refused_by_name(base, override, named):
+    """A length in millimetres, an angle in degrees or gravity in mm/s^2 is refused naming
+    its field and the unit it looks like: each had run (a link range in mm "identified" a
+    48 m link; a spool radius in mm was blamed on start_tolerance_ticks; review)."""
+    with pytest.raises(ValueError, match=named) as info:
+        load_scenario(DIAGRAMS_DIR / base, override + "\n")
+    assert re.search("millimetres|degrees|mm/s", str(info.value))
+
+
+def test_an_object_mass_in_grams_is_warned_about():
+    """The object's own mass (the physics plant's) in grams had run into a failed grasp whose
+    message named the pretension and the placement (review)."""
+    with pytest.warns(UserWarning, match="'mass': 100 kg .*given in grams"):
+        load_scenario(DIAGRAMS_DIR / "custom_hand_and_object.yaml", "object_spec: {mass: 100.0}\n")

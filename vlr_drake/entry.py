@@ -49,10 +49,16 @@ def report(prog: str, error: BaseException) -> int:
 @contextlib.contextmanager
 def warning_lines(prog: str) -> Iterator[None]:
     """Within it, a warning is one line on stderr, ``prog: warning: message`` (Python's own
-    form adds the file, line and source of the call; a command's user wants what it says)."""
+    form adds the file, line and source of the call; a command's user wants what it says),
+    and each message is said once (a setting checked at several places warned at each)."""
+    said = set()
 
     def line(message, category, filename, lineno, line=None):
-        return f"{prog}: warning: {' '.join(str(message).split())}\n"
+        text = f"{prog}: warning: {' '.join(str(message).split())}\n"
+        if text in said:
+            return ""
+        said.add(text)
+        return text
 
     saved = warnings.formatwarning
     warnings.formatwarning = line  # not showwarning: a recording catch_warnings still records

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from vlr_drake import kinematics, motion, motion_rolling, observation
+from vlr_drake import kinematics, motion, motion_rolling, observation, units
 from vlr_drake.hand import HandModel, HandSpec
 from vlr_drake.kinematics import as_particles
 
@@ -661,6 +661,11 @@ class PriorConfig:
         bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
         if bad:
             raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
+        for name in ("proximal_half_width", "distal_half_width"):
+            units.check_angle(getattr(self, name), f"prior: '{name}'")
+        units.check_length(self.contact_half_width, "prior: 'contact_half_width'")
+        units.check_length(self.link_range, "prior: 'link_range'")
+        units.check_length(self.com_half_width, "prior: 'com_half_width'")
         for name in ("stiffness_range", "link_range"):
             lo, hi = getattr(self, name)
             if not (np.isfinite([lo, hi]).all() and 0 < lo < hi):
@@ -691,7 +696,7 @@ class PriorConfig:
             lo, hi = self.object_mass_range
             if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
                 raise ValueError(f"prior: 'object_mass_range' must be 0 <= min < max [kg], got {self.object_mass_range}")
-            _warn_if_grams(hi, "prior: 'object_mass_range'")
+            units.warn_if_grams(hi, "prior: 'object_mass_range'")
         elif tuple(self.object_mass_range) != PriorConfig.object_mass_range:  # said, not silently dropped
             raise ValueError(f"prior: 'object_mass_range' ({tuple(self.object_mass_range)}) needs object_mass_unknown "
                              "(the object's weight identified); without it the filter carries no object weight, and a "
@@ -788,17 +793,6 @@ OBJECT_CURVATURES = ("flat", "round")
 MIN_CURVATURE_RADIUS = 0.005
 
 
-#: Heavier than this [kg] an object mass is taken for grams given as kilograms (a warning):
-#: the hands here hold tens to hundreds of grams (the objects in vlr_drake.objects: 28-133 g).
-HEAVY_OBJECT = 5.0
-
-
-def _warn_if_grams(mass, what: str) -> None:
-    if mass > HEAVY_OBJECT:
-        warnings.warn(f"{what}: {mass:g} kg is more than any object these hands hold (the objects here "
-                      f"weigh 28-133 g); masses are in kilograms: was it given in grams?", stacklevel=3)
-
-
 def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
     """The object's mass range [kg] (PriorConfig.object_mass_range) for an object weighed at
     ``mass`` [kg] and known within +-``tolerance`` (a fraction of it, in (0, 1)): (mass (1 -
@@ -807,7 +801,7 @@ def weighed_mass_range(mass, tolerance) -> tuple[float, float]:
         raise ValueError(f"object_mass must be the object's weighed mass, a finite number > 0 [kg], got {mass!r}")
     if not (kinematics.is_number(tolerance) and 0 < tolerance < 1):
         raise ValueError(f"object_mass_tolerance must be a fraction of the mass in (0, 1), got {tolerance!r}")
-    _warn_if_grams(mass, "object_mass")
+    units.warn_if_grams(mass, "object_mass")
     return float(mass) * (1.0 - tolerance), float(mass) * (1.0 + tolerance)
 
 
@@ -1125,6 +1119,7 @@ class FilterConfig:
         g = np.asarray(self.gravity_palm, float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got {list(self.gravity_palm)}")
+        units.check_gravity(g, "filter: 'gravity_palm'")
         if self.motion_model not in MOTION_MODELS:
             raise ValueError(f"filter: 'motion_model' must be one of {MOTION_MODELS}, got '{self.motion_model}'")
         if not (kinematics.is_number(self.normal_cone_deg) and 0 <= self.normal_cone_deg < 90):

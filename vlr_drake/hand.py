@@ -31,6 +31,8 @@ from functools import cached_property
 
 import numpy as np
 
+from vlr_drake import units
+
 __all__ = [
     "FingerSpec",
     "HandSpec",
@@ -146,7 +148,7 @@ class FingerSpec:
         for fname in ["link_lengths", "moment_arms", "stiffness"]:
             v = np.asarray(getattr(f, fname))
             if np.any(v <= 0):
-                raise ValueError(f"{where}: field '{fname}' must be positive, got {list(v)}")
+                raise ValueError(f"{where}: field '{fname}' must be positive, got {v.tolist()}")
         for fname in ["distal_length", "tendon_stiffness", "link_radius", "link_density", "pad_offset",
                       "friction", "tendon_damping", "pad_radius"]:
             v = getattr(f, fname)
@@ -167,11 +169,18 @@ class FingerSpec:
             raise ValueError(f"{where}: field 'joint_damping' must be >= 0, got {list(f.joint_damping)}")
         u = np.asarray(f.flexion_direction, float)
         if abs(u[2]) > 1e-9 or np.linalg.norm(u) < 1e-9:
-            raise ValueError(f"{where}: 'flexion_direction' must be a nonzero vector in the palm plane (z = 0), got {list(u)}")
+            raise ValueError(f"{where}: 'flexion_direction' must be a nonzero vector in the palm plane (z = 0), got {u.tolist()}")
         if not np.all(np.asarray(f.joint_lower) < np.asarray(f.joint_upper)):
             raise ValueError(f"{where}: 'joint_lower' must be below 'joint_upper'")
         if not f.tendon_range[0] < f.tendon_range[1]:
             raise ValueError(f"{where}: 'tendon_range' must be [min, max] with min < max")
+        # in the package's units: a value in mm, degrees or g/cm^3 would run, and be wrong
+        for fname in ("base", "link_lengths", "distal_length", "pad_offset", "pad_radius", "moment_arms",
+                      "tendon_range", "link_radius"):
+            units.check_length(getattr(f, fname), f"{where}: field '{fname}'")
+        for fname in ("rest_angles", "joint_lower", "joint_upper"):
+            units.check_angle(getattr(f, fname), f"{where}: field '{fname}'")
+        units.check_density(f.link_density, f"{where}: field 'link_density'")
         return self
 
 
@@ -214,6 +223,7 @@ class HandSpec:
             v = getattr(self, fname)
             if not (is_number(v) and 0 < v < np.inf):
                 raise ValueError(f"hand '{self.name}': field '{fname}' must be a finite positive number [m], got {v!r}")
+            units.check_length(v, f"hand '{self.name}': field '{fname}'")
         K = self.fingers[0].num_joints
         if K < 2:
             raise ValueError(f"hand '{self.name}': fingers need at least 2 joints, got {K}")

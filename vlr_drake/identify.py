@@ -381,6 +381,9 @@ class IdentifyOptions:
                                  "object's range is object_mass +- object_mass_tolerance")
         if self.prior is not None and self.prior.object_mass_unknown:
             self.object_weight = True  # (a scenario's prior may ask for it): the same needs
+        if self.object_weight and self.plant != "physics":  # (link_weight would then be refused too)
+            raise ValueError("object_weight (a weighed object_mass, or a prior's object_mass_unknown) needs the "
+                             "physics plant: the model plant's truth is Eq. 9, without the object's weight")
         if self.object_weight and not self.link_weight:
             raise ValueError("object_weight (or a weighed object_mass) needs link_weight (the gravity of the physics "
                              "plant's mounting): the filter carries the object's weight with the links'")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake import units
 from vlr_drake.kinematics import is_number
 from vlr_drake.perception.apriltag import TAG36H11_CELLS, TAG36H11_COUNT, tag_image
 
@@ -119,8 +120,10 @@ class ObjectSpec:
             )
         if not all(is_number(x) and np.isfinite(x) and x > 0 for x in self.size):
             raise ValueError(f"{where}: field 'size' must be positive numbers, got {self.size}")
+        units.check_length(self.size, f"{where}: field 'size'")
         if not (is_number(self.mass) and np.isfinite(self.mass) and self.mass > 0):
             raise ValueError(f"{where}: field 'mass' must be a positive number, got {self.mass!r}")
+        units.warn_if_grams(self.mass, f"{where}: field 'mass'")
         if not (is_number(self.tag_id) and np.isfinite(self.tag_id) and 0 <= self.tag_id < TAG36H11_COUNT
                 and int(self.tag_id) == self.tag_id):
             raise ValueError(

@@ -35,6 +35,7 @@ import numpy as np
 from pydrake.common.yaml import yaml_load_typed
 
 from vlr_drake import filter as pf
+from vlr_drake import units
 from vlr_drake.hand import HandModel, HandSpec, hand_by_name
 from vlr_drake.hardware.config import HardwareConfig
 from vlr_drake.kinematics import is_count
@@ -255,6 +256,9 @@ class ExplorationSettings:
             value = getattr(self, name)
             if value is not None and not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"exploration: '{name}' must be finite and >= 0, got {value}")
+        for name in ("span", "window", "squeeze", "squeeze_window"):
+            if getattr(self, name) is not None:
+                units.check_length(getattr(self, name), f"exploration: '{name}'")
         if self.squeeze is not None and self.squeeze_window is not None and self.squeeze > self.squeeze_window:
             raise ValueError(f"exploration: 'squeeze' ({self.squeeze}) must not exceed 'squeeze_window' "
                              f"({self.squeeze_window})")

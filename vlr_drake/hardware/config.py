@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake import units
 from vlr_drake.hardware.dynamixel import EXTENDED_POSITION_LIMIT, GOAL_CURRENT_MAX
 
 __all__ = ["HardwareConfig", "TendonMotorMap", "load_hardware_config"]
@@ -148,6 +149,7 @@ class HardwareConfig:
             raise ValueError(f"{where}: 'motor_ids' has {n} motors but the hand has {num_fingers} fingers")
         if not (math.isfinite(self.spool_radius) and self.spool_radius > 0):
             raise ValueError(f"{where}: 'spool_radius' must be positive, got {self.spool_radius}")
+        units.check_length(self.spool_radius, f"{where}: 'spool_radius'")
         if len(self.zero_offset_ticks) != n:
             raise ValueError(
                 f"{where}: 'zero_offset_ticks' must have {n} entries (one per motor), got {len(self.zero_offset_ticks)}"
@@ -162,6 +164,7 @@ class HardwareConfig:
                 raise ValueError(f"{where}: '{name}' must be empty or have {n} entries, got {len(v)}")
             if not np.all(np.isfinite(v)):
                 raise ValueError(f"{where}: '{name}' is not finite: {v}")
+            units.check_length(v, f"{where}: '{name}'")
         if (len(self.tendon_lower) == 0) != (len(self.tendon_upper) == 0):
             raise ValueError(f"{where}: give both 'tendon_lower' and 'tendon_upper', or neither")
         if self.tendon_lower and not np.all(np.asarray(self.tendon_lower) < np.asarray(self.tendon_upper)):

@@ -1,0 +1,76 @@
+"""Checks that a setting is in the package's units.
+
+Every length here is in metres, every angle in radians, every mass in kilograms, a density
+in kg/m^3 and gravity in m/s^2. A hand's or an object's value far outside what any hand of
+this kind has was almost surely given in another unit: millimetres, degrees, grams or
+g/cm^3. Left alone it runs and gives a wrong result, such as a 48 m link "identified" from a
+prior in millimetres, or tendon limits a thousand times too wide for the motors. These
+checks refuse such a value, naming the field and the unit it looks like. A mass is warned
+about rather than refused, because a heavy object can be meant.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+#: Longer than this [m] a hand's or an object's length is taken for millimetres. The hands
+#: here measure centimetres: links 30-75 mm, the palm 75 mm, tendon travel 45 mm.
+LONGEST_LENGTH = 1.0
+#: Larger than this [rad] a joint angle or limit is taken for degrees.
+LARGEST_ANGLE = 2.0 * np.pi
+#: Heavier than this [kg] an object's mass is taken for grams (a warning). The hands here
+#: hold tens to hundreds of grams (the objects in vlr_drake.objects weigh 28-133 g).
+HEAVY_OBJECT = 5.0
+#: Lighter than this [kg/m^3] a solid's density is taken for g/cm^3 (water is 1000 kg/m^3).
+LIGHTEST_DENSITY = 10.0
+#: Stronger than this [m/s^2] a gravity vector is taken for mm/s^2 (Earth's is 9.81).
+STRONGEST_GRAVITY = 30.0
+
+
+def check_length(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where any of ``value`` (a length or an array of
+    lengths [m], or of positions) is longer than :data:`LONGEST_LENGTH`."""
+    v = np.abs(np.asarray(value, float))
+    if v.size and np.nanmax(v) > LONGEST_LENGTH:
+        raise ValueError(f"{field}: {_show(value)} m is longer than {LONGEST_LENGTH:g} m, more than any hand here "
+                         "measures; lengths are in metres: was it given in millimetres?")
+
+
+def check_angle(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where any of ``value`` [rad] exceeds
+    :data:`LARGEST_ANGLE` in size."""
+    v = np.abs(np.asarray(value, float))
+    if v.size and np.nanmax(v) > LARGEST_ANGLE:
+        raise ValueError(f"{field}: {_show(value)} rad is more than a full turn; angles are in radians: "
+                         "was it given in degrees?")
+
+
+def check_density(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where a density [kg/m^3] is below
+    :data:`LIGHTEST_DENSITY`."""
+    if value < LIGHTEST_DENSITY:
+        raise ValueError(f"{field}: {value:g} kg/m^3 is lighter than any solid (water is 1000); densities are "
+                         "in kg/m^3: was it given in g/cm^3?")
+
+
+def check_gravity(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where a gravity vector [m/s^2] is stronger
+    than :data:`STRONGEST_GRAVITY`."""
+    if np.linalg.norm(np.asarray(value, float)) > STRONGEST_GRAVITY:
+        raise ValueError(f"{field}: {_show(value)} is stronger than any gravity a hand works in (Earth's is "
+                         "9.81 m/s^2); gravity is in m/s^2: was it given in mm/s^2?")
+
+
+def warn_if_grams(mass, field: str, stacklevel: int = 3) -> None:
+    """Warn where an object's mass [kg] is above :data:`HEAVY_OBJECT`."""
+    if mass > HEAVY_OBJECT:
+        warnings.warn(f"{field}: {mass:g} kg is more than any object these hands hold (the objects here "
+                      f"weigh 28-133 g); masses are in kilograms: was it given in grams?", stacklevel=stacklevel)
+
+
+def _show(value):
+    """A value as a reader wrote it: a list of plain floats, not of np.float64."""
+    arr = np.asarray(value, float)
+    return float(arr) if arr.ndim == 0 else arr.tolist()
