@@ -84,7 +84,7 @@ def test_identify_quick(tmp_path, experiment, extra):
 
 
 def test_runs_that_differ_keep_their_own_outputs_and_plots_follow_the_run(tmp_path, monkeypatch):
-    """The hand, object and plant name a run's files where they are not the defaults, so two
+    """The scenario, hand, object and plant name a run's files where they are not the defaults, so two
     runs in one folder do not overwrite each other; the plots draw the run's own unknown
     spring and convergence thresholds (a scenario's spring of finger_left, 5 deg, 20%)."""
     from vlr_drake import plots
@@ -105,10 +105,17 @@ def test_runs_that_differ_keep_their_own_outputs_and_plots_follow_the_run(tmp_pa
                                     "filter: {convergence_deg: 5.0, parameter_convergence: 0.2}\n"
                                     "prior: {stiffness_unknown: [[1, 1]], stiffness_range: [0.1, 0.4]}\n")
     assert main(["identify", "--scenario", str(path), *common]) == 0
-    r = json.loads((out / "identify_stiffness_model_seed0.json").read_text())
+    r = json.loads((out / "identify_stiffness_left_model_seed0.json").read_text())
     assert list(r["hand_parameters"]) == ["stiffness:finger_left/1"] and r["convergence_deg"] == 5.0
     assert r["parameter_convergence"] == 0.2 and 0 < r["parameter_interval"] < 1  # the spring's, after 3 steps
     assert drawn == {"which": [(1, 1)], "threshold": (5.0, "half_width", 0.2)}
+    # a scenario's name is in its files' names: two scenarios of one hand, object and plant
+    # wrote the same file, the second over the first (review)
+    (tmp_path / "b").mkdir()
+    other = _scenario_file(tmp_path / "b", "name: other\nplant: model\nobject: toy_block\n")
+    assert main(["identify", "stiffness", "--scenario", str(other), *common]) == 0
+    assert json.loads((out / "identify_stiffness_other_model_seed0.json").read_text())["scenario"] == "other"
+    assert json.loads((out / "identify_stiffness_left_model_seed0.json").read_text())["scenario"] == "left"
 
 
 def test_identify_stuck_probability_defaults_and_flag(tmp_path):

@@ -532,13 +532,18 @@ def _hand_name(opts: IdentifyOptions) -> str:
     return opts.hand_spec.name if opts.hand_spec is not None else opts.hand
 
 
-def run_name(experiment: str, hand: str, object_name: str, plant: str, seed: int) -> str:
-    """The name of a run's output files: the experiment, then the hand, the object and the
-    plant where they are not the experiment's defaults (the Model O, DEFAULT_OBJECT, the
-    physics plant), then the seed: ``known_hand_seed0``, ``novel_fingers_NH2_seed3``,
-    ``known_hand_gelatin_box_model_seed1``. Runs that differ in any of them do not
-    overwrite each other's results in one output folder."""
+def run_name(experiment: str, hand: str, object_name: str, plant: str, seed: int,
+             scenario: str | None = None) -> str:
+    """The name of a run's output files: the experiment, then the scenario's name where the
+    run was given one, the hand, the object and the plant where they are not the
+    experiment's defaults (the Model O, DEFAULT_OBJECT, the physics plant), then the seed:
+    ``known_hand_seed0``, ``novel_fingers_NH2_seed3``, ``known_hand_gelatin_box_model_seed1``,
+    ``novel_fingers_novel_NH2_rolling_NH2_seed0``. Runs that differ in any of them do not
+    overwrite each other's results in one output folder (two scenarios of the same hand and
+    object did, until a review found it)."""
     parts = [experiment]
+    if scenario not in (None, "default"):
+        parts.append(scenario)
     if hand != "model_o":
         parts.append(hand)
     if object_name != DEFAULT_OBJECT[experiment]:
@@ -553,7 +558,7 @@ def options_run_name(opts: IdentifyOptions) -> str:
     defaults; its result carries the same fields)."""
     opts.validate()
     obj = opts.object_spec.name if opts.object_spec is not None else opts.object
-    return run_name(opts.experiment, _hand_name(opts), obj, opts.plant, opts.seed)
+    return run_name(opts.experiment, _hand_name(opts), obj, opts.plant, opts.seed, opts.scenario)
 
 
 def _hands(opts: IdentifyOptions, rng):
