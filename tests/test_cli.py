@@ -514,10 +514,18 @@ def test_a_small_cloud_is_named_in_one_line(tmp_path):
     assert err == [err[0]] and err[0].startswith("vlr-drake identify: warning: 400 particles: fewer than 3,000")
 
 
-def test_identify_a_custom_hand_from_its_scenario(tmp_path):
+def test_identify_a_custom_hand_from_its_scenario(tmp_path, capsys):
     r = _run(tmp_path, "identify", "--scenario", "custom_hand_and_object", "--plant", "model", "--particles", "500",
              "--iterations", "2", "--no-progress", "--out", str(tmp_path / "out"))
     assert (r["hand"], r["object"], len(r["proximal_joint_error_deg"])) == ("four_finger_hand", "tagged_block", 4)
+    # the stiffness experiment's spring is the first finger's distal one, its last joint (on
+    # these three-joint fingers it had been the middle one, and the table called it "distal")
+    r = _run(tmp_path, "identify", "stiffness", "--scenario", "custom_hand_and_object", "--plant", "model",
+             "--particles", "500", "--iterations", "2", "--no-progress", "--out", str(tmp_path / "out"))
+    (name,) = r["hand_parameters"]
+    assert name.endswith("/2") and r["hand_parameters"][name]["joint"] == 2
+    table = capsys.readouterr().out
+    assert " joint1 [deg]" in table and " distal [deg]" in table and " joint2 [deg]" not in table
     # and on the physics plant, the scenario's own plant: the box is built, grasped and seen,
     # and the hand's twelve joints are estimated honestly
     r = _run(tmp_path, "identify", "--scenario", "custom_hand_and_object", "--particles", "2000",

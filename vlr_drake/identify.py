@@ -574,8 +574,8 @@ def _hands(opts: IdentifyOptions, rng):
     nominal = copy.deepcopy(opts.hand_spec) if opts.hand_spec is not None else hand_by_name(opts.hand)
     true_spec = copy.deepcopy(nominal)
     if opts.experiment == "stiffness":
-        if not prior.stiffness_unknown:  # (in the prior's stiffness_range, by default 0.05-0.40 N m/rad)
-            prior.stiffness_unknown = [(0, 1)]
+        if not prior.stiffness_unknown:  # the thumb's distal (last) joint, in the prior's stiffness_range
+            prior.stiffness_unknown = [(0, len(nominal.fingers[0].stiffness) - 1)]
         if opts.true_stiffness is None:
             fi, j = prior.stiffness_unknown[0]
             k = list(true_spec.fingers[fi].stiffness)
