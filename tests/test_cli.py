@@ -268,6 +268,17 @@ def test_hand_presets_are_taken_in_any_case(tmp_path):
     assert r["hand"] == "NH2" and set(r["link_length_error_mm"]) == {"thumb_NF1", "finger_left_NF2"}
 
 
+def test_an_object_on_the_model_plant_is_said_to_be_unused(tmp_path, capsys):
+    """The model plant's truth is the VLR: an --object changed nothing (the apple and the
+    gelatin box gave the same errors to the digit), without a word (review)."""
+    args = ["identify", "--plant", "model", "--particles", "300", "--iterations", "1", "--no-progress",
+            "--out", str(tmp_path)]
+    assert main([*args, "--object", "gelatin_box"]) == 0
+    assert "warning: --object gelatin_box: the model plant does not use the object" in capsys.readouterr().err
+    assert main(args) == 0
+    assert "does not use the object" not in capsys.readouterr().err
+
+
 def test_a_true_hand_with_no_grasp_is_named(tmp_path, capsys):
     """Model-plant truths no fingertip grasp can reach (3 mm proximal links; 5 m ones, the
     test's until 2026-12-06, are refused as millimetres now): the run says which settings to

@@ -455,6 +455,8 @@ def test_what_a_plant_does_not_use_is_named(tmp_path: Path):
     assert ignored_by_identify(s) == ["grasp", "model_plant.dropout", "model_plant.stiffness"]
     m = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "camera: {pixel_noise_std: 5.0}\nphysics: {time_step: 0.002}\n")
     assert ignored_by_plant(m) == ["camera", "physics"]
+    # the model plant's truth is the VLR: an object there changed nothing, without a word (review)
+    assert ignored_by_plant(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "object: toy_block\n")) == ["object"]
     assert ignored_by_identify(m, "physics") == []  # run on the physics plant instead: it takes both
     with pytest.warns(UserWarning, match="the model plant does not use camera, physics"):
         build_diagram(m)

@@ -174,6 +174,9 @@ def _identify_options(args):
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': an identification run does not use "
               f"{', '.join(ignored)} (the diagram's settings: python -m vlr_drake.builder --run takes them)",
               file=sys.stderr)
+    if args.object is not None and opts.plant == "model":  # said, not silently dropped
+        print(f"vlr-drake {args.command}: warning: --object {args.object}: the model plant does not use the object "
+              "(its truth is the VLR, Eq. 9); the physics plant holds it", file=sys.stderr)
     if args.loaded is None:
         opts.scenario = None  # described by the flags alone
     if getattr(args, "stuck_probability", None) is not None:

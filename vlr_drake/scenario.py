@@ -937,8 +937,8 @@ def ignored_by_identify(scenario: Scenario, plant: str | None = None) -> list[st
 
 def ignored_by_plant(scenario: Scenario, plant: str | None = None) -> list[str]:
     """The sections and fields of ``scenario`` set away from their defaults that ``plant``
-    (default: the scenario's) does not use, as dotted names: the model plant takes no camera,
-    observer or physics; the others take no model-plant truth (the physics plant does take
+    (default: the scenario's) does not use, as dotted names: the model plant takes no object,
+    camera, observer or physics; the others take no model-plant truth (the physics plant does take
     ``model_plant.center_offset_fraction``, for its guess of the contacts); only hardware
     takes ``grasp``, ``hardware`` and ``filter.gravity_palm``."""
     return _set_fields(scenario, _plant_ignores(scenario.plant if plant is None else plant))
@@ -946,8 +946,8 @@ def ignored_by_plant(scenario: Scenario, plant: str | None = None) -> list[str]:
 
 def _plant_ignores(plant: str) -> list[str]:
     names = []
-    if plant == "model":
-        names += ["camera", "observer", "physics"]
+    if plant == "model":  # (its truth is the VLR: no object, camera or contact physics)
+        names += ["object", "object_spec", "camera", "observer", "physics"]
     else:
         names += [f"model_plant.{f.name}" for f in dataclasses.fields(ModelPlantSettings)
                   if not (plant == "physics" and f.name == "center_offset_fraction")]
