@@ -840,3 +840,27 @@ def test_an_output_nothing_can_be_written_in_is_refused_before_the_run():
         check_output("--out", "/proc/x", folder=True)
     with pytest.raises(ValueError, match="--json: (nothing can be written in '/proc'|'/proc' is not writable)"):
         check_output("--json", "/proc/x/r.json")
+
+
+def test_a_diagram_run_writes_its_result(tmp_path, capsys):
+    """``python -m vlr_drake.builder --run ... --json``: the only way a hardware run
+    identifies, and it had printed its estimate and written nothing, the contacts not even
+    printed (review). Every field is documented, and the contacts lie in their intervals on
+    the last links."""
+    from vlr_drake.builder import main as builder_main
+    from vlr_drake.hand import model_o
+
+    path = tmp_path / "run.json"
+    assert builder_main(["--run", "model_plant", "--iterations", "3", "--set", "filter: {particles: 400}",
+                         "--json", str(path)]) == 0
+    assert "contacts along the last links [mm]" in capsys.readouterr().out
+    r = json.loads(path.read_text())
+    fields, _ = _documented("Diagram run")
+    assert set(r) == fields - {"pooled"}  # (pooled: with --draws only)
+    a, (lo, hi) = np.array(r["contact_estimate"]), np.array(r["contact_interval"]).T
+    L = model_o().model().distal_length
+    assert a.shape == (3,) and np.all((0 < lo) & (lo <= a) & (a <= hi) & (hi <= L))
+    assert np.array(r["theta_true"]).shape == (3, 2) and r["iterations"] == 3 and r["hardware"] is None
+    with pytest.raises(SystemExit):
+        builder_main(["--json", str(path)])
+    assert "--json needs --run SCENARIO" in capsys.readouterr().err

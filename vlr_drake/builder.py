@@ -649,12 +649,23 @@ def _hardware_summary(plant) -> dict | None:
             "grasp": plant.grasp_report}
 
 
+def _contacts(flt, N: int) -> dict:
+    """``contact_estimate`` (N,) and ``contact_interval`` (N, 2) [m] of the filter's last
+    estimate (NaN before the filter started)."""
+    if flt is None:
+        return {"contact_estimate": np.full(N, np.nan), "contact_interval": np.full((N, 2), np.nan)}
+    est = flt.estimates[-1]
+    return {"contact_estimate": np.asarray(est["a"], float).copy(),
+            "contact_interval": np.stack([est["a_lo"], est["a_hi"]], axis=1)}
+
+
 def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, trace: str | Path | None = None,
         draws: int = 1, progress: bool = False) -> dict:
     """Build ``scenario``'s diagram, :func:`initialize` it and simulate ``iterations`` filter
     iterations (to (iterations + 0.95) T: the filter starts at 0.9 T). Returns the filter's
     last estimate and the truth (``theta_estimate``, ``theta_true`` (N, K) [rad],
-    ``interval_half_width`` [rad], ``converged``, ``iterations``, ``sim_time`` [s],
+    ``interval_half_width`` [rad], ``converged``, ``contact_estimate`` (N,) and
+    ``contact_interval`` (N, 2) [m] along the last links, ``iterations``, ``sim_time`` [s],
     ``wall_s``, ``realtime_rate`` (sim time over wall time; a hardware scenario runs in real
     time, at most 1, and warns below 0.9); ``hardware``: the interface's counts of updates,
     clipped and ramped commands and its grasp report (None on the simulated plants);
@@ -725,6 +736,9 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             .Eval(ctx)
             .reshape(h.N, h.K),
             "converged": bool(d.GetOutputPort("self_identification.converged").Eval(ctx)[0] > 0.5),
+            # the contacts along the last links [m] and their 95% intervals (N, 2): the VLR's
+            # other half, which a hardware run has no other way to report
+            **_contacts(flt, h.N),
             "sim_time": ctx.get_time(),
             "wall_s": time.perf_counter() - t0,
             "realtime_rate": rate,
@@ -758,6 +772,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
+    parser.add_argument("--json", default=None, metavar="PATH",
+                        help="write --run's result as JSON (docs/result-files.md, 'Diagram run')")
     parser.add_argument("--draws", type=count(1), default=None, metavar="K",
                         help="after --run, filter its measurements again under K draws of the filter's randomness "
                              "(the first the run's own) and pool them: the mixture of their clouds, whose intervals "
@@ -765,7 +781,7 @@ def main(argv: list[str] | None = None) -> int:
                              "filter's time, with a hardware run's motors off (default 1: none)")
     args = parser.parse_args(argv)
     for flag, value in (("--set", args.set), ("--trace", args.trace), ("--iterations", args.iterations),
-                        ("--draws", args.draws)):
+                        ("--draws", args.draws), ("--json", args.json)):
         if value is not None and not args.run:
             parser.error(f"{flag} needs --run SCENARIO")
     for flag, value in (("--write-diagrams", args.write_diagrams), ("--folder", args.folder),
@@ -774,6 +790,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{flag} does not go with --run (it writes the example diagrams)")
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
+        check_output("--json", args.json)
         iterations = 10 if args.iterations is None else args.iterations
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
         r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace,
@@ -786,7 +803,10 @@ def main(argv: list[str] | None = None) -> int:
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
         print("95% half-width [deg]\n", np.rad2deg(r["interval_half_width"]))
-        from vlr_drake.cli import hand_parameter_line, print_pooled
+        print("contacts along the last links [mm] (95% interval)\n",
+              "  ".join(f"{1e3 * a:.2f} [{1e3 * lo:.2f}, {1e3 * hi:.2f}]"
+                        for a, (lo, hi) in zip(r["contact_estimate"], r["contact_interval"], strict=True)))
+        from vlr_drake.cli import hand_parameter_line, print_pooled, write_json
 
         for name, q in r["hand_parameters"].items():
             print(hand_parameter_line(name, q) + (" (weakly identified)" if name in r["weakly_identified"] else ""))
@@ -807,6 +827,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{hw['ramped']} ramped towards a far command")
         if r["trace"]:
             print(f"wrote {r['trace']}")
+        write_json(r, args.json)
         return 0
     if not args.write_diagrams:
         parser.print_help()
