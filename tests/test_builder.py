@@ -1,6 +1,7 @@
 """The diagram builder: every example scenario builds (and, off hardware, runs a couple of
 action periods); names and ports; the physics grasp start; the committed pictures are current."""
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -351,7 +352,7 @@ def test_a_run_reports_its_hand_parameters_and_pools_draws_of_its_measurements(t
     hardware stiffness run's answer) and, with draws, the pooled estimate of its own
     measurements under that many draws of the filter: the same as pool_draws of its trace."""
     from vlr_drake.builder import main, run
-    from vlr_drake.trace import IdentificationTrace, pool_draws
+    from vlr_drake.trace import IdentificationTrace, draw_seed, pool_draws, replay
 
     s = load_scenario(DIAGRAMS_DIR / "stiffness.yaml", FAST)
     r = run(s, iterations=3, trace=tmp_path / "st.npz", draws=3)
@@ -361,6 +362,14 @@ def test_a_run_reports_its_hand_parameters_and_pools_draws_of_its_measurements(t
     assert "errors" not in r["pooled"] and r["pooled"]["wall_s"] > 0  # the diagram's trace has no truths
     again = pool_draws(IdentificationTrace.load(r["trace"]), 3)
     assert again["hand_parameters"] == r["pooled"]["hand_parameters"]
+    # three draws of the filter's randomness, not one thrice (the comparison above is the same
+    # function on the same data; a review made every draw the run's own and it passed): the
+    # draws' estimates differ, and the pooled one is their mean
+    tr = IdentificationTrace.load(r["trace"])
+    ests = [replay(dataclasses.replace(tr, filter_seed=draw_seed(tr.filter_seed, j)))["hand_parameters"][name]["estimate"]
+            for j in range(3)]
+    assert len(set(ests)) == 3
+    assert r["pooled"]["hand_parameters"][name]["estimate"] == pytest.approx(np.mean(ests), rel=1e-9)
     # the first draw is the run's own: its estimate is the run's
     one = pool_draws(IdentificationTrace.load(r["trace"]), 1)
     assert one["hand_parameters"][name]["estimate"] == pytest.approx(q["estimate"], rel=1e-12)

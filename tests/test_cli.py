@@ -173,6 +173,14 @@ def test_identify_object_weight_on_the_physics_plant(tmp_path, capsys):
     radius = pad.pad_surface - pad.pad
     np.testing.assert_allclose(lever, np.broadcast_to(radius, lever.shape), atol=1e-3)
     assert np.linalg.norm(T["object_com"] - T["contacts"].mean(axis=1), axis=-1).max() < 0.05
+    # the centre of mass is the one the loads were split by, and a point of the object: fixed
+    # in the POM's frame (the pose's origin, 14 mm from it, had passed the 5 cm bound: review)
+    from vlr_drake.physics.statics import barycentric_weights
+    for k in range(saved.steps + 1):
+        np.testing.assert_allclose(T["object_load"][k], T["object_mass"][k] * barycentric_weights(
+            T["contacts"][k], T["object_com"][k]), atol=1e-12)
+    com_O = np.einsum("sji,sj->si", T["pom_rotation"], T["object_com"] - T["pom_translation"])
+    assert np.ptp(com_O, axis=0).max() < 1e-6 and np.linalg.norm(com_O[0]) > 5e-3
     assert saved.prior.object_mass_unknown
     assert main(["replay", str(trace), "--no-progress"]) == 0  # the run again, the mass with it
     assert "object mass" in capsys.readouterr().out

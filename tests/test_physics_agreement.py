@@ -85,9 +85,15 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
     assert np.all(np.abs(np.array(r["joint_motion_slope_rolling"]) - 1.0) < 0.15)
     # the apple is a sphere: the reference again on its curved surface, with the pads' offsets
     # (rolling_shaped); at rest it sits at the plant's angles as well (measured 0.01-0.14 deg)
+    # Its one-step POM error is far worse than the flat roll's: it moves the apple 0.6-0.7 mm
+    # where the plant moves it 3.1 mm (measured 2.34 / 2.53 mm against 0.14 / 0.18). The
+    # curvature alone does it (the normals and the pads' offsets do not): an open question,
+    # docs/results.md (2026-12-06); held here so that a change to it is seen (the value had
+    # been only "not None", and the flat roll's passed in its place: a review)
     for row in r["actions"]:
         assert np.mean(np.abs(row["rolling_shaped_offset_deg"])) < 0.3
-        assert row["rolling_shaped_one_step_error_mm"] is not None
+        assert 1.5 < row["rolling_shaped_one_step_error_mm"] < 3.5
+        assert row["rolling_shaped_one_step_error_mm"] > 5 * row["rolling_one_step_error_mm"]
     assert r["rolling_shaped_one_step_error_mm_median"] == pytest.approx(
         np.median([a["rolling_shaped_one_step_error_mm"] for a in r["actions"]]))
     # action by action the rolling reference explains most of the proximal joints' motion
