@@ -474,6 +474,9 @@ def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--experiments", "known_hand,juggling"]) == 2
     assert "juggling" in capsys.readouterr().err
+    # --quick's own counts had silently replaced these (a review: 1 trial, 1,000 particles, 8 iterations)
+    assert main(["reproduce", "--quick", "--trials", "3", "--iterations", "4", "--out", str(out)]) == 2
+    assert "--quick sets the trials, particles and iterations itself" in capsys.readouterr().err
 
 
 def test_diagrams_command_writes_dot_files(tmp_path):

@@ -123,9 +123,9 @@ def bench_rolling(particles: int = 20_000, seed: int = 0, repeats: int = 3, refe
     :func:`vlr_drake.rolling_reference.solve_rolling`, building and solving), and the pinned
     move (Eq. 9, :func:`vlr_drake.motion.move`) of the same grasps. The hypotheses are
     physical grasps (:func:`vlr_drake.grasps.sample_grasps`) holding an object that weighs
-    10-150 g, palm up, its centre of mass within 1 cm of the contacts' centroid and its
-    normals at the contacts within about 10 deg of :func:`motion_rolling.guessed_normals`,
-    as the rolling filter draws them, each settled at its rolling equilibrium under that
+    10-60 g (uniform), palm up, its centre of mass drawn around the contacts' centroid (3 mm
+    SD per axis: within 1 cm for 99% of them) and its normals at the contacts within about
+    10 deg of :func:`motion_rolling.guessed_normals`, each settled at its rolling equilibrium under that
     weight before the timed action (+-0.5 mm per tendon, the exploration's).
     Medians; the reference's failures are counted, and the solutions that both found are
     compared (``max_angle_difference_rad``)."""
@@ -250,7 +250,8 @@ def format_motion(r: dict) -> str:
         f"{r['ipopt_failures']}, SNOPT {r['snopt_failures']} of {r['reference_solves']} (the batched move: "
         f"{r['reference_solves'] - r['batched_success_reference_particles']} of the same)\n"
         f"speed-up per particle: {r['speedup_per_particle']:.0f}x vs IPOPT, {r['speedup_per_particle_snopt']:.0f}x vs SNOPT "
-        f"({r['speedup_per_particle_filter_tolerance']:.0f}x vs IPOPT with the \"filter\" tolerance)"
+        f"({r['speedup_per_particle_filter_tolerance']:.0f}x vs IPOPT when the batched move takes the "
+        f"\"filter\" tolerance)"
     )
 
 

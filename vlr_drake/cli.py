@@ -921,7 +921,7 @@ def main(argv: list[str] | None = None) -> int:
             iterations_help="each experiment's, as identify's: 120, 240 for the stiffness and the novel "
                             "fingers on the physics plant and the stiffness on the model plant; 100 for the "
                             "tasks' self-identification")
-    p.add_argument("--trials", type=count(1), default=5, help="trials per row (default 5)")
+    p.add_argument("--trials", type=count(1), default=None, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,
                    help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
@@ -1010,7 +1010,12 @@ def _command(args) -> int:
         elif args.command == "reproduce":
             from vlr_drake.reproduce import format_table, reproduce
 
-            r = reproduce(trials=args.trials, plant=args.plant,
+            given = [flag for flag, value in (("--trials", args.trials), ("--particles", args.particles),
+                                              ("--iterations", args.iterations)) if value is not None]
+            if args.quick and given:  # said, not silently replaced by the quick run's
+                raise ValueError(f"--quick sets the trials, particles and iterations itself (1, 1,000 and 8): "
+                                 f"drop {', '.join(given)} or --quick")
+            r = reproduce(trials=5 if args.trials is None else args.trials, plant=args.plant,
                           particles=(args.particles if args.particles is not None
                                      else args.loaded.filter.particles if args.loaded else 20_000),
                           iterations=args.iterations, quick=args.quick, out=args.out,
