@@ -1,6 +1,7 @@
 """Scenario files: every example loads and validates; bad files fail naming the field and file."""
 
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -523,3 +524,13 @@ def test_an_object_mass_in_grams_is_warned_about():
     message named the pretension and the placement (review)."""
     with pytest.warns(UserWarning, match="'mass': 100 kg .*given in grams"):
         load_scenario(DIAGRAMS_DIR / "custom_hand_and_object.yaml", "object_spec: {mass: 100.0}\n")
+
+
+def test_grasp_angles_in_radians_are_warned_about():
+    """A hardware grasp's angles given in radians (every one under 3 deg: an open hand) had
+    been taken as degrees without a word (review); degrees pass quietly."""
+    with pytest.warns(UserWarning, match="'theta_deg'.*every angle under 3 deg.*given in radians"):
+        load_scenario(DIAGRAMS_DIR / "hardware.yaml", "grasp: {theta_deg: [[0.17, 0.52], [0.2, 0.6], [0.2, 0.6]]}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scenario(DIAGRAMS_DIR / "hardware.yaml", "grasp: {theta_deg: [[10, 30], [12, 35], [12, 35]]}\n")
