@@ -28,7 +28,6 @@ resolved types (once, in place; the dataclasses are otherwise unchanged).
 import copy
 import dataclasses
 import typing
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -315,11 +314,6 @@ class ModelPlantSettings:
         return self
 
 
-#: Below this [deg] in every joint a hardware grasp's angles are taken for radians (a warning):
-#: a grasp bends its joints by tens of degrees.
-GRASP_SMALLEST_DEG = 3.0
-
-
 @dataclass
 class NominalGrasp:
     """The filter's nominal grasp (its prior's centre) when the plant cannot supply one
@@ -338,10 +332,8 @@ class NominalGrasp:
             raise ValueError(f"grasp: 'theta_deg' must be {N} lists of {K}, got {self.theta_deg}")
         if self.theta_deg and not np.all(np.isfinite(self.theta_deg)):
             raise ValueError(f"grasp: 'theta_deg' must be finite, got {self.theta_deg}")
-        if self.theta_deg and np.abs(self.theta_deg).max() < GRASP_SMALLEST_DEG:  # a real hand closes on it
-            warnings.warn(f"grasp: 'theta_deg' {self.theta_deg}: every angle under {GRASP_SMALLEST_DEG:g} deg, "
-                          "an open hand rather than a grasp; the angles are in degrees: were they given in "
-                          "radians?", stacklevel=2)
+        if self.theta_deg:  # a real hand closes on it
+            units.warn_if_radians(self.theta_deg, "grasp: 'theta_deg'")
         if self.contact and _shape_of(self.contact) != (N,):
             raise ValueError(f"grasp: 'contact' must have {N} entries, got {self.contact}")
         if self.contact and not np.all(np.isfinite(self.contact) & (np.asarray(self.contact) > 0)):

@@ -5,8 +5,9 @@ in kg/m^3 and gravity in m/s^2. A hand's or an object's value far outside what a
 this kind has was almost surely given in another unit: millimetres, degrees, grams or
 g/cm^3. Left alone it runs and gives a wrong result, such as a 48 m link "identified" from a
 prior in millimetres, or tendon limits a thousand times too wide for the motors. These
-checks refuse such a value, naming the field and the unit it looks like. A mass is warned
-about rather than refused, because a heavy object can be meant.
+checks refuse such a value, naming the field and the unit it looks like. A mass and a
+grasp's angles are warned about rather than refused: a heavy object or a nearly open hand
+can be meant.
 """
 
 from __future__ import annotations
@@ -27,6 +28,9 @@ HEAVY_OBJECT = 5.0
 LIGHTEST_DENSITY = 10.0
 #: Stronger than this [m/s^2] a gravity vector is taken for mm/s^2 (Earth's is 9.81).
 STRONGEST_GRAVITY = 30.0
+#: Below this [deg] in every joint a grasp's angles are taken for radians (a warning): a
+#: grasp bends its joints by tens of degrees.
+SMALLEST_GRASP_DEG = 3.0
 
 
 def check_length(value, field: str) -> None:
@@ -68,6 +72,14 @@ def warn_if_grams(mass, field: str, stacklevel: int = 3) -> None:
     if mass > HEAVY_OBJECT:
         warnings.warn(f"{field}: {mass:g} kg is more than any object these hands hold (the objects here "
                       f"weigh 28-133 g); masses are in kilograms: was it given in grams?", stacklevel=stacklevel)
+
+
+def warn_if_radians(angles_deg, field: str, stacklevel: int = 3) -> None:
+    """Warn where every one of a grasp's joint angles [deg] is under :data:`SMALLEST_GRASP_DEG`."""
+    if np.abs(np.asarray(angles_deg, float)).max() < SMALLEST_GRASP_DEG:
+        warnings.warn(f"{field} {_show(angles_deg)}: every angle under {SMALLEST_GRASP_DEG:g} deg, an open hand "
+                      "rather than a grasp; the angles are in degrees: were they given in radians?",
+                      stacklevel=stacklevel)
 
 
 def _show(value):
