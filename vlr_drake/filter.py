@@ -664,13 +664,12 @@ class PriorConfig:
         for name in ("proximal_half_width", "distal_half_width"):
             units.check_angle(getattr(self, name), f"prior: '{name}'")
         units.check_length(self.contact_half_width, "prior: 'contact_half_width'")
-        units.check_length(self.link_range, "prior: 'link_range'")
-        units.check_length(self.com_half_width, "prior: 'com_half_width'")
         for name in ("stiffness_range", "link_range"):
             lo, hi = getattr(self, name)
             if not (np.isfinite([lo, hi]).all() and 0 < lo < hi):
                 raise ValueError(f"prior: '{name}' must be finite [min, max] with 0 < min < max, "
                                  f"got {getattr(self, name)}")
+        units.check_length(self.link_range, "prior: 'link_range'")
         if self.angle_centers not in ANGLE_CENTERS:
             raise ValueError(f"prior: 'angle_centers' must be one of {ANGLE_CENTERS}, got '{self.angle_centers}'")
         if self.stiffness_prior not in STIFFNESS_PRIORS:
@@ -705,6 +704,7 @@ class PriorConfig:
             raise ValueError(f"prior: 'com_prior' must be one of {COM_PRIORS}, got '{self.com_prior}'")
         if not (np.isfinite(self.com_half_width) and self.com_half_width >= 0):
             raise ValueError(f"prior: 'com_half_width' must be a finite distance >= 0 [m], got {self.com_half_width}")
+        units.check_length(self.com_half_width, "prior: 'com_half_width'")
         return self
 
     def contact_bounds(self, hand: HandModel) -> tuple[np.ndarray, np.ndarray]:
