@@ -38,10 +38,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 from pydrake.solvers import IpoptSolver, MathematicalProgram
 
 from vlr_drake import kinematics
 from vlr_drake.hand import HandModel
+from vlr_drake.motion_rolling import attachment_directions
 
 __all__ = ["RollingState", "RollingResult", "RollingSolveError", "solve_rolling"]
 
@@ -127,6 +129,7 @@ class RollingResult:
     R: np.ndarray  # (3, 3) the object's pose there
     t: np.ndarray  # (3,)
     solve_time_s: float
+    released: int = 0  # weak attachment directions released (motion_rolling.attachment_directions)
 
 
 def _cayley(w):
@@ -240,7 +243,13 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
             res.extend(CONSTRAINT_SCALE * (p[i] - target))
         return np.array(res)
 
-    prog.AddConstraint(attachments, np.zeros(3 * N), np.zeros(3 * N), np.concatenate([th, w, tau]))
+    held, released = attachments, 0
+    if np.any(np.isfinite(rho)):  # a round object: the directions it holds only weakly released
+        start = InitializeAutoDiff(np.concatenate([x0, np.zeros(6)])).ravel()  # (12, 1) -> (12,)
+        U, weak = attachment_directions(ExtractGradient(attachments(start)))
+        U = U[:, ~weak]
+        held, released = (lambda v: U.T @ attachments(v)), 3 * N - U.shape[1]
+    prog.AddConstraint(held, np.zeros(3 * N - released), np.zeros(3 * N - released), np.concatenate([th, w, tau]))
     prog.SetInitialGuess(th, x0)
     prog.SetInitialGuess(w, np.zeros(3))
     prog.SetInitialGuess(tau, np.zeros(3))
@@ -250,4 +259,4 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     if not result.is_success():
         raise RollingSolveError(f"rolling: IPOPT found no equilibrium ({result.get_solution_result()})")
     wv, tv = result.GetSolution(w), result.GetSolution(tau)
-    return RollingResult(result.GetSolution(th).reshape(N, K), _cayley(wv) @ st.R, st.t + tv, elapsed)
+    return RollingResult(result.GetSolution(th).reshape(N, K), _cayley(wv) @ st.R, st.t + tv, elapsed, released)

@@ -47,11 +47,17 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   the pad sphere that touches (``RollingState.pad_offset``; a side finger touches with its
   inner sphere, 6 mm out of its flexion plane). Measured on NH2 (20 random actions, seed 0):
   one-step 0.134 mm / 0.066 deg against the flat roll's 0.193 / 0.095, every joint's slope
-  0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). On the Model O
-  (the same apple, 20 actions) it predicts far worse, 0.739 mm against 0.168: there the
-  apple's centre lies 20 mm nearer the palm than the pads, its normals tilt 22-52 deg from
-  the grip's forces (the statics budget's table, docs/results.md): the side fingers' pads,
-  loaded past a friction of 1, may slip rather than roll (not checked);
+  0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). The Model O's
+  side fingers are mirror images, and one direction of their attachments holds a round
+  object only at second order; the reference releases it
+  (:func:`vlr_drake.motion_rolling.attachment_directions`). On the same apple (20 random
+  actions) it predicts 0.159 mm / 0.119 deg against the flat roll's 0.168 / 0.106, and the
+  thumb-vs-fingers sweep to 0.019-0.025 mm against 0.14-0.18; held, that direction had
+  locked the grasp (0.60 mm, and 2.3-2.5 mm on the sweep). The side fingers' distal joints
+  are explained 0.69-0.72 of their motion against the flat roll's 0.94: released, the mode
+  it held (the object turning about the thumb-fingers axis, one side distal joint flexing
+  as the other extends) is free, and the plant's friction holds it in part (its pads'
+  tangential forces reach 0.9-1.0 of the normal ones, and they slip 0.02-0.09 mm an action);
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
