@@ -37,18 +37,11 @@ from numba import njit, prange
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
 
-__all__ = ["NORMAL_GUESSES", "RollingMove", "attachment_directions", "circle_centres", "move_rolling",
-           "guessed_normals", "hinge_axes"]
+__all__ = ["NORMAL_GUESSES", "RollingMove", "circle_centres", "move_rolling", "guessed_normals", "hinge_axes"]
 
 #: Newton's stopping tolerances: stationarity [N m, N] and attachments [m].
 GRAD_TOL = 1e-10
 ATTACH_TOL = 1e-12
-#: An attachment direction whose Jacobian's singular value is below this fraction of the
-#: largest holds a round object only at second order and is released
-#: (:func:`attachment_directions`). The Model O's mirror-image side fingers give 1e-6 to
-#: 2e-5 on the apple; NH2's, whose links differ, 0.9e-3 to 1.2e-3; the next direction is
-#: above 0.01.
-WEAK_TOL = 1e-4
 #: Cap on one Newton step's largest joint change [rad].
 MAX_STEP = 0.1
 #: [e_a]x, a = 0, 1, 2: the Cayley derivatives' basis (:func:`_cayley_lanes`'s E).
@@ -209,7 +202,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
         raise ValueError(f"move_rolling: 'link_lengths' must have shape (1 or {P}, {N}, {K - 1}), got {L.shape}")
     L = np.broadcast_to(L, (P, N, K - 1))
     RT = np.swapaxes(R, 1, 2)
-    p0, Jc0, _ = _kinematics(hand, theta, a, L)
+    p0, _, _ = _kinematics(hand, theta, a, L)
     cO = np.einsum("pij,pnj->pni", RT, p0 - t[:, None])  # centres in the object frame
     nO = np.einsum("pij,pnj->pni", RT, nrm)
     comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, np.asarray(com, float) - t)
@@ -233,9 +226,8 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     def c(x):
         return np.ascontiguousarray(x, dtype=float)
 
-    rel = _released_directions(Jc0, R, cO, B, b, kap)
-    _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(nO), c(kap), c(hinge), c(rel), c(stretch), c(dl),
-                   c(mass), c(comO), c(g),
+    _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(nO), c(kap), c(hinge), c(stretch), c(dl), c(mass),
+                   c(comO), c(g),
                    c(mu), c(g_u), c(g_z), c(k), c(L), c(hand.pad), c(hand.base), c(hand.u), c(hand.moment_arms),
                    c(hand.rest_angles), c(hand.kappa), int(max_iter), MAX_STEP, GRAD_TOL, ATTACH_TOL,
                    x_theta, w, tau, ok, iters, motion._move_tasks(P))
@@ -245,58 +237,6 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
     return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new, iters)
 
-
-
-def attachment_directions(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The attachments' directions at the start, from their Jacobian ``J`` (..., 3N, n)
-    over (theta, w, tau): an orthonormal basis ``U`` (..., 3N, 3N) of them (J's left
-    singular vectors: the eigenvectors of J J^T, the smallest singular value first) and
-    which are ``weak`` (..., 3N), their singular value below ``WEAK_TOL`` of the largest.
-    On a round object the equilibrium releases the weak ones (each with a slack along it,
-    carrying no force); a flat face's holds every direction.
-
-    A weak direction holds the grasp only at second order. The Model O's two side fingers
-    flex in parallel planes side by side, neither can move its pad out of its plane, and
-    the difference of their out-of-plane attachments is nearly the distance between two
-    points of the object along one line, which its first-order motion cannot change. On a
-    round object each side pad touches at one point (the inner of its two pad spheres), and
-    held as an equality that direction locks the grasp with an internal force between the
-    two pads that no point contact gives (10-100 N on the apple, 1.1e6 N at its symmetric
-    grasp, against 1-3 N of normal force): the rolling reference then moved the apple
-    0.6-0.75 mm where the plant moved it 3.04 mm; released, 3.10 mm. On a flat face each
-    pad touches along its width with both spheres, whose moment holds the direction:
-    released there, the toy block's one-step error rose from 0.089 to 0.099 mm and the side
-    fingers' distal joints were explained 0.62-0.69 of their motion instead of 0.92-0.93
-    (docs/results.md, "The side fingers' redundant attachment")."""
-    J = np.asarray(J, float)
-    ev, U = np.linalg.eigh(J @ np.swapaxes(J, -1, -2))  # ascending; 0.4 s at 60,000, an SVD's half
-    return U, ev < WEAK_TOL**2 * ev[..., -1:]
-
-
-def _released_directions(Jc, R, cO, B, b, kap) -> np.ndarray:
-    """(P, ns, 3N) the weak attachment directions (:func:`attachment_directions`) that each
-    hypothesis rolling over a round object (``kap`` > 0 at a contact) releases, zero rows
-    where it has fewer than the most any has (ns, 0 on flat faces). The Jacobian at the
-    start (w = tau = 0, no turn yet): theta's columns dp/dtheta - R b_i, w's -(e_a x R c_i)
-    - R B_i e_a, tau's -I; the curvature adds nothing at first order."""
-    P, N, K, _ = Jc.shape
-    round_ = np.flatnonzero((kap > 0).any(axis=1))
-    if round_.size == 0:
-        return np.zeros((P, 0, 3 * N))
-    Rr = R[round_]
-    Rc = np.einsum("pij,pnj->pni", Rr, cO[round_])
-    J = np.zeros((round_.size, N, 3, N * K + 6))
-    for i in range(N):
-        J[:, i, :, i * K:(i + 1) * K] = (np.swapaxes(Jc[round_, i], 1, 2)
-                                         - np.einsum("pij,pj->pi", Rr, b[round_, i])[:, :, None])
-        J[:, i, :, N * K:N * K + 3] = (-np.einsum("aij,pj->pia", SKEW_BASIS, Rc[:, i])
-                                       - np.einsum("pij,pjk->pik", Rr, B[round_, i]))
-        J[:, i, :, N * K + 3:] = -np.eye(3)
-    U, weak = attachment_directions(J.reshape(round_.size, 3 * N, N * K + 6))  # the weak ones first
-    ns = int(weak.sum(axis=1).max())
-    rel = np.zeros((P, ns, 3 * N))
-    rel[round_] = np.swapaxes(U[:, :, :ns] * weak[:, None, :ns], 1, 2)
-    return rel
 
 
 def _skew(v):
@@ -355,16 +295,6 @@ LANES = motion.LANES
 
 
 @njit(cache=True)
-def _load_release(q, p, rel, ul, sl):  # pragma: no cover - numba
-    """Hypothesis ``p``'s released directions (``rel`` (P, ns, 3N); zero rows: none) into
-    lane ``q``, their slacks at zero."""
-    for j in range(rel.shape[1]):
-        sl[j, q] = 0.0
-        for row in range(rel.shape[2]):
-            ul[j, row, q] = rel[p, j, row]
-
-
-@njit(cache=True)
 def _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
                x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
                RcomO, Rn, hn, Rb, RB, w, tau, lam):  # pragma: no cover - numba
@@ -412,8 +342,7 @@ def _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO
 
 
 @njit(cache=True, error_model="numpy")
-def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge, rel, stretch, dl, mass, comO, g,
-                  mu,
+def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu,
                   g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                   x_out, w_out, tau_out, ok, iters):  # pragma: no cover - numba
     """Newton on the rolling equilibrium's KKT system (module docstring) for hypotheses
@@ -430,8 +359,7 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
     N, K = theta0.shape[1], theta0.shape[2]
     nK = N * K
     m = 3 * N
-    ns = rel.shape[1]  # released attachment directions (release_directions), each with a slack s
-    OW, OT, OS, OL = nK, nK + 3, nK + 6, nK + 6 + ns  # the KKT's blocks: theta, w, tau, s, lambda
+    OW, OT, OL = nK, nK + 3, nK + 6  # the KKT's blocks: theta, w, tau, lambda
     dim = OL + m
     W = LANES
     E = SKEW_BASIS.copy()
@@ -446,7 +374,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
     RcomO, Rn, hn = np.empty((3, W)), np.empty((N, 3, W)), np.empty((N, W))
     Rb, RB = np.empty((N, 3, W)), np.empty((N, 3, 3, W))
     w, tau, lam = np.empty((3, W)), np.empty((3, W)), np.empty((m, W))
-    ul, sl = np.zeros((ns, m, W)), np.zeros((ns, W))  # the lanes' released directions and their slacks
     # scratch
     Pc, Jc, Hc = np.empty((N, 3, W)), np.empty((N, 3, K, W)), np.empty((N, 3, K, K, W))
     C, dC, d2C = np.empty((3, 3, W)), np.empty((3, 3, 3, W)), np.empty((3, 3, 3, 3, W))
@@ -461,8 +388,7 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
     A2, F2 = np.empty((dim, dim, W)), np.empty((dim, W))  # their copies for a pivoted re-solve
     A1, F1, A0 = np.empty((dim, dim)), np.empty(dim), np.empty((dim, dim))
     gmax, rmax, hscale, gscale, rho = np.empty(W), np.empty(W), np.empty(W), np.empty(W), np.empty(W)
-    nz = K + 4 + ns
-    cols, vals = np.empty(nz, np.int64), np.empty((nz, W))  # one attachment row's nonzeros
+    cols, vals = np.empty(K + 4, np.int64), np.empty((K + 4, W))  # one attachment row's nonzeros
     tiny1, tiny2 = np.empty(W), np.empty(W)
     finite, bad, stepping = np.empty(W, np.bool_), np.zeros(W, np.bool_), np.zeros(W, np.bool_)
     done = np.zeros(W, np.int64)  # 0 running, 1 converged, 2 failed
@@ -476,7 +402,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
         _load_lane(q, p, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
                    x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
                    RcomO, Rn, hn, Rb, RB, w, tau, lam)
-        _load_release(q, p, rel, ul, sl)
     while motion._lanes_busy(pid):
         for q in range(W):
             itn[q] += 1
@@ -530,8 +455,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                 for q in range(W):
                     s = (Pc[i, r, q] - tl[r, q] - tau[r, q] - CR[r, 0, q] * v[i, 0, q] - CR[r, 1, q] * v[i, 1, q]
                          - CR[r, 2, q] * v[i, 2, q])
-                    for j in range(ns):  # a released direction slides by its slack
-                        s -= ul[j, row, q] * sl[j, q]
                     gv[row, q] = s
                     gmax[q] = max(gmax[q], abs(s))
                     finite[q] = finite[q] and np.isfinite(s)
@@ -583,12 +506,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                     st -= lam[3 * i + aa, q]
                 F[OW + aa, q] = s
                 F[OT + aa, q] = st
-        for j in range(ns):  # -u_j . lambda: a released direction carries no force
-            for q in range(W):
-                s = 0.0
-                for row in range(m):
-                    s -= ul[j, row, q] * lam[row, q]
-                F[OS + j, q] = s
         for q in range(W):
             rmax[q] = 0.0
         for c in range(OL):
@@ -676,17 +593,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                     for q in range(W):
                         A[OT + r, row, q] = -1.0
                         A[row, OT + r, q] = -1.0
-                    for j in range(ns):
-                        for q in range(W):
-                            A[OS + j, row, q] = -ul[j, 3 * i + r, q]
-                            A[row, OS + j, q] = -ul[j, 3 * i + r, q]
-            for j in range(ns):  # a lane with fewer released directions: its unused slacks stay 0
-                for q in range(W):
-                    unused = True
-                    for row in range(m):
-                        unused = unused and ul[j, row, q] == 0.0
-                    if unused:
-                        A[OS + j, OS + j, q] = 1.0
             for i in range(N):
                 for r in range(3):
                     for q in range(W):
@@ -721,16 +627,14 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                     for aa in range(3):
                         cols[K + aa] = OW + aa
                     cols[K + 3] = OT + r
-                    for j in range(ns):
-                        cols[K + 4 + j] = OS + j
-                    for e in range(nz):
+                    for e in range(K + 4):
                         for q in range(W):
                             vals[e, q] = A[row, cols[e], q]
-                    for e1 in range(nz):
+                    for e1 in range(K + 4):
                         c1 = cols[e1]
                         for q in range(W):
                             F[c1, q] += rho[q] * vals[e1, q] * F[row, q]
-                        for e2 in range(nz):
+                        for e2 in range(K + 4):
                             c2 = cols[e2]
                             for q in range(W):
                                 A[c1, c2, q] += rho[q] * vals[e1, q] * vals[e2, q]
@@ -739,7 +643,7 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
             for q in range(W):
                 hscale[q] = 0.0
                 gscale[q] = max(gscale[q], 1.0)
-            for c in range(OS):
+            for c in range(OL):
                 for q in range(W):
                     hscale[q] = max(hscale[q], abs(A[c, c, q]))
             for q in range(W):
@@ -774,8 +678,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                 for c in range(3):
                     w[c, q] += sc * F[OW + c, q]
                     tau[c, q] += sc * F[OT + c, q]
-                for j in range(ns):
-                    sl[j, q] += sc * F[OS + j, q]
                 for row in range(m):
                     lam[row, q] += sc * F[OL + row, q]
                 if itn[q] >= max_iter:  # out of iterations
@@ -800,20 +702,19 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                 _load_lane(q, nxt, theta0, a, R, t, cO, B, b, nO, kap, stretch, dl, mass, comO, mu, kst, L, hinge,
                            x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
                            RcomO, Rn, hn, Rb, RB, w, tau, lam)
-                _load_release(q, nxt, rel, ul, sl)
                 nxt += stride
             else:
                 pid[q] = -1
 
 
 @njit(cache=True, parallel=True)
-def _newton_kernel(theta0, a, R, t, cO, B, b, nO, kap, hinge, rel, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L,
-                   pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
+def _newton_kernel(theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g, mu, g_u, g_z, kst, L, pad,
+                   base, u, marm, rest, kappa, max_iter, max_step, grad_tol, attach_tol,
                    x_out, w_out, tau_out, ok, iters, tasks):  # pragma: no cover - numba
     """Every hypothesis' Newton (:func:`_newton_lanes`) in ``tasks`` parallel tasks, task k
     taking hypotheses k, k + tasks, k + 2 tasks, ... (:func:`vlr_drake.motion._move_tasks`)."""
     P = theta0.shape[0]
     for k in prange(tasks):
-        _newton_lanes(np.int64(k), P, tasks, theta0, a, R, t, cO, B, b, nO, kap, hinge, rel, stretch, dl, mass, comO, g,
+        _newton_lanes(np.int64(k), P, tasks, theta0, a, R, t, cO, B, b, nO, kap, hinge, stretch, dl, mass, comO, g,
                       mu, g_u, g_z, kst, L, pad, base, u, marm, rest, kappa, max_iter, max_step, grad_tol,
                       attach_tol, x_out, w_out, tau_out, ok, iters)

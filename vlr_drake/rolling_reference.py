@@ -43,13 +43,17 @@ from pydrake.solvers import IpoptSolver, MathematicalProgram
 
 from vlr_drake import kinematics
 from vlr_drake.hand import HandModel
-from vlr_drake.motion_rolling import attachment_directions
 
-__all__ = ["RollingState", "RollingResult", "RollingSolveError", "solve_rolling"]
+__all__ = ["RollingState", "RollingResult", "RollingSolveError", "attachment_directions", "solve_rolling"]
 
 #: Scale of the cost (energies ~1e-2 J) and of the attachment constraints (metres -> mm).
 COST_SCALE = 1e3
 CONSTRAINT_SCALE = 1e3
+#: An attachment direction whose Jacobian's singular value is below this fraction of the
+#: largest holds the grasp only at second order (:func:`attachment_directions`). The Model
+#: O's mirror-image side fingers give 1e-6 to 2e-5 on the apple; NH2's, whose links differ,
+#: 0.9e-3 to 1.2e-3; the next direction is above 0.01.
+WEAK_TOL = 1e-4
 
 
 class RollingSolveError(RuntimeError):
@@ -129,7 +133,7 @@ class RollingResult:
     R: np.ndarray  # (3, 3) the object's pose there
     t: np.ndarray  # (3,)
     solve_time_s: float
-    released: int = 0  # weak attachment directions released (motion_rolling.attachment_directions)
+    released: int = 0  # weak attachment directions released (solve_rolling's release_weak)
 
 
 def _cayley(w):
@@ -157,6 +161,25 @@ def _rolled_centre(c, n, r, radius, d, rel):
     return s0 - rho * n + rho * (_cayley((r / rho) * rel_t) @ n) + moved_d
 
 
+def attachment_directions(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The attachments' directions at the start, from their Jacobian ``J`` (3N, n) over
+    (theta, w, tau): an orthonormal basis ``U`` (3N, 3N) of them (J's left singular
+    vectors: the eigenvectors of J J^T, the smallest singular value first) and which are
+    ``weak`` (3N,), their singular value below ``WEAK_TOL`` of the largest.
+
+    A weak direction holds the grasp only at second order. The Model O's two side fingers
+    flex in parallel planes side by side, neither can move its pad out of its plane, and
+    the difference of their out-of-plane attachments is nearly the distance between two
+    points of the object along one line, which its first-order motion cannot change. Held
+    as an equality on a round object, it locks the grasp with an internal force between
+    the two pads that no point contact gives: the least-squares multipliers along it are
+    10-100 N on the apple (1.1e6 N at its mirror-image grasp) against 1-3 N of normal force.
+    ``solve_rolling(..., release_weak=True)`` releases it (docs/results.md, "The side
+    fingers' redundant attachment")."""
+    ev, U = np.linalg.eigh(np.asarray(J, float) @ np.asarray(J, float).T)  # ascending
+    return U, ev < WEAK_TOL**2 * ev[-1]
+
+
 def _centres(hand: HandModel, x, a):
     """The pads' centres (N, 3) for joint angles x (N*K,): the VLR's forward kinematics
     (:func:`vlr_drake.kinematics.contacts`), written for autodiff scalars."""
@@ -176,12 +199,26 @@ def _centres(hand: HandModel, x, a):
     return out
 
 
-def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, pad_radius=None) -> RollingResult:
+def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, pad_radius=None,
+                  release_weak: bool = False) -> RollingResult:
     """The rolling equilibrium (module docstring) after the tendon action ``dl`` (N,) [m]
     (default: none, the state's own equilibrium), started from ``state``
     (:class:`RollingState`), with ``gravity`` (3,) [m/s^2] in the palm frame (None: no
     weights, Eq. 9's energy) and the pads' radius ``pad_radius`` (N,) [m] (default: the
     hand's, ``FingerSpec.pad_radius``; 0 pins the centres as Eq. 8 does).
+
+    ``release_weak``: where the object is round at a contact, release the attachment
+    directions it holds only at second order (:func:`attachment_directions`; a slack along
+    each, which carries no force), as a point contact with finite friction would. On the
+    Model O's apple that is the plant's motion of the object: a thumb-vs-fingers sweep is
+    predicted to 0.02 mm instead of 2.3-2.5 mm, 20 random actions to 0.159 mm instead of
+    0.60 (flat faces: 0.168); but the mode it frees (the object turning about the
+    thumb-fingers axis, one side distal joint flexing as the other extends) is one the
+    plant's friction holds in part, and the side fingers' distal joints are explained
+    0.69-0.72 of their motion instead of 0.94. The filter's batched rolling model holds
+    every direction, which identified the joints better (docs/results.md, "The side
+    fingers' redundant attachment"). A flat face holds them all in either case: each pad
+    touches it along its width with both spheres, whose moment holds them.
 
     Raises :class:`RollingSolveError` when IPOPT finds none, ValueError on bad input."""
     st = state.checked(hand)
@@ -244,8 +281,8 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
         return np.array(res)
 
     held, released = attachments, 0
-    if np.any(np.isfinite(rho)):  # a round object: the directions it holds only weakly released
-        start = InitializeAutoDiff(np.concatenate([x0, np.zeros(6)])).ravel()  # (12, 1) -> (12,)
+    if release_weak and np.any(np.isfinite(rho)):  # a round object: the weakly held directions released
+        start = InitializeAutoDiff(np.concatenate([x0, np.zeros(6)])).ravel()  # (n, 1) -> (n,)
         U, weak = attachment_directions(ExtractGradient(attachments(start)))
         U = U[:, ~weak]
         held, released = (lambda v: U.T @ attachments(v)), 3 * N - U.shape[1]

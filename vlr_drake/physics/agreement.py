@@ -47,17 +47,17 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   the pad sphere that touches (``RollingState.pad_offset``; a side finger touches with its
   inner sphere, 6 mm out of its flexion plane). Measured on NH2 (20 random actions, seed 0):
   one-step 0.134 mm / 0.066 deg against the flat roll's 0.193 / 0.095, every joint's slope
-  0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). The Model O's
-  side fingers are mirror images, and one direction of their attachments holds a round
-  object only at second order; the reference releases it
-  (:func:`vlr_drake.motion_rolling.attachment_directions`). On the same apple (20 random
-  actions) it predicts 0.159 mm / 0.119 deg against the flat roll's 0.168 / 0.106, and the
-  thumb-vs-fingers sweep to 0.019-0.025 mm against 0.14-0.18; held, that direction had
-  locked the grasp (0.60 mm, and 2.3-2.5 mm on the sweep). The side fingers' distal joints
-  are explained 0.69-0.72 of their motion against the flat roll's 0.94: released, the mode
-  it held (the object turning about the thumb-fingers axis, one side distal joint flexing
-  as the other extends) is free, and the plant's friction holds it in part (its pads'
-  tangential forces reach 0.9-1.0 of the normal ones, and they slip 0.02-0.09 mm an action);
+  0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). On the Model O
+  it locks the grasp (0.60 mm against the flat roll's 0.18 on the same apple, 20 random
+  actions; 2.3-2.5 mm on a thumb-vs-fingers sweep): the side fingers are mirror images,
+  and one direction of their attachments holds a round object only at second order, with
+  an internal force no point contact gives
+  (:func:`vlr_drake.rolling_reference.attachment_directions`). ``rolling_released_*``: the
+  same with that direction released, 0.159 mm (0.02 mm on the sweep), the plant's motion of
+  the apple; but the mode it frees (the object turning about the thumb-fingers axis, one
+  side distal joint flexing as the other extends) the plant's friction holds in part, and
+  the side fingers' distal joints are explained 0.69-0.72 of their motion against the flat
+  roll's 0.94;
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
@@ -212,14 +212,16 @@ def _object_com(adapter) -> np.ndarray:
     return np.asarray(X_PW @ (plant.EvalBodyPoseInWorld(ctx, body) @ body.default_com()), float)
 
 
-def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com, sphere=None):
+def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com, sphere=None, release_weak=False):
     """The rolling reference (:mod:`vlr_drake.rolling_reference`) from the plant's state:
     its equilibria before and after ``dl`` with the pads rolling and the links' and the
     object's weight, the object's normals from the pads' touching points (``touching``,
     (N, 3) in P), the tendons' stretch of the commands ``l_before``. ``sphere`` (centre (3,)
     in P, radius) [m]: the object's shape as well, a sphere (``rolling_shaped``): the normals
     from its centre through the touching points, the pad spheres rolling over its curved
-    surface, and each pad's offset from the sphere that touches to its centre line.
+    surface, and each pad's offset from the sphere that touches to its centre line;
+    ``release_weak``: with the attachment directions the sphere holds only at second order
+    released (``solve_rolling``'s ``release_weak``).
     Returns (offset before [rad] (N, K), (R_pred, t_pred), joint motion [rad] (N, K)), or
     three Nones where IPOPT finds no equilibrium."""
     from vlr_drake.rolling_reference import RollingSolveError, RollingState, solve_rolling
@@ -235,8 +237,8 @@ def _rolling_prediction(h, truth, touching, l_before, dl, R, t, gravity, com, sp
                          np.asarray(l_before, float) - h.tendon_travel(truth["theta"]),
                          truth["object_mass"], com, **shape)
     try:
-        e0 = solve_rolling(h, state, None, gravity=gravity)
-        e1 = solve_rolling(h, state, dl, gravity=gravity)
+        e0 = solve_rolling(h, state, None, gravity=gravity, release_weak=release_weak)
+        e1 = solve_rolling(h, state, dl, gravity=gravity, release_weak=release_weak)
     except RollingSolveError:
         return None, None, None
     dR = e1.R @ e0.R.T
@@ -375,6 +377,9 @@ def run_agreement(
         shaped_offset, shaped, shaped_motion = (_rolling_prediction(
             h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com, sphere=sphere)
             if sphere is not None else (None, None, None))
+        released_offset, released, released_motion = (_rolling_prediction(
+            h, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com, sphere=sphere,
+            release_weak=True) if sphere is not None else (None, None, None))
         profiled = [(_rolling_prediction(hs, truth, fixed["touching"], adapter.tendon_command(), dl, R, t, gravity, com)[1],
                      _settled_prediction(hs, truth, adapter.tendon_command(), dl, R, t)[1]) for hs in profile["hands"]]
         loads = with_loads = None
@@ -415,6 +420,12 @@ def run_agreement(
                "rolling_shaped_joint_motion_deg": (None if shaped_motion is None
                                                    else np.rad2deg(shaped_motion).tolist()),
                "rolling_shaped_one_step_error_mm": None, "rolling_shaped_one_step_error_deg": None,
+               # the same with its weakly held attachment directions released (rolling_released)
+               "rolling_released_offset_deg": (None if released_offset is None
+                                               else np.rad2deg(released_offset).tolist()),
+               "rolling_released_joint_motion_deg": (None if released_motion is None
+                                                     else np.rad2deg(released_motion).tolist()),
+               "rolling_released_one_step_error_mm": None, "rolling_released_one_step_error_deg": None,
                # the object moved with the plant's true links, attached at link-fixed
                # points: the pads' centres (the VLR) or their touching points [mm], [deg]
                "kinematic_error_mm": {k: v[0] for k, v in kinematic.items()},
@@ -432,7 +443,8 @@ def run_agreement(
                     row["spring_profile"][name + "_mm"].append(err[0])
                     row["spring_profile"][name + "_deg"].append(err[1])
         for key, pred in (("settled_one_step_error", settled), ("settled_one_step_error_with_weights", settled_w),
-                          ("rolling_one_step_error", rolling), ("rolling_shaped_one_step_error", shaped)):
+                          ("rolling_one_step_error", rolling), ("rolling_shaped_one_step_error", shaped),
+                          ("rolling_released_one_step_error", released)):
             if pred is not None:
                 row[key + "_mm"], row[key + "_deg"] = _pose_error(pred, R1, t1)
         if one_ok:
@@ -509,14 +521,18 @@ def run_agreement(
         "rolling_failures": sum(r["rolling_one_step_error_mm"] is None for r in rows),
         # with the object's shape, a sphere's (None for other shapes)
         "joint_motion_slope_rolling_shaped": _slopes(rows, "rolling_shaped_joint_motion_deg"),
+        "joint_motion_slope_rolling_released": _slopes(rows, "rolling_released_joint_motion_deg"),
         # per joint (N, K): the fraction of the plant's joint motion each rolling prediction
         # explains, action by action (_explained)
         "joint_motion_explained_rolling": _explained(rows, "rolling_joint_motion_deg"),
         "joint_motion_explained_rolling_shaped": _explained(rows, "rolling_shaped_joint_motion_deg"),
+        "joint_motion_explained_rolling_released": _explained(rows, "rolling_released_joint_motion_deg"),
         # the drift while the commands were held after the last action (None: no hold)
         "hold": held,
         "rolling_shaped_one_step_error_mm_median": _median(rows, "rolling_shaped_one_step_error_mm"),
         "rolling_shaped_one_step_error_deg_median": _median(rows, "rolling_shaped_one_step_error_deg"),
+        "rolling_released_one_step_error_mm_median": _median(rows, "rolling_released_one_step_error_mm"),
+        "rolling_released_one_step_error_deg_median": _median(rows, "rolling_released_one_step_error_deg"),
         "spring_profile": _profile_summary(rows, profile),
         "wall_s": time.perf_counter() - t_start,
     }
@@ -716,7 +732,8 @@ def main(argv: list[str] | None = None) -> dict:
           + ", ".join(f"{k} {ke[k]:.3f} mm / {kd[k]:.3f} deg" for k in ke) + " (median)")
     for key, what in (("joint_motion_slope", "Eq. 9"), ("joint_motion_slope_with_weights", "the weights following"),
                       ("joint_motion_slope_rolling", "the pads rolling and the weights"),
-                      ("joint_motion_slope_rolling_shaped", "the same on the object's shape")):
+                      ("joint_motion_slope_rolling_shaped", "the same on the object's shape"),
+                      ("joint_motion_slope_rolling_released", "the same, its weak directions released")):
         if r[key] is not None:
             print(f"plant's joint motion / the commanded equilibria's, {what} (least-squares slope per joint): "
                   + ", ".join(f"{name} " + "/".join(num(x) for x in row)
@@ -730,9 +747,12 @@ def main(argv: list[str] | None = None) -> dict:
     if r["rolling_shaped_one_step_error_mm_median"] is not None:
         print(f"with the object's shape (a sphere: the pads rolling over its curved surface, the touching pad "
               f"sphere's offset): one-step error {num(r['rolling_shaped_one_step_error_mm_median'])} mm / "
-              f"{num(r['rolling_shaped_one_step_error_deg_median'])} deg (median)")
+              f"{num(r['rolling_shaped_one_step_error_deg_median'])} deg (median); with the attachment directions "
+              f"it holds only at second order released: {num(r['rolling_released_one_step_error_mm_median'])} mm / "
+              f"{num(r['rolling_released_one_step_error_deg_median'])} deg")
     for key, what in (("joint_motion_explained_rolling", "the rolling reference"),
-                      ("joint_motion_explained_rolling_shaped", "the same on the object's shape")):
+                      ("joint_motion_explained_rolling_shaped", "the same on the object's shape"),
+                      ("joint_motion_explained_rolling_released", "the same, its weak directions released")):
         if r[key] is not None:
             print(f"fraction of the plant's joint motion explained by {what}, action by action: "
                   + ", ".join(f"{name} " + "/".join(num(x) for x in row)
