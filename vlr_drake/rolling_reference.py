@@ -212,12 +212,11 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     each, which carries no force), as a point contact with finite friction would. On the
     Model O's apple that is the plant's motion of the object: a thumb-vs-fingers sweep is
     predicted to 0.02 mm instead of 2.3-2.5 mm, 20 random actions to 0.159 mm instead of
-    0.60 (flat faces: 0.168); but the mode it frees (the object turning about the
-    thumb-fingers axis, one side distal joint flexing as the other extends) is one the
-    plant's friction holds in part, and the side fingers' distal joints are explained
-    0.69-0.72 of their motion instead of 0.94. The filter's batched rolling model holds
-    every direction, which identified the joints better (docs/results.md, "The side
-    fingers' redundant attachment"). A flat face holds them all in either case: each pad
+    0.739 (flat faces: 0.168); but the side fingers' distal joints are explained 0.69-0.72
+    of their motion instead of the flat faces' 0.94, as if the plant's friction held in part
+    what the release frees. The filter's batched rolling model holds every direction,
+    which identified the joints better (docs/results.md, "The side fingers' redundant
+    attachment"). A flat face holds them all in either case: each pad
     touches it along its width with both spheres, whose moment holds them.
 
     Raises :class:`RollingSolveError` when IPOPT finds none, ValueError on bad input."""

@@ -48,16 +48,15 @@ predicts from the plant's *true* state (joint angles, contacts: ``theta_true``,
   inner sphere, 6 mm out of its flexion plane). Measured on NH2 (20 random actions, seed 0):
   one-step 0.134 mm / 0.066 deg against the flat roll's 0.193 / 0.095, every joint's slope
   0.99-1.09 against 0.94-1.22 (the right finger's distal 1.01 against 1.22). On the Model O
-  it locks the grasp (0.60 mm against the flat roll's 0.18 on the same apple, 20 random
+  it locks the grasp (0.739 mm against the flat roll's 0.168 on the same apple, 20 random
   actions; 2.3-2.5 mm on a thumb-vs-fingers sweep): the side fingers are mirror images,
   and one direction of their attachments holds a round object only at second order, with
   an internal force no point contact gives
   (:func:`vlr_drake.rolling_reference.attachment_directions`). ``rolling_released_*``: the
   same with that direction released, 0.159 mm (0.02 mm on the sweep), the plant's motion of
-  the apple; but the mode it frees (the object turning about the thumb-fingers axis, one
-  side distal joint flexing as the other extends) the plant's friction holds in part, and
-  the side fingers' distal joints are explained 0.69-0.72 of their motion against the flat
-  roll's 0.94;
+  the apple; but the side fingers' distal joints are explained 0.69-0.72 of their motion
+  against the flat roll's 0.94, as if the plant's friction held in part what the release
+  frees;
 - with ``--spring-profile SCALE ...``, each action predicted again by the rolling reference
   and by Eq. 9 with the model's thumb distal spring scaled (``spring_profile``): whether a
   model can see the spring in the object's motions. ``--squeeze`` adds the stiffness
