@@ -98,14 +98,18 @@ def test_gamma_predicts_the_physics_plants_first_actions(tmp_path):
         assert np.mean(np.abs(row["rolling_released_offset_deg"])) < 0.1
         assert row["rolling_released_one_step_error_mm"] < 0.3 * row["rolling_one_step_error_mm"]
         assert row["rolling_released_one_step_error_deg"] < 0.3 * row["rolling_one_step_error_deg"]
+    true = np.array([a["true_joint_motion_deg"] for a in r["actions"]])
     for name in ("shaped", "released"):
-        assert r[f"rolling_{name}_one_step_error_mm_median"] == pytest.approx(
-            np.median([a[f"rolling_{name}_one_step_error_mm"] for a in r["actions"]]))
+        for unit in ("mm", "deg"):
+            assert r[f"rolling_{name}_one_step_error_{unit}_median"] == pytest.approx(
+                np.median([a[f"rolling_{name}_one_step_error_{unit}"] for a in r["actions"]]))
+        model = np.array([a[f"rolling_{name}_joint_motion_deg"] for a in r["actions"]])
+        explained = np.array(r[f"joint_motion_explained_rolling_{name}"], float)
+        np.testing.assert_allclose(explained, 1.0 - ((true - model) ** 2).sum(0) / (true**2).sum(0))
+        slope = np.array(r[f"joint_motion_slope_rolling_{name}"], float)
+        np.testing.assert_allclose(slope, (true * model).sum(0) / (model**2).sum(0), rtol=1e-9)
     explained = np.array(r["joint_motion_explained_rolling_shaped"], float)
     assert explained.shape == (3, 2) and np.all(explained[:, 0] > 0.5) and np.all(explained <= 1.0)
-    true = np.array([a["true_joint_motion_deg"] for a in r["actions"]])
-    model = np.array([a["rolling_shaped_joint_motion_deg"] for a in r["actions"]])
-    np.testing.assert_allclose(explained, 1.0 - ((true - model) ** 2).sum(0) / (true**2).sum(0))
     assert np.all(np.array(r["joint_motion_explained_rolling_released"], float) > 0.95)
     # held after the last action, the plant is not quite at rest (SAP's creep): it drifts,
     # by far less than an action moves it

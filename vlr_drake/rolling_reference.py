@@ -50,9 +50,11 @@ __all__ = ["RollingState", "RollingResult", "RollingSolveError", "attachment_dir
 COST_SCALE = 1e3
 CONSTRAINT_SCALE = 1e3
 #: An attachment direction whose Jacobian's singular value is below this fraction of the
-#: largest holds the grasp only at second order (:func:`attachment_directions`). The Model
-#: O's mirror-image side fingers give 1e-6 to 2e-5 on the apple; NH2's, whose links differ,
-#: 0.9e-3 to 1.2e-3; the next direction is above 0.01.
+#: largest holds the grasp only at second order (:func:`attachment_directions`; in the
+#: solve's own scaling: the attachments in mm, the angles and the turn in rad). The Model
+#: O's mirror-image side fingers give 0 at a mirror-image grasp and 1e-6 to 2e-5 after
+#: random actions on the apple; NH2's, whose links differ, 0.9e-3 to 1.2e-3; the next
+#: direction is above 0.01.
 WEAK_TOL = 1e-4
 
 
@@ -164,8 +166,9 @@ def _rolled_centre(c, n, r, radius, d, rel):
 def attachment_directions(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The attachments' directions at the start, from their Jacobian ``J`` (3N, n) over
     (theta, w, tau): an orthonormal basis ``U`` (3N, 3N) of them (J's left singular
-    vectors: the eigenvectors of J J^T, the smallest singular value first) and which are
-    ``weak`` (3N,), their singular value below ``WEAK_TOL`` of the largest.
+    vectors, the largest singular value first) and which are ``weak`` (3N,), their singular
+    value below ``WEAK_TOL`` of the largest. Where there are more attachments than unknowns
+    (3N > n) the surplus directions, which hold nothing at first order either, are weak.
 
     A weak direction holds the grasp only at second order. The Model O's two side fingers
     flex in parallel planes side by side, neither can move its pad out of its plane, and
@@ -176,8 +179,10 @@ def attachment_directions(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     10-100 N on the apple (1.1e6 N at its mirror-image grasp) against 1-3 N of normal force.
     ``solve_rolling(..., release_weak=True)`` releases it (docs/results.md, "The side
     fingers' redundant attachment")."""
-    ev, U = np.linalg.eigh(np.asarray(J, float) @ np.asarray(J, float).T)  # ascending
-    return U, ev < WEAK_TOL**2 * ev[-1]
+    U, s, _ = np.linalg.svd(np.asarray(J, float))
+    sv = np.zeros(U.shape[0])
+    sv[: s.size] = s
+    return U, sv < WEAK_TOL * sv[0]
 
 
 def _centres(hand: HandModel, x, a):
@@ -207,17 +212,20 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     weights, Eq. 9's energy) and the pads' radius ``pad_radius`` (N,) [m] (default: the
     hand's, ``FingerSpec.pad_radius``; 0 pins the centres as Eq. 8 does).
 
-    ``release_weak``: where the object is round at a contact, release the attachment
-    directions it holds only at second order (:func:`attachment_directions`; a slack along
-    each, which carries no force), as a point contact with finite friction would. On the
+    ``release_weak``: release the attachment directions that hold the object only at second
+    order (:func:`attachment_directions`) where it is round: those that lie mostly (more
+    than half their weight) on contacts with a finite ``curvature_radius``. The equalities
+    are kept in the other directions only, which is a slack along each released one that
+    carries no force, as a point contact with finite friction would have. On the
     Model O's apple that is the plant's motion of the object: a thumb-vs-fingers sweep is
     predicted to 0.02 mm instead of 2.3-2.5 mm, 20 random actions to 0.159 mm instead of
     0.739 (flat faces: 0.168); but the side fingers' distal joints are explained 0.69-0.72
     of their motion instead of the flat faces' 0.94, as if the plant's friction held in part
     what the release frees. The filter's batched rolling model holds every direction,
     which identified the joints better (docs/results.md, "The side fingers' redundant
-    attachment"). A flat face holds them all in either case: each pad
-    touches it along its width with both spheres, whose moment holds them.
+    attachment"). Flat faces hold them in either case: released there as well, the toy
+    block was predicted worse (its pads touch it with both spheres, the apple's side pads
+    with one; why that matters is not shown).
 
     Raises :class:`RollingSolveError` when IPOPT finds none, ValueError on bad input."""
     st = state.checked(hand)
@@ -283,7 +291,8 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     if release_weak and np.any(np.isfinite(rho)):  # a round object: the weakly held directions released
         start = InitializeAutoDiff(np.concatenate([x0, np.zeros(6)])).ravel()  # (n, 1) -> (n,)
         U, weak = attachment_directions(ExtractGradient(attachments(start)))
-        U = U[:, ~weak]
+        on_round = (U[np.repeat(np.isfinite(rho), 3)] ** 2).sum(axis=0) > 0.5  # each direction's weight there
+        U = U[:, ~(weak & on_round)]
         held, released = (lambda v: U.T @ attachments(v)), 3 * N - U.shape[1]
     prog.AddConstraint(held, np.zeros(3 * N - released), np.zeros(3 * N - released), np.concatenate([th, w, tau]))
     prog.SetInitialGuess(th, x0)
