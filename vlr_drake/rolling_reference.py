@@ -216,16 +216,12 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     order (:func:`attachment_directions`) where it is round: those that lie mostly (more
     than half their weight) on contacts with a finite ``curvature_radius``. The equalities
     are kept in the other directions only, which is a slack along each released one that
-    carries no force, as a point contact with finite friction would have. On the
-    Model O's apple that is the plant's motion of the object: a thumb-vs-fingers sweep is
-    predicted to 0.02 mm instead of 2.3-2.5 mm, 20 random actions to 0.159 mm instead of
-    0.739 (flat faces: 0.168); but the side fingers' distal joints are explained 0.69-0.72
-    of their motion instead of the flat faces' 0.94, as if the plant's friction held in part
-    what the release frees. The filter's batched rolling model holds every direction,
-    which identified the joints better (docs/results.md, "The side fingers' redundant
-    attachment"). Flat faces hold them in either case: released there as well, the toy
-    block was predicted worse (its pads touch it with both spheres, the apple's side pads
-    with one; why that matters is not shown).
+    carries no force, as a point contact with finite friction would have. On the Model O's
+    apple it follows the plant's motion of the object far better than holding them, but
+    the side fingers' joints worse (the agreement check's ``rolling_released_*``, measured
+    in :mod:`vlr_drake.physics.agreement`); the filter's batched rolling model holds every
+    direction, which identified the joints better, and flat faces hold them in either case
+    (docs/results.md, "The side fingers' redundant attachment").
 
     Raises :class:`RollingSolveError` when IPOPT finds none, ValueError on bad input."""
     st = state.checked(hand)
