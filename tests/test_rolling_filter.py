@@ -148,6 +148,50 @@ def test_the_hypotheses_draw_and_keep_their_object():
     np.testing.assert_allclose(ps.object_load / m[:, None], shares, rtol=1e-12)
 
 
+def test_a_rolling_filter_reinitialises_around_its_object(monkeypatch):
+    """A forced divergence (the object swapped) re-initialises a rolling filter: its centre
+    of mass drawn within com_half_width of the moved cloud's estimate (fixed in the object's
+    frame, as its mass is), its normals again within the cone around the guess from the new
+    contacts; a second divergence soon after draws the centre of mass from its prior again.
+    The filter goes on working."""
+    from vlr_drake.observation import rotvec_to_matrix
+
+    truth = RollingTruth(3)
+    f = _filter(2000)
+    f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    dl = np.array([0.4e-3, 0.2e-3, -0.3e-3])
+    for _ in range(3):
+        truth.move(dl)
+        f.step(dl, truth.R, truth.t, tendon_command=truth.command)
+    com = f.estimates[-1]["object_com_O"]  # a move leaves com_O as it is: the moved cloud's estimate
+    centres = []
+    draw = pf.SelfIdentificationFilter._draw_object
+
+    def spy(self, p, p_O, R_PO, load, com_center=None):
+        centres.append(com_center)
+        return draw(self, p, p_O, R_PO, load, com_center)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "_draw_object", spy)
+    R_far = rotvec_to_matrix(np.array([0.0, np.deg2rad(30), 0.0]))[0] @ truth.R
+    t_far = truth.t + np.array([0.02, 0.0, 0.0])
+    rep = f.step(np.zeros(3), R_far, t_far, tendon_command=truth.command)
+    assert rep.reinitialised and f.reinitialisations == 1
+    np.testing.assert_array_equal(centres[-1], com)
+    ps = f.particles
+    off = np.linalg.norm(ps.com_O - com, axis=1)
+    half = f.prior.com_half_width
+    assert off.max() <= half + 1e-12 and np.median(off) > 0.7 * half  # a ball: half its draws beyond 0.79
+    p = kinematics.contacts(f.hand, ps.theta, ps.a)
+    n_P = np.einsum("ij,pnj->pni", R_far, ps.normals_O)
+    angle = np.rad2deg(np.arccos(np.clip(np.einsum("pni,pni->pn", n_P, guessed_normals(f.hand, p)), -1, 1)))
+    assert angle.max() <= f.config.normal_cone_deg + 1e-9
+    assert np.all(np.isfinite(ps.theta)) and np.isfinite(f.step(np.zeros(3), R_far, t_far,
+                                                                tendon_command=truth.command).mean_interval_deg)
+    f._reinitialise(R_far, t_far)  # within REINIT_RECENT of the first: the whole prior again
+    assert centres[-1] is None and f.reinitialisations == 2
+    assert np.linalg.norm(f.particles.com_O - com, axis=1).max() > 1.5 * half
+
+
 def test_a_rolling_filter_refuses_what_it_would_not_use():
     """The weights held through the prior's test while the moves carry them following the
     angles, and the rolling model's object settings on the pinned model, were accepted and

@@ -1406,12 +1406,13 @@ class SelfIdentificationFilter:
 
     # ---------------------------------------------------------------- initialisation
     def initialise(self, theta_center, a_center, R_PO, t_PO, stiffness_center=None, link_center=None,
-                   scale: float = 1.0, tendon_command=None, mass_center=None) -> ParticleSet:
+                   scale: float = 1.0, tendon_command=None, mass_center=None, com_center=None) -> ParticleSet:
         """Draw M hypotheses from the prior box around a nominal grasp and attach them to
         the measured POM pose (R_PO, t_PO). ``scale`` shrinks the box (1: the whole box, as the
         re-initialisation draws it);
         ``stiffness_center``, ``link_center`` and ``mass_center`` centre the unknown hand
-        parameters' draws (default: their whole prior ranges).
+        parameters' draws (default: their whole prior ranges), and ``com_center`` (3,) [m, POM
+        frame] the rolling model's centre of mass (default: ``PriorConfig.com_prior``'s).
 
         ``tendon_command`` (N,) [m] is the absolute tendon pull l at this grasp; the filter
         advances it by each action (or takes it from ``step``). It is required with the
@@ -1443,7 +1444,7 @@ class SelfIdentificationFilter:
         p_O = observation.attach(p, np.asarray(R_PO)[None], np.asarray(t_PO)[None])
         normals_O = com_O = radius = None
         if self.config.motion_model == "rolling":
-            normals_O, com_O, radius = self._draw_object(p, p_O, R_PO, load)
+            normals_O, com_O, radius = self._draw_object(p, p_O, R_PO, load, com_center)
         self.particles = ParticleSet(theta, a, stiff, links, stretch, p_O, np.zeros(M), load, normals_O, com_O, radius)
         self._first_move = True  # the next move carries the prior's draws (first_move_substeps)
         self._theta_center, self._a_center = theta_center, a_center
@@ -1554,7 +1555,7 @@ class SelfIdentificationFilter:
         return motion.stable_equilibria(self.hand, theta, multipliers, a=a, link_lengths=link_lengths,
                                         stiffness=stiffness, tendon=self.config.tendon, **kw)
 
-    def _draw_object(self, p, p_O, R_PO, load):
+    def _draw_object(self, p, p_O, R_PO, load, com_center=None):
         """The rolling model's object (FilterConfig.motion_model "rolling") for hypotheses with
         contacts ``p`` (M, N, 3) (palm frame) and ``p_O`` (POM frame): the outward normals
         at the contacts (M, N, 3), each drawn uniformly over the cone of ``normal_cone_deg``
@@ -1565,7 +1566,8 @@ class SelfIdentificationFilter:
         barycentre with the loads' shares, moved along the normal of the contacts' plane
         uniformly within ``PriorConfig.com_half_width`` (``com_prior`` "contacts"; "shape":
         a round hypothesis' within that radius of its contacts' circle's centre; "balanced":
-        within it of the balanced barycentre); both in the POM frame. Third, with
+        within it of the balanced barycentre; given a ``com_center`` (3,), within it of that
+        point, as a re-initialisation draws it); both in the POM frame. Third, with
         ``object_curvature`` "round", the object's surface radius at each contact (M, N) [m]:
         a round hypothesis' circle's radius less the pad radius, a flat one's inf (else None)."""
         M, N = p.shape[:2]
@@ -1602,22 +1604,24 @@ class SelfIdentificationFilter:
         if load is None:
             return normals_O, None, radius
         half = self.prior.com_half_width
+        if com_center is not None:
+            return normals_O, np.asarray(com_center, float)[None] + self._ball(M, half), radius
         if self.prior.com_prior == "balanced":
             centre = np.einsum("n,pni->pi", balanced_shares(self.hand), p_O)
-            ball = self.rng.standard_normal((M, 3))
-            ball *= (half * self.rng.uniform(0, 1, (M, 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1, keepdims=True)
-            return normals_O, centre + ball, radius
+            return normals_O, centre + self._ball(M, half), radius
         share = load / np.maximum(load.sum(axis=1, keepdims=True), 1e-300)
         centre = np.einsum("pn,pni->pi", share, p_O)
         if N >= 3:  # the normal of the contacts' (least-squares) plane
             plane = np.linalg.svd(p_O - p_O.mean(axis=1, keepdims=True))[2][:, -1]
             centre += half * self.rng.uniform(-1, 1, (M, 1)) * plane
         if self.prior.com_prior == "shape" and np.any(round_):  # a round object's: around its centre
-            ball = self.rng.standard_normal((int(round_.sum()), 3))
-            ball *= (half * self.rng.uniform(0, 1, (len(ball), 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1,
-                                                                                               keepdims=True)
-            centre[round_] = motion_rolling.circle_centres(p_O[round_]) + ball
+            centre[round_] = motion_rolling.circle_centres(p_O[round_]) + self._ball(int(round_.sum()), half)
         return normals_O, centre, radius
+
+    def _ball(self, n, radius) -> np.ndarray:
+        """``n`` points (n, 3) drawn uniformly within a ball of ``radius`` around the origin."""
+        ball = self.rng.standard_normal((n, 3))
+        return ball * (radius * self.rng.uniform(0, 1, (n, 1)) ** (1 / 3)) / np.linalg.norm(ball, axis=1, keepdims=True)
 
     def settled_angles(self, theta_center, a_center) -> tuple[np.ndarray, list[SettledAngles]]:
         """``PriorConfig.angle_centers`` "settled": the nominal grasp ``theta_center`` (N, K)
@@ -2139,20 +2143,27 @@ class SelfIdentificationFilter:
         """Draw the cloud again (every hypothesis implausible): around the estimate of the
         cloud as this iteration moved it (the last estimate is one action old), or, within
         ``REINIT_RECENT`` iterations of the last re-initialisation, from the whole prior
-        around the nominal grasp."""
+        around the nominal grasp.
+
+        The rolling model's object: its centre of mass, fixed in the object's frame as its
+        mass is, is drawn around the estimate with them (within ``com_half_width``); its
+        normals at the contacts are drawn again around the guess from the new contacts, as the
+        attachments are taken again from the measured pose: a divergence that is a slip puts
+        the pads on other points of the object's surface."""
         nominal = self._theta_center, self._a_center  # the first initialise's, kept
         recent = self._last_reinit is not None and self.iteration - self._last_reinit <= REINIT_RECENT
         self.reinitialisations += 1
         self._last_reinit = self.iteration
         if recent:
-            theta_c, a_c, k_c, L_c, m_c = *nominal, None, None, None
+            theta_c, a_c, k_c, L_c, m_c, c_c = *nominal, None, None, None, None
         else:
             est = self.estimate()
             theta_c, a_c = est["theta"], est["a"]
             k_c = est["stiffness"] if self.prior.stiffness_unknown else None
             L_c = est["link_lengths"] if self.prior.links_unknown else None
             m_c = float(est["object_mass"]) if self.prior.object_mass_unknown else None
-        self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0, mass_center=m_c)
+            c_c = est.get("object_com_O")  # (the rolling model's, with the object's weight)
+        self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0, mass_center=m_c, com_center=c_c)
         self._theta_center, self._a_center = nominal
         self.estimates.pop()  # initialise appended one; the report below appends the current
 
