@@ -48,8 +48,8 @@ from test_tag_pose import pose_errors, render_tag_view
 
 from vlr_drake.perception.apriltag import tag_image
 from vlr_drake.perception.camera import CameraConfig
-from vlr_drake.perception.image_noise import downsample_area
-from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
+from vlr_drake.perception.image_noise import add_pixel_noise
+from vlr_drake.perception.tag_pose import TagObserverConfig, to_gray, vtk_render_intrinsics
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver, rotation_from_vector
 
 #: The two tags of the rendered scene: (id, black-square size [m]).
@@ -365,12 +365,34 @@ def test_observer_bad_arguments(camera):
         TagObserver(TagObserverConfig(), K, None, np.eye(4))
     with pytest.raises(ValueError, match="tag_size"):
         TagObserver(TagObserverConfig(tag_size=-0.01), K, None, RigidTransform())
+    with pytest.raises(TypeError, match="X_PC: must be a pydrake.math.RigidTransform, got NoneType"):
+        TagObserver(TagObserverConfig(), K, None, None)  # the camera's pose is no default (X_TO is)
+    # a period or a noise that is not finite froze the sensor after one draw, or blanked the image
+    with pytest.raises(ValueError, match="'update_period_sec' must be a positive finite number"):
+        make_observer(K, camera, update_period_sec=np.inf)
+    with pytest.raises(ValueError, match="'pixel_noise_std' must be a finite number >= 0"):
+        make_observer(K, camera, pixel_noise_std=np.inf)
+    with pytest.raises(ValueError, match="standard deviation must be a finite number"):
+        add_pixel_noise(np.zeros((4, 4), np.uint8), np.inf, np.random.default_rng(0))
+    # a tag id that is no whole number was read as another tag (3.5 as 3)
+    for bad in (3.5, np.nan, True, "3"):
+        with pytest.raises(ValueError, match="'tag_id' must be a whole number"):
+            TagObserverConfig(tag_id=bad).validate()
+    assert TagObserverConfig(tag_id=np.int64(3)).validate().tag_id == 3
     observer = make_observer(K, camera)
     context = observer.CreateDefaultContext()
     observer.rgb_image_input_port().FixValue(context, ImageRgba8U(1, 1))
-    with pytest.raises(ValueError, match="image"):
+    with pytest.raises(ValueError, match="image: too small"):
         observer.X_PO_valid_output_port().Eval(context)
-    assert downsample_area(np.zeros((4, 4, 4), np.uint8), 2).shape == (2, 2, 4)
+    # an empty frame (a camera that delivered nothing) is a lost frame, as the docstring says
+    for scale in (1, 2):
+        observer = make_observer(K, camera, input_scale=scale)
+        context = observer.CreateDefaultContext()
+        observer.rgb_image_input_port().FixValue(context, ImageRgba8U())
+        assert observer.X_PO_valid_output_port().Eval(context)[0] == 0.0
+        assert np.isnan(observer.reprojection_error_output_port().Eval(context)[0])
+    with pytest.raises(ValueError, match="image: too small"):
+        to_gray(np.zeros((0, 0, 4), np.uint8))  # named before OpenCV's assertion
 
 
 # ----------------------------------------------------------------- NoisyPoseSensor

@@ -50,8 +50,8 @@ def add_pixel_noise(
     to every pixel and channel, rounded and clipped to uint8. An RGBA image keeps its alpha
     channel unless ``noise_alpha``. ``std`` 0 returns a copy unchanged."""
     image = _check_image(image)
-    if not std >= 0:
-        raise ValueError(f"std: pixel noise standard deviation must be >= 0, got {std}")
+    if not (np.isfinite(std) and std >= 0):
+        raise ValueError(f"std: pixel noise standard deviation must be a finite number >= 0, got {std}")
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
     out = image.copy()

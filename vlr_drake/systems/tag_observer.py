@@ -8,8 +8,8 @@
 
 Both output ``X_PO_measured`` (abstract ``RigidTransform``) and ``X_PO_valid`` (vector of
 size 1: 1.0 valid, 0.0 not). The measurement is computed from the *current* input (a reader
-at time t sees the image, or true pose, at t). An invalid frame (tag not found, out of view,
-occluded, reprojection error too large; or a dropout of the noisy sensor) outputs the last
+at time t sees the image, or true pose, at t). An invalid frame (an empty image, tag not
+found, out of view, occluded, reprojection error too large; or a dropout of the noisy sensor) outputs the last
 valid pose held in the system's state (identity before the first valid one) with valid 0;
 it never raises and never reports a stale pose as valid.
 
@@ -43,16 +43,16 @@ def _declare_update(system: LeafSystem, update_period_sec: float | None, update)
     if update_period_sec is None:
         system.DeclarePerStepUnrestrictedUpdateEvent(update=update)
     else:
-        if not update_period_sec > 0:
-            raise ValueError(f"'update_period_sec' must be > 0 or None, got {update_period_sec}")
+        if not (np.isfinite(update_period_sec) and update_period_sec > 0):
+            raise ValueError(f"'update_period_sec' must be a positive finite number [s] or None, got {update_period_sec}")
         system.DeclarePeriodicUnrestrictedUpdateEvent(
             period_sec=update_period_sec, offset_sec=0.0, update=update
         )
     system.DeclareForcedUnrestrictedUpdateEvent(update=update)
 
 
-def _check_pose(value: Any, name: str) -> RigidTransform:
-    if value is None:
+def _check_pose(value: Any, name: str, optional: bool = False) -> RigidTransform:
+    if value is None and optional:  # (X_TO: the tag's frame is the POM's)
         return RigidTransform()
     if not isinstance(value, RigidTransform):
         raise TypeError(f"{name}: must be a pydrake.math.RigidTransform, got {type(value).__name__}")
@@ -81,7 +81,9 @@ class TagObserver(LeafSystem):
 
     Ports: input ``rgb_image`` (abstract ``ImageRgba8U``); outputs ``X_PO_measured``
     (abstract ``RigidTransform``), ``X_PO_valid`` (size 1) and ``reprojection_error`` (size
-    1, RMS px of the detection, NaN when no tag was found).
+    1, RMS px of the pose fitted to the detection; NaN where no pose was fitted: no tag,
+    an empty image, a tag too small, one whose edges could not be measured or that faces
+    away; finite with valid 0 where the error itself rejected the frame).
     """
 
     def __init__(
@@ -103,15 +105,15 @@ class TagObserver(LeafSystem):
         self._K = np.asarray(K, dtype=np.float64)
         self._dist = None if dist is None else np.asarray(dist, dtype=np.float64).ravel()
         self._X_PC = _check_pose(X_PC, "X_PC")
-        self._X_TO = _check_pose(X_TO, "X_TO")
+        self._X_TO = _check_pose(X_TO, "X_TO", optional=True)
         if int(input_scale) != input_scale or input_scale < 1:
             raise ValueError(f"'input_scale' must be a positive integer, got {input_scale}")
         self._input_scale = int(input_scale)
         if image_size is not None and (len(image_size) != 2 or min(image_size) <= 0):
             raise ValueError(f"'image_size' must be (width, height) > 0, got {image_size}")
         self._image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
-        if not pixel_noise_std >= 0:
-            raise ValueError(f"'pixel_noise_std' must be >= 0, got {pixel_noise_std}")
+        if not (np.isfinite(pixel_noise_std) and pixel_noise_std >= 0):
+            raise ValueError(f"'pixel_noise_std' must be a finite number >= 0, got {pixel_noise_std}")
         self._pixel_noise_std = float(pixel_noise_std)
         self._seed = checked_seed(seed)
         self._detector = make_detector(config.corner_refinement, config.detector_overrides)
@@ -182,7 +184,8 @@ class TagObserver(LeafSystem):
 
     def _calc_detection(self, context: Context, value: AbstractValue) -> None:
         image = self._rgb_image.Eval(context).data
-        image = self.prepare_image(image, context.get_time())
+        if image.size:  # (an empty frame is a lost one: observe_pom says so)
+            image = self.prepare_image(image, context.get_time())
         X_PO, info = observe_pom(
             image, self._config, self._K, self._dist, self._X_PC, self._X_TO, self._detector
         )
