@@ -81,7 +81,29 @@ def test_filter_system_ports_with_fixvalue():
         est["theta"][...] = 0.0
     with pytest.raises(ValueError, match="read-only"):
         sys.GetOutputPort("particles").Eval(ctx).theta[0] = 0.0
-    assert np.all(sys.filter(ctx).estimates[-1]["theta"] == est["theta"]) and np.any(est["theta"] != 0.0)
+    fallback = est["fallbacks"][0]  # the nearest hypotheses too: their springs are the filter's own array
+    assert np.shares_memory(fallback["stiffness"], sys.filter(ctx).particles.stiffness)
+    with pytest.raises(ValueError, match="read-only"):
+        fallback["stiffness"][...] = 0.0
+    np.testing.assert_array_equal(est["theta"], sys.filter(ctx).estimate()["theta"])  # recomputed from the cloud
+    assert np.all(sys.filter(ctx).particles.stiffness > 0)
+    assert est["measured"] and est["lost_measurements"] == 0
+    # a lost tag after the start: the particles move, nothing is weighed, and the estimate says so
+    log_w = sys.filter(ctx).particles.log_w.copy()
+    assert plant.apply_action(dl)
+    sys.tendon_command_input_port().FixValue(ctx, plant.state.tendon_command)
+    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(RotationMatrix(np.eye(3)), [np.nan] * 3))
+    sys.X_PO_valid_input_port().FixValue(ctx, [0.0])
+    sys.ExecuteForcedEvents(ctx)
+    f = sys.filter(ctx)
+    assert f.iteration == 2 and not f.history[-1].measured and np.all(np.isfinite(f.particles.theta))
+    np.testing.assert_array_equal(f.particles.log_w, log_w)
+    est = sys.GetOutputPort("estimate").Eval(ctx)
+    assert not est["measured"] and est["lost_measurements"] == 1 and np.all(np.isfinite(est["theta"]))
+    # a validity that is no number is refused, naming the input, not read as a lost tag
+    sys.X_PO_valid_input_port().FixValue(ctx, [np.nan])
+    with pytest.raises(ValueError, match="input 'X_PO_valid' must be 0 or 1"):
+        sys.ExecuteForcedEvents(ctx)
 
 
 def test_the_policy_holds_the_grasp_until_the_filter_has_started():

@@ -64,6 +64,14 @@ def _read_only(x):
     return x
 
 
+def _flag(value, name: str) -> bool:
+    """A 0/1 input read as a flag (above 0.5); a value that is not finite is refused, naming
+    the input, rather than read as 0."""
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be 0 or 1, got {value}")
+    return bool(value > 0.5)
+
+
 class _FilterBox:
     """Abstract-state payload: the filter object (which tracks the tendon command too) and
     the trace of what it was given."""
@@ -148,7 +156,7 @@ class SelfIdentificationSystem(LeafSystem):
         if not np.all(np.isfinite(l_now)):
             raise ValueError(f"self-identification: input 'tendon_command' is not finite: {l_now.tolist()}")
         X = self._X_PO.Eval(context)
-        valid = bool(self._valid.Eval(context)[0] > 0.5)
+        valid = _flag(self._valid.Eval(context)[0], "self-identification: input 'X_PO_valid'")
         if box.filter is None:
             if not valid:
                 return  # wait for the first valid measurement
@@ -173,36 +181,40 @@ class SelfIdentificationSystem(LeafSystem):
         recorder = context.get_abstract_state(self._box).get_value().recorder
         return None if recorder is None else recorder.trace()
 
-    def _current(self, context):
-        return context.get_abstract_state(self._box).get_value().filter
-
     def _calc_estimate(self, context, output):
-        f = self._current(context)
+        f = self.filter(context)
+        if f is None:
+            output.set_value({})
+            return
         # the weighted mean, and the live hypotheses nearest it for a controller whose model
-        # the mean cannot be (control.filter_model_fn; the JacobianController tries them in turn)
-        output.set_value({} if f is None else {**{k: _read_only(v) for k, v in f.estimates[-1].items()},
-                                                "fallbacks": f.nearest_hypotheses(FALLBACKS)})
+        # the mean cannot be (control.filter_model_fn; the JacobianController tries them in
+        # turn); whether the last update weighed a measurement, and how many were lost
+        lost = sum(not r.measured for r in f.history)
+        output.set_value({**{k: _read_only(v) for k, v in f.estimates[-1].items()},
+                          "fallbacks": [{k: _read_only(v) for k, v in h.items()} for h in f.nearest_hypotheses(FALLBACKS)],
+                          "measured": bool(f.history[-1].measured) if f.history else True,
+                          "lost_measurements": lost})
 
     def _calc_theta(self, context, output: BasicVector):
-        f = self._current(context)
+        f = self.filter(context)
         output.SetFromVector(self._theta_center.ravel() if f is None else f.estimates[-1]["theta"].ravel())
 
     def _calc_width(self, context, output: BasicVector):
-        f = self._current(context)
+        f = self.filter(context)
         if f is None:
             output.SetFromVector(np.full(self._hand.N * self._hand.K, np.inf))
         else:
             output.SetFromVector(f.estimates[-1]["theta_half_width"])
 
     def _calc_converged(self, context, output: BasicVector):
-        f = self._current(context)
+        f = self.filter(context)
         output.SetFromVector([1.0 if (f is not None and f.converged) else 0.0])
 
     def _calc_started(self, context, output: BasicVector):
-        output.SetFromVector([0.0 if self._current(context) is None else 1.0])
+        output.SetFromVector([0.0 if self.filter(context) is None else 1.0])
 
     def _calc_particles(self, context, output):
-        f = self._current(context)
+        f = self.filter(context)
         if f is None:
             output.set_value(None)
             return
@@ -239,7 +251,7 @@ class ExplorationPolicy(LeafSystem):
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
 
     def _update(self, context, discrete_state):
-        if self._enabled.HasValue(context) and not self._enabled.Eval(context)[0] > 0.5:
+        if self._enabled.HasValue(context) and not _flag(self._enabled.Eval(context)[0], "exploration: input 'enabled'"):
             return  # held: the filter has not started
         n = int(context.get_discrete_state(self._draws).GetAtIndex(0))
         l_now = np.array(context.get_discrete_state(self._state).get_value())
