@@ -376,8 +376,9 @@ def observe_pom(
     ("ok", "empty_image" (a frame with no pixels), "not_detected", "too_small",
     "no_facing_solution", "reprojection_error", "edge_refinement_failed"),
     ``corners`` (4 x 2 or None), ``reprojection_error_px`` (nan when not detected) and
-    ``X_CT`` (RigidTransform or None); with a detection also ``detector_corners`` and
-    ``edge_refined`` (whether :func:`refine_corners_edges` succeeded). A rejected detection
+    ``X_CT`` (RigidTransform or None); with a detection also ``detector_corners``, and
+    where the edges were tried (``edge_refinement``, a tag not too small) ``edge_refined``
+    (whether :func:`refine_corners_edges` succeeded). A rejected detection
     returns None, never raises (bad arguments do).
     """
     from pydrake.math import RigidTransform, RotationMatrix

@@ -8,10 +8,11 @@
 
 Both output ``X_PO_measured`` (abstract ``RigidTransform``) and ``X_PO_valid`` (vector of
 size 1: 1.0 valid, 0.0 not). The measurement is computed from the *current* input (a reader
-at time t sees the image, or true pose, at t). An invalid frame (an empty image, tag not
-found, out of view, occluded, reprojection error too large; or a dropout of the noisy sensor) outputs the last
-valid pose held in the system's state (identity before the first valid one) with valid 0;
-it never raises and never reports a stale pose as valid.
+at time t sees the image, or true pose, at t). An invalid frame (an empty image; the tag
+not found, out of view, occluded or too small; its edges not measurable; the reprojection
+error too large; or a dropout of the noisy sensor) outputs the last valid pose held in the
+system's state (identity before the first valid one) with valid 0; it never raises and
+never reports a stale pose as valid.
 
 Held-pose update (the documented choice): an unrestricted update event stores the current
 measurement in the state when it is valid. With ``update_period_sec`` the event is periodic
