@@ -106,6 +106,37 @@ def test_filter_system_ports_with_fixvalue():
         sys.ExecuteForcedEvents(ctx)
 
 
+def test_a_cloned_context_shares_the_records_entries_not_their_lists():
+    """Drake clones the filter's state at every update: the records that only grow (history,
+    estimates, the trace's steps) are new lists of the same entries, the rest deep copies;
+    an update in the clone leaves the original as it was."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pf.FewParticlesWarning)
+        h, th, a, plant, sys, ctx = _fixed_filter_system(300, valid=1.0)
+    for _ in range(3):
+        sys.ExecuteForcedEvents(ctx)
+    clone = ctx.Clone()
+    f, g = sys.filter(ctx), sys.filter(clone)
+    assert g is not f and g.particles.theta is not f.particles.theta
+    np.testing.assert_array_equal(g.particles.theta, f.particles.theta)
+    for mine, theirs in ((f.history, g.history), (f.estimates, g.estimates)):
+        assert theirs is not mine and len(theirs) == len(mine) and all(x is y for x, y in zip(mine, theirs, strict=True))
+    for mine, theirs in zip(context_box(ctx).recorder.records(), context_box(clone).recorder.records(), strict=True):
+        assert theirs is not mine and len(theirs) == len(mine) and all(x is y for x, y in zip(mine, theirs, strict=True))
+    sys.ExecuteForcedEvents(clone)
+    assert sys.filter(clone).iteration == f.iteration + 1 and len(sys.filter(clone).history) == len(f.history) + 1
+    assert sys.filter(ctx).iteration == f.iteration == 2 and len(f.history) == 2 and len(f.estimates) == 3
+    assert len(sys.trace(clone).actions) == 3 and len(sys.trace(ctx).actions) == 2
+
+
+def context_box(ctx):
+    """A SelfIdentificationSystem's abstract state in its ``ctx``: the filter and its trace
+    recorder."""
+    return ctx.get_abstract_state(0).get_value()
+
+
 def test_the_policy_holds_the_grasp_until_the_filter_has_started():
     """Lost measurements at the grasp (the model plant's dropout): the filter starts late, and
     the hand has not moved by then, so the prior drawn around the grasp holds the truth (the

@@ -279,6 +279,11 @@ class TraceRecorder:
                             np.array(tendon_command, float)))
         self._add_truth(truth)
 
+    def records(self) -> list[list]:
+        """The recorder's lists that only grow (the steps and the truths): an entry is never
+        changed once appended, so a copy of the recorder may share the entries."""
+        return [self._steps, self._truths]
+
     def _add_truth(self, truth):
         if truth is not None:
             self._truths.append({k: np.array(truth[k], float) for k in TRUTH_KEYS + OPTIONAL_TRUTH_KEYS

@@ -80,9 +80,18 @@ class _FilterBox:
         self.filter = flt
         self.recorder = recorder
 
-    def __deepcopy__(self, memo):  # Drake clones abstract state; share nothing mutable
+    def __deepcopy__(self, memo):
+        """Drake clones the abstract state, twice at every update: share nothing mutable.
+        The records that only grow (the filter's history and estimates, the recorder's steps
+        and truths), whose entries are never changed once appended, are copied as new lists
+        of the same entries: deep-copied, they grew to 6.5 ms a copy after 240 iterations,
+        against 0.6 ms for all the rest of a 20,000-particle filter."""
         import copy
 
+        records = [] if self.filter is None else [self.filter.history, self.filter.estimates]
+        records += [] if self.recorder is None else self.recorder.records()
+        for r in records:
+            memo[id(r)] = list(r)
         return _FilterBox(copy.deepcopy(self.filter, memo), copy.deepcopy(self.recorder, memo))
 
 
