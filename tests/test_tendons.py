@@ -133,6 +133,12 @@ def test_bad_indices_raise():
                          (np.arange(6), np.array([0, 1, 2, 3, 4, 4]), "velocity_indices")):
         with pytest.raises(ValueError, match=f"{name} must be distinct indices"):
             TendonForces(hand, qi, vi, 6, 6)
+    # a damping of NaN gave NaN joint torques, an infinite ramp never moved (a review)
+    with pytest.raises(ValueError, match="damping must have 3 finite, non-negative entries"):
+        _system(hand, damping=[50.0, np.nan, 50.0])
+    for ramp_time, period in ((np.inf, 0.001), (0.2, np.inf), (-0.1, 0.001)):
+        with pytest.raises(ValueError, match="ramp_time must be finite and >= 0 and update_period finite"):
+            TendonForces(hand, np.arange(6), np.arange(6), 6, 6, ramp_time=ramp_time, update_period=period)
 
 
 def test_damping_follows_the_ramp_rate_and_the_time():

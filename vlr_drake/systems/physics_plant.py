@@ -218,7 +218,9 @@ class PhysicsConfig:
     # If > 0, skip the settle test and settle for exactly this long after the ramp [s].
     fixed_settle_time: float = 0.0
     # When a pad cannot reach the object at its preset placement (e.g. a novel hand), the
-    # grasp tries placements shifted along the palm normal up to this far [m] (0: never).
+    # grasp tries placements shifted along the palm normal in 2.5 mm steps up to this far
+    # [m] (0: never); the first that reaches only just reaches, so the object then goes
+    # AUTO_PLACE_MARGIN (10 mm) further where every pad still reaches it.
     auto_place_range: float = 0.03
     # Settle time of the grasp [s] (capped settle, same test).
     grasp_settle_max: float = 1.0
@@ -245,10 +247,6 @@ class PhysicsConfig:
         return "thumb_factor" if has_model_o_fingers(hand) else "balanced"
 
     def validate(self) -> "PhysicsConfig":
-        if not self.time_step > 0:
-            raise ValueError(
-                f"physics: 'time_step' must be positive (a discrete plant), got {self.time_step}"
-            )
         if self.contact_model not in ("point", "hydroelastic", "hydroelastic_with_fallback"):
             raise ValueError(f"physics: unknown 'contact_model' '{self.contact_model}'")
         if self.discrete_contact_approximation not in ("sap", "lagged", "similar"):
@@ -260,12 +258,11 @@ class PhysicsConfig:
             raise ValueError(
                 f"physics: 'pretension_mode' must be auto, thumb_factor or balanced, got '{self.pretension_mode}'"
             )
-        if len(self.palm_xyz) != 3 or len(self.palm_rpy_deg) != 3:
-            raise ValueError("physics: 'palm_xyz' and 'palm_rpy_deg' must have 3 entries")
         for name in ("palm_xyz", "palm_rpy_deg"):
             v = getattr(self, name)
-            if not all(is_number(x) and np.isfinite(x) for x in v):
-                raise ValueError(f"physics: '{name}' must be 3 finite numbers, got {list(v)}")
+            if not (isinstance(v, list | tuple | np.ndarray) and len(v) == 3
+                    and all(is_number(x) and np.isfinite(x) for x in v)):
+                raise ValueError(f"physics: '{name}' must be 3 finite numbers, got {v!r}")
         for name in [
             "ramp_time",
             "tendon_damping",
@@ -834,9 +831,11 @@ class PhysicsHand:
         X_PB = self.obj.X_PB()
         # The preset placement first; if a pad cannot reach the object there (another hand),
         # the nearest placement along the palm normal where every pad can (auto_place_range).
-        step = 0.0025
-        n = int(round(self.physics.auto_place_range / step))
-        offsets = [0.0] + [sign * k * step for k in range(1, n + 1) for sign in (1.0, -1.0)]
+        step, reach = 0.0025, self.physics.auto_place_range
+        shifts = [k * step for k in range(1, int(np.floor(reach / step + 1e-9)) + 1)]
+        if reach > 0 and (not shifts or reach - shifts[-1] > 1e-9):
+            shifts.append(reach)  # the range itself, where it is not a whole number of steps
+        offsets = [0.0] + [sign * d for d in shifts for sign in (1.0, -1.0)]
         q0 = plant.GetPositions(pctx).copy()
         error = None
 
@@ -862,9 +861,9 @@ class PhysicsHand:
                     theta0 = deeper if deeper is not None else attempt(dz)
                 break
         else:
-            raise PlacementError(
-                f"{error} (also tried +-{self.physics.auto_place_range} m along the palm normal)"
-            )
+            tried = (f"also tried shifts of up to +-{reach} m along the palm normal, in {step * 1e3:g} mm steps"
+                     if shifts else "no shift tried: auto_place_range 0")
+            raise PlacementError(f"{error} ({tried})")
         l = self.hand.R @ theta0 + self.pretensions(root_context) / self.hand.kappa
         if np.any(l > self.hand.tendon_range[:, 1]) or np.any(l < self.hand.tendon_range[:, 0]):
             raise PlacementError(f"grasp of '{self.obj.name}': tendon lengths {l} fall outside tendon_range")
@@ -923,6 +922,10 @@ class PhysicsHand:
         while root.get_time() - t_start < cap - 1e-9:
             X0 = self._object_pose(root)
             th0 = self.plant.GetPositions(pctx)[self.position_indices]
+            # a last, shorter window ends at the cap where the windows do not divide it
+            # (action_period is an upper bound)
+            left = t_start + cap - root.get_time()
+            dt = ph.settle_window if ph.settle_window <= left + 1e-9 else left
             simulator.AdvanceTo(root.get_time() + dt)
             X1 = self._object_pose(root)
             th1 = self.plant.GetPositions(pctx)[self.position_indices]

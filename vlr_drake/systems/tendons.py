@@ -86,9 +86,10 @@ class TendonForces(LeafSystem):
         for name, idx, n in (("position_indices", self._qi, num_positions), ("velocity_indices", self._vi, num_velocities)):
             if np.any(idx < 0) or np.any(idx >= n) or len(set(idx.tolist())) != idx.size:
                 raise ValueError(f"{name} must be distinct indices in [0, {n}) of the plant's state, got {idx.tolist()}")
-        if not ramp_time >= 0 or not update_period > 0:
-            raise ValueError(
-                f"ramp_time must be >= 0 and update_period > 0, got {ramp_time}, {update_period}"
+        if not (np.isfinite(ramp_time) and ramp_time >= 0 and np.isfinite(update_period) and update_period > 0):
+            raise ValueError(  # (an infinite ramp never moves)
+                f"ramp_time must be finite and >= 0 and update_period finite and > 0 [s], got {ramp_time}, "
+                f"{update_period}"
             )
         self._nq, self._nv = num_positions, num_velocities
         self._ramp_time = float(ramp_time)
@@ -99,13 +100,12 @@ class TendonForces(LeafSystem):
         if damping is None:
             damping = [f.tendon_damping for f in hand.spec.fingers]
         self._damping = np.asarray(damping, float)
-        if self._damping.shape != (N,) or np.any(self._damping < 0):
-            raise ValueError(f"damping must have {N} non-negative entries, got {damping}")
+        if self._damping.shape != (N,) or not np.all(np.isfinite(self._damping) & (self._damping >= 0)):
+            raise ValueError(f"damping must have {N} finite, non-negative entries [N s/m], got {damping}")
         self._N = N
         self.tendon_command_input = self.DeclareVectorInputPort(name="tendon_command", size=N)
         self.state_input = self.DeclareVectorInputPort(name="state", size=num_positions + num_velocities)
-        init = np.concatenate([np.repeat(self._lo, 3), [-1e9]])
-        init[:N] = init[N : 2 * N] = init[2 * N : 3 * N] = self._lo
+        init = np.concatenate([self._lo, self._lo, self._lo, [-1e9]])
         self._ramp_state = self.DeclareDiscreteState(BasicVector(init))
         self.DeclarePeriodicDiscreteUpdateEvent(
             period_sec=self._period, offset_sec=0.0, update=self._update_ramp
