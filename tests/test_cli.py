@@ -733,6 +733,9 @@ def test_demo_runs_every_step_and_writes_its_outputs(tmp_path, capsys):
     ("vlr_drake.builder", ["--run", "no_such_scenario.yaml"], "scenario 'no_such_scenario.yaml' not found"),
     ("vlr_drake.physics.agreement", ["--object", "aple", "--actions", "1"], "unknown object 'aple'"),
     ("vlr_drake.physics.check", ["--objects", "aple", "--actions", "1"], "aple"),
+    # a typo in the last name is named before the first object runs (it had cost the apple's run)
+    ("vlr_drake.physics.check", ["--objects", "apple", "aple", "--actions", "1", "--no-camera"],
+     "unknown object preset 'aple'"),
 ])
 def test_module_tools_name_a_bad_input_in_one_line(tmp_path, module, argv, says):
     """The python -m tools end a run with a bad input as the vlr-drake commands do: exit
@@ -744,6 +747,7 @@ def test_module_tools_name_a_bad_input_in_one_line(tmp_path, module, argv, says)
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2, out.stderr
     assert len(lines) == 1 and lines[0].startswith(f"python -m {module}: error: ") and says in lines[0], out.stderr
+    assert "held=" not in out.stdout  # (the check's result line: nothing was run first)
 
 
 @pytest.mark.parametrize("module, argv, says", [

@@ -94,6 +94,9 @@ class PhysicsAdapter:
             seen = {"not_detected": "does not see the tag",
                     "too_small": "sees the tag smaller than min_tag_side_px",
                     "no_facing_solution": "sees the tag but finds no pose of it facing the camera",
+                    "edge_refinement_failed": "sees the tag but cannot measure its edges (covered or blurred; "
+                                              "the observer's require_edge_refinement)",
+                    "empty_image": "renders an empty image",
                     "reprojection_error": f"sees the tag but its pose reprojects "
                                           f"{self.last_observation.get('reprojection_error_px', float('nan')):.2f} px "
                                           f"off"}.get(self.last_observation.get("reason"), "does not see the tag")

@@ -206,6 +206,9 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
         physics.validate()
     except ValueError as e:
         ap.error(str(e))
+    hand_by_name(args.hand)  # every name before the first run, not a typo in the last one after minutes
+    for name in args.objects:
+        preset(name)
     camera = None if args.no_camera else CameraConfig()
     results = []
     t0 = time.perf_counter()
