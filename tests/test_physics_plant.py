@@ -489,6 +489,20 @@ def test_fixed_action_period():
     assert np.isfinite(r.creep_mm_per_s) and np.all(r.in_contact)
 
 
+def test_a_grasp_that_does_not_hold_and_an_object_dropped_are_reported():
+    """Too little pretension: the object slips out while the grasp settles, and the grasp
+    says so (``held``); released tendons drop a held object, and ``object_fell`` says so (a
+    review: neither had been seen to happen in a test)."""
+    _, ph, sim = build_physics_hand(model_o(), preset("toy_block"), PhysicsConfig(pretension=0.5))
+    g = ph.grasp(sim)
+    assert not g.held and not np.all(g.in_contact) and g.object_shift_mm > 1e3 * ph.physics.fall_distance
+    _, ph, sim = build_physics_hand(model_o(), preset("toy_block"), PhysicsConfig())
+    g = ph.grasp(sim)
+    assert g.held and not ph.object_fell(sim.get_context())
+    r = ph.apply_action(sim, np.full(3, -1.0), render=False)  # every tendon let go (clamped to its range)
+    assert r.clamped and not np.all(r.in_contact) and ph.object_fell(sim.get_context())
+
+
 def test_a_tested_settle_ends_by_the_action_period():
     """The settle test's windows need not divide its cap: the last one is shorter, and an
     action that never settles ends at action_period, the documented upper bound (a review:
@@ -523,7 +537,7 @@ def test_placement_checks_and_auto_placement():
     _, ph, sim = build_physics_hand(model_o(), high, PhysicsConfig(auto_place_range=0.03))
     g = ph.grasp(sim)
     assert 0.095 <= ph.placement_X_PB.translation()[2] < 0.125
-    assert g.settled and np.all(g.in_contact)
+    assert g.settled and np.all(g.in_contact) and g.held
 
 
 def test_custom_object_with_a_new_tag_renders_without_touching_the_repository():

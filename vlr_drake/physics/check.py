@@ -60,6 +60,7 @@ class CheckResult:
     actions: int
     held: bool  # every pad still touches the object and it never moved past fall_distance
     first_loss: int | None  # first action after which the object was lost (None: never)
+    grasp_held: bool  # the grasp held the object (GraspResult.held; False: lost before any action)
     grasp_settled: bool
     grasp_tension_N: list[float]
     contact_drift_per_action_mm_mean: list[float]  # per finger: mean |dp^O| per action
@@ -156,8 +157,9 @@ def run_check(
         object=obj.name,
         hand=hand_name,
         actions=actions,
-        held=first_loss is None,
+        held=g.held and first_loss is None,
         first_loss=first_loss,
+        grasp_held=g.held,
         grasp_settled=g.settled,
         grasp_tension_N=[float(x) for x in g.tension],
         contact_drift_per_action_mm_mean=[float(x) for x in 1e3 * drift.mean(axis=0)]

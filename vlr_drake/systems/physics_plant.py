@@ -559,6 +559,9 @@ class GraspResult:
     settle_time: float  # simulated [s]
     object_shift_mm: float  # POM moved while settling [mm]
     wall_s: float
+    # every pad touches the object after the settle, and it moved less than fall_distance
+    # while settling: a grasp to explore from (False: it slipped out or was never held)
+    held: bool = True
 
 
 @dataclass
@@ -885,6 +888,8 @@ class PhysicsHand:
         settled, t_settle, _ = self._settle(simulator, self.physics.grasp_settle_max)
         X_PO = self.output(root, "X_PO_true")
         self.grasp_X_PO = X_PO
+        shift = float(np.linalg.norm(X_PO.translation() - X_PO0.translation()))
+        in_contact = self.in_contact(root)
         return GraspResult(
             theta=self.output(root, "theta_true").copy(),
             theta_placed=theta0,
@@ -892,11 +897,12 @@ class PhysicsHand:
             tension=self.output(root, "tension").copy(),
             X_PO=X_PO,
             contacts=self.output(root, "contacts_true").reshape(-1, 3).copy(),
-            in_contact=self.in_contact(root),
+            in_contact=in_contact,
             settled=settled,
             settle_time=t_settle,
-            object_shift_mm=1e3 * float(np.linalg.norm(X_PO.translation() - X_PO0.translation())),
+            object_shift_mm=1e3 * shift,
             wall_s=time.perf_counter() - t0,
+            held=bool(np.all(in_contact) and shift < self.physics.fall_distance),
         )
 
     def _object_pose(self, root: Context) -> RigidTransform:
