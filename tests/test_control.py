@@ -369,6 +369,9 @@ def test_controller_system_forced_update_moves_towards_goal(grasp):
     ctrl.X_PO_valid_input_port().FixValue(ctx, [0.0])
     ctrl.ExecuteForcedEvents(ctx)
     np.testing.assert_allclose(ctrl.tendon_command_output_port().Eval(ctx), l0)  # invalid: held
+    ctrl.X_PO_valid_input_port().FixValue(ctx, [np.nan])  # no number: named, not read as invalid
+    with pytest.raises(ValueError, match="controller: input 'X_PO_valid' must be 0 or 1"):
+        ctrl.ExecuteForcedEvents(ctx)
     ctrl.X_PO_valid_input_port().FixValue(ctx, [1.0])
     ctrl.ExecuteForcedEvents(ctx)
     l1 = ctrl.tendon_command_output_port().Eval(ctx)

@@ -184,6 +184,14 @@ def is_number(value) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
 
 
+def checked_flag(value, name: str) -> bool:
+    """A system's 0/1 input (a valid flag, an enable) read as a flag, above 0.5; a value
+    that is not finite is refused, naming the input, rather than read as 0."""
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be 0 or 1, got {value}")
+    return bool(value > 0.5)
+
+
 def checked_seed(seed) -> int:
     """``seed`` as an int, or a ValueError naming it (numpy refuses a negative seed only at
     the first draw, without naming it; 2.9 would be cut to 2): what a system checks when it

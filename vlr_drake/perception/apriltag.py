@@ -10,6 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from vlr_drake.kinematics import is_number
+
 #: Dictionary used everywhere (OpenCV's predefined tag36h11 family).
 TAG_DICTIONARY = cv2.aruco.DICT_APRILTAG_36h11
 #: Number of ids in tag36h11.
@@ -25,9 +27,7 @@ def dictionary() -> cv2.aruco.Dictionary:
 def check_tag_id(tag_id: int) -> int:
     """``tag_id`` as an int, or a ValueError naming it: a whole number (3.5 is no tag, and
     would have been read as 3) within the tag36h11 dictionary."""
-    whole = isinstance(tag_id, (int, np.integer)) and not isinstance(tag_id, bool) or (
-        isinstance(tag_id, (float, np.floating)) and float(tag_id).is_integer())
-    if not whole:
+    if not (is_number(tag_id) and float(tag_id).is_integer()):
         raise ValueError(f"'tag_id' must be a whole number, got {tag_id!r}")
     if not 0 <= int(tag_id) < TAG36H11_COUNT:
         raise ValueError(f"'tag_id' {tag_id} is outside the tag36h11 dictionary (0..{TAG36H11_COUNT - 1})")

@@ -37,6 +37,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from vlr_drake import control
 from vlr_drake.hand import HandModel
+from vlr_drake.kinematics import checked_flag
 
 __all__ = ["JacobianController", "TaskTrajectorySource", "EstimateFromTruth", "ControlPhase"]
 
@@ -241,7 +242,7 @@ class JacobianController(LeafSystem):
                 [np.maximum(about[:, 0], lim0[:, 0]), np.minimum(about[:, 1], lim0[:, 1])])).ravel(), [1.0]])
             discrete_state.get_mutable_vector(self._limit_state).SetFromVector(packed)
         lim = packed[:-1].reshape(self._hand.N, 2)
-        valid = bool(self._valid.Eval(context)[0] > 0.5)
+        valid = checked_flag(self._valid.Eval(context)[0], "controller: input 'X_PO_valid'")
         est = self._estimate.Eval(context)
         if not valid or not est:  # hold the command; the goal is not known to be reached
             discrete_state.get_mutable_vector(self._command_state).SetFromVector(l_now)
@@ -395,7 +396,8 @@ class TaskTrajectorySource(LeafSystem):
     def _update(self, context, discrete_state):
         if not self.anchored(context):
             # not anchored yet: the valid measurements at or after relative_start_sec, one per update
-            if context.get_time() >= self._relative - 1e-9 and self._valid.Eval(context)[0] > 0.5:
+            if context.get_time() >= self._relative - 1e-9 and checked_flag(
+                    self._valid.Eval(context)[0], "goal anchor: input 'X_PO_valid'"):
                 X = self._X_PO.Eval(context)
                 sums = np.asarray(context.get_discrete_state(self._anchor).get_value())
                 discrete_state.get_mutable_vector(self._anchor).SetFromVector(

@@ -561,7 +561,7 @@ class GraspResult:
     wall_s: float
     # every pad touches the object after the settle, and it moved less than fall_distance
     # while settling: a grasp to explore from (False: it slipped out or was never held)
-    held: bool = True
+    held: bool
 
 
 @dataclass

@@ -36,7 +36,7 @@ from vlr_drake import filter as pf
 from vlr_drake.control import FALLBACKS
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
-from vlr_drake.kinematics import checked_seed
+from vlr_drake.kinematics import checked_flag, checked_seed
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.trace import IdentificationTrace, TraceRecorder
 
@@ -62,14 +62,6 @@ def _read_only(x):
         v.flags.writeable = False
         return v
     return x
-
-
-def _flag(value, name: str) -> bool:
-    """A 0/1 input read as a flag (above 0.5); a value that is not finite is refused, naming
-    the input, rather than read as 0."""
-    if not np.isfinite(value):
-        raise ValueError(f"{name} must be 0 or 1, got {value}")
-    return bool(value > 0.5)
 
 
 class _FilterBox:
@@ -165,7 +157,7 @@ class SelfIdentificationSystem(LeafSystem):
         if not np.all(np.isfinite(l_now)):
             raise ValueError(f"self-identification: input 'tendon_command' is not finite: {l_now.tolist()}")
         X = self._X_PO.Eval(context)
-        valid = _flag(self._valid.Eval(context)[0], "self-identification: input 'X_PO_valid'")
+        valid = checked_flag(self._valid.Eval(context)[0], "self-identification: input 'X_PO_valid'")
         if box.filter is None:
             if not valid:
                 return  # wait for the first valid measurement
@@ -260,7 +252,7 @@ class ExplorationPolicy(LeafSystem):
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
 
     def _update(self, context, discrete_state):
-        if self._enabled.HasValue(context) and not _flag(self._enabled.Eval(context)[0], "exploration: input 'enabled'"):
+        if self._enabled.HasValue(context) and not checked_flag(self._enabled.Eval(context)[0], "exploration: input 'enabled'"):
             return  # held: the filter has not started
         n = int(context.get_discrete_state(self._draws).GetAtIndex(0))
         l_now = np.array(context.get_discrete_state(self._state).get_value())
