@@ -23,6 +23,7 @@ from vlr_drake.perception.tag_pose import (
     APRILTAG_CORNER_OFFSET_PX,
     TagObserverConfig,
     detect_tag,
+    detect_tag_all,
     estimate_tag_pose,
     faces_camera,
     make_detector,
@@ -324,6 +325,15 @@ def test_lost_tag_cases(K, views):
     # Out of view: the tag moved 60 mm sideways.
     far = render_tag_view(RigidTransform(X_CT.rotation(), X_CT.translation() + [0.06, 0.0, 0.0]), K)
     assert observe_pom(far, config, K, None, RigidTransform())[0] is None
+    # The id seen twice (a second print, a reflection): which one is the object's is not
+    # known, so neither is taken, and the reason says so (it had said "not_detected").
+    left = render_tag_view(RigidTransform(X_CT.rotation(), X_CT.translation() + [-0.02, 0.0, 0.0]), K)
+    right = render_tag_view(RigidTransform(X_CT.rotation(), X_CT.translation() + [0.02, 0.0, 0.0]), K)
+    twice = np.minimum(left, right)  # the background is lighter than the tags' black
+    assert len(detect_tag_all(twice, TAG_ID)) == 2 and detect_tag(twice, TAG_ID) is None
+    X_PO, info = observe_pom(twice, config, K, None, RigidTransform())
+    assert X_PO is None and info["reason"] == "ambiguous" and not info["valid"]
+    assert observe_pom(left, config, K, None, RigidTransform())[1]["reason"] == "ok"
     # A tight reprojection threshold rejects a real detection, and says why.
     strict = TagObserverConfig(tag_id=TAG_ID, tag_size=TAG_SIZE, max_reprojection_error_px=1e-6)
     X_PO, info = observe_pom(image, strict, K, None, RigidTransform())

@@ -92,6 +92,7 @@ class PhysicsAdapter:
         if not valid:
             c = self.camera
             seen = {"not_detected": "does not see the tag",
+                    "ambiguous": "sees the tag's id more than once",
                     "too_small": "sees the tag smaller than min_tag_side_px",
                     "no_facing_solution": "sees the tag but finds no pose of it facing the camera",
                     "edge_refinement_failed": "sees the tag but cannot measure its edges (covered or blurred; "

@@ -166,10 +166,24 @@ def detect_tag(
 ) -> np.ndarray | None:
     """Corners (4 x 2, OpenCV pixel coordinates, order top-left, top-right, bottom-right,
     bottom-left of the tag image, matching ``tag_corners``) of the tag ``tag_id``, or None
-    when it is not found. If the id is seen more than once, None (ambiguous).
+    when it is not found. If the id is seen more than once, None (ambiguous:
+    :func:`detect_tag_all` returns every sighting).
 
     ``corner_offset_px`` is added to both coordinates; None uses
     :func:`default_corner_offset` (removes APRILTAG refinement's +0.43 px)."""
+    hits = detect_tag_all(image, tag_id, detector, corner_offset_px)
+    return hits[0] if len(hits) == 1 else None
+
+
+def detect_tag_all(
+    image: np.ndarray,
+    tag_id: int,
+    detector: cv2.aruco.ArucoDetector | None = None,
+    corner_offset_px: float | None = None,
+) -> list[np.ndarray]:
+    """Every sighting of the tag ``tag_id`` in ``image``: a list of 4 x 2 corner arrays as
+    :func:`detect_tag` returns one (empty when it is not seen; two or more when the id is
+    seen twice, e.g. a second printed tag or a reflection)."""
     check_tag_id(tag_id)
     gray = to_gray(image)
     if detector is None:
@@ -178,11 +192,9 @@ def detect_tag(
         corner_offset_px = default_corner_offset(detector)
     corners, ids, _ = detector.detectMarkers(gray)
     if ids is None:
-        return None
-    hits = [c for c, i in zip(corners, np.asarray(ids).ravel(), strict=True) if int(i) == int(tag_id)]
-    if len(hits) != 1:
-        return None
-    return np.asarray(hits[0], dtype=np.float64).reshape(4, 2) + float(corner_offset_px)
+        return []
+    return [np.asarray(c, dtype=np.float64).reshape(4, 2) + float(corner_offset_px)
+            for c, i in zip(corners, np.asarray(ids).ravel(), strict=True) if int(i) == int(tag_id)]
 
 
 def _line_intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -373,7 +385,8 @@ def observe_pom(
 
     ``X_PC``, ``X_TO`` and the result are ``pydrake.math.RigidTransform`` (X_TO None means
     identity). Returns (X_PO or None, info) where info has ``valid`` (bool), ``reason``
-    ("ok", "empty_image" (a frame with no pixels), "not_detected", "too_small",
+    ("ok", "empty_image" (a frame with no pixels), "not_detected", "ambiguous" (the tag's id
+    seen more than once), "too_small",
     "no_facing_solution", "reprojection_error", "edge_refinement_failed"),
     ``corners`` (4 x 2 or None), ``reprojection_error_px`` (nan when not detected) and
     ``X_CT`` (RigidTransform or None); with a detection also ``detector_corners``, and
@@ -405,9 +418,12 @@ def observe_pom(
     if detector is None:
         detector = make_detector(config.corner_refinement, config.detector_overrides)
     gray = to_gray(image)
-    corners = detect_tag(gray, config.tag_id, detector, config.corner_offset_px)
-    if corners is None:
+    hits = detect_tag_all(gray, config.tag_id, detector, config.corner_offset_px)
+    if len(hits) != 1:
+        if hits:
+            info["reason"] = "ambiguous"
         return None, info
+    corners = hits[0]
     info["detector_corners"] = info["corners"] = corners
     side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
     if side < config.min_tag_side_px:
