@@ -638,6 +638,22 @@ def test_trajectory_source_checks_its_goals(goal, match):
         TaskTrajectorySource([(np.eye(3), np.zeros(3)), goal], 0.1)
 
 
+def test_the_controller_systems_check_their_periods(grasp):
+    """Drake takes any period: an infinite one never fires, 0 or a negative one fires
+    without end. The controller had refused only periods <= 0, the trajectory source
+    nothing (checked by kinematics.checked_period, as the filter's and observer's)."""
+    goal = [(np.eye(3), np.zeros(3))]
+    l0 = grasp.plant.state.tendon_command
+    for period in (np.inf, 0.0, -0.1, np.nan, "0.1"):
+        with pytest.raises(ValueError, match="'period_sec' must be a positive finite number"):
+            TaskTrajectorySource(goal, period)
+        with pytest.raises(ValueError, match="'period_sec' must be a positive finite number"):
+            JacobianController(grasp.hand, l0, period)
+    with pytest.raises(ValueError, match="'offset_sec' must be None or in"):
+        TaskTrajectorySource(goal, 0.1, offset_sec=0.1)
+    assert TaskTrajectorySource(goal, 0.1, offset_sec=0.0) is not None
+
+
 def test_trajectory_source_checks_max_periods():
     with pytest.raises(ValueError, match="max_periods"):  # was "cannot convert float NaN to integer"
         TaskTrajectorySource([(np.eye(3), np.zeros(3))], 0.1, max_periods=np.nan)

@@ -365,7 +365,7 @@ def test_observer_bad_arguments(camera):
         TagObserver(TagObserverConfig(), K, None, np.eye(4))
     with pytest.raises(ValueError, match="tag_size"):
         TagObserver(TagObserverConfig(tag_size=-0.01), K, None, RigidTransform())
-    with pytest.raises(TypeError, match="X_PC: must be a pydrake.math.RigidTransform, got NoneType"):
+    with pytest.raises(TypeError, match="X_PC must be a pydrake.math.RigidTransform, got NoneType"):
         TagObserver(TagObserverConfig(), K, None, None)  # the camera's pose is no default (X_TO is)
     # a period or a noise that is not finite froze the sensor after one draw, or blanked the image
     with pytest.raises(ValueError, match="'update_period_sec' must be a positive finite number"):

@@ -192,6 +192,15 @@ def checked_flag(value, name: str) -> bool:
     return bool(value > 0.5)
 
 
+def checked_period(value, name: str) -> float:
+    """A periodic event's period [s] as a float: a finite number > 0 (an infinite period
+    would never fire, 0 would fire without end), or a ValueError naming it. What a system
+    checks when it is made."""
+    if not (is_number(value) and 0 < value < np.inf):
+        raise ValueError(f"'{name}' must be a positive finite number [s], got {value!r}")
+    return float(value)
+
+
 def checked_seed(seed) -> int:
     """``seed`` as an int, or a ValueError naming it (numpy refuses a negative seed only at
     the first draw, without naming it; 2.9 would be cut to 2): what a system checks when it

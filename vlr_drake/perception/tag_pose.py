@@ -372,6 +372,21 @@ def estimate_tag_pose(
     return best
 
 
+def check_pose(value: Any, name: str, optional: bool = False) -> Any:
+    """``value`` if it is a finite ``pydrake.math.RigidTransform``; with ``optional``, None
+    is the identity (X_TO: the tag's frame is the POM's). Otherwise a TypeError or ValueError
+    that starts with ``name``."""
+    from pydrake.math import RigidTransform
+
+    if value is None and optional:
+        return RigidTransform()
+    if not isinstance(value, RigidTransform):
+        raise TypeError(f"{name} must be a pydrake.math.RigidTransform, got {type(value).__name__}")
+    if not np.all(np.isfinite(value.GetAsMatrix34())):
+        raise ValueError(f"{name} is not finite: {value.GetAsMatrix34().tolist()}")
+    return value
+
+
 def observe_pom(
     image: np.ndarray,
     config: TagObserverConfig,
@@ -405,13 +420,8 @@ def observe_pom(
     }
     _check_intrinsics(K, dist)  # also when no tag is in view: a bad calibration is named at once
     config.validate()
-    for name, X in (("X_PC", X_PC), ("X_TO", X_TO)):
-        if X is None and name == "X_TO":
-            continue
-        if not isinstance(X, RigidTransform):
-            raise TypeError(f"observe_pom: '{name}' must be a pydrake.math.RigidTransform, got {type(X).__name__}")
-        if not np.all(np.isfinite(X.GetAsMatrix34())):
-            raise ValueError(f"observe_pom: '{name}' is not finite: {X.GetAsMatrix34().tolist()}")
+    X_PC = check_pose(X_PC, "observe_pom: 'X_PC'")
+    X_TO = check_pose(X_TO, "observe_pom: 'X_TO'", optional=True)
     if np.asarray(image).size == 0:  # a camera's empty frame: a lost frame, as no tag is
         info["reason"] = "empty_image"
         return None, info
@@ -448,9 +458,7 @@ def observe_pom(
     if error > config.max_reprojection_error_px:
         info["reason"] = "reprojection_error"
         return None, info
-    X_PO = X_PC @ X_CT
-    if X_TO is not None:
-        X_PO = X_PO @ X_TO
+    X_PO = X_PC @ X_CT @ X_TO
     info["valid"] = True
     info["reason"] = "ok"
     return X_PO, info

@@ -27,39 +27,31 @@ the held pose is the last valid measurement *at an update event*.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem, State, ValueProducer
 from pydrake.systems.sensors import ImageRgba8U
 
-from vlr_drake.kinematics import checked_seed
+from vlr_drake.kinematics import checked_period, checked_seed
 from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
-from vlr_drake.perception.tag_pose import TagObserverConfig, _check_intrinsics, make_detector, observe_pom
+from vlr_drake.perception.tag_pose import (
+    TagObserverConfig,
+    _check_intrinsics,
+    check_pose,
+    make_detector,
+    observe_pom,
+)
 
 
 def _declare_update(system: LeafSystem, update_period_sec: float | None, update) -> None:
     if update_period_sec is None:
         system.DeclarePerStepUnrestrictedUpdateEvent(update=update)
     else:
-        if not (np.isfinite(update_period_sec) and update_period_sec > 0):
-            raise ValueError(f"'update_period_sec' must be a positive finite number [s] or None, got {update_period_sec}")
         system.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=update_period_sec, offset_sec=0.0, update=update
+            period_sec=checked_period(update_period_sec, "update_period_sec"), offset_sec=0.0, update=update
         )
     system.DeclareForcedUnrestrictedUpdateEvent(update=update)
-
-
-def _check_pose(value: Any, name: str, optional: bool = False) -> RigidTransform:
-    if value is None and optional:  # (X_TO: the tag's frame is the POM's)
-        return RigidTransform()
-    if not isinstance(value, RigidTransform):
-        raise TypeError(f"{name}: must be a pydrake.math.RigidTransform, got {type(value).__name__}")
-    if not np.all(np.isfinite(value.GetAsMatrix34())):
-        raise ValueError(f"{name}: the pose is not finite: {value.GetAsMatrix34().tolist()}")
-    return value
 
 
 class TagObserver(LeafSystem):
@@ -105,8 +97,8 @@ class TagObserver(LeafSystem):
         _check_intrinsics(K, dist)  # named here, not at the first frame with a tag
         self._K = np.asarray(K, dtype=np.float64)
         self._dist = None if dist is None else np.asarray(dist, dtype=np.float64).ravel()
-        self._X_PC = _check_pose(X_PC, "X_PC")
-        self._X_TO = _check_pose(X_TO, "X_TO", optional=True)
+        self._X_PC = check_pose(X_PC, "X_PC")
+        self._X_TO = check_pose(X_TO, "X_TO", optional=True)
         if int(input_scale) != input_scale or input_scale < 1:
             raise ValueError(f"'input_scale' must be a positive integer, got {input_scale}")
         self._input_scale = int(input_scale)
@@ -306,7 +298,7 @@ class NoisyPoseSensor(LeafSystem):
         return int(context.get_discrete_state(self._sample).GetAtIndex(0))
 
     def _calc_pose(self, context: Context, output: AbstractValue) -> None:
-        X = self.measure(_check_pose(self._X_PO_true.Eval(context), "X_PO_true"), self._n(context))
+        X = self.measure(check_pose(self._X_PO_true.Eval(context), "input 'X_PO_true'"), self._n(context))
         output.set_value(X if X is not None else self.held_pose(context))
 
     def _calc_valid(self, context: Context, output: BasicVector) -> None:
@@ -315,6 +307,6 @@ class NoisyPoseSensor(LeafSystem):
     def _update(self, context: Context, state: State) -> None:
         n = self._n(context) + 1
         state.get_mutable_discrete_state(self._sample).SetAtIndex(0, float(n))
-        X = self.measure(_check_pose(self._X_PO_true.Eval(context), "X_PO_true"), n)
+        X = self.measure(check_pose(self._X_PO_true.Eval(context), "input 'X_PO_true'"), n)
         if X is not None:
             state.get_mutable_abstract_state(self._held).set_value(X)
