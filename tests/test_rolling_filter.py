@@ -192,6 +192,36 @@ def test_a_rolling_filter_reinitialises_around_its_object(monkeypatch):
     assert np.linalg.norm(f.particles.com_O - com, axis=1).max() > 1.5 * half
 
 
+def test_a_rolling_move_that_is_not_finite_fails_and_hides_no_divergence(monkeypatch):
+    """A rolling move marked solved with a NaN rotation or translation is a failed one. Two
+    such hypotheses in 400 had made the closest hypothesis' distance NaN, which no threshold
+    exceeds, so a swapped object was absorbed by tempering instead of re-initialising, and
+    NaN entered the weights (a review's injected fault)."""
+    from vlr_drake.observation import rotvec_to_matrix
+
+    truth = RollingTruth(3)
+    f = _filter(400)
+    f.initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    move = pf.motion_rolling.move_rolling
+
+    def nan_poses(*args, **kwargs):
+        mv = move(*args, **kwargs)
+        mv.R[:2] = np.nan
+        mv.t[2:4] = np.nan
+        mv.ok[:4] = True
+        return mv
+
+    monkeypatch.setattr(pf.motion_rolling, "move_rolling", nan_poses)
+    dl = np.array([0.4e-3, 0.2e-3, -0.3e-3])
+    truth.move(dl)
+    rep = f.step(dl, truth.R, truth.t, tendon_command=truth.command)
+    assert rep.solve_failures >= 4 and rep.infeasible >= 4 and np.isfinite(rep.best_mahalanobis)
+    assert not np.isnan(f.particles.log_w).any() and np.isfinite(f.particles.p_O).all()
+    R_far = rotvec_to_matrix(np.array([0.0, np.deg2rad(30), 0.0]))[0] @ truth.R
+    rep = f.step(np.zeros(3), R_far, truth.t + np.array([0.02, 0.0, 0.0]), tendon_command=truth.command)
+    assert rep.reinitialised and np.isfinite(rep.best_mahalanobis) and rep.best_mahalanobis > f.config.divergence_sigmas
+
+
 def test_a_rolling_filter_refuses_what_it_would_not_use():
     """The weights held through the prior's test while the moves carry them following the
     angles, and the rolling model's object settings on the pinned model, were accepted and

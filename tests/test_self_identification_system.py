@@ -100,6 +100,15 @@ def test_filter_system_ports_with_fixvalue():
     np.testing.assert_array_equal(f.particles.log_w, log_w)
     est = sys.GetOutputPort("estimate").Eval(ctx)
     assert not est["measured"] and est["lost_measurements"] == 1 and np.all(np.isfinite(est["theta"]))
+    assert not est["reinitialised"] and est["reinitialisations"] == 0
+    # the object swapped (the POM 20 mm away, turned 30 deg): the cloud is drawn again and the
+    # estimate says so, for a consumer that would otherwise see only the estimate jump
+    R_far = RotationMatrix.MakeYRotation(np.deg2rad(30)) @ RotationMatrix(R)
+    sys.X_PO_measured_input_port().FixValue(ctx, RigidTransform(R_far, t + np.array([0.02, 0.0, 0.0])))
+    sys.X_PO_valid_input_port().FixValue(ctx, [1.0])
+    sys.ExecuteForcedEvents(ctx)
+    est = sys.GetOutputPort("estimate").Eval(ctx)
+    assert est["reinitialised"] and est["reinitialisations"] == 1 and est["measured"]
     # a validity that is no number is refused, naming the input, not read as a lost tag
     sys.X_PO_valid_input_port().FixValue(ctx, [np.nan])
     with pytest.raises(ValueError, match="input 'X_PO_valid' must be 0 or 1"):

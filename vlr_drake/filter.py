@@ -107,7 +107,7 @@ def _pose(name: str, R, t) -> tuple[np.ndarray, np.ndarray]:
                else f"R {R.reshape(3, 3).round(6).tolist()}")
         raise ValueError(f"filter: the {name} POM pose is not finite ({bad}); pass valid=False for a lost tag")
     R, t = _shaped(f"{name} rotation", R, (3, 3)), _shaped(f"{name} position", t, (3,))
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+    if not observation.is_rotation(R):
         raise ValueError(f"filter: the {name} rotation is not a rotation matrix: {np.round(R, 6).tolist()}")
     return R, t
 
@@ -1084,8 +1084,8 @@ class FilterConfig:
             raise ValueError(f"filter: 'stable_grasps' must be one of {STABLE_GRASPS}, got '{self.stable_grasps}'")
         if self.held_motion not in HELD_MOTIONS:
             raise ValueError(f"filter: 'held_motion' must be one of {HELD_MOTIONS}, got '{self.held_motion}'")
-        if self.max_substeps < 0:
-            raise ValueError(f"filter: 'max_substeps' must be >= 0, got {self.max_substeps}")
+        if not kinematics.is_count(self.max_substeps):
+            raise ValueError(f"filter: 'max_substeps' must be an integer >= 0, got {self.max_substeps!r}")
         if self.first_move_substeps is not None and not kinematics.is_count(self.first_move_substeps):
             raise ValueError(f"filter: 'first_move_substeps' must be None or an integer >= 0, "
                              f"got {self.first_move_substeps!r}")
@@ -1274,6 +1274,31 @@ CALIBRATED_PARTICLES = 3000
 #: truth (a review found a cloud re-initialised 23 times in 60 iterations around estimates
 #: 11-25 deg off, its box +-8.6 deg).
 REINIT_RECENT = 5
+
+
+#: A cloud whose live hypotheses (feasible, carrying weight) weigh less than this fraction of
+#: it in effective sample size is lost, as one whose every hypothesis became implausible,
+#: and is drawn again (SelfIdentificationFilter._live_floor). The tempering's own floor,
+#: ``ess_fraction`` of the live cloud, is far above it: none of the 98 physics traces behind
+#: the README's rows had a live cloud below ``ess_fraction`` (0.3) of its particles.
+COLLAPSED_FRACTION = 0.01
+
+
+def _finite_moves(res: motion.MoveResult, theta0, stretch0, kappa) -> motion.MoveResult:
+    """``res`` with every hypothesis whose angles, stretch or tension are not finite made a
+    failed move, at its angles before it (``theta0``) and the stretch the action left it
+    (``stretch0``): the solvers keep failures at their start, and a NaN passed on would end
+    the run in the contacts' check (a review's injected fault)."""
+    bad = ~(np.isfinite(res.theta).all(axis=(1, 2)) & np.isfinite(res.stretch).all(axis=1)
+            & np.isfinite(res.tension).all(axis=1))
+    if not bad.any():
+        return res
+    keep = ~bad
+    stretch = np.where(keep[:, None], res.stretch, stretch0)
+    return dataclasses.replace(
+        res, theta=np.where(keep[:, None, None], res.theta, theta0), stretch=stretch,
+        tension=np.where(keep[:, None], res.tension, kappa[None] * stretch), ok=res.ok & keep,
+        stable=res.stable & keep)
 
 
 def balanced_shares(hand: HandModel) -> np.ndarray:
@@ -1872,13 +1897,17 @@ class SelfIdentificationFilter:
         if self.particles is None:
             raise RuntimeError("filter: call initialise() before step()")
         cfg, h, ps = self.config, self.hand, self.particles
+        # checked before anything moves or is counted: a bad input changes nothing
         dl = _shaped("dl", dl, (h.N,))
-        if valid and R_meas is not None:  # checked before anything moves: a bad one changes nothing
+        valid = kinematics.checked_flag(valid, "filter: 'valid'")
+        if valid and R_meas is not None:
             R_meas, t_meas = _pose("measured", R_meas, t_meas)
+        if tendon_command is not None:
+            tendon_command = as_particles("tendon_command", tendon_command, (h.N,))
         lap = _Laps()
         self.iteration += 1
         if tendon_command is not None:  # the motors' reading after the action
-            self.tendon_command = as_particles("tendon_command", tendon_command, (h.N,)) - dl
+            self.tendon_command = tendon_command - dl
         if self._uses_command():  # each hypothesis' tendon state from the motors (tendon_reference)
             ps.stretch = self._commanded_stretch(ps.theta)
         if self.tendon_command is not None:
@@ -1896,7 +1925,7 @@ class SelfIdentificationFilter:
         if rolling:
             res, R_pred, t_pred = self._move_rolling(dl, R_prev, t_prev)
             p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
-            pose_ok = prev_ok & np.all(np.isfinite(t_pred), axis=1)
+            pose_ok = prev_ok & np.isfinite(t_pred).all(axis=1) & np.isfinite(R_pred).all(axis=(1, 2))
         else:
             D2 = motion.contact_distances_sq(h, ps.p_O)
             res = motion.move(h, ps.theta, dl, a=ps.a, D2=D2, stretch=ps.stretch, link_lengths=ps.link_lengths,
@@ -1906,6 +1935,7 @@ class SelfIdentificationFilter:
                               **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
             if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
                 res = self._move_held(res, dl, D2, substeps)
+            res = _finite_moves(res, ps.theta, ps.stretch + dl, h.kappa)
             p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
             R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = self._feasible(res, pose_ok)
@@ -1915,7 +1945,8 @@ class SelfIdentificationFilter:
             if rolling:  # the pads rolled over the object: the contacts in the pose it predicts
                 p_O = observation.in_frame(p_new, R_pred, t_pred)
                 ps.p_O = np.where(np.isfinite(p_O).all(axis=(1, 2))[:, None, None], p_O, ps.p_O)
-            return self._report(False, float(ps.size), 1.0, res, feasible, False, np.nan, lap=lap)
+            # the weights carried on, unchanged (their ESS, not the cloud's size)
+            return self._report(False, effective_sample_size(ps.log_w), 1.0, res, feasible, False, np.nan, lap=lap)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
         if cfg.stuck_probability:  # held by friction where it was (motion.move kept its angles)
@@ -1923,17 +1954,23 @@ class SelfIdentificationFilter:
         log_lik = np.where(feasible, log_lik, -np.inf)
         # the hypotheses that still carry weight and are feasible now: where none is, every
         # particle has become implausible, whatever those already weighing nothing say
-        live = feasible & np.isfinite(ps.log_w)
+        live = feasible & np.isfinite(ps.log_w) & np.isfinite(log_lik)
+        log_lik = np.where(live, log_lik, -np.inf)
         best = float(np.sqrt(np.min(maha2[live]))) if live.any() else np.inf
         evidence = log_evidence_increment(ps.log_w, log_lik)
-        if not live.any() or best > cfg.divergence_sigmas:
+        live_ess = _tempered_ess(np.ascontiguousarray(ps.log_w, float), np.ascontiguousarray(log_lik, float), 0.0)
+        # A cloud that has (nearly) collapsed onto a few hypotheses is lost too: resampling
+        # would copy them, roughening would find no spread among them, and the intervals would
+        # shrink to nothing, sure and wrong (a review: one survivor of 2,000, reported
+        # converged with a 2e-8 deg interval and every truth outside).
+        collapsed = not live.any() or not live_ess >= self._live_floor()
+        if collapsed or best > cfg.divergence_sigmas:
             lap("weigh")
             self._reinitialise(R_meas, t_meas)
             lap("reinitialise")
             return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best, evidence, lap=lap)
         # temper this iteration's likelihood only, relative to the weights carried so far
         target = cfg.ess_fraction * ps.size
-        live_ess = _tempered_ess(np.ascontiguousarray(ps.log_w, float), np.ascontiguousarray(log_lik, float), 0.0)
         if live_ess < target:
             # so many hypotheses failed that the live cloud is below the target at any beta:
             # temper relative to it (the conditional ESS of adaptive SMC) rather than take the
@@ -1964,6 +2001,15 @@ class SelfIdentificationFilter:
         lap("resample")
         return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
 
+    def _live_floor(self) -> float:
+        """The effective number of live hypotheses below which the cloud counts as lost: one
+        more than the identified quantities (fewer give roughening's covariance no full rank),
+        and at least :data:`COLLAPSED_FRACTION` of the cloud; at most a tenth of it (a cloud
+        of a few dozen hypotheses, a quick check's, is not lost for its size)."""
+        M = self.particles.size
+        dims = self._unknowns(self.particles.take(np.zeros(1, dtype=np.intp))).shape[1]
+        return min(max(dims + 1.0, COLLAPSED_FRACTION * M), 0.1 * M)
+
     def _move_rolling(self, dl, R_prev, t_prev, ps: ParticleSet | None = None):
         """Move every hypothesis of ``ps`` (default the filter's) by the action ``dl`` (N,)
         or (M, N) with the rolling model (``motion_model`` "rolling";
@@ -1984,7 +2030,10 @@ class SelfIdentificationFilter:
             h, ps.theta, ps.a, R_prev, t_prev, np.einsum("pij,pnj->pni", R_prev, ps.normals_O), ps.stretch, dl=dl,
             gravity=g if np.any(g) else None, object_mass=mass, com=com, stiffness=ps.stiffness,
             link_lengths=ps.link_lengths, curvature_radius=ps.curvature_radius)
-        ok = mv.ok
+        # a move that is not finite is a failed one (the rotation and translation included:
+        # a NaN pose marked solved had switched the divergence test off; a review)
+        ok = (mv.ok & np.isfinite(mv.theta).all(axis=(1, 2)) & np.isfinite(mv.stretch).all(axis=1)
+              & np.isfinite(mv.R).all(axis=(1, 2)) & np.isfinite(mv.t).all(axis=1))
         theta = np.where(ok[:, None, None], mv.theta, ps.theta)
         stretch = np.where(ok[:, None], mv.stretch, ps.stretch + dl)
         R = np.where(ok[:, None, None], mv.R, R_prev)
@@ -2163,7 +2212,14 @@ class SelfIdentificationFilter:
             L_c = est["link_lengths"] if self.prior.links_unknown else None
             m_c = float(est["object_mass"]) if self.prior.object_mass_unknown else None
             c_c = est.get("object_com_O")  # (the rolling model's, with the object's weight)
-        self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0, mass_center=m_c, com_center=c_c)
+        try:
+            self.initialise(theta_c, a_c, R_meas, t_meas, k_c, L_c, scale=1.0, mass_center=m_c, com_center=c_c)
+        except PriorError:
+            if recent:  # the whole prior around the nominal grasp holds no grasp: nothing to fall back to
+                raise
+            # no physical grasp around the estimate (a review: every draw's equilibrium solve
+            # failed): the whole prior around the nominal grasp, as a second loss would draw
+            self.initialise(*nominal, R_meas, t_meas, scale=1.0)
         self._theta_center, self._a_center = nominal
         self.estimates.pop()  # initialise appended one; the report below appends the current
 

@@ -186,9 +186,12 @@ def is_number(value) -> bool:
 
 def checked_flag(value, name: str) -> bool:
     """A system's 0/1 input (a valid flag, an enable) read as a flag, above 0.5; a value
-    that is not finite is refused, naming the input, rather than read as 0."""
-    if not np.isfinite(value):
-        raise ValueError(f"{name} must be 0 or 1, got {value}")
+    that is not finite, or no number, is refused, naming the input, rather than read as 0
+    (a bool is taken as it is)."""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if not (is_number(value) and np.isfinite(value)):
+        raise ValueError(f"{name} must be 0 or 1, got {value if is_number(value) else repr(value)}")
     return bool(value > 0.5)
 
 

@@ -251,6 +251,14 @@ def _in_frame_kernel(p, R, t, out):  # pragma: no cover - numba
                     out[q, i, c] = d0 * R[f, 0, c] + d1 * R[f, 1, c] + d2 * R[f, 2, c]
 
 
+def is_rotation(R, tol: float = 1e-6) -> np.ndarray:
+    """Whether each 3 x 3 matrix of ``R`` (..., 3, 3) is a rotation: orthonormal within
+    ``tol`` and of determinant +1 (not a reflection); a boolean array of R's leading shape."""
+    R = np.asarray(R, dtype=np.float64)
+    off = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(-2, -1))
+    return (off <= tol) & (np.linalg.det(R) > 0)
+
+
 def rotation_angle(R_a, R_b) -> np.ndarray:
     """Angle [rad] of R_a^T R_b, batched (P,)."""
     c = (np.einsum("pij,pij->p", R_a, R_b) - 1.0) / 2.0

@@ -3,7 +3,10 @@
 - :class:`SelfIdentificationSystem` wraps :class:`vlr_drake.filter.SelfIdentificationFilter`:
   ``tendon_command``, ``X_PO_measured`` and ``X_PO_valid`` in; ``estimate`` (abstract dict:
   the filter's estimate, the weighted mean, with ``fallbacks``, the :data:`FALLBACKS` live
-  hypotheses nearest it, for a controller), ``theta_estimate``, ``interval_half_width``,
+  hypotheses nearest it, for a controller; ``measured`` and ``lost_measurements``, whether the
+  last update weighed a measurement and how many did not; ``reinitialised`` and
+  ``reinitialisations``, whether it drew the cloud again, where the estimate jumps, and how
+  often), ``theta_estimate``, ``interval_half_width``,
   ``converged``, ``started`` and ``particles`` out (the estimate's arrays and the particles
   read-only: they are the filter's own).
 - :class:`ExplorationPolicy`: random exploratory tendon commands (``tendon_command`` out;
@@ -188,12 +191,15 @@ class SelfIdentificationSystem(LeafSystem):
             return
         # the weighted mean, and the live hypotheses nearest it for a controller whose model
         # the mean cannot be (control.filter_model_fn; the JacobianController tries them in
-        # turn); whether the last update weighed a measurement, and how many were lost
+        # turn); whether the last update weighed a measurement, and how many were lost; and
+        # whether it drew the cloud again (the estimate may have jumped), and how often
         lost = sum(not r.measured for r in f.history)
         output.set_value({**{k: _read_only(v) for k, v in f.estimates[-1].items()},
                           "fallbacks": [{k: _read_only(v) for k, v in h.items()} for h in f.nearest_hypotheses(FALLBACKS)],
                           "measured": bool(f.history[-1].measured) if f.history else True,
-                          "lost_measurements": lost})
+                          "lost_measurements": lost,
+                          "reinitialised": bool(f.history[-1].reinitialised) if f.history else False,
+                          "reinitialisations": int(f.reinitialisations)})
 
     def _calc_theta(self, context, output: BasicVector):
         f = self.filter(context)
