@@ -666,6 +666,52 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
     assert "no convergence plot: no filter iteration ran (3 actions refused)" in capsys.readouterr().out
 
 
+def test_a_run_whose_filter_fails_keeps_the_iterations_done(tmp_path, capsys, monkeypatch):
+    """A filter step that raises (a solver's or the filter's own failure) had ended the run
+    with one line and no result: the iterations done were lost. The run now stops there,
+    warns with the traceback and writes the result, which says when and why."""
+    from vlr_drake import filter as pf
+
+    step = pf.SelfIdentificationFilter.step
+
+    def fails_at_4(self, *args, **kwargs):
+        if self.iteration == 3:
+            raise FloatingPointError("an injected failure")
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", fails_at_4)
+    out = tmp_path / "out"
+    with pytest.warns(RuntimeWarning, match="the run stops and reports its 3 iterations") as record:
+        assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "6", "--no-progress",
+                     "--seed", "1", "--out", str(out)]) == 0
+    message = next(str(w.message) for w in record if "the filter failed" in str(w.message))
+    assert "Traceback" in message and "fails_at_4" in message
+    r = json.loads((out / "identify_known_hand_model_seed1.json").read_text())
+    assert r["iterations"] == 3 and not r["converged"] and r["actions_tried"] == 4
+    assert r["stopped"] == "iteration 4: the filter failed (FloatingPointError: an injected failure)"
+    assert np.isfinite(r["joint_error_deg_mean"])
+
+
+def test_a_result_replaced_by_a_run_set_up_otherwise_is_named(tmp_path, capsys):
+    """Runs that differ only in their settings share a result's name in an output folder
+    (the README's stiffness commands did): the later one says what it replaces. The result
+    holds every filter and prior setting."""
+    base = ["identify", "--plant", "model", "--particles", "300", "--iterations", "2", "--no-progress",
+            "--out", str(tmp_path)]
+    assert main(base) == 0
+    r = json.loads((tmp_path / "identify_known_hand_model_seed0.json").read_text())
+    assert r["filter_settings"]["particles"] == 300 and r["max_iterations"] == 2
+    assert r["prior_settings"]["proximal_half_width"] > 0
+    capsys.readouterr()
+    assert main(base) == 0  # the same run again: nothing to say
+    assert "set up otherwise" not in capsys.readouterr().err
+    assert main([*base, "--filter", "likelihood_width=2"]) == 0
+    err = capsys.readouterr().err
+    assert "identify_known_hand_model_seed0.json held a run set up otherwise (filter_settings.likelihood_width" in err
+    assert main([*base, "--filter", "likelihood_width=2", "--json", str(tmp_path / "other.json")]) == 0
+    assert "set up otherwise" not in capsys.readouterr().err  # a file of its own
+
+
 def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
     afile = tmp_path / "afile"
     afile.write_text("x")
@@ -682,7 +728,13 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
         assert f"{flag}: '{afile}' is a file, so '{path}' cannot be written" in capsys.readouterr().err
     assert main(["replay", str(afile), "--json", str(afile / "r.json")]) == 2
     assert f"--json: '{afile}' is a file" in capsys.readouterr().err
-    assert not list(tmp_path.glob("**/*.json"))
+    # the JSON over the run's trace, or over a replay's (the trace had been written over)
+    same = tmp_path / "same.json"
+    assert main(["identify", "--plant", "model", "--trace", str(same), "--json", str(same), "--no-progress"]) == 2
+    assert f"--json {same} is the trace {same} too" in capsys.readouterr().err
+    assert main(["replay", str(afile), "--json", str(afile)]) == 2
+    assert f"--json {afile} is the trace {afile} too" in capsys.readouterr().err
+    assert not list(tmp_path.glob("**/*.json")) and afile.read_text() == "x"
 
 
 def test_json_has_no_nan_or_infinity(tmp_path):

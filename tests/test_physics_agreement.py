@@ -257,3 +257,25 @@ def test_the_spring_shows_in_the_motions_to_the_rolling_model():
         run_agreement("toy_block", actions=1, spring_scales=[0.0])
     with pytest.raises(ValueError, match="'spring' must name a finger and joint"):
         run_agreement("toy_block", actions=1, spring_scales=[1.0], spring=(5, 0))
+
+
+def test_an_object_that_falls_ends_the_comparison_with_what_it_compared(monkeypatch, tmp_path, capsys):
+    """The object falling out of the hand (RunStopped) had ended the command in a traceback,
+    the actions compared before it lost: they are reported, with when and why it stopped."""
+    from vlr_drake.identify import RunStopped
+    from vlr_drake.physics_identify import PhysicsAdapter
+
+    act, calls = PhysicsAdapter.act, []
+
+    def falls_at_2(self, dl, timing):
+        calls.append(dl)
+        if len(calls) == 2:
+            raise RunStopped("the apple fell out of the hand (injected)")
+        return act(self, dl, timing)
+
+    monkeypatch.setattr(PhysicsAdapter, "act", falls_at_2)
+    path = tmp_path / "fell.json"
+    r = main(["--actions", "3", "--hold", "0.05", "--json", str(path)])
+    assert len(r["actions"]) == 1 and r["stopped"] == "action 2: the apple fell out of the hand (injected)"
+    assert r["hold"] is None and json.loads(path.read_text())["stopped"] == r["stopped"]
+    assert "stopped at action 2: the apple fell out" in capsys.readouterr().out

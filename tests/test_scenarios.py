@@ -326,6 +326,13 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
     ("text", "field"),
     [
         ("plant: model\nbogus_field: 3\n", "bogus_field"),  # unknown field
+        # the name names the output files: a path had written outside --out, '' a name with '__'
+        ("name: ../../escaped\nplant: model\n", "'name' must be a plain file name"),
+        ("name: ''\nplant: model\n", "'name' must be a plain file name"),
+        ("name: a/b\nplant: model\n", "'name' must be a plain file name"),
+        # the object's tag: set here it had been replaced by the object's without a word
+        ("observer: {tag_id: 7}\n", "observer: 'tag_id' (7) is the object's tag: set it in object_spec"),
+        ("observer: {tag_size: .nan}\n", "observer: 'tag_size' (nan) is the object's tag"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

@@ -109,6 +109,14 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
                                  "R": np.full_like(trace.R, np.nan)})
     with pytest.raises(ValueError, match="step 1 is marked valid but its POM pose is not finite"):
         bad.validate()
+    # a reflected rotation loaded and failed mid-replay without its file or step
+    R = trace.R.copy()
+    R[1] = R[1] @ np.diag([1.0, 1.0, -1.0])
+    with pytest.raises(ValueError, match="step 2 is marked valid but its POM rotation is not a rotation matrix"):
+        IdentificationTrace(**{**trace.__dict__, "valid": np.ones(trace.steps, bool), "R": R}).validate()
+    IdentificationTrace(**{**trace.__dict__, "valid": np.arange(trace.steps) != 1, "R": R}).validate()  # lost: not read
+    with pytest.raises(ValueError, match="'R0' is not a rotation matrix"):
+        IdentificationTrace(**{**trace.__dict__, "R0": 2 * trace.R0}).validate()
     with pytest.raises(FileNotFoundError, match="trace file not found"):
         IdentificationTrace.load(tmp_path / "missing.npz")
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
@@ -304,6 +312,13 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     r = json.loads(out.read_text())
     assert r["filter_overrides"] == ["particles=800"] and np.isfinite(r["runs"][0]["log_evidence"])
     assert r["runs"][0]["stiffness_error_Nm_per_rad"] == r["rows"]["stiffness"]["mean"]
+    # traces of two plants count in rows of their own (they had been averaged into one)
+    trace = IdentificationTrace.load(path)
+    other = dataclasses.replace(trace, meta={**trace.meta, "plant": "physics"}).save(tmp_path / "physics.npz")
+    assert main(["replay", str(path), str(other), "--json", str(out), "--no-progress"]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert set(rows) == {"stiffness (model plant)", "stiffness (physics plant)"}
+    assert rows["stiffness (model plant)"]["trials"] == 1 == rows["stiffness (physics plant)"]["trials"]
     assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1,0.2", "--json", str(out),
                  "--no-progress"]) == 0
     r = json.loads(out.read_text())["runs"][0]
@@ -467,6 +482,9 @@ def test_a_replay_under_another_filter_seed(tmp_path, capsys):
         extra = [] if seed is None else ["--filter-seed", str(seed)]
         assert main(["replay", str(path), "--no-progress", "--json", str(out), *extra]) == 0
         outs[seed] = json.loads(out.read_text())["runs"][0]
+        # the run's own seed is the same draw, and says so (the README's example had been it)
+        warned = f"--filter-seed {seed} is the filter seed {path} was run with: the same draw" in capsys.readouterr().out
+        assert warned is (seed == trace.filter_seed), seed
     assert outs[None] == outs[trace.filter_seed] and outs[None]["filter_seed"] == trace.filter_seed
     other = outs[trace.filter_seed + 1]
     assert other["filter_seed"] == trace.filter_seed + 1 and other["log_evidence"] != outs[None]["log_evidence"]

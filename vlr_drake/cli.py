@@ -68,6 +68,39 @@ def write_json(result: dict, path: str | None) -> None:
     print(f"wrote {path}")
 
 
+#: The fields of an identification's result that say how it was set up (note_replaced).
+IDENTIFY_SETTINGS = ("experiment", "scenario_path", "hand", "object", "plant", "particles", "max_iterations",
+                     "action_choice", "draws", "object_mass_given_kg", "object_mass_tolerance", "filter_settings",
+                     "prior_settings")
+#: ... and of a task's.
+TASK_SETTINGS = ("task", "plant", "model", "word", "scenario", "particles", "alpha")
+
+
+def note_replaced(path: Path, result: dict, keys: tuple) -> None:
+    """Warn where ``path`` holds the result of a run set up otherwise (any of ``keys`` differs;
+    a dict's entries are named one by one), which this run's result and plots replace: an
+    output folder keeps one result per run name, and runs that differ only in their settings
+    share it (a review: the README's four stiffness commands wrote one file)."""
+    try:
+        old = json.loads(Path(path).read_text())
+    except (OSError, ValueError):  # none there, or not ours: nothing to compare
+        return
+    if not isinstance(old, dict):
+        return
+    new = json.loads(json.dumps(_finite({k: result.get(k) for k in keys}), default=_json_default))
+    differ = []
+    for k in keys:
+        a, b = old.get(k), new[k]
+        if isinstance(a, dict) and isinstance(b, dict):
+            differ += [f"{k}.{j}" for j in sorted(set(a) | set(b)) if a.get(j) != b.get(j)]
+        elif a != b:
+            differ.append(k)
+    if differ:
+        shown = ", ".join(differ[:4]) + (f" and {len(differ) - 4} more" if len(differ) > 4 else "")
+        print(f"vlr-drake: warning: {path} held a run set up otherwise ({shown}); this run replaces it and its "
+              "plots (--json, or another --out, keeps both)", file=sys.stderr)
+
+
 # ------------------------------------------------------------------------------ selfcheck
 def selfcheck(seed: int = 0, actions: int = 5) -> dict:
     """Build the default hand, move one grasp through a few random tendon actions with the
@@ -139,6 +172,14 @@ def _check_outputs(args) -> None:
     check_output("--json", getattr(args, "json", None))
     if args.command == "identify":  # (replay's traces are its inputs)
         check_output("--trace", args.trace)
+    # the JSON over the run's trace, or over a trace a replay reads (a review: identify wrote
+    # its JSON over the trace it had just saved)
+    json_path = getattr(args, "json", None)
+    traces = {"identify": [args.trace] if args.command == "identify" and args.trace else [],
+              "replay": getattr(args, "trace", None) or []}.get(args.command, [])
+    for trace in traces if json_path else ():
+        if Path(trace).resolve() == Path(json_path).resolve():
+            raise ValueError(f"--json {json_path} is the trace {trace} too: one would be written over the other")
 
 
 def _load_scenario(args) -> None:
@@ -327,6 +368,8 @@ def identify(args) -> dict:
     if getattr(args, "trace", None):
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
+    if not args.json:
+        note_replaced(out / f"{stem}.json", result, IDENTIFY_SETTINGS)
     write_json(result, args.json or str(out / f"{stem}.json"))  # first: the result is kept whatever the plots do
     _plots(result, out / name)
     return result
@@ -402,7 +445,14 @@ def replay_trace(args) -> dict:
                              "counts once in the rows (--draws replays one several times)")
         seen[Path(path).resolve()] = path
     traces = [(path, IdentificationTrace.load(path)) for path in args.trace]  # all read before the first replay
+    # traces of several plants count in rows of their own plant's (a review: a model-plant trace
+    # had been averaged with three physics ones into one row)
+    by_plant = len({trace.meta.get("plant") for _, trace in traces}) > 1
     if args.filter_seed is not None:
+        same = [str(path) for path, trace in traces if trace.filter_seed == args.filter_seed]
+        if same:  # (identify seeds its filter with seed + 1: a seed-0 run's filter seed is 1)
+            print(f"vlr-drake replay: warning: --filter-seed {args.filter_seed} is the filter seed "
+                  f"{', '.join(same)} was run with: the same draw, not another")
         traces = [(path, dataclasses.replace(trace, filter_seed=args.filter_seed)) for path, trace in traces]
     for path, trace in traces if at_steps else ():  # and all checked: no replay is lost to a later trace's error
         if any(not 1 <= k <= trace.steps for k in at_steps):
@@ -446,14 +496,14 @@ def replay_trace(args) -> dict:
                     print(f"  (the replay stopped after {r['steps']} steps; --all-steps replays every step)")
             if r.get("errors"):
                 print(f"  {_errors_line(r['errors'])}")
-                _measure(measured, i, meta, r["errors"])
+                _measure(measured, i, meta, r["errors"], by_plant)
             if args.draws > 1:  # kept for the trace's pooled estimate, until its last draw
                 draws_of.append(r)
             if args.draws > 1 and draw == args.draws - 1:  # the trace's last draw: pool its draws
                 p, errors = _pooled_run(path, trace, draws_of, prior)
                 pooled.append(p)
                 if errors:
-                    _measure(pooled_measured, i, meta, errors)
+                    _measure(pooled_measured, i, meta, errors, by_plant)
                 draws_of = []
         elif args.statics:
             rows = statics_profile(trace, args.profile, values)
@@ -507,14 +557,16 @@ def replay_trace(args) -> dict:
     return out
 
 
-def _measure(measured: dict, i: int, meta: dict, errors: dict) -> None:
-    """Add trace ``i``'s paper measures (its experiment's table rows) from ``errors`` to ``measured``."""
+def _measure(measured: dict, i: int, meta: dict, errors: dict, by_plant: bool = False) -> None:
+    """Add trace ``i``'s paper measures (its experiment's table rows) from ``errors`` to
+    ``measured``; with ``by_plant``, in rows of its plant's (``stiffness (model plant)``)."""
     from vlr_drake.reproduce import IDENTIFICATION_MEASURES, identification_rows
 
     experiment = meta.get("experiment")
+    where = f" ({meta.get('plant')} plant)" if by_plant else ""
     if experiment in IDENTIFICATION_MEASURES:
         for row, measure in identification_rows(experiment, meta.get("hand")):
-            measured.setdefault(row, []).append((i, float(measure(errors)), errors["truth_inside_95_theta"]))
+            measured.setdefault(row + where, []).append((i, float(measure(errors)), errors["truth_inside_95_theta"]))
 
 
 def _pooled_run(path, trace, replays: list, prior) -> tuple[dict, dict | None]:
@@ -660,6 +712,8 @@ def task(args) -> dict:
     print(line)
     if result.get("recording"):
         print(f"wrote {result['recording']}")
+    if not args.json:
+        note_replaced(Path(args.out) / f"{args.command}_seed{result['seed']}.json", result, TASK_SETTINGS)
     write_json(result, args.json or str(Path(args.out) / f"{args.command}_seed{result['seed']}.json"))
     return result
 

@@ -20,7 +20,10 @@ Plants: ``model`` (the VLR model with hidden truth and Gaussian pose noise; fast
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
+import traceback
+import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -713,7 +716,13 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         R, t, valid = plant.measure(timing)
         lost += not valid
         tf = time.perf_counter()
-        rep = f.step(dl, R, t, valid, tendon_command=l_now)
+        try:
+            rep = f.step(dl, R, t, valid, tendon_command=l_now)
+        except Exception as e:  # noqa: BLE001 - the iterations done are kept and reported, not lost
+            stopped = f"iteration {len(f.history) + 1}: the filter failed ({type(e).__name__}: {e})"
+            warnings.warn(f"identify: {stopped}; the run stops and reports its {len(f.history)} iterations\n"
+                          f"{traceback.format_exc()}", RuntimeWarning, stacklevel=2)
+            break
         timing["filter"] += time.perf_counter() - tf
         truths.append(plant.truth())
         recorder.step(dl, R, t, valid, l_now, truths[-1])
@@ -889,6 +898,10 @@ def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, p
         "object_mass_given_kg": opts.object_mass,
         "object_mass_tolerance": opts.object_mass_tolerance if opts.object_mass is not None else None,
         "object_mass_range_kg": list(prior.object_mass_range) if prior.object_mass_unknown else None,
+        # every setting of the filter and its prior, and the iteration budget: what the run was
+        "max_iterations": opts.max_iterations,
+        "filter_settings": dataclasses.asdict(opts.filter),
+        "prior_settings": dataclasses.asdict(prior),
     }
     res.update(estimate_errors(hand, prior, est, truth))
     res.update(hand_parameter_report(hand, prior, est, f.estimates[0]))

@@ -118,8 +118,10 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     opts = options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, seed=seed, plant=plant,
                                  particles=particles, max_iterations=iterations, progress=False, object=obj)
     r = run_identification(opts)
-    if traces is not None:  # the filter's inputs, for vlr-drake replay
-        r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}_seed{seed}.npz")
+    if traces is not None:  # the filter's inputs, for vlr-drake replay; the plant named where it is
+        # not the physics plant (a model-plant reproduce had replaced the physics runs' traces)
+        where = "" if plant == "physics" else f"_{plant}"
+        r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz")
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 

@@ -27,6 +27,7 @@ resolved types (once, in place; the dataclasses are otherwise unchanged).
 
 import copy
 import dataclasses
+import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -519,6 +520,11 @@ class Scenario:
 
     def validate(self) -> "Scenario":
         """Check every section; raises ``ValueError`` naming the section and field."""
+        # the name names the run's files in its output folder: a plain stem, no path (a
+        # review's '../../../escaped' wrote outside --out) and not empty
+        if not (isinstance(self.name, str) and re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", self.name)):
+            raise ValueError(f"'name' must be a plain file name (letters, digits, '_', '.', '-'; it names the run's "
+                             f"output files), got {self.name!r}")
         if not is_count(self.seed):
             raise ValueError(f"'seed' must be an integer >= 0, got {self.seed!r}")
         if self.physics.seed != 0:  # it would be replaced without a word
@@ -546,6 +552,12 @@ class Scenario:
         _with_section("camera", self.camera.validate)
         _with_section("physics", self.physics.validate)
         _with_section("filter", self.filter.validate)
+        for name in ("tag_id", "tag_size"):  # the object's: they had been replaced without a word
+            mine, default = getattr(self.observer, name), getattr(TagObserverConfig(), name)
+            if _differs(mine, default):
+                raise ValueError(f"observer: '{name}' ({mine!r}) is the object's tag: set it in object_spec "
+                                 f"('{name}'; a preset object has its own), which the camera renders and the "
+                                 "observer looks for")
         obs = copy.deepcopy(self.observer)
         obs.tag_size = self.object_spec_resolved().tag_size
         _with_section("observer", obs.validate)

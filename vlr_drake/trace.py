@@ -42,6 +42,7 @@ from vlr_drake import filter as pf
 from vlr_drake import motion
 from vlr_drake.hand import FingerSpec, HandSpec
 from vlr_drake.kinematics import is_count
+from vlr_drake.observation import is_rotation
 
 __all__ = ["IdentificationTrace", "TraceRecorder", "replay", "pool_replays", "evidence_profile",
            "statics_profile", "PROFILE_PARAMETERS"]
@@ -137,6 +138,14 @@ class IdentificationTrace:
         bad = self.valid & ~(np.isfinite(self.R).all(axis=(1, 2)) & np.isfinite(self.t).all(axis=1))
         if bad.any():
             raise ValueError(f"trace: step {int(np.flatnonzero(bad)[0]) + 1} is marked valid but its POM pose is not finite")
+        # ... nor a rotation (named here, with its step, rather than by the filter mid-replay)
+        if not is_rotation(self.R0):
+            raise ValueError(f"trace: 'R0' is not a rotation matrix: {np.round(self.R0, 6).tolist()}")
+        off = self.valid & ~is_rotation(np.where(self.valid[:, None, None], self.R, np.eye(3)))
+        if off.any():
+            k = int(np.flatnonzero(off)[0])
+            raise ValueError(f"trace: step {k + 1} is marked valid but its POM rotation is not a rotation matrix: "
+                             f"{np.round(self.R[k], 6).tolist()}")
         if self.truths is not None:
             missing = [k for k in TRUTH_KEYS if k not in self.truths]
             if missing:

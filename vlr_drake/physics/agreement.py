@@ -322,7 +322,7 @@ def run_agreement(
     (``hold``: joints [deg], the object [mm, deg]), which an equilibrium model has no room
     for: SAP's regularised friction lets a contact under a tangential load creep, more
     slowly at a smaller time step (``PhysicsConfig.time_step``)."""
-    from vlr_drake.identify import Exploration, IdentifyOptions
+    from vlr_drake.identify import Exploration, IdentifyOptions, RunStopped
     from vlr_drake.physics_identify import PhysicsAdapter
 
     if actions < 1:
@@ -349,6 +349,7 @@ def run_agreement(
     carried = _ModelState(h, truth["theta"], truth["a"], R, t)  # lives through every action
     carried_ok = True
     rows = []
+    stopped = None  # why the actions stopped early (the object fell), None where all ran
     timing = {"physics": 0.0, "render": 0.0, "detect": 0.0}
     budget = adapter.physics.contact_model == "point"  # plant_loads needs point contact
     gravity = np.asarray(adapter.physics.gravity_in_palm(), float)
@@ -386,7 +387,13 @@ def run_agreement(
             loads = plant_loads(adapter.ph, adapter.root)
             D2 = motion.contact_distances_sq(h, kinematics.contacts(h, truth["theta"][None], truth["a"][None]))[0]
             with_loads = commanded_offsets(h, truth["theta"], truth["a"], adapter.tendon_command(), loads, D2=D2)
-        adapter.act(dl, timing)
+        try:
+            adapter.act(dl, timing)
+        except RunStopped as e:  # the object fell: the actions compared so far are reported
+            if not rows:
+                raise ValueError(f"agreement: action 1: {e}") from None
+            stopped = f"action {len(rows) + 1}: {e}"
+            break
         explore.commit(dl)
         R1, t1 = _pose(adapter)
         truth_after = adapter.truth()
@@ -460,7 +467,7 @@ def run_agreement(
         rows.append(row)
         R, t = R1, t1
     held = None
-    if hold > 0:  # the commands held: how far the plant drifts without an action
+    if hold > 0 and stopped is None:  # the commands held: how far the plant drifts without an action
         theta0 = truth["theta"]
         adapter.sim.AdvanceTo(adapter.root.get_time() + hold)
         R1, t1 = _pose(adapter)
@@ -480,6 +487,7 @@ def run_agreement(
         "tendon_stiffness": float(h.kappa[0]),
         "seed": seed,
         "actions": rows,
+        "stopped": stopped,
         "model_failures": len(rows) - len(ok),
         "one_step_error_mm_median": float(np.median([r["one_step_error_mm"] for r in ok])) if ok else None,
         "one_step_error_deg_median": float(np.median([r["one_step_error_deg"] for r in ok])) if ok else None,
@@ -695,6 +703,8 @@ def main(argv: list[str] | None = None) -> dict:
                       spring_scales=args.spring_profile,
                       squeeze=default_squeeze("physics", "stiffness") if args.squeeze else None, hold=args.hold)
     print(f"{r['object']}, {r['hand']}, tendons {r['tendon_stiffness']:.0f} N/m, {len(r['actions'])} actions")
+    if r["stopped"] is not None:
+        print(f"stopped at {r['stopped']}")
     print(" k   true [mm]  one-step err [mm, deg]  predicted/true  carried err [mm]  other contacts")
     for k, row in enumerate(r["actions"]):
         one = ("      -" if row["one_step_error_mm"] is None
