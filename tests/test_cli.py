@@ -252,14 +252,15 @@ def test_identify_names_what_it_does_not_take_from_a_scenario(tmp_path, capsys, 
     from vlr_drake import cli
 
     path = _scenario_file(tmp_path, "name: diag\nplant: model\nfilter_action: commanded\n"
-                                    "exploration: {period_sec: 5.0}\nmeshcat: true\n")
+                                    "exploration: {period_sec: 5.0}\nmeshcat: true\ncamera: {width: 320}\n")
     opened = []
     monkeypatch.setattr(cli, "_meshcat_hypotheses", lambda meshcat, html: (opened.append(meshcat), (None, None))[1])
     _run(tmp_path, "identify", "--scenario", str(path), "--particles", "300", "--iterations", "1", "--no-progress",
          "--out", str(tmp_path))
     captured = capsys.readouterr()
-    assert ("warning: scenario 'diag': an identification run does not use filter_action, exploration.period_sec"
-            in captured.err)
+    assert ("warning: scenario 'diag': an identification run does not use filter_action, exploration.period_sec "
+            "(the diagram's settings: python -m vlr_drake.builder --run takes them); nor camera (the model plant has "
+            "no use for them)" in " ".join(captured.err.split()))
     assert len(opened) == 1 and "Meshcat: http" in captured.out  # the scenario asked for it
     _run(tmp_path, "identify", "--scenario", str(path), "--particles", "300", "--iterations", "1", "--no-progress",
          "--no-meshcat", "--out", str(tmp_path))

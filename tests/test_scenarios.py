@@ -333,6 +333,9 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         # the object's tag: set here it had been replaced by the object's without a word
         ("observer: {tag_id: 7}\n", "observer: 'tag_id' (7) is the object's tag: set it in object_spec"),
         ("observer: {tag_size: .nan}\n", "observer: 'tag_size' (nan) is the object's tag"),
+        # millimetres for metres (they ran)
+        ("plant: model\nmodel_plant: {link_lengths: [[50], [50], [50]]}\n", "model_plant: 'link_lengths'"),
+        ("plant: model\nmodel_plant: {sigma_position: 5000}\n", "model_plant: 'sigma_position'"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

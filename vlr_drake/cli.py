@@ -201,7 +201,7 @@ def _load_scenario(args) -> None:
 
 
 def _identify_options(args):
-    from vlr_drake.scenario import ignored_by_identify, options_from_scenario
+    from vlr_drake.scenario import ignored_by_identify, ignored_by_plant, options_from_scenario
 
     opts = options_from_scenario(
         args.loaded, args.scenario_path, experiment=args.experiment, plant=args.plant, object=args.object,
@@ -211,10 +211,14 @@ def _identify_options(args):
     ignored = ([] if args.loaded is None or getattr(args, "told_ignored", False)
                else ignored_by_identify(args.loaded, opts.plant))
     args.told_ignored = True  # once per command (the demo builds the options twice)
-    if ignored:  # said, not silently dropped (once the scenario is known to run)
+    if ignored:  # said, not silently dropped (once the scenario is known to run), each with why
+        by_plant = ignored_by_plant(args.loaded, opts.plant)
+        diagram = [n for n in ignored if n not in by_plant]
+        why = ([f"{', '.join(diagram)} (the diagram's settings: python -m vlr_drake.builder --run takes them)"]
+               if diagram else []) + ([f"{', '.join(by_plant)} (the {opts.plant} plant has no use for them)"]
+                                      if by_plant else [])
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': an identification run does not use "
-              f"{', '.join(ignored)} (the diagram's settings: python -m vlr_drake.builder --run takes them)",
-              file=sys.stderr)
+              f"{'; nor '.join(why)}", file=sys.stderr)
     if args.object is not None and opts.plant == "model":  # said, not silently dropped
         print(f"vlr-drake {args.command}: warning: --object {args.object}: the model plant does not use the object "
               "(its truth is the VLR, Eq. 9); the physics plant holds it", file=sys.stderr)
