@@ -202,8 +202,8 @@ def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.n
     A column whose perturbed move finds no equilibrium is retried with eps/4 (``retries``
     times), then one-sided from the side that works; raises RuntimeError if neither does.
     """
-    if eps <= 0:
-        raise ValueError(f"'eps' must be positive, got {eps}")
+    if not (kinematics.is_number(eps) and 0 < eps < np.inf):  # NaN too
+        raise ValueError(f"'eps' must be a positive finite number, got {eps!r}")
     N = model.hand.N
     J = np.full((6, N), np.nan)
     todo = np.arange(N)
@@ -268,6 +268,10 @@ def control_step(
       the largest singular value of Jw (damped least squares);
     - ``"transpose"``: dl = gain * s * Jw^T ew (Eq. 11), with the steepest-descent step
       length s = |Jw^T ew|^2 / |Jw Jw^T ew|^2 (the paper leaves the scale to the gain).
+      Jw^T ew = J^T W^2 e, the gradient of the weighted squared error that the damped least
+      squares minimises too; the paper's Eq. 11 with Eq. 12's error applies W once, J^T W e,
+      so an ``alpha`` here acts as alpha^2 would there (a review; the default mode, "dls",
+      solves the weighted least squares, in which W's square is the only form).
 
     Finally dl is scaled down (direction kept) so that max |dl_i| <= ``clip`` [m].
     """
@@ -380,6 +384,16 @@ def _tendon_command(plant) -> np.ndarray:
     return np.asarray(plant.state.tendon_command, float).copy()
 
 
+def _measured(plant) -> tuple:
+    """``plant.measure()``, (R, t, valid), with a pose marked valid that is not finite named
+    (it had ended a task deep in the control model, as "'t_PO' must be finite")."""
+    R, t, valid = plant.measure()
+    if valid and not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise ValueError(f"servo: the plant's measurement is marked valid but its pose is not finite "
+                         f"(R {np.asarray(R).tolist()}, t {np.asarray(t).tolist()}); a lost tag is valid=False")
+    return R, t, valid
+
+
 def servo_to(
     R_goal,
     t_goal,
@@ -431,15 +445,21 @@ def servo_to(
     servos a step at a time, e.g. the maze), that call's final pose, measured or predicted,
     with its lost tags in a row counting on.
     """
-    if max_steps < 0:
-        raise ValueError(f"'max_steps' must be >= 0, got {max_steps}")
-    if not max_lost >= 1:
-        raise ValueError(f"'max_lost' must be >= 1, got {max_lost}")
+    for name, value, least in (("max_steps", max_steps, 0), ("stall_steps", stall_steps, 1),
+                               ("backoff", backoff, 0), ("max_lost", max_lost, 1)):
+        if not kinematics.is_count(value, least):  # (inf steps on an unreachable goal never ended)
+            raise ValueError(f"'{name}' must be an integer >= {least}, got {value!r}")
+    for name, value in (("tol_position", tol_position), ("tol_rotation", tol_rotation), ("damping", damping)):
+        if not (kinematics.is_number(value) and 0 <= value < np.inf):
+            raise ValueError(f"'{name}' must be a finite number >= 0, got {value!r}")
+    for name, value in (("gain", gain), ("clip", clip), ("eps", eps)):
+        if not (kinematics.is_number(value) and 0 < value < np.inf):
+            raise ValueError(f"'{name}' must be a positive finite number, got {value!r}")
     R_goal = _shaped("R_goal", R_goal, (3, 3))
     t_goal = _shaped("t_goal", t_goal, (3,))
     w = row_weights(rows, alpha, position_unit, rotation_unit)
     ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
-    R, t, valid = plant.measure()
+    R, t, valid = _measured(plant)
     R_last, t_last = np.asarray(R, float), np.asarray(t, float)
     lost = lost_in_a_row = int(not valid)
     if not valid and resume is not None and resume.R_final is not None:
@@ -474,7 +494,7 @@ def servo_to(
                 reason = "reached"
                 break
             # predicted there: look again before calling it reached
-            R, t, valid = plant.measure()
+            R, t, valid = _measured(plant)
             measured = bool(valid)
             if valid:
                 R_last, t_last, lost_in_a_row = np.asarray(R, float), np.asarray(t, float), 0
@@ -521,7 +541,7 @@ def servo_to(
             reason = "no_equilibrium"
             break
         it += 1
-        R, t, valid = plant.measure()
+        R, t, valid = _measured(plant)
         measured = bool(valid)
         if valid:
             R_last, t_last = np.asarray(R, float), np.asarray(t, float)

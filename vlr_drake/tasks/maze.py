@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vlr_drake import control, observation
+from vlr_drake.kinematics import is_number
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
@@ -54,6 +55,9 @@ MAZE = """
 """
 
 GRAVITY = 9.81
+#: The largest plate tilt and bias [deg]: the Model O's fingertip grasp turns its object by
+#: about 10 deg before its fold (the cup-stacking task's tilts, vlr_drake.tasks.stack).
+MAX_TILT_DEG = 10.0
 
 
 def parse_maze(text: str) -> dict:
@@ -82,6 +86,8 @@ def parse_maze(text: str) -> dict:
                 down[r, c] = lines[2 * r + 2][3 * c + 1] == "-"
     if start is None or goal is None:
         raise ValueError("maze text must mark a start 'S' and a goal 'G'")
+    if start == goal:  # (it had scored a success of no control step and no sample)
+        raise ValueError(f"maze text: the start 'S' and the goal 'G' are the same cell {start}")
     return {"rows": rows, "cols": cols, "right": right, "down": down, "start": start, "goal": goal}
 
 
@@ -237,7 +243,13 @@ def run_maze(
     if plant not in ("model", "physics"):
         raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
     common.check_positive(period=period, segment_time=segment_time, tol_rotation_deg=tol_rotation_deg, window=window)
-    common.check_finite(tilt_deg=tilt_deg, bias_deg=bias_deg)
+    # the plate's steering tilt and its constant bias towards the fall axis: angles the grasp
+    # can turn (a negative tilt steered the wrong way, 363 deg wrapped round and 30 deg was
+    # "solved" 17 deg off its goals; a review)
+    if not (is_number(tilt_deg) and 0 < tilt_deg <= MAX_TILT_DEG):
+        raise ValueError(f"'tilt_deg' must be in (0, {MAX_TILT_DEG:g}] deg, got {tilt_deg!r}")
+    if not (is_number(bias_deg) and 0 <= bias_deg <= MAX_TILT_DEG):
+        raise ValueError(f"'bias_deg' must be in [0, {MAX_TILT_DEG:g}] deg, got {bias_deg!r}")
     from tqdm.auto import tqdm
 
     mz = parse_maze(maze_text)
