@@ -156,6 +156,23 @@ def test_convergence_lines():
     np.testing.assert_allclose(ax_ess.lines[0].get_ydata(), [r.ess for r in hist])
 
 
+def test_convergence_draws_the_runs_own_threshold_and_a_plain_ess_axis():
+    """The run's own threshold and measure (a plot that drew the default 2 deg whatever it was
+    given passed the test above, which gives 2); the ESS from 0 in plain numbers (an ESS held
+    at 90.0000000009 was drawn as 0-10 with an offset), whole iterations on the x axis."""
+    from dataclasses import replace
+
+    hist = [replace(r, ess=90.0 + 1e-9 * k) for k, r in enumerate(_reports())]
+    fig = plots.make_convergence_figure(hist, threshold_deg=3.3, measure="full_width")
+    ax, ax_ess = fig.axes
+    np.testing.assert_allclose(ax.lines[1].get_ydata(), [3.3, 3.3])
+    assert ax.lines[0].get_label() == "mean 95% interval width" and ax.lines[1].get_label() == "threshold 3.3 deg"
+    fig.canvas.draw()
+    assert ax_ess.get_ylim()[0] == 0.0 and not ax_ess.yaxis.get_major_formatter().get_useOffset()
+    assert ax_ess.yaxis.get_offset_text().get_text() == ""
+    assert all(float(t).is_integer() for t in ax_ess.get_xticks())
+
+
 def test_convergence_shows_the_hand_parameters_where_identified():
     """A run that identified springs or links gets a third panel (axes 2, drawn between the
     joints' and the ESS's) with their widest interval in percent and the threshold; a known

@@ -23,7 +23,7 @@ class Spy:
 
     def __getattr__(self, name):
         target = getattr(self.meshcat, name)
-        if name not in ("SetLineSegments", "SetTriangleMesh", "SetTransform"):
+        if name not in ("SetLineSegments", "SetTriangleMesh", "SetTransform", "SetObject", "SetProperty"):
             return target
 
         def record(*args, **kwargs):
@@ -96,6 +96,38 @@ def test_draw_paths_geometry_and_reuse(meshcat, model_o_hand, rng):
     np.testing.assert_allclose(X.translation(), p[::-1][:5, 2].mean(axis=0))
 
 
+def _rgba(c):
+    return (c.r(), c.g(), c.b(), c.a())
+
+
+def test_the_drawing_has_the_papers_colours_and_faint_lines(meshcat, model_o_hand, rng):
+    """Fig. 4: virtual links magenta (at line_alpha's opacity, set on their material, which
+    takes no alpha from the colour: it had no effect), distal joints blue, contacts yellow,
+    E^C links red. Bad settings are named (a negative radius ended in Drake's SystemExit)."""
+    hand = model_o_hand
+    ps, _ = _particles(hand, rng, 4)
+    spy = Spy(meshcat)
+    drawer = HypothesisDrawer(spy, hand, prefix="/test_colours", line_alpha=0.3)
+    drawer.draw_particles(ps)
+    paths = drawer.paths()
+    for i in range(hand.N):
+        assert _rgba(spy.last("SetLineSegments", paths["virtual_links"][i])[4]) == pytest.approx((1, 0, 1, 0.3))
+        assert spy.last("SetProperty", paths["virtual_links"][i])[1:] == ("opacity", 0.3)
+        assert _rgba(spy.last("SetTriangleMesh", paths["distal_joints"][i])[3]) == pytest.approx((0.1, 0.3, 1.0, 1.0))
+        assert _rgba(spy.last("SetObject", paths["contacts"][i])[2]) == pytest.approx((1.0, 0.9, 0.0, 1.0))
+    assert _rgba(spy.last("SetLineSegments", paths["contact_links"][0])[4]) == pytest.approx((1, 0, 0, 1))
+    for kw, name in [({"line_alpha": 7.0}, "line_alpha"), ({"contact_radius": -1.0}, "contact_radius"),
+                     ({"joint_radius": np.nan}, "joint_radius"), ({"max_particles": 2.5}, "max_particles")]:
+        with pytest.raises(ValueError, match=name):
+            HypothesisDrawer(meshcat, hand, prefix="/test_bad", **kw)
+    q = kinematics.joint_positions(hand, ps.theta)
+    p = kinematics.contacts(hand, ps.theta, ps.a)
+    with pytest.raises(ValueError, match="'joints' contains NaN"):
+        drawer.draw(np.full_like(q, np.nan), p)
+    with pytest.raises(ValueError, match="'estimate_contacts' must be finite"):
+        drawer.draw(q, p, None, np.full((hand.N, 3), np.nan))
+
+
 def test_draw_particles_subsample(meshcat, model_o_hand, rng):
     hand = model_o_hand
     ps, t_PO = _particles(hand, rng, 30)
@@ -118,11 +150,20 @@ def test_recording_frames_and_static_html(model_o_hand, rng, tmp_path):
     hand = model_o_hand
     meshcat = Meshcat()
     ps, _ = _particles(hand, rng, 10)
-    drawer = HypothesisDrawer(meshcat, hand, prefix="/rec", max_particles=4)
+    spy = Spy(meshcat)
+    drawer = HypothesisDrawer(spy, hand, prefix="/rec", max_particles=4)
     meshcat.StartRecording(frames_per_second=2.0)
     for k in range(3):
         drawer.draw_particles(ps, None, rng, time_in_recording=0.5 * k)
     assert [f for f, _ in drawer.frames] == ["/rec/frame_0000", "/rec/frame_0001", "/rec/frame_0002"]
+    # each frame shown at its own time and hidden at the next (had all stayed, they would overlap)
+    keys = {(a[0], a[3], a[2]) for n, a in spy.calls if n == "SetProperty" and a[1] == "visible" and len(a) > 3}
+    assert keys == {("/rec/frame_0000", 0.0, True), ("/rec/frame_0000", 0.5, False),
+                    ("/rec/frame_0001", 0.0, False), ("/rec/frame_0001", 0.5, True), ("/rec/frame_0001", 1.0, False),
+                    ("/rec/frame_0002", 0.0, False), ("/rec/frame_0002", 1.0, True)}
+    for bad in (np.nan, -1.0, np.inf):
+        with pytest.raises(ValueError, match="time_in_recording must be a finite time >= 0"):
+            drawer.draw_particles(ps, None, rng, time_in_recording=bad)
     for f, _ in drawer.frames:
         assert meshcat.HasPath(f"{f}/virtual_links/{hand.names[0]}")
     with pytest.raises(ValueError, match="time_in_recording"):

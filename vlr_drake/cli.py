@@ -660,6 +660,7 @@ def _meshcat_hypotheses(meshcat, html_path: Path):
     def finish():
         path = save_recording(meshcat, html_path, publish_recording=True)
         print(f"wrote {path}")
+        meshcat.Delete("/hypotheses")  # saved: a later scene (the demo's writing) is not drawn over them
         return path
 
     return on_iteration, finish
@@ -671,16 +672,16 @@ def _plots(result: dict, stem: Path) -> None:
 
     stem.parent.mkdir(parents=True, exist_ok=True)
     est, truths, names = result["_estimates"], result["_truths"], result["_finger_names"]
+    if not result["_history"]:  # the prior alone: a plot of one point shows no band and no line
+        why = result.get("stopped") or f"{result.get('actions_refused', 0)} actions refused"
+        print(f"no plots: no filter iteration ran ({why})")
+        return
     written = [
         plots.plot_joint_angles(est, truths, names, f"{stem}_proximal.png", joints="proximal"),
         plots.plot_contacts(est, truths, names, f"{stem}_contacts.png"),
+        plots.plot_convergence(result["_history"], f"{stem}_convergence.png", result["convergence_deg"],
+                               result["convergence_measure"], result.get("parameter_convergence")),
     ]
-    if result["_history"]:
-        written.append(plots.plot_convergence(result["_history"], f"{stem}_convergence.png",
-                                              result["convergence_deg"], result["convergence_measure"],
-                                              result.get("parameter_convergence")))
-    else:  # the plant refused every action: no filter iteration to plot
-        print(f"no convergence plot: no filter iteration ran ({result.get('actions_refused', 0)} actions refused)")
     if result.get("stiffness_error_Nm_per_rad") is not None:
         which = [(p["finger"], p["joint"]) for p in result["hand_parameters"].values() if p["unit"] == "N m/rad"]
         written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=which))

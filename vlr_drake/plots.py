@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 __all__ = [
     "Panel",
@@ -167,6 +168,7 @@ def band_figure(
         ax.grid(True, alpha=0.3)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
+    axes[0, 0].xaxis.set_major_locator(MaxNLocator(integer=True))  # (shared) iterations are whole
     for c in range(ncols):  # each column's lowest panel shows the iteration axis (sharex hides the others')
         shown = [axes[r, c] for r in range(nrows) if r * ncols + c < n]
         if shown:
@@ -247,7 +249,7 @@ def make_stiffness_figure(
     mean, lo, hi, truth = _quantity(estimates, truths, "stiffness", (N, K), 1.0)
     panels = [
         Panel(
-            f"{names[fi]} joint {j + 1} stiffness",
+            f"{names[fi]} joint {j + 1} stiffness (stiffness:{names[fi]}/{j})",  # (the result's name)
             mean[:, fi, j],
             lo[:, fi, j],
             hi[:, fi, j],
@@ -370,6 +372,11 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
         ax_par.legend(loc="best", fontsize="small")
     ax_ess.plot(it, ess, color="tab:gray", marker=".", label="ESS")
     ax_ess.set_ylabel("ESS")
+    # from 0, in plain numbers: an ESS held at the tempering's floor (90.0000000009) had been
+    # drawn as 0-10 with an offset of 1e-10 + 90 (a review)
+    ax_ess.ticklabel_format(axis="y", useOffset=False, style="plain")
+    ax_ess.set_ylim(bottom=0.0, top=max(1.05 * float(np.nanmax(ess)), 1.0) if np.isfinite(ess).any() else None)
+    ax_ess.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax_ess.set_xlabel("iteration")
     ax_ess.grid(True, alpha=0.3)
     return fig

@@ -103,8 +103,8 @@ def hypothesis_points(
     particle of no weight (ruled out, awaiting resampling) is never drawn; n is at most the
     number of particles with weight.
     """
-    if max_particles < 1:
-        raise ValueError(f"max_particles must be >= 1, got {max_particles}")
+    if not kinematics.is_count(max_particles, 1):
+        raise ValueError(f"max_particles must be an integer >= 1, got {max_particles!r}")
     w = normalise(particles.log_w)
     alive = np.flatnonzero(w > 0)
     n = min(alive.size, max_particles)
@@ -152,8 +152,14 @@ class HypothesisDrawer:
         joint_length: float = 0.008,
         contact_radius: float = 0.004,
     ):
-        if max_particles < 1:
-            raise ValueError(f"max_particles must be >= 1, got {max_particles}")
+        if not kinematics.is_count(max_particles, 1):
+            raise ValueError(f"max_particles must be an integer >= 1, got {max_particles!r}")
+        if not (kinematics.is_number(line_alpha) and 0 <= line_alpha <= 1):
+            raise ValueError(f"line_alpha must be an opacity in [0, 1], got {line_alpha!r}")
+        for name, value in (("joint_radius", joint_radius), ("joint_length", joint_length),
+                            ("contact_radius", contact_radius)):  # (Drake's Sphere ended a bad one in SystemExit)
+            if not (kinematics.is_number(value) and 0 < value < np.inf):
+                raise ValueError(f"{name} must be a positive finite number [m], got {value!r}")
         if not prefix.startswith("/"):
             raise ValueError(f"prefix must be an absolute Meshcat path starting with '/', got {prefix!r}")
         self.meshcat = meshcat
@@ -214,14 +220,15 @@ class HypothesisDrawer:
         if joints.ndim != 4 or joints.shape[1:] != (N, K, 3):
             raise ValueError(f"'joints' must have shape (P, {N}, {K}, 3), got {joints.shape}")
         P = joints.shape[0]
+        joints = kinematics.as_particles("joints", joints, (P, N, K, 3))  # finite, as the contacts
         contacts = kinematics.as_particles("contacts", contacts, (P, N, 3))
         if pom_position is not None:
             pom_position = kinematics.as_particles("pom_position", pom_position, (P, 3))
         if estimate_contacts is not None:
             estimate_contacts = np.asarray(estimate_contacts, float)
-            if estimate_contacts.shape != (N, 3):
+            if estimate_contacts.shape != (N, 3) or not np.all(np.isfinite(estimate_contacts)):
                 raise ValueError(
-                    f"'estimate_contacts' must have shape ({N}, 3), got {estimate_contacts.shape}"
+                    f"'estimate_contacts' must be finite, of shape ({N}, 3), got {estimate_contacts.tolist()}"
                 )
         if P == 0:
             raise ValueError("'joints' holds no particle")
@@ -242,6 +249,9 @@ class HypothesisDrawer:
                 2.0,
                 Rgba(*MAGENTA, alpha),
             )
+            # the lines' material takes no alpha from the colour: the opacity is set on it (the
+            # paper's faint, overlapping E^J lines; a review found line_alpha had no effect)
+            mc.SetProperty(paths["virtual_links"][i], "opacity", alpha)
             verts, faces = cylinder_mesh(
                 joints[:, i, K - 1, :], self.axes[i], self.joint_radius, self.joint_length
             )
@@ -315,6 +325,8 @@ def recorded_folder(meshcat: Meshcat, prefix: str, frames: list[tuple[str, float
     """A new folder ``prefix/frame_NNNN`` for what is drawn at ``time`` in the recording:
     hidden until ``time``, shown until the next folder's time (see the module docstring).
     ``frames`` holds the (folder, time) pairs so far and gets the new one appended."""
+    if not (kinematics.is_number(time) and 0 <= time < np.inf):
+        raise ValueError(f"time_in_recording must be a finite time >= 0 [s], got {time!r}")
     time = float(time)
     if frames and time <= frames[-1][1]:
         raise ValueError(f"time_in_recording must increase: {time} after {frames[-1][1]}")
@@ -378,6 +390,10 @@ class TaskView:
 
     def target_pose(self, R, t) -> None:
         """Show the target pose (R (3, 3), t (3,)) from now until the next target."""
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        if R.shape != (3, 3) or not observation.is_rotation(R) or t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"target_pose: R must be a rotation matrix and t 3 finite numbers, got "
+                             f"{np.round(R, 6).tolist()}, {t.tolist()}")
         folder = self._next_target()
         self.meshcat.SetTransform(folder, RigidTransform(RotationMatrix(np.asarray(R, float)), np.asarray(t, float)))
         self._triad(f"{folder}/pose", 1.5)
