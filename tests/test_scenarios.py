@@ -336,6 +336,8 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         # millimetres for metres (they ran)
         ("plant: model\nmodel_plant: {link_lengths: [[50], [50], [50]]}\n", "model_plant: 'link_lengths'"),
         ("plant: model\nmodel_plant: {sigma_position: 5000}\n", "model_plant: 'sigma_position'"),
+        ("plant: model\nfilter: {sigma_position: 5000}\n", "filter: 'sigma_position'"),
+        ("plant: model\nfilter: {sigma_rotation: 30}\n", "filter: 'sigma_rotation'"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

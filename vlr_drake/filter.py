@@ -1062,6 +1062,8 @@ class FilterConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"filter: '{name}' must be a positive finite number, got {v}")
+        units.check_length(self.sigma_position, "filter: 'sigma_position'")  # metres (5000 had run)
+        units.check_angle(self.sigma_rotation, "filter: 'sigma_rotation'")  # radians (30 had run)
         for name in ("motion_error", "convergence_deg"):  # convergence_deg 0: never converged (a benchmark)
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
