@@ -121,14 +121,21 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
 
     errors = USER_ERRORS + (_hardware_errors() if hardware else ())
     stops = contextlib.nullcontext() if not hardware else unwinding_signals()
+    if hardware:  # this run's buses only
+        from vlr_drake.hardware.dynamixel import unconfirmed_torque_off
+
+        unconfirmed_torque_off.clear()
     try:
         with warning_lines(prog), stops:
             status = main()
     except errors as e:
         return report(prog, e)
     except Stopped as e:
-        print(f"{prog}: stopped by {e.name} (closed on the way out: a real hand's torque is off)",
-              file=sys.stderr)
+        from vlr_drake.hardware.dynamixel import unconfirmed_torque_off
+
+        done = ("a real hand's torque is off" if not unconfirmed_torque_off else
+                f"torque off NOT confirmed on {', '.join(dict.fromkeys(unconfirmed_torque_off))}: cut the motors' power")
+        print(f"{prog}: stopped by {e.name} (closed on the way out: {done})", file=sys.stderr)
         return 128 + int(getattr(signal, e.name))
     return status if isinstance(status, int) else 0
 

@@ -34,6 +34,7 @@ timeout (2 x latency timer + 2 ms + transfer time), so nothing hangs.
 from __future__ import annotations
 
 import logging
+import warnings
 
 import numpy as np
 
@@ -49,6 +50,10 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: Ports whose motors did not all confirm torque off when their bus was closed (appended by
+#: TendonMotors.close; a command's stop message reads it rather than claim the torque is off).
+unconfirmed_torque_off: list[str] = []
 
 # X-series control table (protocol 2.0).
 ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM
@@ -170,6 +175,7 @@ class TendonMotors:
                              f"got {self.goal_current_raw}")
         self.latency_timer_ms = float(latency_timer_ms)
         self.comm_retries = int(comm_retries)
+        self.unconfirmed: list[int] = []  # motors that did not confirm the last torque off
         self.start_tolerance_ticks = int(start_tolerance_ticks)
         self.is_open = False
         self.torque_on = False
@@ -364,11 +370,17 @@ class TendonMotors:
         the port. Safe to call more than once and after errors."""
         if not self.is_open:
             return
+        confirmed = False
         try:
-            self.torque_off()
+            confirmed = self.torque_off()
         finally:
             self._close_port()
             log.info("Dynamixel bus %s closed", self.port_name)
+            if not confirmed:  # said, not reported as off (a review: a silent bus was "off")
+                unconfirmed_torque_off.append(self.port_name)
+                warnings.warn(f"Dynamixel bus '{self.port_name}': motors {self.unconfirmed} did not confirm "
+                              "torque off; their torque may still be on: cut the motors' power",
+                              RuntimeWarning, stacklevel=2)
 
     def torque_off(self) -> bool:
         """Switch torque off on every motor. Returns True when every motor confirmed it."""
@@ -384,16 +396,17 @@ class TendonMotors:
             group.txPacket()
         except Exception as e:
             log.warning("broadcast torque off on %s failed: %s", self.port_name, e)
-        confirmed = True
+        self.unconfirmed = []
         for dxl_id in self.motor_ids:
             try:
                 self._port.is_using = False
                 result, error = self._ph.write1ByteTxRx(self._port, dxl_id, ADDR_TORQUE_ENABLE, 0)
-                confirmed &= result == sdk.COMM_SUCCESS and error == 0
+                if not (result == sdk.COMM_SUCCESS and (error & ~ERRBIT_ALERT) == 0):
+                    self.unconfirmed.append(dxl_id)
             except Exception:
-                confirmed = False
+                self.unconfirmed.append(dxl_id)
         self.torque_on = False
-        return confirmed
+        return not self.unconfirmed
 
     def __enter__(self) -> TendonMotors:
         self.open()
@@ -535,7 +548,16 @@ class TendonMotors:
                 i
                 for i in self.motor_ids
                 if not self._sync_read.isAvailable(i, READ_BLOCK_START, READ_BLOCK_LENGTH)
+                or len(self._sync_read.data_dict.get(i, [])) != READ_BLOCK_LENGTH
             ]
+            # a status error other than the alert bit (e.g. a CRC error after line noise, with no
+            # data): a failed attempt, retried and named; it had been read as data (a review)
+            bad = {i: e & ~ERRBIT_ALERT for i, e in getattr(self._sync_read, "errors", {}).items()
+                   if e & ~ERRBIT_ALERT}
+            if result == sdk.COMM_SUCCESS and bad:
+                i, e = next(iter(bad.items()))
+                what = f"motor id {i} answered with status error {self._ph.getRxPacketError(e)} (0x{e:02x})"
+                continue
             if result == sdk.COMM_SUCCESS and not missing:
                 self._check_alerts()
                 pos = [
