@@ -295,10 +295,31 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert np.all(np.isfinite(r["interval_half_width"]))
     # three iterations: wide intervals, and they hold the truth (all 6 joints here)
     assert np.sum(np.abs(r["theta_estimate"] - r["theta_true"]) <= r["interval_half_width"]) >= 5
+    # what an identification reports too (a diagram run had said nothing of lost tags, a cloud
+    # drawn again, a fallen object): here none of them; the model plant has no fall to check
+    assert r["lost_measurements"] == 0 and r["reinitialisations"] == 0 and r["object_fell"] is None
+    assert np.isfinite(r["log_evidence"]) and r["log_evidence"] != 0.0
+    # most tags lost: said, and counted
+    with pytest.warns(UserWarning, match=r"most filter iterations had no measurement \(3 of 4 lost\)"):
+        lost = run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST + "model_plant: {dropout: 0.8}\n"),
+                   iterations=6)  # (the filter starts at the first tag seen, after two lost)
+    assert lost["lost_measurements"] == 3 and lost["iterations"] == 4
     assert main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--iterations", "1", "--set", FAST]) == 0
     assert "model_plant: 1 iterations" in capsys.readouterr().out
     assert main(["--run", "model_plant", "--iterations", "1", "--set", FAST]) == 0  # an example, by name
     assert "model_plant: 1 iterations" in capsys.readouterr().out
+
+
+def test_a_diagram_run_says_the_object_fell():
+    """A grasp too weak to hold the block (2 N of pretension): the diagram runs on, and its
+    result says the object fell and the tags were lost (it had looked like any other run)."""
+    from vlr_drake.builder import run
+
+    held = run(load_scenario(DIAGRAMS_DIR / "default.yaml", FAST), iterations=2)
+    assert held["object_fell"] is False and held["lost_measurements"] == 0
+    with pytest.warns(UserWarning, match="most filter iterations had no measurement"):
+        fell = run(load_scenario(DIAGRAMS_DIR / "default.yaml", FAST + "physics: {pretension: 2.0}\n"), iterations=2)
+    assert fell["object_fell"] is True and fell["lost_measurements"] == 2
 
 
 def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):

@@ -645,8 +645,23 @@ def _hardware_summary(plant) -> dict | None:
     went (``HardwareInterface.grasp_report``)."""
     if not hasattr(plant, "num_clipped"):
         return None
+    cam = plant.camera  # what the camera delivered: frames, reads with none, frames delivered again
     return {"updates": int(plant.num_updates), "clipped": int(plant.num_clipped), "ramped": int(plant.num_ramped),
-            "grasp": plant.grasp_report}
+            "grasp": plant.grasp_report,
+            "camera": {k: int(getattr(cam, k, 0)) for k in ("frames", "misses", "repeats")}}
+
+
+def _run_record(flt, built: BuiltDiagram, ctx) -> dict:
+    """A diagram run's ``lost_measurements`` (iterations without a tag pose),
+    ``reinitialisations``, ``log_evidence`` (as an identification run's) and, on the physics
+    plant, ``object_fell`` (the object moved ``fall_distance`` from the grasp or a pad lost
+    it; None on the other plants)."""
+    hist = [] if flt is None else flt.history
+    ph = built.physics_hand
+    return {"lost_measurements": int(sum(not r.measured for r in hist)),
+            "reinitialisations": 0 if flt is None else int(flt.reinitialisations),
+            "log_evidence": float(np.nansum([r.log_evidence for r in hist])),
+            "object_fell": None if ph is None or ph.grasp_X_PO is None else ph.object_fell(ctx)}
 
 
 def _contacts(flt, N: int) -> dict:
@@ -714,6 +729,11 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
                 f"scenario '{scenario.name}': the self-identification never started in {iterations} action "
                 f"periods: no POM measurement arrived (the camera never detected the tag; check the object's "
                 f"tag_face and tag_size, and the camera)")
+        record = _run_record(flt, built, ctx)
+        if record["lost_measurements"] > 0.5 * max(len(flt.history) if flt is not None else 0, 1):
+            warnings.warn(f"scenario '{scenario.name}': most filter iterations had no measurement "
+                          f"({record['lost_measurements']} of {len(flt.history)} lost): the estimate is mostly the "
+                          "prior moved by the actions (check the camera and the tag)", stacklevel=2)
         recorded = built.filter.trace(sys_ctx) if trace is not None or draws > 1 else None
         if recorded is not None:
             recorded.meta.update(
@@ -743,6 +763,9 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             "wall_s": time.perf_counter() - t0,
             "realtime_rate": rate,
             "hardware": _hardware_summary(built.plant),
+            # what an identification run reports too (a review: a run whose tags were lost, whose
+            # cloud was drawn again or whose object fell had looked like any other)
+            **record,
             "control": None if goals is None else goals.report(),
             **(hand_parameter_report(flt.hand, flt.prior, flt.estimates[-1], flt.estimates[0]) if flt is not None
                else {"hand_parameters": {}, "weakly_identified": [], "object_mass_identified": None}),
