@@ -134,7 +134,20 @@ def test_a_hardware_update_period_too_long_for_the_actions_is_refused():
         load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.25}\n"
                                                       "hardware: {period_s: 0.1, max_tendon_speed: 0.01}")
     load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.4}\n"
-                                                  "hardware: {period_s: 0.1, max_tendon_speed: 0.01}")
+                                                  "hardware: {period_s: 0.1, max_tendon_speed: 0.01, "
+                                                  "camera_max_frame_age_s: 0.15}")
+
+
+def test_a_camera_frame_from_before_the_action_cannot_count():
+    """A live camera ("latest" frames) frozen as an action reached the motors had its frame
+    from before the action, 0.18 s old and within camera_max_frame_age_s, taken as the
+    action's measurement at T = 0.25 s: the age must stay under 0.9 T - 2 period_s. A
+    video file is read frame by frame and is not held to it."""
+    with pytest.raises(ValueError, match=r"hardware: 'camera_max_frame_age_s' 0.2 s lets a frame from before the "
+                                         r"action count as its measurement: at most 0.9 T - 2 period_s = 0.125 s"):
+        load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.25}\n")
+    load_scenario(DIAGRAMS_DIR / "hardware.yaml", "exploration: {period_sec: 0.25}\n"
+                                                  "hardware: {camera_max_frame_age_s: 0.12}\n")
 
 
 def test_the_commanded_action_on_hardware_is_what_the_motors_were_sent(tmp_path):

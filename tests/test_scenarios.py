@@ -337,6 +337,8 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nmodel_plant: {link_lengths: [[50], [50], [50]]}\n", "model_plant: 'link_lengths'"),
         ("plant: model\nmodel_plant: {sigma_position: 5000}\n", "model_plant: 'sigma_position'"),
         ("plant: model\nfilter: {sigma_position: 5000}\n", "filter: 'sigma_position'"),
+        # the filter's measurement before the tendons' ramp ends (0.9 T against a 0.2 s ramp)
+        ("plant: physics\nexploration: {period_sec: 0.15}\n", "exploration: 'period_sec' 0.15 s: the filter measures"),
         ("plant: model\nfilter: {sigma_rotation: 30}\n", "filter: 'sigma_rotation'"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),

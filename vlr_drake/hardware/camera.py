@@ -33,6 +33,14 @@ __all__ = ["CameraError", "CameraIntrinsics", "FrameSource", "read_intrinsics", 
 
 #: Frame source modes (:class:`FrameSource`).
 CAMERA_MODES = ("auto", "sequential", "latest")
+
+
+def resolved_mode(mode: str, source) -> str:
+    """``mode`` with "auto" resolved for ``source``: "sequential" for an existing file (a
+    video), "latest" for a device or a stream."""
+    if mode == "auto":
+        return "sequential" if isinstance(source, str) and Path(source).is_file() else "latest"
+    return mode
 #: The least time a capture gets to open, or to take a setting, before a CameraError [s]
 #: (a device may take a few seconds; ``timeout_s`` if that is longer).
 OPEN_WAIT_S = 5.0
@@ -187,9 +195,7 @@ class FrameSource:
             raise ValueError(f"camera: 'max_age_s' must be positive, got {max_age_s}")
         if mode not in CAMERA_MODES:
             raise ValueError(f"camera: 'mode' must be one of {CAMERA_MODES}, got {mode!r}")
-        if mode == "auto":
-            mode = "sequential" if isinstance(source, str) and Path(source).is_file() else "latest"
-        self.mode = mode
+        self.mode = resolved_mode(mode, source)
         self.source = source
         self.timeout_s = float(timeout_s)
         self.max_age_s = self.timeout_s if max_age_s is None else float(max_age_s)
