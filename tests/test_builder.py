@@ -198,15 +198,30 @@ def test_novel_finger_scenarios_hold_failed_hypotheses_on_the_physics_plant():
 
 
 def test_model_plant_builder_matches_the_scenario_wiring():
-    """build_model_plant_diagram (the old vlr_drake.diagram signature) wires the same ports."""
+    """build_model_plant_diagram (the old vlr_drake.diagram signature) wires the same ports,
+    each input from the same output (the test had compared the exported names only, which no
+    change of a connection could fail); its default filter_action, "commanded", differs from
+    the scenario's, "measured", in the filter's tendon input alone."""
     s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
     built = build_diagram(s)
     h = built.hand
     th, a = _truth_grasp(h, np.random.default_rng(0))
     plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
-    old = build_model_plant_diagram(h, plant, pf.FilterConfig(particles=400), pf.PriorConfig(), th, a)
+
+    def old(**kwargs):
+        return build_model_plant_diagram(h, plant, pf.FilterConfig(particles=400), pf.PriorConfig(), th, a,
+                                         **kwargs).diagram
+
+    def edges(d):
+        return {(f"{src.get_name()}.{src.get_output_port(o).get_name()}",
+                 f"{dst.get_name()}.{dst.get_input_port(i).get_name()}")
+                for (dst, i), (src, o) in d.connection_map().items()}
+
     names = lambda d: [d.get_output_port(i).get_name() for i in range(d.num_output_ports())]  # noqa: E731
-    assert names(old.diagram) == names(built.diagram)
+    assert names(old()) == names(built.diagram)
+    assert edges(old(filter_action=s.filter_action)) == edges(built.diagram) and len(edges(built.diagram)) >= 6
+    differ = edges(old()) ^ edges(built.diagram)
+    assert {dst for _, dst in differ} == {"self_identification.tendon_command"}, differ
 
 
 def test_custom_hand_and_object_build_from_yaml(tmp_path: Path):

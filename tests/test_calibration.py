@@ -135,3 +135,22 @@ def test_an_unwritable_out_is_refused_before_the_calibration(tmp_path):
     intr = CameraIntrinsics(width=SIZE[0], height=SIZE[1], K=K_TRUE.tolist(), dist=[0.0] * 5)
     with pytest.raises(ValueError, match="cannot write intrinsics file"):
         write_intrinsics(tmp_path, intr)
+
+
+def test_views_that_do_not_determine_the_focal_length_are_refused(rng):
+    """One view repeated, or views turned about the optical axis only, had given fx 14,000
+    and 164,000 (true 610) at 0.013 px rms, written as the camera's calibration; and a
+    principal point outside the image passed the intrinsics' check."""
+    from vlr_drake.hardware.camera import CameraIntrinsics
+
+    tex = chessboard_image((9, 6), 40)
+    square_on = render_planar_target(tex, 0.025 / 40, K_TRUE, R_FACING, np.array([0.0, 0.0, 0.5]), SIZE)
+    turned = [render_planar_target(tex, 0.025 / 40, K_TRUE, R_FACING @ RollPitchYaw(0.0, 0.0, a).ToRotationMatrix()
+                                   .matrix(), np.array([0.0, 0.0, 0.5]), SIZE) for a in (-0.3, -0.1, 0.1, 0.3)]
+    for views in ([square_on] * 5, turned):
+        with pytest.raises(ValueError, match=r"views are \(nearly\) parallel \(at most \d+\.\d deg between them\)"):
+            calibrate_chessboard(views, (9, 6), 0.025)
+    K = K_TRUE.copy()
+    K[1, 2] = -33.5
+    with pytest.raises(ValueError, match=r"principal point \(322.5, -33.5\) px lies outside the 640 x 480 image"):
+        CameraIntrinsics(K=K, dist=np.zeros(5), width=640, height=480).validate()

@@ -55,6 +55,25 @@ def test_force_is_R_transpose_T_on_the_joints():
     np.testing.assert_allclose(sys.tendon_position_output.Eval(ctx), l)
 
 
+def test_the_outputs_do_not_feed_the_command_through():
+    """The command reaches the tendons through the ramp's update, not at once: the tension and
+    force outputs depend on the state input, not on the command (declared so, they had made a
+    false direct feedthrough, an algebraic loop for a tension-feedback controller)."""
+    hand = model_o().model()
+    sys, qi, vi = _system(hand)
+    command, state = sys.tendon_command_input.get_index(), sys.state_input.get_index()
+    for out in (sys.tension_output, sys.generalized_force_output, sys.tendon_position_output):
+        assert not sys.HasDirectFeedthrough(command, out.get_index()), out.get_name()
+    assert sys.HasDirectFeedthrough(state, sys.tension_output.get_index())
+    ctx = sys.CreateDefaultContext()
+    theta = np.full(hand.num_angles, 0.5)
+    sys.state_input.FixValue(ctx, _state(qi, vi, theta))
+    sys.tendon_command_input.FixValue(ctx, hand.tendon_range[:, 0])
+    before = sys.tension_output.Eval(ctx).copy()
+    sys.tendon_command_input.FixValue(ctx, hand.tendon_range[:, 1])  # a new command: nothing until the update
+    np.testing.assert_array_equal(sys.tension_output.Eval(ctx), before)
+
+
 def test_tension_never_negative_with_damping():
     """A fast-flexing finger (stretch shrinking) must not push: T >= 0, and a slack tendon
     carries nothing whatever its rate."""

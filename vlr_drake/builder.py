@@ -599,8 +599,12 @@ class _GoalRecorder:
     plant has its truth, the true POM's distance from it (the goal as anchored on the
     measured frames, so the anchor's own noise is in it). A monitor runs before the events
     due at the end of a step: a goal left at k T + 0.5 T is seen, and its ``time_s``
-    recorded, at the next event (the filter's, 0.9 T); the controller's at-goal flag and
-    error are those it left the goal with, the model plant has not moved since."""
+    recorded, at the next event (the filter's, 0.9 T). The controller's at-goal flag and
+    ``measured_error_mm`` are those of its last step on the goal (k T + 0.05 T), measured
+    before that step's action; the true error is read at the monitor's time, after the plant
+    applied the action (k T + 0.25 T). For a goal reached they agree (the step held still);
+    for one left when its periods ran out they are the error before and after the last
+    step (a review found the two set side by side as one)."""
 
     def __init__(self, built: BuiltDiagram):
         self.d = built.diagram

@@ -81,6 +81,9 @@ class CameraIntrinsics:
             raise ValueError(
                 f"intrinsics: 'image_width' and 'image_height' must be positive, got {self.width} x {self.height}"
             )
+        if not (0 <= K[0, 2] <= self.width and 0 <= K[1, 2] <= self.height):  # (a calibration had cy -33.5)
+            raise ValueError(f"intrinsics: the principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) px lies outside the "
+                             f"{self.width} x {self.height} image: not a calibration of this camera")
         self.K, self.dist = K, d
         return self
 

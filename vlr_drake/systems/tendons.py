@@ -114,14 +114,16 @@ class TendonForces(LeafSystem):
             name="generalized_force",
             size=num_velocities,
             calc=self._calc_force,
-            # the time too: the damping term uses the ramp's rate at the context's time
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()},
+            # the plant's state, the ramp's and the time (the damping term uses the ramp's rate
+            # at the context's time); not the command, which reaches the tendons through the
+            # ramp's update (declaring it had made a feedthrough, e.g. a false algebraic loop)
+            prerequisites_of_calc={self.state_input.ticket(), self.xd_ticket(), self.time_ticket()},
         )
         self.tension_output = self.DeclareVectorOutputPort(
             name="tension",
             size=N,
             calc=self._calc_tension,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()},
+            prerequisites_of_calc={self.state_input.ticket(), self.xd_ticket(), self.time_ticket()},
         )
         self.tendon_position_output = self.DeclareVectorOutputPort(
             name="tendon_position_measured",
