@@ -103,7 +103,12 @@ class HardwareConfig:
     # Retries of a failed bus transaction (timeout or corrupt reply) before giving up.
     comm_retries: int = 2
     # A motor found farther than this outside its tendon limits at start [ticks] stops the
-    # start (a wrong zero offset); within it, the first goal is clamped into the limits.
+    # start (a wrong zero offset); within it, the first goal is clamped into the limits. It
+    # cannot catch a lost turn: a power cycle or a reboot resets a motor's multi-turn count,
+    # and the Model O's 45 mm of tendon is only 1.43 turns of its spool, so a motor that lost
+    # a turn usually still reads inside its limits (a review: tendons then driven 17 mm past
+    # their travel). After either, measure zero_offset_ticks again (python -m
+    # vlr_drake.hardware zero) before a run.
     start_tolerance_ticks: int = 256
     # Period of the hardware interface's update: send commands, read motors and camera [s].
     period_s: float = 0.05
