@@ -372,9 +372,10 @@ def identify(args) -> dict:
     if getattr(args, "trace", None):
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
+    path = args.json or str(out / f"{stem}.json")
     if not args.json:
-        note_replaced(out / f"{stem}.json", result, IDENTIFY_SETTINGS)
-    write_json(result, args.json or str(out / f"{stem}.json"))  # first: the result is kept whatever the plots do
+        note_replaced(path, result, IDENTIFY_SETTINGS)
+    write_json(result, path)  # first: the result is kept whatever the plots do
     _plots(result, out / name)
     return result
 
@@ -717,9 +718,10 @@ def task(args) -> dict:
     print(line)
     if result.get("recording"):
         print(f"wrote {result['recording']}")
+    path = args.json or str(Path(args.out) / f"{args.command}_seed{result['seed']}.json")
     if not args.json:
-        note_replaced(Path(args.out) / f"{args.command}_seed{result['seed']}.json", result, TASK_SETTINGS)
-    write_json(result, args.json or str(Path(args.out) / f"{args.command}_seed{result['seed']}.json"))
+        note_replaced(path, result, TASK_SETTINGS)
+    write_json(result, path)
     return result
 
 

@@ -1270,6 +1270,10 @@ class StepReport:
 #: fingers, more fingers) need more. A filter with fewer says so (FewParticlesWarning).
 CALIBRATED_PARTICLES = 3000
 
+#: The fraction of an action period T at which a diagram's filter takes the period's command
+#: and measurement (SelfIdentificationSystem's default offset): the plant has settled by then.
+FILTER_PHASE = 0.9
+
 #: A re-initialisation within this many iterations of the last one draws from the whole
 #: prior again, around the nominal grasp, not around the last estimate: the estimate the
 #: last one centred on was lost again at once, and a box around it may no longer hold the

@@ -580,13 +580,14 @@ class Scenario:
         if self.link_weight and self.plant != "physics":
             raise ValueError(f"'link_weight': only the physics plant knows its mounting (plant '{self.plant}'); "
                              "a hardware hand gives filter.gravity_palm, the model plant has no link weight")
-        if self.plant == "physics":  # the filter measures at 0.9 T: the tendons' ramp is over by then
+        phase = pf.FILTER_PHASE  # the filter measures at 0.9 T
+        if self.plant == "physics":  # ... when the tendons' ramp is over
             T, ramp = self.period_sec(), self.physics.ramp_time + 2 * self.physics.ramp_update_period
-            if 0.9 * T < ramp:  # (a review: 0.15 s against a 0.2 s ramp read tendons mid-ramp)
+            if phase * T < ramp:  # (a review: 0.15 s against a 0.2 s ramp read tendons mid-ramp)
                 raise ValueError(
-                    f"exploration: 'period_sec' {T} s: the filter measures at 0.9 of it ({0.9 * T:.3g} s), before "
-                    f"the tendons' ramp ends (physics.ramp_time {self.physics.ramp_time} s, and two updates): "
-                    f"a period of at least {ramp / 0.9:.3g} s")
+                    f"exploration: 'period_sec' {T} s: the filter measures at {phase:g} of it ({phase * T:.3g} s), "
+                    f"before the tendons' ramp ends (physics.ramp_time {self.physics.ramp_time} s, and two "
+                    f"updates): a period of at least {ramp / phase:.3g} s")
         if self.plant == "hardware":
             if self.hardware is None:
                 raise ValueError("'hardware': plant 'hardware' needs a hardware section")
@@ -600,13 +601,13 @@ class Scenario:
                 )
             from vlr_drake.hardware.camera import resolved_mode
 
-            newest = 0.9 * T - 2 * self.hardware.period_s  # the motors have the action by then, at the latest
+            newest = phase * T - 2 * self.hardware.period_s  # the motors have the action by then, at the latest
             if resolved_mode(self.hardware.camera_mode, self.hardware.camera) == "latest" and \
                     self.hardware.camera_max_frame_age_s > newest:  # (a review: a frozen camera's frame from
                 # before the action, 0.18 s old, was taken as its result at T = 0.25 s)
                 raise ValueError(
                     f"hardware: 'camera_max_frame_age_s' {self.hardware.camera_max_frame_age_s} s lets a frame from "
-                    f"before the action count as its measurement: at most 0.9 T - 2 period_s = {newest:.3g} s "
+                    f"before the action count as its measurement: at most {phase:g} T - 2 period_s = {newest:.3g} s "
                     f"(T = {T} s)")
         return self
 

@@ -131,7 +131,7 @@ class SelfIdentificationSystem(LeafSystem):
         self._particles_out = self.DeclareAbstractOutputPort(
             name="particles", alloc=lambda: AbstractValue.Make(object()), calc=self._calc_particles,
             prerequisites_of_calc={self.abstract_state_ticket(self._box)})
-        offset = 0.9 * period_sec if offset_sec is None else offset_sec
+        offset = pf.FILTER_PHASE * period_sec if offset_sec is None else offset_sec
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
         self.DeclareForcedUnrestrictedUpdateEvent(update=self._update)
 
