@@ -24,8 +24,8 @@ One iteration (one action dl and one camera measurement of the POM):
    into wrong modes),
 5. resample (systematic) after a valid measurement that left the ESS below
    ``resample_fraction * M`` (0.5; the weights carry over otherwise),
-6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h std eps, a = sqrt(1 - h^2),
-   which keeps the cloud's mean and variance), recompute each tendon state, and
+6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h C^(1/2) eps with C the
+   cloud's covariance, a = sqrt(1 - h^2), which keeps the cloud's mean and covariance), recompute each tendon state, and
 7. re-anchor the attachment a fraction ``anchor_fraction`` of the way from the particle's own
    predicted POM pose towards the measured one (holding it fixed for ever makes the filter
    overconfident; DESIGN.md section 3).

@@ -1,6 +1,7 @@
 """The paper's self-identification experiments (its Fig. 4, 5 and 8), on either plant.
 
-``run_identification`` runs one trial: grasp, then random exploratory actions, each
+``run_identification`` runs one trial: grasp, then exploratory actions (random, the paper's,
+on the physics plant; chosen for their information on the model plant: ``ACTION_CHOICE``), each
 followed by a camera measurement of the POM and one filter iteration (Algorithm 1), until
 the filter has converged (DESIGN.md section 6) or the iteration budget is spent. Errors
 are measured against the plant's ground truth, as the paper measured them against extra
