@@ -324,6 +324,7 @@ def test_bench_motion_and_filter_quick(tmp_path):
     r = _run(tmp_path, "bench", "filter", "--particles", "2000", "--iterations", "2", "--run-iterations", "3")
     _check_fields(r, "Benchmark", BENCH_FILTER_FIELDS)
     assert {"move", "weigh", "estimate"} <= set(r["iteration_phases_s"])
+    assert r["particles_per_s"] == pytest.approx(2000 / r["iteration_s"])  # (1.0 had passed)
     slowest = r["slowest_iteration_phases_s"]
     assert min(slowest.values()) >= 0 and sum(slowest.values()) <= r["iteration_max_s"]
     assert 0 < r["first_iteration_s"] <= r["iteration_max_s"]
@@ -338,6 +339,9 @@ def test_bench_motion_and_filter_quick(tmp_path):
     assert r["iterations_timed"] == 1 and r["actions_refused"] >= 1 and r["iteration_s"] > 0
     t = run["timing_s"]
     assert min(t["physics"], t["render"], t["detect"], t["filter"]) > 0 and t["other"] >= 0
+    # the parts, timed apart, fit in the total ("other" is the rest: its sum with them holds by
+    # construction; the parts' own sum does not, and fails where one is counted twice)
+    assert t["physics"] + t["render"] + t["detect"] + t["filter"] <= t["total"]
     assert t["physics"] + t["render"] + t["detect"] + t["filter"] + t["other"] == pytest.approx(t["total"])
 
 

@@ -97,6 +97,17 @@ def test_statics_profile_is_zero_at_the_truth_on_the_model_plant():
     assert min(rows[0]["parameter_offset_deg"], rows[2]["parameter_offset_deg"]) > 0.2
     with pytest.raises(ValueError, match="no plant truths"):
         statics_profile(IdentificationTrace(**{**r["_trace"].__dict__, "truths": None}), "link_length:thumb_NF1", [L])
+    # every value's evidence -inf (a step no hypothesis follows): named, not printed as nan
+    import vlr_drake.trace as trace_module
+
+    def lost_at_4(*args, **kwargs):
+        return {"log_evidence": -np.inf, "log_evidence_steps": np.array([1.0, 2.0, 3.0, -np.inf, 1.0])}
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(trace_module, "replay", lost_at_4)
+        with pytest.raises(ValueError, match=r"every value's log evidence is -inf: no hypothesis follows "
+                                             r"step\(s\) \[4\] of the trace"):
+            evidence_profile(r["_trace"], "link_length:thumb_NF1", [L - 0.004, L])
     with pytest.raises(ValueError, match="statics profile: parameter must be one of"):
         statics_profile(r["_trace"], "damping", [0.1])
 
@@ -109,6 +120,16 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
                                  "R": np.full_like(trace.R, np.nan)})
     with pytest.raises(ValueError, match="step 1 is marked valid but its POM pose is not finite"):
         bad.validate()
+    # damaged truths and meta are named at load (a NaN contact had scored "outside every
+    # interval"; a label or type the rows cannot read had ended in a TypeError)
+    truths = {**trace.truths, "a": np.full_like(trace.truths["a"], np.nan)}
+    with pytest.raises(ValueError, match="truths 'a' must be finite numbers"):
+        IdentificationTrace(**{**trace.__dict__, "truths": truths}).validate()
+    with pytest.raises(ValueError, match="meta 'plant' must be a name"):
+        IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "plant": ["model"]}}).validate()
+    known = IdentificationTrace(**{**trace.__dict__, "prior": dataclasses.replace(trace.prior, stiffness_unknown=[])})
+    with pytest.raises(ValueError, match="meta 'experiment' is 'stiffness' but its prior has no unknown spring"):
+        known.validate()
     # a reflected rotation loaded and failed mid-replay without its file or step
     R = trace.R.copy()
     R[1] = R[1] @ np.diag([1.0, 1.0, -1.0])
@@ -330,6 +351,19 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     r = json.loads(out.read_text())["runs"][0]
     assert [p["value"] for p in r["statics"]] == [0.1, 0.2] and "offset_deg" in r["statics"][0]
     capsys.readouterr()
+    # a profile uses the overrides it records: --prior in the evidence profile (it had used
+    # the trace's prior whatever the command said), --filter in the statics; a statics
+    # profile runs no filter, so --prior is refused rather than recorded as applied
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--prior",
+                 "proximal_half_width=0.02", "--json", str(out), "--no-progress"]) == 0
+    narrow = json.loads(out.read_text())["runs"][0]["profile"][0]["log_evidence"]
+    assert narrow != ev[0]
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--statics", "--prior",
+                 "proximal_half_width=0.02"]) == 2
+    assert "--prior is for a replay or an evidence profile: a statics profile runs no filter" in capsys.readouterr().err
+    ideal = statics_profile(IdentificationTrace.load(path), "stiffness", [0.1],
+                            config=dataclasses.replace(IdentificationTrace.load(path).filter, tendon="ideal"))
+    assert ideal[0]["offset_deg"] != r["statics"][0]["offset_deg"]
     assert main(["replay", str(path), "--statics"]) == 2
     assert "--statics needs --profile" in capsys.readouterr().err
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2

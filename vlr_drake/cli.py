@@ -511,7 +511,9 @@ def replay_trace(args) -> dict:
                     _measure(pooled_measured, i, meta, errors, by_plant)
                 draws_of = []
         elif args.statics:
-            rows = statics_profile(trace, args.profile, values)
+            if args.prior:  # it runs no filter: said, not recorded as applied
+                raise ValueError("--prior is for a replay or an evidence profile: a statics profile runs no filter")
+            rows = statics_profile(trace, args.profile, values, config)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
             print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
                   "plant's true angles):")
@@ -522,7 +524,7 @@ def replay_trace(args) -> dict:
                       f"solved {100 * r['solved']:.0f}%")
             run = {"trace": str(path), "parameter": args.profile, "statics": rows}
         else:
-            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress)
+            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress, prior=prior)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
             print(f"  evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
             for r in rows:

@@ -110,6 +110,16 @@ class IdentificationTrace:
         extra = self.meta.get("extra_iterations", 0)
         if not is_count(extra):
             raise ValueError(f"trace: meta 'extra_iterations' must be an integer >= 0, got {extra!r}")
+        for key in ("experiment", "plant", "hand", "object"):  # (a list had ended replay in a TypeError)
+            if not isinstance(self.meta.get(key), str | None):
+                raise ValueError(f"trace: meta '{key}' must be a name, got {self.meta[key]!r}")
+        # the experiment's unknowns are the prior's (a known-hand trace labelled "stiffness" had
+        # ended replay's rows in a TypeError)
+        wants = {"stiffness": ("stiffness_unknown", "unknown spring"),
+                 "novel_fingers": ("links_unknown", "unknown links")}.get(self.meta.get("experiment"))
+        if wants is not None and not getattr(self.prior, wants[0]):
+            raise ValueError(f"trace: meta 'experiment' is {self.meta['experiment']!r} but its prior has no "
+                             f"{wants[1]} ({wants[0]} is empty)")
         if not isinstance(self.meta.get("stops_at_convergence", False), bool):
             raise ValueError(f"trace: meta 'stops_at_convergence' must be true or false, "
                              f"got {self.meta['stops_at_convergence']!r}")
@@ -164,7 +174,7 @@ class IdentificationTrace:
             for k in self.truths:
                 if self.truths[k].dtype.kind not in "fiu":
                     raise ValueError(f"trace: truths '{k}' must be numbers, got {self.truths[k].dtype}")
-            for k in ("theta", "stiffness", "link_lengths"):
+            for k in TRUTH_KEYS:  # (a NaN contact had been scored "outside every interval")
                 if not np.all(np.isfinite(self.truths[k])):
                     raise ValueError(f"trace: truths '{k}' must be finite numbers")
         return self
@@ -487,7 +497,8 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
     raise ValueError(f"{what}: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
 
 
-def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[dict]:
+def statics_profile(trace: IdentificationTrace, parameter: str, values,
+                    config: pf.FilterConfig | None = None) -> list[dict]:
     """How the VLR with one hand parameter set to each of ``values`` agrees with the plant's
     truth along the trace (simulation traces only; no filter is run).
 
@@ -503,7 +514,10 @@ def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[
     statics match the plant; a flat ``motion_rms_deg`` means the actions' motions hardly
     depend on the parameter, so the camera learns it slowly. The contacts stay where they
     are on the last links (the truth's), so a link length is seen without the trade-off
-    against the contact positions that the filter's hypotheses can make.
+    against the contact positions that the filter's hypotheses can make. ``config`` (default
+    the trace's filter settings) gives the tendon model and the substeps; the links' weight
+    that a physics run's filter carries is left out (the equilibria move by 0.2 deg on
+    average with it, a review measured: about a sixth of the offsets compared).
 
     Measured (stiffness traces of the physics table, seeds 0-4, the spring 0.7-2x): the
     offsets are least at the true spring on four seeds and at 1.15x on the softest, while
@@ -525,8 +539,9 @@ def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[
             k[:, fi, j] = v
         else:
             L[:, fi, 0] = v
+        cfg = trace.filter if config is None else config
         r = motion.move(h, theta, np.zeros(h.N), a=a, D2=D2, stretch=stretch, stiffness=k, link_lengths=L,
-                        tendon=trace.filter.tendon, max_substeps=trace.filter.max_substeps)
+                        tendon=cfg.tendon, max_substeps=cfg.max_substeps)
         off = np.rad2deg(np.abs(r.theta - theta))[r.ok]
         mine = off[:, fi, j] if parameter == "stiffness" else off[:, fi, :]
         both = r.ok[1:] & r.ok[:-1]
@@ -539,7 +554,7 @@ def statics_profile(trace: IdentificationTrace, parameter: str, values) -> list[
 
 
 def evidence_profile(trace: IdentificationTrace, parameter: str, values, config: pf.FilterConfig | None = None,
-                     progress: bool = False) -> list[dict]:
+                     progress: bool = False, prior: pf.PriorConfig | None = None) -> list[dict]:
     """Replay the trace once per value with one identified hand parameter fixed there.
 
     ``parameter``: "stiffness" (the prior's first unknown spring, finger and joint from
@@ -548,9 +563,12 @@ def evidence_profile(trace: IdentificationTrace, parameter: str, values, config:
     leaves the prior's unknowns and is set in the filter's hand. Returns one dict per value:
     ``value``, ``log_evidence`` and ``relative`` (minus the largest: log Bayes factors),
     ``errors`` (where the trace has truths) and ``replay`` (the full :func:`replay` output).
+    ``config`` and ``prior`` replace the trace's own (a replay's ``--filter`` and ``--prior``;
+    the prior had been the trace's whatever the command said). Where every value's log
+    evidence is -inf (a step that no hypothesis follows), a ValueError names the steps.
     """
     values, fi, j = _profile_parameter(trace, parameter, values, "evidence profile")
-    base_prior = trace.prior
+    base_prior = trace.prior if prior is None else prior
     rows = []
     for v in values:
         spec, prior = copy.deepcopy(trace.hand), copy.deepcopy(base_prior)
@@ -568,6 +586,10 @@ def evidence_profile(trace: IdentificationTrace, parameter: str, values, config:
             raise ValueError(f"evidence profile of {parameter} at {v:g}: {e}") from e
         rows.append({"value": float(v), "log_evidence": r["log_evidence"], "errors": r.get("errors"), "replay": r})
     best = max(r["log_evidence"] for r in rows)
+    if not np.isfinite(best):  # -inf - -inf: no value to compare against (it had printed nan)
+        lost = sorted({int(k) + 1 for r in rows for k in np.flatnonzero(np.isneginf(r["replay"]["log_evidence_steps"]))})
+        raise ValueError(f"evidence profile of {parameter}: every value's log evidence is -inf: no hypothesis follows "
+                         f"step(s) {lost[:10]} of the trace (an action or a measurement no grasp can explain)")
     for r in rows:
         r["relative"] = r["log_evidence"] - best
     return rows
