@@ -37,6 +37,7 @@ import re
 import shutil
 import subprocess
 import sys
+import traceback
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -718,7 +719,18 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         simulator.set_monitor(goals)
     try:
         initialize(built, simulator)
-        simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
+        stopped = None
+        try:
+            simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
+        except (RuntimeError, ValueError, FloatingPointError, np.linalg.LinAlgError) as e:
+            if scenario.plant == "hardware":  # a real hand stops (torque off below) and says why
+                raise
+            # a failure inside a simulated diagram (the physics solver, the filter): the
+            # iterations before it are kept and reported, as an identification run's (the
+            # context holds the state before the failed update)
+            stopped = f"t = {simulator.get_context().get_time():.3f} s: {type(e).__name__}: {e}"
+            warnings.warn(f"scenario '{scenario.name}': the run stopped at {stopped}\n{traceback.format_exc()}",
+                          RuntimeWarning, stacklevel=2)
         ctx = simulator.get_context()
         rate = simulator.get_actual_realtime_rate()
         if scenario.plant == "hardware" and rate < 0.9:
@@ -770,6 +782,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
             # what an identification run reports too (a review: a run whose tags were lost, whose
             # cloud was drawn again or whose object fell had looked like any other)
             **record,
+            "stopped": stopped,
             "control": None if goals is None else goals.report(),
             **(hand_parameter_report(flt.hand, flt.prior, flt.estimates[-1], flt.estimates[0]) if flt is not None
                else {"hand_parameters": {}, "weakly_identified": [], "object_mass_identified": None}),
