@@ -839,6 +839,12 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
         )
+        said = [f"stopped at {r['stopped']}" if r["stopped"] else "",
+                f"{r['lost_measurements']} iterations without a tag pose" if r["lost_measurements"] else "",
+                f"{r['reinitialisations']} re-initialisations" if r["reinitialisations"] else "",
+                "the object fell out of the hand" if r["object_fell"] else ""]
+        if any(said):
+            print("; ".join(s for s in said if s))
         print("theta estimate [deg]\n", np.rad2deg(r["theta_estimate"]))
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
@@ -864,7 +870,8 @@ def main(argv: list[str] | None = None) -> int:
         if r["hardware"] is not None:
             hw = r["hardware"]
             print(f"hardware: {hw['updates']} updates, {hw['clipped']} with a command clipped at a tendon limit, "
-                  f"{hw['ramped']} ramped towards a far command")
+                  f"{hw['ramped']} ramped towards a far command; camera: {hw['camera']['frames']} frames, "
+                  f"{hw['camera']['misses']} reads without one, {hw['camera']['repeats']} repeated")
         if r["trace"]:
             print(f"wrote {r['trace']}")
         write_json(r, args.json)
