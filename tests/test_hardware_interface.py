@@ -911,6 +911,18 @@ def test_bring_up_tool(emulator, tag_video, tmp_path):
     assert bring_up(["status", "--set", override], out=out) == 0
     text = out.getvalue()
     assert "motor 12: 1500 ticks" in text and "motors [11, 12, 13] answer" in text
+    assert "outside" not in text
+    # with the hand's tendon_range as the limits (no tendon_lower/upper: the run's default), a
+    # motor a turn off its zero (a reset multi-turn count) is named; status had said nothing
+    # and the run refused to start
+    turn = ("\ntendon_lower: [0.0, 0.0, 0.0]\ntendon_upper: [0.01, 0.01, 0.01]",
+            "")
+    shifted = override.replace(turn[0], turn[1]).replace(f"zero_offset_ticks: {ZERO}",
+                                                         f"zero_offset_ticks: {[ZERO[0] + 4096, *ZERO[1:]]}")
+    out = io.StringIO()
+    assert bring_up(["status", "--set", shifted], out=out) == 0
+    lines = out.getvalue().splitlines()
+    assert "outside the tendon limits [0.0, 45.0] mm; a run refuses to start" in lines[1] and "outside" not in lines[2]
     assert not any(emulator.torque_enabled(i) for i in IDS)  # the tool never enables torque
     out = io.StringIO()
     assert bring_up(["camera", "--set", override, "--frames", str(len(poses) + 2)], out=out) == 0

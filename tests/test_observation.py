@@ -78,6 +78,19 @@ def test_rotation_vectors_match_scipy(rng):
         back = observation.rotvec(observation.rotvec_to_matrix(half))[0]
         assert np.isclose(np.linalg.norm(back), np.pi)
         np.testing.assert_allclose(np.abs(back), np.abs(half), atol=1e-7)
+    # just short of a half turn, where arccos loses the angle (the round trip had been 8e-4 rad
+    # off at pi - 1e-6), with the sign of the axis kept (it had been taken from the diagonal)
+    for d in (1e-6, 2e-6, 1e-5, 1e-4, 0.05, 0.13):
+        axis = rng.normal(size=(20, 3))
+        w = (np.pi - d) * axis / np.linalg.norm(axis, axis=1, keepdims=True)
+        np.testing.assert_allclose(observation.rotvec(Rotation.from_rotvec(w).as_matrix()), w, atol=1e-9)
+    # bad input named: a reflection, and shapes that are no rotations (they had been reshaped)
+    with pytest.raises(ValueError, match="not a rotation"):
+        observation.rotvec(np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="must have shape"):
+        observation.rotvec(np.zeros((2, 9)))
+    with pytest.raises(ValueError, match="must have shape"):
+        observation.rotvec_to_matrix(np.zeros(6))
 
 
 def test_blend_poses_interpolates_on_the_rotation_group(rng):

@@ -76,6 +76,17 @@ def test_ports_and_camera_image_match_the_intrinsics():
     del diagram
 
 
+def test_the_check_reports_a_command_asked_past_the_tendon_range(monkeypatch):
+    """max_command_violation_m measures what the exploration asked for: it had read the
+    applied pull, clamped into the range, so the check above could not fail."""
+    from vlr_drake.physics import check
+
+    step = check.exploration_step
+    monkeypatch.setattr(check, "exploration_step", lambda *args: step(*args) + 0.03)  # 30 mm past
+    r = run_check("apple", "model_o", actions=1, seed=3)
+    assert r.max_command_violation_m > 1e-3  # (the grasp pulls about 17 mm of the 45 mm range)
+
+
 @pytest.mark.parametrize("name", PAPER_OBJECTS)
 def test_paper_object_stays_in_hand_through_random_actions(name):
     """Grasp, then 10 random +-1.5 mm actions: every pad keeps touching the object, it does

@@ -243,6 +243,8 @@ def contacts(hand: HandModel, theta, a, link_lengths=None) -> np.ndarray:
     a = as_particles("a", a, (P, hand.N))
     L = hand.link_lengths[None] if link_lengths is None else link_lengths
     L = as_particles("link_lengths", L, (P, hand.N, hand.K - 1), allow_shared=True)
+    if np.any(L <= 0):  # (a negative length had given a finger folded through its base)
+        raise ValueError(f"'link_lengths' must be positive [m], got {np.unique(L[L <= 0]).tolist()}")
     out = np.empty((P, hand.N, 3))
     _contacts_kernel(theta, L, a, hand.pad, hand.base, hand.u, out)
     return out
@@ -254,6 +256,8 @@ def joint_positions(hand: HandModel, theta, link_lengths=None) -> np.ndarray:
     theta = as_particles("theta", theta, (P, hand.N, hand.K))
     L = hand.link_lengths[None] if link_lengths is None else link_lengths
     L = as_particles("link_lengths", L, (P, hand.N, hand.K - 1), allow_shared=True)
+    if np.any(L <= 0):  # (a negative length had given a finger folded through its base)
+        raise ValueError(f"'link_lengths' must be positive [m], got {np.unique(L[L <= 0]).tolist()}")
     phi = np.cumsum(theta, axis=-1)[..., : hand.K - 1]  # (P, N, K-1)
     step_x = L * np.sin(phi)
     step_z = L * np.cos(phi)

@@ -47,6 +47,7 @@ from vlr_drake.kinematics import (
     contacts,
     finger_contact_derivatives,
     is_count,
+    is_number,
     sincos,
 )
 
@@ -549,7 +550,13 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
     # a constraint's gradient vanishes: the Model O's side fingers in mirror-image poses,
     # whose contacts are separated along the normal of both finger planes, so that no
     # finger motion changes their distance to first order. It changes the Newton steps,
-    # not the solution (the multiplier steps vanish at convergence).
+    # not the solution (the multiplier steps vanish at convergence). But not always the
+    # convergence: a review (2026-12-06) found zero actions from equilibria of sampled grasps
+    # (13 of 20,000 Model O, 22 NH3; KKT condition numbers near 1e12) that fail within 30
+    # steps with it and converge in 2-3 without it; scaled as the Schur complement
+    # (1e-12 gscale^2 / hscale), or set only on the lanes whose pivot _lu_lanes flags, they
+    # converge. Either changes which hypotheses move, so every row, and waits for a session
+    # that measures them again (scripts: /tmp/s44/review9/s3e_which.py, s3f_fix.py).
     for w in range(W):
         hscale[w] = 0.0
         gscale[w] = 0.0
@@ -1323,6 +1330,12 @@ def move(
         raise ValueError(f"Newton tolerance must be one of {tuple(TOLERANCES)}, got '{tolerance}'")
     if loose_after is not None and not is_count(loose_after, 1):
         raise ValueError(f"'loose_after' must be None or an integer >= 1, got {loose_after!r}")
+    # (a review: max_iter -1 ran 5,392 iterations and 2.7 was cut to 2; a NaN step cap took
+    # uncapped steps, and one <= 0 failed every hypothesis without a word)
+    if not is_count(max_iter, 1):
+        raise ValueError(f"'max_iter' must be an integer >= 1, got {max_iter!r}")
+    if not (is_number(max_step) and 0 < max_step < np.inf):
+        raise ValueError(f"'max_step' must be a positive finite angle [rad], got {max_step!r}")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
     dl = np.asarray(dl, float)
@@ -1333,6 +1346,8 @@ def move(
         check_action(hand, l_now, dl[0])
     a = as_particles("a", a, (P, hand.N))
     D2 = as_particles("D2", D2, (P, hand.num_constraints))
+    if np.any(D2 <= 0):  # squared distances between distinct contacts (every hypothesis had failed)
+        raise ValueError(f"'D2' must be positive squared contact distances [m^2], got {D2[np.any(D2 <= 0, axis=1)][0]}")
     if stretch is None:
         if tendon == "elastic":
             raise ValueError("the elastic tendon model needs 'stretch' (see motion.equilibrium)")
@@ -1405,8 +1420,13 @@ def equilibrium(
     """Tendon stretch and tension that hold the grasp at ``theta`` (DESIGN.md section 4b).
 
     Solves the stationarity conditions ``k (theta - theta0) - R^T T + G^T lambda = 0`` for
-    (T, lambda). For the Model O (N*K = N + m) this is square and exact: every grasp
-    configuration is an equilibrium for exactly one tendon state. For hands with more
+    (T, lambda). For the Model O (N*K = N + m) this is square: almost every grasp
+    configuration is an equilibrium for exactly one tendon state. Not at the mirror-image
+    grasps, where a column of the system vanishes and no tension state balances the springs:
+    there ``ok`` is reported although the stationarity residual is up to 9e-3 N m (a review,
+    2026-12-06: 11 of 20,000 sampled NH3 grasps above 1e-6 N m). Checking the residual would
+    change which prior draws are kept, so every row, and waits for a session that measures
+    them again. For hands with more
     joints (N*K > N + m) the least-squares tension is used and, with ``settle`` (default for
     such hands), the elastic model with a zero action moves the angles to the nearest true
     equilibrium, which is returned as ``theta``. ``external_torque`` (P or 1, N, K) [N m]:

@@ -90,19 +90,28 @@ def _rotvec_one(R, out):  # pragma: no cover - numba
     angle = np.arccos(min(1.0, max(-1.0, c)))
     wx, wy, wz = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
     s = np.sin(angle)
-    if s >= 1e-6:
+    if s >= 1e-6 and c > -0.99:
         f = angle / (2.0 * s)
         out[0], out[1], out[2] = wx * f, wy * f, wz * f
     elif angle < 1.0:  # near 0: R ~ I + [w]x
         out[0], out[1], out[2] = 0.5 * wx, 0.5 * wy, 0.5 * wz
-    else:  # near pi: the axis from the symmetric part (R + I) / 2 = k k^T
+    else:
+        # near pi (beyond 171.9 deg): arccos loses the angle there (8e-4 rad off at pi - 1e-6,
+        # a review) and dividing by sin amplifies it. The angle by atan2, the axis from the
+        # symmetric part, (R + R^T) / 2 = c I + (1 - c) k k^T, its sign from the skew part.
+        angle = np.arctan2(0.5 * np.sqrt(wx * wx + wy * wy + wz * wz), c)
         k = 0
         for j in range(1, 3):
             if R[j, j] > R[k, k]:
                 k = j
-        scale = angle / np.sqrt(max(0.5 * (R[k, k] + 1.0), 1e-300))
+        kk = np.sqrt(max((R[k, k] - c) / (1.0 - c), 1e-300))
+        axis = np.empty(3)
         for r in range(3):
-            out[r] = 0.5 * (R[r, k] + (1.0 if r == k else 0.0)) * scale
+            axis[r] = kk if r == k else 0.5 * (R[r, k] + R[k, r]) / ((1.0 - c) * kk)
+        if axis[0] * wx + axis[1] * wy + axis[2] * wz < 0.0:
+            angle = -angle
+        for r in range(3):
+            out[r] = axis[r] * angle
 
 
 @njit(cache=True)
@@ -267,7 +276,12 @@ def rotation_angle(R_a, R_b) -> np.ndarray:
 
 def rotvec(R) -> np.ndarray:
     """Rotation vectors (P, 3) of rotation matrices (P, 3, 3) (axis * angle)."""
-    R = np.ascontiguousarray(np.asarray(R, float).reshape(-1, 3, 3))
+    R = np.asarray(R, float)
+    if R.shape[-2:] != (3, 3) or R.ndim not in (2, 3):
+        raise ValueError(f"rotvec: R must have shape (3, 3) or (P, 3, 3), got {R.shape}")
+    R = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    if not np.all(is_rotation(R, 1e-4)):  # a reflection had come out as the identity
+        raise ValueError("rotvec: R is not a rotation (a reflection, or not orthonormal)")
     out = np.empty((R.shape[0], 3))
     _rotvec_kernel(R, out)
     return out
@@ -275,7 +289,10 @@ def rotvec(R) -> np.ndarray:
 
 def rotvec_to_matrix(w) -> np.ndarray:
     """Rodrigues: rotation matrices (P, 3, 3) of rotation vectors (P, 3)."""
-    w = np.ascontiguousarray(np.asarray(w, float).reshape(-1, 3))
+    w = np.asarray(w, float)
+    if w.shape[-1:] != (3,) or w.ndim not in (1, 2):
+        raise ValueError(f"rotvec_to_matrix: w must have shape (3,) or (P, 3), got {w.shape}")
+    w = np.ascontiguousarray(w.reshape(-1, 3))
     R = np.empty((w.shape[0], 3, 3))
     _rodrigues_kernel(w, R)
     return R

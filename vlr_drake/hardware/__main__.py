@@ -45,6 +45,9 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
     p.add_argument("--config", help="hardware section YAML file, or a scenario file with a hardware section")
     p.add_argument("--set", default=None, help="YAML text overriding config fields")
     p.add_argument("--frames", type=count(1), default=30, help="camera: frames to read")
+    p.add_argument("--hand", default="model_o",
+                   help="status: the hand whose tendon_range gives the limits where the config gives none "
+                        "(default model_o)")
     a = p.parse_args(argv)
     config = load_hardware_config(filename=a.config, data=a.set).validate()
 
@@ -71,15 +74,21 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
         if a.command == "zero":
             print(f"zero_offset_ticks: {ticks.tolist()}", file=out)
             return 0
-        zero = TendonMotorMap(config, np.zeros(config.num_motors), np.zeros(config.num_motors))
-        tendon = zero.to_tendon(ticks)
+        from vlr_drake.hand import hand_by_name
+
+        # the limits a run takes: the config's, else the hand's tendon_range (status had checked
+        # only a config's own, and said nothing of a motor the run then refused; a review)
+        lower, upper = config.tendon_limits(hand_by_name(a.hand))
+        tendon_map = TendonMotorMap(config, lower, upper)
+        tendon = tendon_map.to_tendon(ticks)
+        slack = config.start_tolerance_ticks / tendon_map.ticks_per_m  # [m] a run's start allows this far out
         print(f"port {config.port} at {config.baud_rate} baud: motors {config.motor_ids} answer", file=out)
-        for i, t, l, c in zip(config.motor_ids, ticks, tendon, current, strict=True):
+        for k, (i, t, l, c) in enumerate(zip(config.motor_ids, ticks, tendon, current, strict=True)):
             line = f"  motor {i}: {int(t)} ticks, tendon {l * 1000:.2f} mm, current {c * config.current_unit_a:.3f} A"
-            if config.tendon_lower:
-                k = config.motor_ids.index(i)
-                if not config.tendon_lower[k] <= l <= config.tendon_upper[k]:
-                    line += "  (outside the tendon limits)"
+            out_by = max(lower[k] - l, l - upper[k])
+            if out_by > 0:
+                line += (f"  (outside the tendon limits [{1e3 * lower[k]:.1f}, {1e3 * upper[k]:.1f}] mm"
+                         + ("; a run refuses to start: zero again?" if out_by > slack else "") + ")")
             print(line, file=out)
         return 0
 
