@@ -14,11 +14,15 @@ positive flexing):
   pads' centres of curvature instead (:attr:`HandModel.pad`) give the rest, and the
   difference is the moment of the forces' tangential (friction) part about the centre, a
   pad radius away, which reaches every joint of the finger;
-- ``object_weight``: the object's weight, which the pads carry. The VLR's contact forces
-  cancel on the object, so the weight is an external load for it: split over the contacts
-  with the barycentric weights w_i of the object's centre of mass (sum w_i = 1, sum w_i c_i
-  nearest the centre of mass), finger i carries w_i m g at its contact. This split is one
-  of many statically equivalent ones; any two differ by forces the VLR's constraints carry;
+- ``object_weight``: the object's load, which the pads carry: its weight at its centre of
+  mass and the forces of the other bodies touching it. The VLR's contact forces cancel on
+  the object, so this is an external load for it, split over the pads' centres as the
+  least-norm forces with its sum and its moment (:func:`object_load_shares`). Any two such
+  splits differ by forces the VLR's constraints carry. (Until 2026-12-06 the weight alone
+  was split by the barycentric weights of the centre of mass projected onto the pads'
+  plane: the moment of the centre of mass's offset from that plane, 7.4 mN m on the apple
+  with the palm pitched 30 deg, and the other bodies' forces were lost; a review. With the
+  palm down, as below, that moment is about nil.)
 - ``other_contacts``: bodies other than the pads' links touching the object (a proximal
   link, the palm), which the VLR does not have either;
 - ``residual``: what is left (joint limits, damping, a state not quite at rest).
@@ -37,6 +41,11 @@ actions [deg], with each unmodelled load added):
     wine glass    1.86   1.50        1.33         0.88           0.051
     toy block     1.04   0.88        0.42         0.86           0.078
     gelatin box   1.27   0.95        0.88         0.72           0.033
+
+(Measured with the earlier split of the object's weight, which lost its moment off the pads'
+plane; palm down that moment is about nil: the apple over 3 actions gives 'all' 0.025 deg
+with the present split. With the palm pitched 30 deg: 0.060 deg, against 0.83 with the
+earlier split; rolled 30 deg: 0.024.)
 
 With all of them the VLR's statics match the plant's to a twentieth of a degree, and Newton
 finds the equilibrium in every action (2 of 40 have none without them on the apple, wine
@@ -101,6 +110,21 @@ def barycentric_weights(contacts: np.ndarray, point: np.ndarray) -> np.ndarray:
     return np.append(w, 1.0 - w.sum())
 
 
+def object_load_shares(r: np.ndarray, force: np.ndarray, moment: np.ndarray) -> np.ndarray:
+    """Forces (N, 3) at the points ``r`` (N, 3) (the pads' centres, about a reference point)
+    whose sum is ``force`` (3,) and whose moment about the reference is ``moment`` (3,): the
+    least-norm such split. Any two splits differ by forces along the lines between the
+    points, which the VLR's constraints (Eq. 8's distances) carry."""
+    N = r.shape[0]
+    A = np.zeros((6, 3 * N))
+    for i in range(N):
+        A[:3, 3 * i: 3 * i + 3] = np.eye(3)
+        x, y, z = r[i]
+        A[3:, 3 * i: 3 * i + 3] = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]  # r_i x
+    f, *_ = np.linalg.lstsq(A, np.concatenate([force, moment]), rcond=None)
+    return f.reshape(N, 3)
+
+
 def plant_loads(ph, root_context) -> JointLoads:
     """The joint torques of the physics hand ``ph`` (:class:`~vlr_drake.systems.physics_plant.PhysicsHand`)
     at its current state, by load. Needs point contact (``PhysicsConfig.contact_model``
@@ -131,6 +155,13 @@ def plant_loads(ph, root_context) -> JointLoads:
     finger_of = {int(b.index()): i for i, b in enumerate(ph.last_links)}
     obj = int(ph.object_body.index())
     results = plant.get_contact_results_output_port().Eval(pctx)
+    mass = ph.object_body.default_mass()
+    com_W = plant.EvalBodyPoseInWorld(pctx, ph.object_body) @ ph.object_body.default_com()
+    g_W = np.asarray(plant.gravity_field().gravity_vector())
+    centre = c_W.mean(axis=0)
+    # the object's load that the pads carry: its weight at its centre of mass and what the
+    # other bodies touching it push on it, as a force and a moment about the pads' centroid
+    load_F, load_M = mass * g_W, np.cross(com_W - centre, mass * g_W)
     for k in range(results.num_point_pair_contacts()):
         info = results.point_pair_contact_info(k)
         A, B = int(info.bodyA_index()), int(info.bodyB_index())
@@ -139,17 +170,16 @@ def plant_loads(ph, root_context) -> JointLoads:
         hand_body, sign = (B, 1.0) if A == obj else (A, -1.0)  # contact_force() acts on body B
         f_W = sign * np.asarray(info.contact_force())
         body = plant.get_body(info.bodyB_index() if A == obj else info.bodyA_index())
-        tau = torque(body, np.asarray(info.contact_point()), f_W)
+        p_W = np.asarray(info.contact_point())
+        tau = torque(body, p_W, f_W)
         if hand_body in finger_of:
             pad_contact += tau
             pad_moment += tau - torque(body, c_W[finger_of[hand_body]], f_W)
         else:
             other += tau
-    mass = ph.object_body.default_mass()
-    com_W = plant.EvalBodyPoseInWorld(pctx, ph.object_body) @ ph.object_body.default_com()
-    g_W = np.asarray(plant.gravity_field().gravity_vector())
-    w = barycentric_weights(c_W, com_W)
-    object_weight = sum((torque(ph.last_links[i], c_W[i], w[i] * mass * g_W) for i in range(h.N)), zero.copy())
+            load_F, load_M = load_F - f_W, load_M + np.cross(p_W - centre, -f_W)  # (-f_W acts on the object)
+    shares = object_load_shares(c_W - centre, load_F, load_M)
+    object_weight = sum((torque(ph.last_links[i], c_W[i], shares[i]) for i in range(h.N)), zero.copy())
     tendon = (h.R.T @ T).reshape(h.N, h.K)
     spring = -h.stiffness * (theta - h.rest_angles)
     link_weight = plant.CalcGravityGeneralizedForces(pctx)[vi].reshape(h.N, h.K)
