@@ -19,3 +19,19 @@ def hand_4x3():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def filter_fails_at_4(monkeypatch):
+    """The particle filter's fourth step raises FloatingPointError("an injected failure"): a
+    solver's or the filter's own failure, for the runs that must keep the iterations before it."""
+    from vlr_drake import filter as pf
+
+    step = pf.SelfIdentificationFilter.step
+
+    def fails_at_4(self, *args, **kwargs):
+        if self.iteration == 3:
+            raise FloatingPointError("an injected failure")
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", fails_at_4)

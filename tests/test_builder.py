@@ -325,20 +325,12 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert "model_plant: 1 iterations" in capsys.readouterr().out
 
 
-def test_a_diagram_run_keeps_the_iterations_before_a_failure(monkeypatch):
+def test_a_diagram_run_keeps_the_iterations_before_a_failure(filter_fails_at_4):
     """A failure inside a simulated diagram (here the filter's fourth update) had ended the
     run in a traceback, its iterations lost: the result is the state before the failed
     update, and says when and why it stopped (a warning carries the traceback)."""
     from vlr_drake.builder import run
 
-    step = pf.SelfIdentificationFilter.step
-
-    def fails_at_4(self, *args, **kwargs):
-        if self.iteration == 3:
-            raise FloatingPointError("an injected failure")
-        return step(self, *args, **kwargs)
-
-    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", fails_at_4)
     with pytest.warns(RuntimeWarning, match=r"the run stopped at t = 4.900 s: FloatingPointError"):
         r = run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST), iterations=6)
     assert r["stopped"] == "t = 4.900 s: FloatingPointError: an injected failure" and r["iterations"] == 3

@@ -672,20 +672,10 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
     assert not list(out.glob("*.png"))  # (the prior alone had made plots of one point: a legend, no band)
 
 
-def test_a_run_whose_filter_fails_keeps_the_iterations_done(tmp_path, capsys, monkeypatch):
+def test_a_run_whose_filter_fails_keeps_the_iterations_done(tmp_path, capsys, filter_fails_at_4):
     """A filter step that raises (a solver's or the filter's own failure) had ended the run
     with one line and no result: the iterations done were lost. The run now stops there,
     warns with the traceback and writes the result, which says when and why."""
-    from vlr_drake import filter as pf
-
-    step = pf.SelfIdentificationFilter.step
-
-    def fails_at_4(self, *args, **kwargs):
-        if self.iteration == 3:
-            raise FloatingPointError("an injected failure")
-        return step(self, *args, **kwargs)
-
-    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", fails_at_4)
     out = tmp_path / "out"
     with pytest.warns(RuntimeWarning, match="the run stops and reports its 3 iterations") as record:
         assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "6", "--no-progress",
