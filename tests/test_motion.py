@@ -257,7 +257,7 @@ def test_bad_input_is_refused_with_names(model_o_hand):
     with pytest.raises(ValueError, match="tendon model"):
         motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch, tendon="rope")
     # a review: max_iter -1 ran 5,392 iterations, 2.7 was cut to 2; a NaN step cap took uncapped
-    # steps; one <= 0, or a squared distance <= 0, failed every hypothesis without a word
+    # steps; one <= 0, or a negative squared distance, failed every hypothesis without a word
     for kw, name in [({"max_iter": -1}, "max_iter"), ({"max_iter": 2.7}, "max_iter"), ({"max_step": np.nan}, "max_step"),
                      ({"max_step": 0.0}, "max_step"), ({"D2": -gs.D2}, "D2")]:
         with pytest.raises(ValueError, match=f"'{name}' must be"):

@@ -1346,8 +1346,9 @@ def move(
         check_action(hand, l_now, dl[0])
     a = as_particles("a", a, (P, hand.N))
     D2 = as_particles("D2", D2, (P, hand.num_constraints))
-    if np.any(D2 <= 0):  # squared distances between distinct contacts (every hypothesis had failed)
-        raise ValueError(f"'D2' must be positive squared contact distances [m^2], got {D2[np.any(D2 <= 0, axis=1)][0]}")
+    if np.any(D2 < 0):  # squared distances (every hypothesis had failed); 0, two contacts that
+        # coincide, fails its own hypothesis alone (a degenerate draw must not stop a batch)
+        raise ValueError(f"'D2' must be squared contact distances >= 0 [m^2], got {D2[np.any(D2 < 0, axis=1)][0]}")
     if stretch is None:
         if tendon == "elastic":
             raise ValueError("the elastic tendon model needs 'stretch' (see motion.equilibrium)")
