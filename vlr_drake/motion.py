@@ -109,7 +109,8 @@ class MoveResult:
             plant add both).
         iterations: (P,) Newton iterations used.
         residuals: (P, 3) final max residuals: stationarity [N m], constraints [m^2],
-            tendon equations [m] (ideal model).
+            tendon equations [m] (ideal model); for a failed particle, those of the last
+            iterate Newton abandoned, not of the input angles it is returned at (a review).
         stable: (P,) True where ``ok`` and the equilibrium is a strict constrained minimum
             (:func:`stable_equilibria`); all ``ok`` when :func:`move` was asked not to check.
     """
