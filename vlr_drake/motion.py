@@ -76,9 +76,10 @@ TOLERANCES = {"tight": (1e-12, 1e-15, 1e-13), "filter": (1e-9, 1e-12, 1e-11)}
 TOL_TORQUE, TOL_CONSTRAINT, TOL_TENDON = TOLERANCES["tight"]
 #: Tolerances accepted when the iteration budget runs out, or after ``loose_after`` steps
 #: (angles within ~1e-5 rad of a tight solution; near the mirror-image grasps up to 3e-4).
-#: The contact distances are accepted as a distance error |g| / D [m] (5 nm): near the
+#: The contact distances are accepted as a distance error |g| / D [m] (5 nm): at the
 #: Model O's mirror-image grasps the regularised Newton iteration stalls at ~2 nm for the
-#: 54 mm side pair, a floor set by the multiplier ridge, not by the physics.
+#: 54 mm side pair, a floor set by the multiplier ridge, not by the physics (measured with
+#: the regulariser on every lane; it is now set only where a pivot fails, there).
 LOOSE_TORQUE = 1e-7
 LOOSE_DISTANCE = 5e-9
 LOOSE_TENDON = 1e-10
@@ -485,8 +486,9 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
 
 @njit(cache=True)
 def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale, dtau, loaded):  # pragma: no cover
-    """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane (with
-    the gravity loads' -dtau/dtheta where ``loaded``); ``hscale`` and ``gscale`` (W,) receive
+    """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane (the
+    multipliers' block zero; with the gravity loads' -dtau/dtheta where ``loaded``);
+    ``hscale`` and ``gscale`` (W,) receive
     each lane's largest Hessian diagonal and constraint-gradient entries. Hten (n, n) is
     the elastic tendons' part, the same for every lane."""
     N = Pc.shape[0]
@@ -547,26 +549,12 @@ def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gsc
                 q = i * K + k
                 for w in range(W):
                     A[q, n + m + i, w] = rarm[i, k]
-    # A tiny negative diagonal on the multiplier block keeps the KKT matrix regular where
-    # a constraint's gradient vanishes: the Model O's side fingers in mirror-image poses,
-    # whose contacts are separated along the normal of both finger planes, so that no
-    # finger motion changes their distance to first order. It changes the Newton steps,
-    # not the solution (the multiplier steps vanish at convergence). But not always the
-    # convergence: a review (2026-12-06) found zero actions from equilibria of sampled grasps
-    # (13 of 20,000 Model O, 22 NH3; KKT condition numbers near 1e12) that fail within 30
-    # steps with it and converge in 2-3 without it; scaled as the Schur complement
-    # (1e-12 gscale^2 / hscale), or set only on the lanes whose pivot _lu_lanes flags, they
-    # converge. Either changes which hypotheses move, so every row, and waits for a session
-    # that measures them again (scripts: /tmp/s44/review9/s3e_which.py, s3f_fix.py).
     for w in range(W):
         hscale[w] = 0.0
         gscale[w] = 0.0
     for q in range(n):
         for w in range(W):
             hscale[w] = max(hscale[w], abs(A[q, q, w]))
-    for c in range(m + nc):
-        for w in range(W):
-            A[n + c, n + c, w] = -1e-12 * hscale[w]
     # The pivots' scales: |H| for the angles' columns and |G|^2 / |H| (a Schur complement)
     # for the multipliers' (the ideal tendon's rows R are scaled like G's by the arms).
     for c in range(m):
@@ -718,12 +706,23 @@ def _move_lanes(
                 if not step[w]:
                     continue
                 if bad[w]:
-                    # a small pivot: this lane again, with partial pivoting
+                    # A small pivot: this lane again, with partial pivoting and a tiny
+                    # negative diagonal on the multipliers' block, which keeps the matrix
+                    # regular where a constraint's gradient vanishes (the Model O's side
+                    # fingers in mirror-image poses, whose contacts are separated along the
+                    # normal of both finger planes, so that no finger motion changes their
+                    # distance to first order). It changes the step, not the solution (the
+                    # multiplier steps vanish at convergence), but set on every lane, as it
+                    # was up to the forty-fifth session, it made Newton linear, or fail, on
+                    # the regular but ill-conditioned grasps near those poses: see
+                    # docs/results.md, "The KKT regulariser".
                     for q in range(dim):
                         F1[q] = F2[q, w]
                         for q2 in range(q, dim):
                             A1[q, q2] = A2[q, q2, w]
                             A1[q2, q] = A2[q, q2, w]
+                    for q in range(n, dim):
+                        A1[q, q] -= 1e-12 * hscale[w]
                     if not _solve(A1, F1):
                         status[w] = FAILED
                         continue
@@ -1036,12 +1035,6 @@ def _stability_lanes(theta, lam, ok, a, L, kst, pad, base, u, rarm, kappa, pairs
         if loaded:
             _load_lanes(th, Jc, Hc, lmu, gw, lfc, tau, dtau, sc1, sc2, sc3)
         _kkt_lanes(Pc, Jc, Hc, G, kl, Hten, rarm, lm, pairs, ideal, A, hscale, gscale, dtau, loaded)
-        # without the Newton matrix's tiny negative diagonal on the multipliers' block: where
-        # a constraint's gradient nearly vanishes (the Model O's mirror-image grasps) it
-        # would outweigh the gradient and count a negative eigenvalue too many
-        for c in range(m + nc):
-            for w in range(W):
-                A[n + c, n + c, w] = 0.0
         for w in range(W):
             bad[w] = False
             tiny1[w] = 1e-9 * hscale[w]
@@ -1299,8 +1292,9 @@ def move(
             tolerances (``LOOSE_*``; angles within ~1e-5 rad of the solution) is accepted
             rather than iterated on to ``tolerance``; None (default), or any value from
             ``max_iter`` up, accepts it only at the cap.
-            Only the particles near the Model O's symmetric grasps, where Newton converges
-            linearly, get there; the filter stops them early (``FilterConfig.newton_loose_after``).
+            Only the particles at the Model O's mirror-image grasps, where a constraint's
+            gradient vanishes and Newton converges linearly, and a few slow ones elsewhere
+            get there; the filter stops them early (``FilterConfig.newton_loose_after``).
         max_substeps: a particle that fails with the whole action is retried with the
             action ramped in 4, 16, ... substeps up to this many (quasi-static continuation;
             0, the default, disables it: on 60,000 wide-prior particles it rescued 0.1% of
