@@ -16,6 +16,13 @@ def hand_4x3():
     return generic_hand(4, 3).model()
 
 
+@pytest.fixture(autouse=True)
+def _motor_records(tmp_path_factory, monkeypatch):
+    """Each test keeps its motors' records (HardwareConfig.motor_record "auto") in a folder of
+    its own, not in the user's ~/.local/state: emulated buses reuse their pty names."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state")))
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

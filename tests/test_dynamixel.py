@@ -7,6 +7,8 @@ CRC and byte stuffing on both sides.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from dynamixel_emulator import (
@@ -400,3 +402,86 @@ def test_a_status_error_in_a_sync_read_is_retried_and_named():
             assert not motors.is_open
     finally:
         emu.stop()
+
+
+def test_a_lost_turn_is_refused_against_the_last_runs_record(emulator, tmp_path):
+    """A power cycle or a reboot resets a motor's multi-turn count: the motor then reads a
+    whole number of turns from where the last run left it, usually still inside its limits
+    (45 mm of Model O tendon is 1.43 turns of its spool). The start refuses it, torque off,
+    until the positions are zeroed again; the bring-up tool's open only reports it."""
+    record = tmp_path / "motors.json"
+    with make_motors(emulator, record_path=record) as motors:
+        motors.write_goal_ticks(np.array([3000, -300, 5]))
+    assert json.loads(record.read_text())["ticks"] == {"1": 3000, "2": -300, "3": 5}
+    with make_motors(emulator, record_path=record):  # nothing moved: the start goes on
+        pass
+    emulator.set_present_position(1, 3000 - 4096 + 40)  # the count reset, the motor 40 ticks on
+    n_goals = len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION))
+    motors = make_motors(emulator, record_path=record)
+    with pytest.raises(DynamixelError, match=r"motor id 1 reads -1056 ticks, -1 turn from the 3000 .*zero_offset_ticks "
+                                             r"is wrong by those turns.*Torque stays off"):
+        motors.open()
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+    assert len(emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)) == n_goals  # no goal sent
+    assert json.loads(record.read_text())["ticks"]["1"] == 3000  # the record is kept: refused again
+    status = make_motors(emulator, record_path=record)
+    status.open(enable_torque=False)
+    status.close()
+    assert len(status.record_findings) == 1 and "-1 turn" in status.record_findings[0]
+    with pytest.raises(DynamixelError, match="motor id 1 reads -1056 ticks"):
+        make_motors(emulator, record_path=record).open()
+    # zeroed again: the record starts from the present positions, and a run starts
+    zero = make_motors(emulator, record_path=record)
+    zero.open(enable_torque=False)
+    zero.accept_positions()
+    zero.close()
+    assert json.loads(record.read_text())["ticks"]["1"] == -1056
+    with make_motors(emulator, record_path=record) as motors:
+        assert motors.torque_on and motors.record_findings == []
+    # two turns, and without a record nothing is checked
+    emulator.set_present_position(3, 5 + 2 * 4096)
+    with pytest.raises(DynamixelError, match=r"motor id 3 reads 8197 ticks, \+2 turns"):
+        make_motors(emulator, record_path=record).open()
+    with make_motors(emulator) as motors:
+        assert motors.torque_on
+
+
+def test_a_motor_turned_while_off_is_reported_and_a_bad_record_replaced(emulator, tmp_path, caplog):
+    record = tmp_path / "motors.json"
+    with make_motors(emulator, record_path=record):
+        pass
+    emulator.set_present_position(2, -300 + 1500)  # turned by hand: not a whole turn
+    with caplog.at_level("WARNING"), make_motors(emulator, record_path=record) as motors:
+        assert motors.torque_on
+        assert "motor id 2 reads 1200 ticks, +0.37 turns" in motors.record_findings[0]
+    assert "turned while its torque was off" in caplog.text
+    assert json.loads(record.read_text())["ticks"]["2"] == 1200
+    record.write_text("{not json")
+    with make_motors(emulator, record_path=record) as motors:
+        assert motors.torque_on and "cannot be read" in motors.record_findings[0]
+    assert json.loads(record.read_text())["ticks"] == {"1": 1200, "2": 1200, "3": 5}
+
+
+def test_compare_with_record_matches_its_definition():
+    from vlr_drake.hardware.dynamixel import compare_with_record
+
+    rec = {"ticks": {"1": 1000, "2": 1000, "3": 1000}}
+    lost, moved = compare_with_record(rec, [1, 2, 3, 4], [1000 + 4096 + 256, 1000 - 4096 - 257, 1000 + 256, 7],
+                                      4096, 256)
+    assert lost == [(1, 5352, 1000, 1)] and [m[:3] for m in moved] == [(2, -3353, 1000)]
+    assert compare_with_record({}, [1], [5], 4096, 256) == ([], [])
+    assert compare_with_record(rec, [1], [1000 - 2048], 4096, 256)[1][0][3] == -0.5  # half a turn: moved
+
+
+def test_the_motor_record_path(tmp_path, monkeypatch):
+    from vlr_drake.hardware.config import HardwareConfig, load_hardware_config
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    assert HardwareConfig(port="/dev/ttyUSB0").motor_record_path() == tmp_path / "state/vlr_drake/motors_dev_ttyUSB0.json"
+    assert HardwareConfig(motor_record="").motor_record_path() is None
+    # relative to the scenario file, as the calibration file
+    (tmp_path / "cam.yaml").write_text("x")
+    scen = tmp_path / "hw.yaml"
+    scen.write_text("plant: hardware\nhardware:\n  motor_record: rec/motors.json\n  calibration_file: cam.yaml\n")
+    cfg = load_hardware_config(filename=scen)
+    assert cfg.motor_record_path() == tmp_path / "rec/motors.json" and cfg.calibration_file == str(tmp_path / "cam.yaml")

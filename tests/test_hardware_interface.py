@@ -7,6 +7,7 @@ poses with a known K, played through cv2.VideoCapture.
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -536,6 +537,9 @@ def test_end_to_end_with_tag_observer(emulator, tag_video):
     sent = np.clip(command, lo, hi)
     assert sent[1] == lo[1] and sent[2] == hi[2]
     assert [emulator.goal_position(i) for i in IDS] == expected_ticks(sent)
+    # where the run left the motors is recorded for the next start (a lost turn: test_dynamixel)
+    record = json.loads(cfg.motor_record_path().read_text())
+    assert record["port"] == emulator.port_name and list(record["ticks"].values()) == expected_ticks(sent)
     goal_writes = emulator.instructions(SYNC_WRITE, ADDR_GOAL_POSITION)
     lo_t, hi_t = hw.motor_map.tick_limits()
     for _, _, p in goal_writes:  # nothing outside the limits ever went on the bus
@@ -906,7 +910,8 @@ def test_bring_up_tool(emulator, tag_video, tmp_path):
     )
     out = io.StringIO()
     assert bring_up(["zero", "--set", override], out=out) == 0
-    assert out.getvalue().strip() == "zero_offset_ticks: [1300, 1500, -100]"
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "zero_offset_ticks: [1300, 1500, -100]" and "the motors' record" in lines[1]
     out = io.StringIO()
     assert bring_up(["status", "--set", override], out=out) == 0
     text = out.getvalue()
@@ -924,6 +929,12 @@ def test_bring_up_tool(emulator, tag_video, tmp_path):
     lines = out.getvalue().splitlines()
     assert "outside the tendon limits [0.0, 45.0] mm; a run refuses to start" in lines[1] and "outside" not in lines[2]
     assert not any(emulator.torque_enabled(i) for i in IDS)  # the tool never enables torque
+    # a motor whose multi-turn count was reset since zero recorded it: status says a run refuses it
+    emulator.set_present_position(IDS[0], 1300 - 4096)
+    out = io.StringIO()
+    assert bring_up(["status", "--set", override], out=out) == 0
+    assert f"motor id {IDS[0]} reads -2796 ticks, -1 turn from the 1300" in out.getvalue()
+    emulator.set_present_position(IDS[0], 1300)
     out = io.StringIO()
     assert bring_up(["camera", "--set", override, "--frames", str(len(poses) + 2)], out=out) == 0
     assert f"{len(poses)} of {len(poses) + 2} frames, sizes [({W}, {H})]" in out.getvalue()

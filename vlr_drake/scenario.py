@@ -660,12 +660,10 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
         if name == _UNSET:
             setattr(scenario, preset_field, default if spec is None else "")
     if scenario.hardware is not None:
+        scenario.hardware.resolve_paths(path.resolve().parent)
         cal = Path(scenario.hardware.calibration_file)
-        if not cal.is_absolute():
-            cal = path.resolve().parent / cal
         if not cal.is_file():
             raise ValueError(f"{path}: field 'hardware.calibration_file': file not found: {cal}")
-        scenario.hardware.calibration_file = str(cal)
     try:
         scenario.validate()
     except ValueError as e:

@@ -10,7 +10,9 @@ scenario file with one (``diagrams/hardware.yaml``);
 ``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. No command enables torque.
 ``zero``: straighten every finger by hand with its tendon just taut, then run it; it prints
 the present positions as ``zero_offset_ticks`` (measure again after a motor power cycle, which
-resets the multi-turn count). ``reboot``: a motor that stopped on a hardware error
+resets the multi-turn count; a run refuses a motor that lost turns, against the positions
+the last run recorded, ``HardwareConfig.motor_record``, and ``status`` says so; ``zero``
+starts the record again). ``reboot``: a motor that stopped on a hardware error
 (overload, overheating) keeps it, and its torque off, until it is rebooted; find the cause
 first, then reboot, then ``zero`` again (a reboot may reset the multi-turn count as well).
 """
@@ -69,10 +71,14 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
         try:
             ticks = motors.open(enable_torque=False)
             _, current = motors.read()
+            if a.command == "zero":  # the record starts again from the positions zeroed at
+                motors.accept_positions()
         finally:
             motors.close()
         if a.command == "zero":
             print(f"zero_offset_ticks: {ticks.tolist()}", file=out)
+            if motors.record_path is not None:
+                print(f"(the motors' record {motors.record_path} starts from these positions)", file=out)
             return 0
         from vlr_drake.hand import hand_by_name
 
@@ -90,6 +96,8 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
                 line += (f"  (outside the tendon limits [{1e3 * lower[k]:.1f}, {1e3 * upper[k]:.1f}] mm"
                          + ("; a run refuses to start: zero again?" if out_by > slack else "") + ")")
             print(line, file=out)
+        for finding in motors.record_findings:  # a lost turn: a run refuses to start
+            print(f"  {finding}", file=out)
         return 0
 
     from vlr_drake.hardware.camera import FrameSource, read_intrinsics

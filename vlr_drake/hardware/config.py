@@ -19,6 +19,8 @@ the hand's numbers stay in one place; a hardware build may narrow them here.
 # No ``from __future__ import annotations``: Drake's yaml_load_typed reads the dataclass
 # field types at run time.
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +45,15 @@ MAX_UPDATE_STEP = 1.0e-3
 #: The farthest a motor may start outside its tendon limits [m] (``start_tolerance_ticks``
 #: in tendon pull): the first goal clamps it into the limits in one jump at full speed.
 MAX_START_OFFSET = 5.0e-3
+
+
+def default_record_path(port: str) -> Path:
+    """Where the motors of bus ``port`` keep their last positions between runs
+    (``motor_record: auto``): ``$XDG_STATE_HOME/vlr_drake/motors_<port>.json``, with
+    ``~/.local/state`` for ``$XDG_STATE_HOME`` where it is not set."""
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", str(port)).strip("_") or "port"
+    return Path(base) / "vlr_drake" / f"motors_{name}.json"
 
 
 @dataclass
@@ -107,9 +118,16 @@ class HardwareConfig:
     # cannot catch a lost turn: a power cycle or a reboot resets a motor's multi-turn count,
     # and the Model O's 45 mm of tendon is only 1.43 turns of its spool, so a motor that lost
     # a turn usually still reads inside its limits (a review: tendons then driven 17 mm past
-    # their travel). After either, measure zero_offset_ticks again (python -m
-    # vlr_drake.hardware zero) before a run.
+    # their travel): motor_record catches that. After either, measure zero_offset_ticks again
+    # (python -m vlr_drake.hardware zero) before a run.
     start_tolerance_ticks: int = 256
+    # A JSON file where the end of each run records the motors' positions; the next start
+    # compares them and refuses a motor a whole number of turns (within start_tolerance_ticks)
+    # from where it was left: its multi-turn count was reset, and the zero offset is wrong by
+    # those turns. "auto": $XDG_STATE_HOME/vlr_drake/motors_<port>.json (~/.local/state
+    # without it); "": no record. A relative path is resolved against the scenario file's
+    # folder. python -m vlr_drake.hardware zero records the positions it zeroes at.
+    motor_record: str = "auto"
     # Period of the hardware interface's update: send commands, read motors and camera [s].
     period_s: float = 0.05
     # Fastest the interface moves a tendon's goal [m/s]: a command further from the last one
@@ -224,6 +242,20 @@ class HardwareConfig:
             raise ValueError(f"{where}: 'comm_retries' must be >= 0, got {self.comm_retries}")
         return self
 
+    def resolve_paths(self, folder) -> None:
+        """Take the relative file paths (``calibration_file``, ``motor_record``) as relative to
+        ``folder`` (a scenario file's)."""
+        for name in ("calibration_file", "motor_record"):
+            v = getattr(self, name)
+            if v and not (name == "motor_record" and v == "auto") and not Path(v).is_absolute():
+                setattr(self, name, str(Path(folder) / v))
+
+    def motor_record_path(self) -> Path | None:
+        """The file of ``motor_record`` (None: no record)."""
+        if not self.motor_record:
+            return None
+        return default_record_path(self.port) if self.motor_record == "auto" else Path(self.motor_record)
+
     def tendon_limits(self, hand=None) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper tendon limits (N,) [m]: this config's, else the hand's tendon_range.
 
@@ -325,9 +357,8 @@ def load_hardware_config(filename: str | None = None, data: str | None = None) -
                 raise ValueError("a scenario file without a 'hardware' section")
             config = yaml_load_typed(schema=HardwareConfig, filename=filename,
                                      child_name="hardware" if scenario else None, defaults=config)
-            cal = Path(config.calibration_file)
-            if scenario and not cal.is_absolute():  # relative to the scenario file, as the scenario loader has it
-                config.calibration_file = str(Path(filename).resolve().parent / cal)
+            if scenario:  # relative to the scenario file, as the scenario loader has it
+                config.resolve_paths(Path(filename).resolve().parent)
         except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
     if data is not None:

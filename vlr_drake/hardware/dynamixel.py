@@ -16,7 +16,9 @@ Safe start (:meth:`TendonMotors.open`):
   3. torque off, then set the operating mode (address 11; 4 = extended position,
      5 = current-based position) and, in mode 5, the goal current (address 102);
   4. read all present positions with one sync read (address 132); a motor far outside its
-     limits (a wrong zero offset) stops the start with torque off;
+     limits (a wrong zero offset) stops the start with torque off, and so does one whose
+     position is a whole number of turns from where the last run left it (its multi-turn
+     count was reset by a power cycle or a reboot: :func:`compare_with_record`);
   5. set each goal position to the position just read, so nothing jumps;
   6. only then enable torque (address 64), confirmed motor by motor.
 
@@ -27,20 +29,24 @@ alert bit set makes the driver read the motor's hardware error status (address 7
 with an error naming it (overload, overheating, ...). A failed transaction is
 retried ``comm_retries`` times; then torque is switched off (best effort) and
 :class:`DynamixelError` names what failed. :meth:`close` (also on leaving a ``with`` block)
-switches torque off and closes the port. Every SDK call is bounded by the SDK's status
+switches torque off, records where the motors are (``record_path``) and closes the port. Every SDK call is bounded by the SDK's status
 timeout (2 x latency timer + 2 ms + transfer time), so nothing hangs.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 __all__ = [
     "DynamixelError",
     "TendonMotors",
+    "compare_with_record",
     "ADDR_OPERATING_MODE",
     "ADDR_TORQUE_ENABLE",
     "ADDR_GOAL_CURRENT",
@@ -122,6 +128,31 @@ def _signed(value: int, bits: int) -> int:
     return value - (1 << bits) if value >= 1 << (bits - 1) else value
 
 
+def compare_with_record(record: dict, motor_ids, ticks, ticks_per_rev: int, tolerance: int) -> tuple[list, list]:
+    """Motors whose position is not where the last run left them (``record``, as
+    :meth:`TendonMotors.close` writes it: ``{"ticks": {id: ticks}, "written": ...}``).
+
+    Returns ``(lost, moved)``: ``lost`` the (id, ticks now, ticks then, turns) of motors a
+    whole number of turns away, within ``tolerance`` ticks (a power cycle or a reboot reset
+    the multi-turn count: the zero offset is wrong by those turns); ``moved`` those of
+    motors that moved otherwise by more than ``tolerance`` while their torque was off
+    (turned by hand: their turn count cannot be checked). Motors the record does not name
+    are neither."""
+    then = record.get("ticks", {})
+    lost, moved = [], []
+    for i, now in zip(motor_ids, np.asarray(ticks).tolist(), strict=True):
+        last = then.get(str(i))
+        if last is None:
+            continue
+        d = int(now) - int(last)
+        turns = int(round(d / ticks_per_rev))
+        if turns and abs(d - turns * ticks_per_rev) <= tolerance:
+            lost.append((i, int(now), int(last), turns))
+        elif abs(d) > tolerance:
+            moved.append((i, int(now), int(last), d / ticks_per_rev))
+    return lost, moved
+
+
 class TendonMotors:
     """The tendon servos of one hand on one Dynamixel bus (protocol 2.0, X-series).
 
@@ -137,7 +168,12 @@ class TendonMotors:
         latency_timer_ms: status-packet timeout slack of the adapter [ms].
         comm_retries: retries of a failed transaction before :class:`DynamixelError`.
         start_tolerance_ticks: how far outside its limits a motor may start (it is then
-            clamped into them when torque comes on); farther is an error.
+            clamped into them when torque comes on); farther is an error. Also how far a
+            motor may be from a whole number of turns off its recorded position and still
+            count as having lost those turns.
+        ticks_per_rev: encoder ticks per revolution (X-series: 4096).
+        record_path: a JSON file where :meth:`close` records the motors' positions and
+            :meth:`open` compares them (:func:`compare_with_record`); None: no record.
     """
 
     def __init__(
@@ -151,6 +187,8 @@ class TendonMotors:
         latency_timer_ms: float = 16.0,
         comm_retries: int = 2,
         start_tolerance_ticks: int = 256,
+        ticks_per_rev: int = 4096,
+        record_path: str | Path | None = None,
     ):
         self.port_name = str(port)
         self.baud_rate = int(baud_rate)
@@ -177,6 +215,13 @@ class TendonMotors:
         self.comm_retries = int(comm_retries)
         self.unconfirmed: list[int] = []  # motors that did not confirm the last torque off
         self.start_tolerance_ticks = int(start_tolerance_ticks)
+        self.ticks_per_rev = int(ticks_per_rev)
+        if self.ticks_per_rev <= 0:
+            raise ValueError(f"ticks_per_rev must be positive, got {ticks_per_rev}")
+        self.record_path = None if record_path is None else Path(record_path)
+        #: What :meth:`open` found against the record: messages (the bring-up tool prints them).
+        self.record_findings: list[str] = []
+        self._record_trusted = False  # close() records the positions only when True
         self.is_open = False
         self.torque_on = False
         #: The motors' model numbers, read by :meth:`open`'s pings.
@@ -199,6 +244,8 @@ class TendonMotors:
             latency_timer_ms=config.latency_timer_ms,
             comm_retries=config.comm_retries,
             start_tolerance_ticks=config.start_tolerance_ticks,
+            ticks_per_rev=config.ticks_per_rev,
+            record_path=config.motor_record_path(),
         )
 
     # --- life cycle -------------------------------------------------------------------------
@@ -207,8 +254,12 @@ class TendonMotors:
 
         A motor found more than ``start_tolerance_ticks`` outside its tick limits is an error
         (a wrong zero offset, e.g. after a power cycle reset the multi-turn count): nothing
-        moves. Within the tolerance the first goal is the present position clamped into the
-        limits. ``enable_torque=False`` stops after the first read (for bring-up tools).
+        moves. So is one a whole number of turns from where the last run left it (the
+        ``record_path`` record): the multi-turn count was reset and the zero offset is wrong by
+        those turns, though the motor may still read inside its limits. Within the tolerance
+        the first goal is the present position clamped into the limits.
+        ``enable_torque=False`` stops after the first read (for bring-up tools): what the
+        record shows is then only reported, in :attr:`record_findings`.
         """
         import dynamixel_sdk as sdk
 
@@ -255,6 +306,7 @@ class TendonMotors:
                     f"{self.tick_upper[far].tolist()}]; check zero_offset_ticks (a power cycle resets the "
                     "multi-turn count). Torque stays off."
                 )
+            self._check_record(ticks, refuse=enable_torque)
             if enable_torque:
                 # Hold where the motors are: goal = present (clamped into the limits), then torque on.
                 self._send_goal(np.clip(ticks, self.tick_lower, self.tick_upper))
@@ -272,6 +324,58 @@ class TendonMotors:
             "on" if self.torque_on else "off",
         )
         return ticks
+
+    def _check_record(self, ticks: np.ndarray, refuse: bool) -> None:
+        """Compare the positions just read with the record of the last run (see :meth:`open`)."""
+        self.record_findings = []
+        self._record_trusted = True
+        if self.record_path is None or not self.record_path.exists():
+            return
+        try:
+            record = json.loads(self.record_path.read_text())
+            lost, moved = compare_with_record(record, self.motor_ids, ticks, self.ticks_per_rev,
+                                              self.start_tolerance_ticks)
+        except (OSError, ValueError, TypeError, AttributeError) as e:
+            self.record_findings.append(f"the motors' record {self.record_path} cannot be read ({e}); "
+                                        "it is written again at the end")
+            log.warning(self.record_findings[-1])
+            return
+        when = record.get("written", "the last run")
+        for i, now, last, turns in lost:
+            self.record_findings.append(
+                f"motor id {i} reads {now} ticks, {turns:+d} turn{'s' if abs(turns) > 1 else ''} from the {last} "
+                f"where the last run left it ({when}): a power cycle or a reboot reset its multi-turn count, so "
+                "zero_offset_ticks is wrong by those turns; measure it again (python -m vlr_drake.hardware zero)")
+        for i, now, last, turns in moved:
+            self.record_findings.append(
+                f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
+                f"({when}): turned while its torque was off, so its turn count cannot be checked")
+            log.warning(self.record_findings[-1])
+        if lost:
+            self._record_trusted = False
+            if refuse:
+                raise DynamixelError("; ".join(self.record_findings[:len(lost)]) + f" (record: {self.record_path}). "
+                                     "Torque stays off.")
+
+    def accept_positions(self) -> None:
+        """Take the present positions as right (they were just zeroed): :meth:`close` records
+        them even where :meth:`open` found a lost turn."""
+        self._record_trusted = True
+
+    def _write_record(self) -> None:
+        """Record where the motors are (after torque off), best effort: a failure is logged."""
+        if self.record_path is None or not self._record_trusted or self._sync_read is None:
+            return
+        try:
+            ticks, _ = self._read_once()
+            data = {"port": self.port_name, "ticks": {str(i): int(t) for i, t in zip(self.motor_ids, ticks, strict=True)},
+                    "written": time.strftime("%Y-%m-%d %H:%M:%S")}
+            self.record_path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.record_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(data, indent=1))
+            tmp.replace(self.record_path)
+        except Exception as e:  # the run's end must not fail on it
+            log.warning("the motors' positions were not recorded in %s: %s", self.record_path, e)
 
     def _open_port(self) -> None:
         import dynamixel_sdk as sdk
@@ -373,6 +477,7 @@ class TendonMotors:
         confirmed = False
         try:
             confirmed = self.torque_off()
+            self._write_record()
         finally:
             self._close_port()
             log.info("Dynamixel bus %s closed", self.port_name)
