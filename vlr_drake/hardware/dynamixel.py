@@ -265,6 +265,7 @@ class TendonMotors:
 
         if self.is_open:
             raise DynamixelError(f"port {self.port_name} is already open")
+        self._record_trusted = False  # until the positions are read and checked
         self._open_port()
         try:
             self.model_numbers = [  # a motor with a hardware error answers with the alert bit
