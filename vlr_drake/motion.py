@@ -78,8 +78,8 @@ TOL_TORQUE, TOL_CONSTRAINT, TOL_TENDON = TOLERANCES["tight"]
 #: (angles within ~1e-5 rad of a tight solution; near the mirror-image grasps up to 3e-4).
 #: The contact distances are accepted as a distance error |g| / D [m] (5 nm): at the
 #: Model O's mirror-image grasps the regularised Newton iteration stalls at ~2 nm for the
-#: 54 mm side pair, a floor set by the multiplier ridge, not by the physics (measured with
-#: the regulariser on every lane; it is now set only where a pivot fails, there).
+#: 54 mm side pair, a floor set by the multiplier ridge (the regulariser of the pivoted
+#: re-solve, which these lanes take), not by the physics.
 LOOSE_TORQUE = 1e-7
 LOOSE_DISTANCE = 5e-9
 LOOSE_TENDON = 1e-10
@@ -488,9 +488,9 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
 def _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale, dtau, loaded):  # pragma: no cover
     """The upper triangle of the (symmetric) KKT matrix A (dim, dim, W) of every lane (the
     multipliers' block zero; with the gravity loads' -dtau/dtheta where ``loaded``);
-    ``hscale`` and ``gscale`` (W,) receive
-    each lane's largest Hessian diagonal and constraint-gradient entries. Hten (n, n) is
-    the elastic tendons' part, the same for every lane."""
+    ``hscale`` and ``gscale`` (W,) receive each lane's largest Hessian diagonal and
+    constraint-gradient entries. Hten (n, n) is the elastic tendons' part, the same for
+    every lane."""
     N = Pc.shape[0]
     K = Jc.shape[2]
     W = Pc.shape[2]

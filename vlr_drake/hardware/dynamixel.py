@@ -29,8 +29,9 @@ alert bit set makes the driver read the motor's hardware error status (address 7
 with an error naming it (overload, overheating, ...). A failed transaction is
 retried ``comm_retries`` times; then torque is switched off (best effort) and
 :class:`DynamixelError` names what failed. :meth:`close` (also on leaving a ``with`` block)
-switches torque off, records where the motors are (``record_path``) and closes the port. Every SDK call is bounded by the SDK's status
-timeout (2 x latency timer + 2 ms + transfer time), so nothing hangs.
+switches torque off, records where the motors are (``record_path``) and closes the port.
+Every SDK call is bounded by the SDK's status timeout (2 x latency timer + 2 ms + transfer
+time), so nothing hangs.
 """
 
 from __future__ import annotations
