@@ -507,7 +507,7 @@ def test_a_replay_under_another_filter_seed(tmp_path, capsys):
     """--filter-seed: the same measurements under another draw of the filter's own random
     numbers (its prior, resampling and roughening): the run's own seed replays the run, another
     gives another estimate; the seed used is in the JSON, and a negative one is named."""
-    r = _run("stiffness", particles=600, iterations=12, seed=2)
+    r = _run("stiffness", particles=600, iterations=12, seed=11)
     trace = r["_trace"]
     path = trace.save(tmp_path / "run.npz")
     outs = {}
@@ -621,8 +621,9 @@ def test_identify_pools_draws_of_its_own_measurements(tmp_path, capsys):
 
 def test_iterations_count_filter_steps_as_a_replay_does():
     """Refused actions are not iterations: the result's ``iterations`` at convergence is the
-    filter step its replay converges at (seed 2 of this run has refused actions)."""
-    r = _run("stiffness", particles=2000, iterations=30, seed=2)
+    filter step its replay converges at (seed 11 of this run has refused actions, and
+    converges; seed 2 did until the KKT regulariser's change of the forty-fifth session)."""
+    r = _run("stiffness", particles=2000, iterations=30, seed=11)
     assert r["actions_refused"] > 0 and r["converged"]
     out = replay(r["_trace"], stop_at_convergence=True)
     assert r["iterations"] == out["converged_at"] == len(r["_history"]) == r["_trace"].steps
@@ -630,6 +631,6 @@ def test_iterations_count_filter_steps_as_a_replay_does():
     assert r["convergence_deg"] == pf.FilterConfig().convergence_deg
     # the budget counts iterations too: a run that does not converge makes all of them,
     # however many actions the plant refused on the way
-    r = _run("stiffness", particles=600, iterations=12, seed=2)
+    r = _run("stiffness", particles=600, iterations=12, seed=11)
     assert r["actions_refused"] > 0 and not r["converged"] and r["stopped"] is None
     assert r["iterations"] == len(r["_history"]) == 12 and r["actions_tried"] == 12 + r["actions_refused"]

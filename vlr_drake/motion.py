@@ -640,13 +640,14 @@ def _move_lanes(
     nsub = np.ones(W, dtype=np.int64)
     sub = np.zeros(W, dtype=np.int64)
     fresh = np.zeros(W, dtype=np.bool_)
+    regd = np.zeros(W, dtype=np.bool_)  # lanes whose attempt regularises every step (see below)
     step = np.zeros(W, dtype=np.bool_)  # lanes that take a Newton step this cycle
     status = np.full(W, EMPTY, dtype=np.int64)
     Hten = _tendon_hessian(kappa, rarm, ideal)
     nxt = _finish_lanes(
         status, start, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
         D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-        nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
+        nsub, sub, fresh, regd, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
     )
     while _lanes_busy(pid):
         _fk_all(th, L, a, pad, base, u, Pc, Jc, Hc)
@@ -688,6 +689,10 @@ def _move_lanes(
                 any_step = True
         if any_step:
             _kkt_lanes(Pc, Jc, Hc, G, kst, Hten, rarm, lam, pairs, ideal, A, hscale, gscale, dtau, loaded)
+            for w in range(W):
+                if regd[w]:
+                    for q in range(n, dim):
+                        A[q, q, w] = -1e-12 * hscale[w]
             for q in range(dim):
                 for w in range(W):
                     F[q, w] = -F[q, w]
@@ -712,9 +717,11 @@ def _move_lanes(
                     # fingers in mirror-image poses, whose contacts are separated along the
                     # normal of both finger planes, so that no finger motion changes their
                     # distance to first order). It changes the step, not the solution (the
-                    # multiplier steps vanish at convergence), but set on every lane, as it
-                    # was up to the forty-fifth session, it made Newton linear, or fail, on
-                    # the regular but ill-conditioned grasps near those poses: see
+                    # multiplier steps vanish at convergence). Set on every step it makes
+                    # Newton linear, or fail, on the regular but ill-conditioned grasps near
+                    # those poses; left out, Newton stalls within a few mrad of them. So a
+                    # particle's first attempt sets it only here, and an attempt that fails
+                    # is retried with it on every step (``regd``, :func:`_finish_lanes`):
                     # docs/results.md, "The KKT regulariser".
                     for q in range(dim):
                         F1[q] = F2[q, w]
@@ -748,7 +755,7 @@ def _move_lanes(
         nxt = _finish_lanes(
             status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
             D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-            nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
+            nsub, sub, fresh, regd, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
         )
 
 
@@ -765,10 +772,11 @@ def _lanes_busy(pid):  # pragma: no cover - numba
 def _finish_lanes(
     status, nxt, start, stop, stride, ideal, max_substeps, theta0, s0_all, dl, a_all, L_all, kst_all, rest_all,
     D2_all, kappa, th, th0, thP, s0, sP, dls, dlP, a, L, kst, rest, D2, sqD, lam, mu, sp, res, pid, itn, it_acc,
-    nsub, sub, fresh, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
+    nsub, sub, fresh, regd, theta, lam_out, T_out, s_out, ok_out, iters, resid, mu_all, fc_all, lmu, lfc, loaded,
 ):  # pragma: no cover - numba
     """The lanes whose Newton solve ended (``status`` CONVERGED or FAILED) go on with the
-    next substep, retry with more substeps, or write their particle out; those and the
+    next substep, retry (a first attempt that failed once more with the KKT regulariser on
+    every step, ``regd``, then with more substeps), or write their particle out; those and the
     EMPTY ones take the next unclaimed particle ``nxt``, which is returned. A lane left
     without a particle gets ``pid`` -1 (and, if it never had one, particle ``start``'s
     numbers, so that it computes on valid ones)."""
@@ -793,6 +801,20 @@ def _finish_lanes(
                 it_acc[w] = it
                 itn[w] = 0
                 fresh[w] = True
+                continue
+            if not o and not regd[w]:
+                # the same attempt again with the regulariser on every step (see _move_lanes)
+                regd[w] = True
+                sub[w] = 0
+                it_acc[w] = 0
+                itn[w] = 0
+                fresh[w] = True
+                for i in range(N):
+                    s0[i, w] = sP[i, w]
+                    dls[i, w] = dlP[i, w] / nsub[w]
+                    for k in range(K):
+                        th[i, k, w] = thP[i, k, w]
+                        th0[i, k, w] = thP[i, k, w]
                 continue
             more = 4 if nsub[w] == 1 else 4 * nsub[w]
             if not o and more <= max_substeps:
@@ -841,6 +863,7 @@ def _finish_lanes(
         it_acc[w] = 0
         itn[w] = 0
         fresh[w] = True
+        regd[w] = False
         pl = q if L_all.shape[0] > 1 else 0
         pk = q if kst_all.shape[0] > 1 else 0
         pr = q if rest_all.shape[0] > 1 else 0
