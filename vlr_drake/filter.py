@@ -944,9 +944,10 @@ class FilterConfig:
     # behaviour before). Near the Model O's symmetric grasps Newton converged only linearly,
     # and those 3-4% of the hypotheses ran to the cap, a fifth of the move's Newton steps:
     # with 8, a 60,000-particle move inside the filter took 9-14% fewer steps. (That tail
-    # was the KKT matrix's regulariser's, set on every lane until the forty-fifth session:
-    # without it Newton is quadratic there, and only exact mirror images, a set of measure
-    # zero in the prior, converge linearly; see motion._move_lanes.) The results
+    # was the KKT matrix's regulariser's, set on every step until the forty-fifth session:
+    # without it Newton is quadratic there, and only within a few mrad of exact mirror
+    # images, where a first attempt fails and is retried regularised, is it linear; see
+    # motion._move_lanes.) The results
     # move within the seeds' scatter: replays of the physics table's 40 runs with the same
     # code gave known hand 1.69 deg (1.71 with None), stiffness 0.0365 N m/rad (0.0403),
     # NH1 / NH2 / NH3 2.23 / 3.95 / 3.90 mm (2.97 / 3.23 / 3.84; held-out seeds 5-9: 2.52 /
