@@ -336,6 +336,27 @@ def test_near_mirror_image_grasps_move_in_a_few_newton_steps(model_o_hand):
     assert res.stable[res.ok].sum() > 800  # minima, not only saddles (895)
 
 
+def test_within_a_few_mrad_of_a_mirror_image_a_failed_attempt_is_retried_regularised(model_o_hand):
+    """Side fingers alike to 3 mrad (a state the model plant's walk in
+    test_identification_loop_under_the_simulator reached): plain Newton stalls there (a
+    torque residual of 2e-3 N m after 24 steps), the move with the regulariser on every
+    step converges to the loose tolerances at its cap, and a failed first attempt is
+    retried that way, so the move ends where the old, always regularised one did."""
+    h = model_o_hand
+    th = np.array([[[0.23139312680830923, 0.40171138945084817], [0.28741026581267043, 0.23048618019037298],
+                    [0.28474581914419894, 0.22992341148069673]]])
+    p_O = np.array([[0.022691322908575243, 0.0, -0.033199354950426904],
+                    [-0.029098139828647205, 0.027, -0.029529718663389645],
+                    [-0.029362433327745907, -0.027, -0.029509757968678205]])
+    a = np.array([[0.021679062265470204, 0.023213016772933723, 0.02312932082230696]])
+    stretch = np.array([[0.0120074593180464, 0.006639693373323481, 0.007404501078790357]])
+    dl = np.array([-0.0003863279800785966, -0.00010877180950433798, 1.6740182621363675e-05])
+    res = motion.move(h, th, dl, a=a, D2=motion.contact_distances_sq(h, p_O[None]), stretch=stretch)
+    assert res.ok[0] and res.iterations[0] == motion.MAX_ITER
+    assert res.residuals[0, 0] < motion.LOOSE_TORQUE
+    np.testing.assert_allclose(res.theta[0], [[0.22086, 0.38839], [0.30113, 0.22775], [0.29804, 0.22888]], atol=1e-5)
+
+
 def test_loose_after_stops_the_linear_tail_within_the_physical_tolerances(model_o_hand):
     """``loose_after``: a particle within motion.LOOSE_* after that many Newton steps is
     accepted. Only the slow (linearly converging) particles change, by far less than the
