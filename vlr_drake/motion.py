@@ -802,8 +802,12 @@ def _finish_lanes(
                 itn[w] = 0
                 fresh[w] = True
                 continue
-            if not o and not regd[w]:
-                # the same attempt again with the regulariser on every step (see _move_lanes)
+            more = 4 if nsub[w] == 1 else 4 * nsub[w]
+            if not o and (not regd[w] or more <= max_substeps):
+                # retry from the particle's start: the same attempt with the regulariser on
+                # every step (see _move_lanes), then with the action ramped in ``more`` substeps
+                if regd[w]:
+                    nsub[w] = more
                 regd[w] = True
                 sub[w] = 0
                 it_acc[w] = 0
@@ -812,21 +816,6 @@ def _finish_lanes(
                 for i in range(N):
                     s0[i, w] = sP[i, w]
                     dls[i, w] = dlP[i, w] / nsub[w]
-                    for k in range(K):
-                        th[i, k, w] = thP[i, k, w]
-                        th0[i, k, w] = thP[i, k, w]
-                continue
-            more = 4 if nsub[w] == 1 else 4 * nsub[w]
-            if not o and more <= max_substeps:
-                # retry from the particle's start with the action ramped in ``more`` substeps
-                nsub[w] = more
-                sub[w] = 0
-                it_acc[w] = 0
-                itn[w] = 0
-                fresh[w] = True
-                for i in range(N):
-                    s0[i, w] = sP[i, w]
-                    dls[i, w] = dlP[i, w] / more
                     for k in range(K):
                         th[i, k, w] = thP[i, k, w]
                         th0[i, k, w] = thP[i, k, w]
