@@ -350,6 +350,28 @@ def test_a_diagram_run_says_the_object_fell():
     assert fell["object_fell"] is True and fell["lost_measurements"] == 2
 
 
+def test_the_physics_diagram_renders_and_detects_one_frame_per_period(monkeypatch):
+    """The tag observer's held-pose update comes at the filter's offset, so both read one
+    detection of one rendered frame (the cache entry); at offset 0 it had rendered and
+    detected a second frame every period, a fifth of a diagram run's time."""
+    from vlr_drake.builder import run
+    from vlr_drake.systems.tag_observer import TagObserver
+
+    times = []
+    calc = TagObserver._calc_detection
+
+    def counted(self, context, value):
+        times.append(context.get_time())
+        return calc(self, context, value)
+
+    monkeypatch.setattr(TagObserver, "_calc_detection", counted)
+    s = load_scenario(DIAGRAMS_DIR / "default.yaml", FAST)
+    r = run(s, iterations=2)
+    T = s.period_sec()
+    assert r["iterations"] == 2 and r["lost_measurements"] == 0
+    np.testing.assert_allclose(times, (np.arange(3) + pf.FILTER_PHASE) * T, atol=1e-9)
+
+
 def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):
     """The custom box with its tag on the face away from the palm camera: no measurement,
     so the filter never starts; the run says why instead of printing infinite intervals."""

@@ -351,6 +351,11 @@ def test_observer_bad_arguments(camera):
         make_observer(K, camera, input_scale=0)
     with pytest.raises(ValueError, match="update_period_sec"):
         make_observer(K, camera, update_period_sec=0.0)
+    for offset in (-0.01, 0.1, np.nan):  # within the period, or the update never lines up with the filter's
+        with pytest.raises(ValueError, match=r"'update_offset_sec' must be in \[0, update_period_sec = 0.1\)"):
+            make_observer(K, camera, update_period_sec=0.1, update_offset_sec=offset)
+    with pytest.raises(ValueError, match="'update_offset_sec' needs a periodic update"):
+        make_observer(K, camera, update_offset_sec=0.05)
     with pytest.raises(ValueError, match="pixel_noise_std"):
         make_observer(K, camera, pixel_noise_std=-1.0)
     with pytest.raises(ValueError, match="image_size"):

@@ -378,6 +378,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
             s.camera.X_PC(),
             obj.X_TO(),
             update_period_sec=T,
+            update_offset_sec=pf.FILTER_PHASE * T,  # the filter's: one frame rendered and detected per period
             image_size=(s.camera.width, s.camera.height),
         )
         sensor_name = "tag_observer"
@@ -393,6 +394,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
             s.camera.X_PC(),
             s.object_spec_resolved().X_TO(),
             update_period_sec=T,
+            update_offset_sec=pf.FILTER_PHASE * T,  # the filter's: one frame rendered and detected per period
             image_size=plant.image_size(),
         )
         sensor_name = "tag_observer"

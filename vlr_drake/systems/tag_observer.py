@@ -16,13 +16,15 @@ never reports a stale pose as valid.
 
 Held-pose update (the documented choice): an unrestricted update event stores the current
 measurement in the state when it is valid. With ``update_period_sec`` the event is periodic
-(use the action period: the plant settles, then the observer and the filter read it; this
-is the intended use beside the physics plant, and it keeps the rendered camera from being
+(use the action period, and ``update_offset_sec`` the filter's offset: the plant settles,
+then the observer and the filter read the same frame, rendered and detected once; this is
+the intended use beside the physics plant, and it keeps the rendered camera from being
 evaluated at every simulator step); with ``update_period_sec=None`` (the constructor's
 default) it is a per-step event, which evaluates the input at *every* simulator step: fine
 for a discrete diagram stepping at the action period, far too slow beside a physics plant
-stepping at 1 ms with a rendered camera (about 0.1 s per render). A forced unrestricted update does the same (tests use it). So
-the held pose is the last valid measurement *at an update event*.
+stepping at 1 ms with a rendered camera (about 0.1 s per render). A forced unrestricted
+update does the same (tests use it). So the held pose is the last valid measurement *at an
+update event*.
 """
 
 from __future__ import annotations
@@ -44,13 +46,18 @@ from vlr_drake.perception.tag_pose import (
 )
 
 
-def _declare_update(system: LeafSystem, update_period_sec: float | None, update) -> None:
+def _declare_update(system: LeafSystem, update_period_sec: float | None, update, update_offset_sec: float = 0.0) -> None:
     if update_period_sec is None:
+        if update_offset_sec != 0.0:
+            raise ValueError(f"'update_offset_sec' needs a periodic update ('update_period_sec'), got {update_offset_sec}")
         system.DeclarePerStepUnrestrictedUpdateEvent(update=update)
     else:
-        system.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=checked_period(update_period_sec, "update_period_sec"), offset_sec=0.0, update=update
-        )
+        period = checked_period(update_period_sec, "update_period_sec")
+        if not (np.isfinite(update_offset_sec) and 0.0 <= update_offset_sec < period):
+            raise ValueError(
+                f"'update_offset_sec' must be in [0, update_period_sec = {period}) [s], got {update_offset_sec}"
+            )
+        system.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period, offset_sec=float(update_offset_sec), update=update)
     system.DeclareForcedUnrestrictedUpdateEvent(update=update)
 
 
@@ -65,6 +72,10 @@ class TagObserver(LeafSystem):
         X_PC: camera pose in the palm frame; X_TO: POM frame in the tag frame (None:
             identity, the POM is the tag frame).
         update_period_sec: period of the held-pose update; None for a per-step update.
+        update_offset_sec: when in that period the update comes, in [0, update_period_sec).
+            The builder gives the filter's offset: an update at the same time as the
+            filter's reads the same detection (one cache entry, one rendered frame), where
+            an update at 0 would render and detect a second frame every period.
         input_scale: the incoming image is this many times the resolution K describes
             (a rendering at ``render_scale``); it is downsampled with INTER_AREA first.
         image_size: (width, height) the (downsampled) image must have, or None (unchecked).
@@ -87,6 +98,7 @@ class TagObserver(LeafSystem):
         X_PC: RigidTransform,
         X_TO: RigidTransform | None = None,
         update_period_sec: float | None = None,
+        update_offset_sec: float = 0.0,
         input_scale: int = 1,
         image_size: tuple[int, int] | None = None,
         pixel_noise_std: float = 0.0,
@@ -142,7 +154,7 @@ class TagObserver(LeafSystem):
             calc=self._calc_reprojection_error,
             prerequisites_of_calc={self._detection.ticket()},
         )
-        _declare_update(self, update_period_sec, self._update_held)
+        _declare_update(self, update_period_sec, self._update_held, update_offset_sec)
 
     # Port accessors (keep the handles, never look ports up by number).
     def rgb_image_input_port(self):
