@@ -842,3 +842,27 @@ def test_stability_with_dependent_constraint_gradients():
 
     th0, a0 = _truth_grasp(h, np.random.default_rng(0))
     ModelPlant(h, th0, a0, np.eye(3), np.array([0.0, 0.0, 0.1]), np.random.default_rng(0))
+
+
+def test_equilibrium_says_how_far_a_mirror_image_grasp_is_from_one(model_o_hand, hand_4x3):
+    """At an exact mirror image a column of the stationarity system vanishes and no tension
+    state balances the springs; ``equilibrium`` still reports ok (the prior keeps such
+    draws: the ridge's tensions are the moderate ones), and ``residual`` says how far from an
+    equilibrium each grasp is. A zero action moves such grasps to an equilibrium nearby."""
+    h = model_o_hand
+    th, a, eq, D2 = _near_mirror_image_grasps(h, np.random.default_rng(8), 100, 0.02, mirrored=100)
+    gs = grasps.sample_grasps(h, np.random.default_rng(0), 500)
+    eq_gs = motion.equilibrium(h, gs.theta, a=gs.a)
+    assert eq.ok.all() and eq_gs.ok.all()
+    assert np.median(eq.residual) > 1e-3 and np.percentile(eq_gs.residual, 99) < 1e-6
+    # the sampled grasps' least-squares tensions hold them: a zero action leaves them there
+    mirror = motion.move(h, th, np.zeros(3), a=a, D2=D2, stretch=eq.stretch, max_substeps=16)
+    regular = motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=eq_gs.stretch)
+    assert mirror.ok.mean() > 0.9 and regular.ok.all()
+    moved = np.abs(mirror.theta - th).max(axis=(1, 2))[mirror.ok]
+    stayed = np.abs(regular.theta - gs.theta).max(axis=(1, 2))
+    assert np.median(moved) > 1e-3 and np.percentile(stayed, 99) < 1e-4
+    # a hand with more joints is settled by a move: its residual is that move's
+    gs4 = grasps.sample_grasps(hand_4x3, np.random.default_rng(0), 200)
+    eq4 = motion.equilibrium(hand_4x3, gs4.theta, a=gs4.a)
+    assert eq4.ok.mean() > 0.95 and np.all(eq4.residual[eq4.ok] < 1e-6) and np.all(np.isinf(eq4.residual[~eq4.ok]))

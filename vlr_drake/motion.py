@@ -139,6 +139,10 @@ class Equilibrium:
     tension: np.ndarray  # (P, N)
     multipliers: np.ndarray  # (P, m)
     ok: np.ndarray  # (P,) solved (a finite least-squares residual), not exact: see _ridge_solve
+    # (P,) [N m] how far theta is from an equilibrium of that tendon state: the norm of the
+    # least-squares stationarity residual (where settled, the settling move's largest one);
+    # inf where not solved
+    residual: np.ndarray
 
 
 # --------------------------------------------------------------------------------------
@@ -1432,9 +1436,9 @@ def equilibrium(
     configuration is an equilibrium for exactly one tendon state. Not at the mirror-image
     grasps, where a column of the system vanishes and no tension state balances the springs:
     there ``ok`` is reported although the stationarity residual is up to 9e-3 N m (a review,
-    2026-12-06: 11 of 20,000 sampled NH3 grasps above 1e-6 N m). Checking the residual would
-    change which prior draws are kept, so every row, and waits for a session that measures
-    them again. For hands with more
+    2026-12-06: 11 of 20,000 sampled NH3 grasps above 1e-6 N m). ``residual`` says how far
+    each is from one: the prior keeps such draws (refusing them would refuse the mirror
+    pose itself, :func:`_ridge_solve`), and a hypothesis' first move settles it. For hands with more
     joints (N*K > N + m) the least-squares tension is used and, with ``settle`` (default for
     such hands), the elastic model with a zero action moves the angles to the nearest true
     equilibrium, which is returned as ``theta``. ``external_torque`` (P or 1, N, K) [N m]:
@@ -1466,11 +1470,12 @@ def equilibrium(
         settle = not hand.statically_determinate
     stretch = np.where(ok[:, None], T / hand.kappa, 0.0)
     if not settle:
-        return Equilibrium(theta.copy(), stretch, np.where(ok[:, None], T, 0.0), np.nan_to_num(lam), ok)
+        return Equilibrium(theta.copy(), stretch, np.where(ok[:, None], T, 0.0), np.nan_to_num(lam), ok, resid)
     p = contacts(hand, theta, a, L)
     res = move(
         hand, theta, np.zeros(hand.N), a=a, D2=contact_distances_sq(hand, p), stretch=stretch,
         link_lengths=L, stiffness=k, tendon="elastic", external_torque=external_torque, gravity=gravity,
         object_load=object_load, check_stability=False,  # (an Equilibrium does not say; stable_equilibria does)
     )
-    return Equilibrium(res.theta, res.stretch, res.tension, res.multipliers, ok & res.ok)
+    return Equilibrium(res.theta, res.stretch, res.tension, res.multipliers, ok & res.ok,
+                       np.where(ok & res.ok, res.residuals[:, 0], np.inf))
