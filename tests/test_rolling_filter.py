@@ -97,6 +97,25 @@ def test_bad_rolling_settings_are_named():
                                     np.random.default_rng(0))
 
 
+def test_the_centre_of_mass_draws_do_not_turn_with_rounding():
+    """The centre of mass is drawn along the normal of the contacts' plane, whose sign the
+    singular vector leaves to rounding (three contacts lie in their plane exactly): a grasp
+    1e-13 rad away (a solver's last digits) turned half of the hypotheses' draws over, and a
+    replay of the same trace took other draws (2,000 hypotheses: 0.04 m apart, twice the
+    half-width). The normal is turned to one side of the contacts' triangle."""
+    truth = RollingTruth(3)
+    ps0 = _filter(2000).initialise(truth.theta, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    ps1 = _filter(2000).initialise(truth.theta + 1e-13, truth.a, truth.R, truth.t, tendon_command=truth.command)
+    assert np.abs(ps1.theta - ps0.theta).max() < 1e-9
+    assert np.abs(ps1.com_O - ps0.com_O).max() < 1e-9
+    p = ps0.p_O
+    n = pf.contact_plane_normals(p)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+    np.testing.assert_allclose(np.einsum("pni,pi->pn", p - p[:, :1], n), 0.0, atol=1e-15)
+    assert np.all(np.einsum("pi,pi->p", n, np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])) > 0)
+    np.testing.assert_allclose(pf.contact_plane_normals(p[:, ::-1]), -n, atol=1e-12)  # the order sets the side
+
+
 def test_the_hypotheses_draw_and_keep_their_object():
     """Each hypothesis' normals lie in the cone around the guess from its contacts (uniform
     on the cap: a quarter of them within half the cone's angle... about), its centre of mass
