@@ -651,6 +651,11 @@ def test_the_controller_systems_check_their_periods(grasp):
     with pytest.raises(ValueError, match="'offset_sec' must be None or in"):
         TaskTrajectorySource(goal, 0.1, offset_sec=0.1)
     assert TaskTrajectorySource(goal, 0.1, offset_sec=0.0) is not None
+    # the controller's offset had gone to Drake unchecked, which takes one past its period
+    # (the first command periods late) and a negative one
+    for offset in (0.1, 0.25, -0.01, np.nan):
+        with pytest.raises(ValueError, match=r"'offset_sec' must be in \[0, period_sec = 0.1\)"):
+            JacobianController(grasp.hand, l0, 0.1, offset_sec=offset)
 
 
 def test_trajectory_source_checks_max_periods():

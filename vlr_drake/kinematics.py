@@ -204,6 +204,17 @@ def checked_period(value, name: str) -> float:
     return float(value)
 
 
+def checked_offset(value, period: float, name: str = "offset_sec", period_name: str = "period_sec",
+                   optional: bool = False) -> float:
+    """When in its period a periodic event comes [s], as a float: a number in [0, ``period``)
+    (the offsets order a diagram's events within one action period), or a ValueError naming
+    it; ``optional``: the message says None is allowed too (the caller's default)."""
+    if not (is_number(value) and 0 <= value < period):
+        allowed = "None or in" if optional else "in"
+        raise ValueError(f"'{name}' must be {allowed} [0, {period_name} = {period}) [s], got {value!r}")
+    return float(value)
+
+
 def checked_seed(seed) -> int:
     """``seed`` as an int, or a ValueError naming it (numpy refuses a negative seed only at
     the first draw, without naming it; 2.9 would be cut to 2): what a system checks when it

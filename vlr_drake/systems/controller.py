@@ -37,7 +37,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from vlr_drake import control
 from vlr_drake.hand import HandModel
-from vlr_drake.kinematics import checked_flag, checked_period, is_number
+from vlr_drake.kinematics import checked_flag, checked_offset, checked_period
 
 __all__ = ["JacobianController", "TaskTrajectorySource", "EstimateFromTruth", "ControlPhase"]
 
@@ -97,6 +97,7 @@ class JacobianController(LeafSystem):
     ):
         super().__init__()
         period_sec = checked_period(period_sec, "period_sec")
+        offset_sec = checked_offset(offset_sec, period_sec)
         if not (np.isfinite(start_sec) and start_sec >= 0):
             raise ValueError(f"'start_sec' must be a finite time >= 0 [s], got {start_sec}")
         self._start = float(start_sec)
@@ -366,9 +367,7 @@ class TaskTrajectorySource(LeafSystem):
             name="ready", size=1, calc=self._calc_ready,
             prerequisites_of_calc={self.discrete_state_ticket(self._anchor)})
         period_sec = checked_period(period_sec, "period_sec")
-        offset = 0.5 * period_sec if offset_sec is None else offset_sec
-        if not (is_number(offset) and 0 <= offset < period_sec):
-            raise ValueError(f"'offset_sec' must be None or in [0, period_sec = {period_sec}) [s], got {offset_sec!r}")
+        offset = 0.5 * period_sec if offset_sec is None else checked_offset(offset_sec, period_sec, optional=True)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=offset, update=self._update)
         self.DeclareForcedDiscreteUpdateEvent(update=self._update)
 

@@ -39,7 +39,7 @@ from vlr_drake import filter as pf
 from vlr_drake.control import FALLBACKS
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
-from vlr_drake.kinematics import checked_flag, checked_period, checked_seed
+from vlr_drake.kinematics import checked_flag, checked_offset, checked_period, checked_seed
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.trace import IdentificationTrace, TraceRecorder
 
@@ -51,9 +51,7 @@ def _timing(period_sec, offset_sec=None) -> tuple[float, float | None]:
     [0, period_sec): the offsets order the events within one period) [s], or a ValueError
     that names the bad one."""
     period_sec = checked_period(period_sec, "period_sec")
-    if offset_sec is not None and not (np.isfinite(offset_sec) and 0 <= offset_sec < period_sec):
-        raise ValueError(f"'offset_sec' must be None or in [0, period_sec = {period_sec}) [s], got {offset_sec}")
-    return period_sec, None if offset_sec is None else float(offset_sec)
+    return period_sec, None if offset_sec is None else checked_offset(offset_sec, period_sec, optional=True)
 
 
 def _read_only(x):

@@ -35,7 +35,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, Context, LeafSystem, State, ValueProducer
 from pydrake.systems.sensors import ImageRgba8U
 
-from vlr_drake.kinematics import checked_period, checked_seed
+from vlr_drake.kinematics import checked_offset, checked_period, checked_seed
 from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
 from vlr_drake.perception.tag_pose import (
     TagObserverConfig,
@@ -53,11 +53,8 @@ def _declare_update(system: LeafSystem, update_period_sec: float | None, update,
         system.DeclarePerStepUnrestrictedUpdateEvent(update=update)
     else:
         period = checked_period(update_period_sec, "update_period_sec")
-        if not (np.isfinite(update_offset_sec) and 0.0 <= update_offset_sec < period):
-            raise ValueError(
-                f"'update_offset_sec' must be in [0, update_period_sec = {period}) [s], got {update_offset_sec}"
-            )
-        system.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period, offset_sec=float(update_offset_sec), update=update)
+        offset = checked_offset(update_offset_sec, period, "update_offset_sec", "update_period_sec")
+        system.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=period, offset_sec=offset, update=update)
     system.DeclareForcedUnrestrictedUpdateEvent(update=update)
 
 
