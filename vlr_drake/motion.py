@@ -83,6 +83,10 @@ TOL_TORQUE, TOL_CONSTRAINT, TOL_TENDON = TOLERANCES["tight"]
 LOOSE_TORQUE = 1e-7
 LOOSE_DISTANCE = 5e-9
 LOOSE_TENDON = 1e-10
+#: The tiny negative diagonal on the KKT matrix's multipliers' block, relative to the lane's
+#: largest Hessian diagonal: in the pivoted re-solve of a lane whose pivot fails, and on
+#: every step of a retried attempt (:func:`_move_lanes`).
+KKT_REGULARISER = 1e-12
 #: Largest joint-angle change of one Newton step [rad].
 MAX_STEP = 0.15
 MAX_ITER = 30
@@ -696,7 +700,7 @@ def _move_lanes(
             for w in range(W):
                 if regd[w]:
                     for q in range(n, dim):
-                        A[q, q, w] = -1e-12 * hscale[w]
+                        A[q, q, w] = -KKT_REGULARISER * hscale[w]
             for q in range(dim):
                 for w in range(W):
                     F[q, w] = -F[q, w]
@@ -733,7 +737,7 @@ def _move_lanes(
                             A1[q, q2] = A2[q, q2, w]
                             A1[q2, q] = A2[q, q2, w]
                     for q in range(n, dim):
-                        A1[q, q] -= 1e-12 * hscale[w]
+                        A1[q, q] -= KKT_REGULARISER * hscale[w]
                     if not _solve(A1, F1):
                         status[w] = FAILED
                         continue
