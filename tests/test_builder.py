@@ -567,3 +567,26 @@ def test_a_control_section_identifies_then_controls_the_pom():
     offsets = np.linalg.norm(s.control.goals_mm, axis=1)
     assert offsets[:3].min() > 0.39  # the goals lie well away from where control started
     assert run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST), iterations=1)["control"] is None
+
+
+def test_a_control_run_without_iterations_runs_until_its_goals_are_done(tmp_path, capsys):
+    """``--run`` without ``--iterations`` had run 10 iterations whatever the scenario, so a
+    control section starting after 60 never started. With one the default is what its goals
+    need (3 of exploration, the switch's period, one anchor frame, 5 periods for each of two
+    goals: 15), and the run ends with every goal reached or given up."""
+    import json
+
+    from vlr_drake.builder import RUN_ITERATIONS, default_iterations, main
+
+    short = (FAST + "control: {after_iterations: 3, anchor_frames: 1, max_periods: 5, "
+             "goals_mm: [[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]}\n")
+    s = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml", short)
+    assert s.control.iterations_to_finish() == 15 > RUN_ITERATIONS
+    assert default_iterations(s) == 15
+    assert default_iterations(load_scenario(DIAGRAMS_DIR / "model_plant.yaml")) == RUN_ITERATIONS
+    assert load_scenario(DIAGRAMS_DIR / "model_plant.yaml").control.iterations_to_finish() == 0
+    out = tmp_path / "run.json"
+    assert main(["--run", "model_plant_control", "--set", short, "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert r["iterations"] == 15 and r["control"]["done"], r["control"]
+    assert "the run ended first" not in capsys.readouterr().out

@@ -800,6 +800,19 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     return result
 
 
+#: Filter iterations of ``python -m vlr_drake.builder --run`` without ``--iterations`` (a
+#: scenario without a control section; see :func:`default_iterations`).
+RUN_ITERATIONS = 10
+
+
+def default_iterations(scenario: Scenario) -> int:
+    """Filter iterations of a ``--run`` without ``--iterations``: :data:`RUN_ITERATIONS`, or
+    with a control section as many as its goals need (the exploration, the anchor and
+    ``max_periods`` for each goal: :meth:`ControlSettings.iterations_to_finish`), so that
+    the run reaches the control it describes."""
+    return max(RUN_ITERATIONS, scenario.control.iterations_to_finish())
+
+
 def main(argv: list[str] | None = None) -> int:
     # the docstring's first paragraph and its list of plants, as written
     parser = argparse.ArgumentParser(prog="python -m vlr_drake.builder",
@@ -810,7 +823,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
     parser.add_argument("--run", metavar="SCENARIO", default=None,
                         help="run a scenario: a file, or an example's name in diagrams/ (e.g. model_plant)")
-    parser.add_argument("--iterations", type=count(0), default=None, help="filter iterations of --run (default 10)")
+    parser.add_argument("--iterations", type=count(0), default=None,
+                        help=f"filter iterations of --run (default {RUN_ITERATIONS}; with a control section, as many "
+                             "as its goals need: ControlSettings.iterations_to_finish)")
     parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
@@ -833,10 +848,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
         check_output("--json", args.json)
-        iterations = 10 if args.iterations is None else args.iterations
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
-        r = run(load_scenario(find_scenario(args.run), args.set), iterations, trace=args.trace,
-                draws=args.draws or 1, progress=True)
+        scenario = load_scenario(find_scenario(args.run), args.set)
+        iterations = default_iterations(scenario) if args.iterations is None else args.iterations
+        r = run(scenario, iterations, trace=args.trace, draws=args.draws or 1, progress=True)
         np.set_printoptions(precision=2, suppress=True)
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"

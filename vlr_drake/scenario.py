@@ -439,6 +439,14 @@ class ControlSettings:
         controls)."""
         return (self.after_iterations + 1) * period_sec
 
+    def iterations_to_finish(self) -> int:
+        """Filter iterations (action periods) a run needs for every goal to be reached or
+        given up: the exploration, the switch's period, the anchor's frames and
+        ``max_periods`` for each goal. 0 without goals (identification only)."""
+        if not self.goals_mm:
+            return 0
+        return self.after_iterations + 1 + self.anchor_frames + len(self.goals_mm) * self.max_periods
+
 
 @dataclass
 class Scenario:
