@@ -298,8 +298,9 @@ def test_the_cayley_derivatives_are_exact():
 
 
 def test_a_hypothesis_without_an_equilibrium_fails_alone():
-    """A NaN in one hypothesis' angles fails that hypothesis (ok False, at its first Newton
-    step) and moves the others exactly as without it; no hypotheses, no moves."""
+    """A NaN in one hypothesis' angles fails that hypothesis (ok False, at its first check,
+    before any Newton step) and moves the others exactly as without it; no hypotheses, no
+    moves."""
     from vlr_drake.motion_rolling import move_rolling
 
     h, theta, a, stretch, _ = _grasp()
@@ -313,12 +314,45 @@ def test_a_hypothesis_without_an_equilibrium_fails_alone():
     good = move_rolling(h, th, *args, **kw)
     th[2, 1, 0] = np.nan
     bad = move_rolling(h, th, *args, **kw)
-    assert good.ok.all() and bad.ok.tolist() == [True, True, False, True] and bad.newton_iterations[2] == 1
+    assert good.ok.all() and bad.ok.tolist() == [True, True, False, True] and bad.newton_iterations[2] == 0
     keep = [0, 1, 3]
     np.testing.assert_array_equal(bad.theta[keep], good.theta[keep])
     np.testing.assert_array_equal(bad.R[keep], good.R[keep])
     none = move_rolling(h, th[:0], *args, **{**kw, "com": c.mean(0)[None][:0]})
     assert none.theta.shape == (0, h.N, h.K) and none.ok.shape == (0,) and none.iterations == 0
+
+
+def test_max_iter_counts_newton_steps_and_bad_parameters_are_named():
+    """``max_iter`` steps are taken and each one's result is checked: a hypothesis that
+    converges in s steps reports s (``newton_iterations``), is solved with ``max_iter=s``
+    (bit for bit) and fails with s - 1 (the count had been checks, one more than the steps,
+    and the last step went unchecked). Parameters that are not physical are named; a single
+    hypothesis compiles no second kernel (a read-only broadcast view had typed one)."""
+    from vlr_drake.motion_rolling import _newton_kernel, move_rolling
+
+    h, theta, a, stretch, _ = _grasp()
+    c = kinematics.contacts(h, theta[None], a[None])[0]
+    args = (a, np.eye(3), c.mean(0), c - c.mean(0), stretch)
+    kw = dict(dl=np.array([0.3e-3, -0.2e-3, 0.1e-3]), gravity=np.array([0.0, 0.0, -9.81]), object_mass=0.05,
+              com=c.mean(0)[None])
+    full = move_rolling(h, theta[None], *args, **kw)
+    s = int(full.newton_iterations[0])
+    assert full.ok[0] and 2 <= s == full.iterations
+    exact = move_rolling(h, theta[None], *args, **kw, max_iter=s)
+    short = move_rolling(h, theta[None], *args, **kw, max_iter=s - 1)
+    assert exact.ok[0] and not short.ok[0] and short.newton_iterations[0] == s - 1
+    np.testing.assert_array_equal(exact.theta, full.theta)
+    assert all("readonly" not in str(sig) for sig in _newton_kernel.signatures), _newton_kernel.signatures
+    for bad, match in ((dict(max_iter=0), "max_iter"), (dict(pad_radius=-0.01), "pad_radius"),
+                       (dict(object_mass=-0.05), "object_mass"), (dict(stiffness=-1.0), "stiffness"),
+                       (dict(link_lengths=-h.link_lengths[None]), "link_lengths"),
+                       (dict(gravity=np.array([[0.0], [0.0], [-9.81]])), "gravity")):
+        with pytest.raises(ValueError, match=match):
+            move_rolling(h, theta[None], *args, **{**kw, **bad})
+    with pytest.raises(ValueError, match="'R' must hold rotations"):
+        move_rolling(h, theta[None], a, 2 * np.eye(3), *args[2:], **kw)
+    with pytest.raises(ValueError, match="normals"):
+        move_rolling(h, theta[None], *args[:3], np.zeros((h.N, 3)), stretch, **kw)
 
 
 def test_each_hypothesis_moves_as_it_would_alone():

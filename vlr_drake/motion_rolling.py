@@ -36,6 +36,7 @@ from numba import njit, prange
 
 from vlr_drake import motion
 from vlr_drake.hand import HandModel
+from vlr_drake.kinematics import is_count
 
 __all__ = ["NORMAL_GUESSES", "RollingMove", "circle_centres", "move_rolling", "guessed_normals", "hinge_axes"]
 
@@ -177,29 +178,54 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     round object as a ball on a ball, its centre's path curving towards the object's centre of
     curvature (:class:`vlr_drake.rolling_reference.RollingState`; here to second order in the
     pad's turn, the reference exactly). Newton starts
-    at the hypotheses' own angles and pose; ``ok`` is False where it has not converged in
-    ``max_iter`` steps (about 1% of hypotheses drawn 0.02 rad and 2 mm around a grasp, which
-    wander off by 10-40 deg)."""
+    at the hypotheses' own angles and pose; ``ok`` is False where it has not converged
+    within ``max_iter`` steps (each step's result checked), or met a value that is not
+    finite (a hypothesis with NaN angles or pose fails alone). About 1% of hypotheses drawn
+    0.02 rad and 2 mm around a grasp fail: most wander off by 10-40 deg, and some stall near
+    the side fingers' redundant attachment
+    (:func:`vlr_drake.rolling_reference.attachment_directions`), where the KKT matrix is
+    nearly singular. ``newton_iterations`` counts each hypothesis' steps. The hand's and the
+    object's parameters (pads, springs, links, mass, normals, gravity, a pose's rotation)
+    are checked, and a ValueError names the one that is not physical."""
     theta = np.asarray(theta, float)
     P, N, K = theta.shape
     if (N, K) != (hand.N, hand.K):
         raise ValueError(f"move_rolling: 'theta' must have shape (P, {hand.N}, {hand.K}), got {theta.shape}")
+    if not is_count(max_iter, 1):
+        raise ValueError(f"move_rolling: 'max_iter' must be an integer >= 1, got {max_iter!r}")
     a = np.broadcast_to(np.asarray(a, float), (P, N)).copy()
     R = np.broadcast_to(np.asarray(R, float), (P, 3, 3)).copy()
     t = np.broadcast_to(np.asarray(t, float), (P, 3)).copy()
+    with np.errstate(invalid="ignore"):  # a NaN pose fails its hypothesis in the kernel
+        off = np.abs(np.einsum("pji,pjk->pik", R, R) - np.eye(3)).max(axis=(1, 2))
+    if np.any(off > 1e-6) or np.any(np.linalg.det(R[off <= 1e-6]) < 0):
+        raise ValueError(f"move_rolling: 'R' must hold rotations (R^T R = I, det +1); hypothesis "
+                         f"{int(np.flatnonzero((off > 1e-6) | (np.linalg.det(R) < 0))[0])} is not one")
     nrm = np.broadcast_to(np.asarray(normals, float), (P, N, 3))
-    nrm = nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)
+    size = np.linalg.norm(nrm, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(size) & (size > 0)):
+        raise ValueError("move_rolling: 'normals' must be finite, non-zero vectors (P, N, 3)")
+    nrm = nrm / size
     stretch = np.broadcast_to(np.asarray(stretch, float), (P, N)).copy()
     dl = np.zeros((P, N)) if dl is None else np.broadcast_to(np.asarray(dl, float), (P, N)).copy()
     r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     k = np.broadcast_to(hand.stiffness if stiffness is None else np.asarray(stiffness, float), (P, N, K)).copy()
     mass = np.zeros(P) if object_mass is None else np.broadcast_to(np.asarray(object_mass, float), (P,)).copy()
+    for name, value, fine in (("pad_radius", r, "finite radii >= 0 [m]"), ("stiffness", k, "finite springs > 0 [N m/rad]"),
+                              ("object_mass", mass, "finite masses >= 0 [kg]")):
+        if not np.all(np.isfinite(value) & ((value > 0) if name == "stiffness" else (value >= 0))):
+            raise ValueError(f"move_rolling: '{name}' must be {fine}, got values down to {np.nanmin(value)}")
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise ValueError(f"move_rolling: 'gravity' must be a finite (3,) vector [m/s^2], got shape {g.shape}")
     if com is None and gravity is not None and np.any(mass != 0):  # else its weight would act at t
         raise ValueError("move_rolling: an object with mass needs its centre of mass 'com' (P, 3)")
     L = hand.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
     if L.ndim != 3 or L.shape[0] not in (1, P) or L.shape[1:] != (N, K - 1):
         raise ValueError(f"move_rolling: 'link_lengths' must have shape (1 or {P}, {N}, {K - 1}), got {L.shape}")
+    if not np.all(np.isfinite(L) & (L > 0)):
+        raise ValueError(f"move_rolling: 'link_lengths' must be finite lengths > 0 [m], got values down to "
+                         f"{np.nanmin(L)}")
     L = np.broadcast_to(L, (P, N, K - 1))
     RT = np.swapaxes(R, 1, 2)
     p0, _, _ = _kinematics(hand, theta, a, L)
@@ -223,8 +249,8 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     x_theta, w, tau = np.empty((P, N, K)), np.empty((P, 3)), np.empty((P, 3))
     ok, iters = np.zeros(P, bool), np.zeros(P, np.int64)
 
-    def c(x):
-        return np.ascontiguousarray(x, dtype=float)
+    def c(x):  # C-contiguous and writable: a read-only view would compile a second kernel
+        return np.require(x, float, ["C", "W"])
 
     _newton_kernel(c(theta), c(a), c(R), c(t), c(cO), c(B), c(b), c(nO), c(kap), c(hinge), c(stretch), c(dl), c(mass),
                    c(comO), c(g),
@@ -403,8 +429,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                    x, x0, al, Ll, Rl, tl, cOl, Bl, bl, nOl, kapl, strl, dll, massl, mul, kstl,
                    RcomO, Rn, hn, Rb, RB, w, tau, lam)
     while motion._lanes_busy(pid):
-        for q in range(W):
-            itn[q] += 1
         motion._fk_all(x, Ll, al, pad, base, u, Pc, Jc, Hc)
         _cayley_lanes(w, E, E2, C, dC, d2C, Wm, Nm, Na, Dc)
         for r in range(3):
@@ -522,8 +546,11 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                 done[q] = 2
             elif rmax[q] < grad_tol and gmax[q] < attach_tol:
                 done[q] = 1
+            elif itn[q] >= max_iter:  # max_iter steps taken, the last one checked: failed
+                done[q] = 2
             else:
                 stepping[q] = True
+                itn[q] += 1
                 any_step = True
         if any_step:
             # the KKT matrix (both triangles; the lanes' elimination reads the upper one)
@@ -680,8 +707,6 @@ def _newton_lanes(start, stop, stride, theta0, a, R, t, cO, B, b, nO, kap, hinge
                     tau[c, q] += sc * F[OT + c, q]
                 for row in range(m):
                     lam[row, q] += sc * F[OL + row, q]
-                if itn[q] >= max_iter:  # out of iterations
-                    done[q] = 2
         # the lanes that are done write their hypothesis out and take the next one
         for q in range(W):
             if pid[q] < 0 or done[q] == 0:

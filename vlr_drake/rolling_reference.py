@@ -27,9 +27,9 @@ On the physics plant's toy block, started from the plant's true state (its tendo
 the true contact normals, the block's mass and centre of mass), it predicts an action's
 object motion to 0.044 mm / 0.044 deg (median of 20 actions) against 0.210 mm / 0.316 deg
 for Eq. 9, sits 0.01 deg from the plant's angles at rest (Eq. 9: 0.50) and moves every
-joint as the plant does (slopes 0.99-1.02). The filter does not use it yet: it is the
-reference a batched rolling Gamma would be held to (docs/results.md, "The pads roll").
-It takes IPOPT tens of milliseconds a solve.
+joint as the plant does (slopes 0.99-1.02; docs/results.md, "The pads roll"). The filter's
+batched rolling Gamma (:func:`vlr_drake.motion_rolling.move_rolling`, ``motion_model``
+"rolling") is held to it by the tests. It takes IPOPT tens of milliseconds a solve.
 """
 
 from __future__ import annotations
