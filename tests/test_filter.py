@@ -508,20 +508,32 @@ def test_informative_actions_converge_sooner_and_stay_honest():
 
 
 def test_lost_tag_moves_but_does_not_learn():
-    h, plant, f = _filter_and_plant(6, particles=2000)
+    """A step without a measurement moves every hypothesis and learns nothing from the
+    camera, but the move's physics weighs as in a measured step: a hypothesis with no
+    equilibrium for the action weighs nothing (or its stuck_probability, where friction may
+    hold it), as one that left the physical grasps does. (They had kept their whole weight
+    through a lost frame.)"""
     dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])
-    assert plant.apply_action(dl)
-    p_O_before, theta_before = f.particles.p_O.copy(), f.particles.theta.copy()
-    rep = f.step(dl, None, None, valid=False)
-    assert not rep.measured and rep.ess == pytest.approx(2000)  # the prior's equal weights, carried on
-    # the hypotheses moved with the action (Gamma), as the hand did: all but those with no
-    # equilibrium for it (held where they were; 20% of this first move's prior draws)
-    moved = np.abs(f.particles.theta - theta_before).max(axis=(1, 2)) > 1e-6
-    assert moved.mean() > 0.5 and moved.sum() >= 2000 - rep.solve_failures, (moved.mean(), rep.solve_failures)
-    assert set(rep.timing_s) == {"move", "estimate"}  # nothing weighed or resampled
-    np.testing.assert_array_equal(f.particles.p_O, p_O_before)  # attachments untouched
-    assert np.all(np.isfinite(f.particles.theta))
-    assert np.all(f.particles.log_w == 0)
+    for stuck in (None, 0.1):
+        h, plant, f = _filter_and_plant(6, particles=2000, stuck_probability=stuck)
+        assert plant.apply_action(dl)
+        p_O_before, theta_before = f.particles.p_O.copy(), f.particles.theta.copy()
+        rep = f.step(dl, None, None, valid=False)
+        assert not rep.measured
+        # the hypotheses moved with the action (Gamma), as the hand did: all but those with no
+        # equilibrium for it (held where they were; 20% of this first move's prior draws)
+        moved = np.abs(f.particles.theta - theta_before).max(axis=(1, 2)) > 1e-6
+        assert moved.mean() > 0.5 and moved.sum() >= 2000 - rep.solve_failures, (moved.mean(), rep.solve_failures)
+        assert rep.solve_failures > 100
+        assert set(rep.timing_s) == {"move", "estimate"}  # nothing measured or resampled
+        np.testing.assert_array_equal(f.particles.p_O, p_O_before)  # attachments untouched
+        assert np.all(np.isfinite(f.particles.theta))
+        w = f.particles.log_w
+        held = np.log(stuck) if stuck else -np.inf
+        assert np.all((w == 0) | (w == held) | np.isneginf(w))
+        assert np.all(w[~moved] <= held)  # no equilibrium: discarded, or weighed as held
+        assert (w[moved] == 0).mean() > 0.95  # the moved ones keep their weight (bar unphysical ones)
+        assert rep.ess == pytest.approx(pf.effective_sample_size(w)) and rep.ess < 2000
 
 
 def test_a_bad_measurement_is_refused_and_changes_nothing():
@@ -846,6 +858,59 @@ def test_roughening_folds_springs_links_and_contacts_back_at_their_ranges():
     after = f._unknowns(ps).mean(0)
     c = h.N * h.K + h.N  # the hand parameters' columns after the angles and contacts
     np.testing.assert_allclose(after[c:], before[c:], rtol=0.01)
+
+
+def test_roughening_keeps_the_objects_mass_and_the_prior_folds_contacts():
+    """The object's mass through 30 roughenings with no data stays where it was (its loads
+    had been clipped at 0 before summing, which added mass each time: a light cloud grew 7%)
+    and no load sits on 0; the prior's contacts drawn around a guess 3 mm from the pad's end
+    are folded back onto the pad (clipped, a third of them had sat exactly on its end)."""
+    h = model_o().model()
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    prior = pf.PriorConfig(object_mass_unknown=True, stiffness_unknown=[(0, 1)])
+    cfg = pf.FilterConfig(particles=4000, gravity_palm=[0.0, 0.0, 9.81], gravity_loads="following")
+    f = pf.SelfIdentificationFilter(h, cfg, prior, np.random.default_rng(2))
+    lo, hi = f._contact_bounds
+    a_guess = a.copy()
+    a_guess[0] = lo[0] + 0.003
+    ps = f.initialise(th, a_guess, np.eye(3), np.array([0.0, 0.0, 0.1]),
+                      tendon_command=h.tendon_travel(th[None])[0] + 0.004)
+    assert np.all((ps.a >= lo) & (ps.a <= hi)) and not np.any((ps.a == lo) | (ps.a == hi))
+    shares = ps.object_load / ps.object_load.sum(1, keepdims=True)
+    ps.object_load = (0.02 + 0.003 * np.random.default_rng(1).standard_normal(ps.size))[:, None] * shares
+    m0 = ps.object_load.sum(1)
+    for _ in range(30):
+        f._roughen(ps)
+    m = ps.object_load.sum(1)
+    assert abs(m.mean() / m0.mean() - 1) < 0.005 and abs(m.std() / m0.std() - 1) < 0.05, (m.mean(), m0.mean())
+    assert np.all(ps.object_load > 0)
+
+
+def test_an_unknown_spring_stays_one_per_hypothesis_when_a_batch_keeps_one(monkeypatch):
+    """The prior's batches of draws are joined by what the prior leaves unknown: a first
+    batch with a single physical draw had been taken for a known (shared) spring, and every
+    hypothesis got that one spring."""
+    h = model_o().model()
+    th, a = _truth_grasp(h, np.random.default_rng(0))
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=50), pf.PriorConfig(stiffness_unknown=[(0, 1)]),
+                                    np.random.default_rng(1))
+    real, batches = f._draw_grasps, []
+
+    def first_keeps_one(*args):
+        out = real(*args)
+        if not batches:  # a prior that accepts few draws: one physical draw in the first batch
+            good = out[-1]
+            keep = np.flatnonzero(good)[:1]
+            good[:] = False
+            good[keep] = True
+        batches.append(int(out[-1].sum()))
+        return out
+
+    monkeypatch.setattr(f, "_draw_grasps", first_keeps_one)
+    ps = f.initialise(th, a, np.eye(3), np.array([0.0, 0.0, 0.1]),
+                      tendon_command=h.tendon_travel(th[None])[0] + 0.004)
+    assert batches[0] == 1 and len(batches) > 1
+    assert ps.stiffness.shape == (50, h.N, h.K) and np.unique(ps.stiffness[:, 0, 1]).size == 50
 
 
 def test_tendon_state_follows_the_commanded_pull():
@@ -1502,6 +1567,17 @@ def test_implied_roughening_drops_hypotheses_without_an_equilibrium(monkeypatch)
     assert np.all(np.isneginf(ps.log_w[::2])) and np.all(ps.log_w[1::2] == 0.0)
     w = pf.normalise(ps.log_w)
     assert w[::2].sum() == 0.0 and w.sum() == pytest.approx(1.0)
+    # none with an equilibrium: none keeps its weight (they had all kept it, with stretch 0)
+    ps = f.particles.take(np.arange(f.particles.size))
+
+    def failing_all(*args, **kwargs):
+        eq = real(*args, **kwargs)
+        eq.ok[:] = False
+        return eq
+
+    monkeypatch.setattr(pf.motion, "equilibrium", failing_all)
+    f._roughen(ps)
+    assert np.all(np.isneginf(ps.log_w))
 
 
 def test_stable_grasps_conditions_the_prior_and_the_moves():
@@ -1853,8 +1929,9 @@ def test_a_move_that_is_not_finite_is_a_failed_one(monkeypatch):
 
 
 def test_a_lost_step_reports_the_carried_weights_ess(monkeypatch):
-    """A lost tag weighs nothing, so the weights carried on are the last measured step's:
-    their ESS, not the cloud's size (which it had reported)."""
+    """A lost tag measures nothing, so the weights carried on are the last measured step's,
+    less the hypotheses the move left unphysical: their ESS, not the cloud's size (which it
+    had reported)."""
     h, plant, f = _filter_and_plant(6, particles=1000, resample_fraction=0.0)  # never resampled
     dl = np.array([0.3e-3, -0.2e-3, 0.3e-3])
     assert plant.apply_action(dl)
@@ -1863,7 +1940,7 @@ def test_a_lost_step_reports_the_carried_weights_ess(monkeypatch):
     assert plant.apply_action(dl)
     lost = f.step(dl, None, None, valid=False, tendon_command=plant.state.tendon_command)
     assert lost.ess == pytest.approx(pf.effective_sample_size(f.particles.log_w))
-    assert lost.ess == pytest.approx(measured.ess)
+    assert 0.9 * measured.ess < lost.ess <= measured.ess
 
 
 def test_bad_step_arguments_are_refused_before_the_iteration_counts():

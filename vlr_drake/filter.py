@@ -1507,7 +1507,7 @@ class SelfIdentificationFilter:
         theta[..., 0] = theta_center[:, 0] + scale * pr.proximal_half_width * self.rng.uniform(-1, 1, (n, h.N))
         theta[..., 1:] = theta_center[:, 1:] + scale * pr.distal_half_width * self.rng.uniform(-1, 1, (n, h.N, h.K - 1))
         a = a_center + scale * pr.contact_half_width * self.rng.uniform(-1, 1, (n, h.N))
-        a = np.clip(a, *self._contact_bounds)
+        a = _reflect_into(a, *self._contact_bounds)  # folded back onto the pad, as roughening does
         stiffness_center, link_center, mass_center = centers
         stiff = self._draw_stiffness(n, stiffness_center, scale)
         links = self._draw_links(n, link_center, scale)
@@ -1562,8 +1562,8 @@ class SelfIdentificationFilter:
             parts = [k[i] for k in kept]
             if parts[0] is None:  # no object weight
                 return None
-            if i in (2, 3) and parts[0].shape[0] == 1:  # a known (shared) hand parameter
-                return parts[0]
+            if (i == 2 and not self.prior.stiffness_unknown) or (i == 3 and not self.prior.links_unknown):
+                return parts[0]  # a known (shared) hand parameter, whatever a batch's size
             return np.concatenate(parts)[:M]
 
         return tuple(cat(i) for i in range(6))
@@ -1965,7 +1965,16 @@ class SelfIdentificationFilter:
             if rolling:  # the pads rolled over the object: the contacts in the pose it predicts
                 p_O = observation.in_frame(p_new, R_pred, t_pred)
                 ps.p_O = np.where(np.isfinite(p_O).all(axis=(1, 2))[:, None, None], p_O, ps.p_O)
-            # the weights carried on, unchanged (their ESS, not the cloud's size)
+            # Nothing measured, but the move's physics weighs as in a measured step (a flat
+            # likelihood): a hypothesis that left the physical grasps weighs nothing, one held
+            # by friction its stuck_probability (a review: they had kept their whole weight
+            # through a lost frame). Where that leaves none the weights stay as they were,
+            # and the next measurement finds the cloud implausible.
+            physics = np.where(feasible, 0.0, -np.inf)
+            if cfg.stuck_probability:
+                physics = np.where(res.ok, physics, physics + np.log(cfg.stuck_probability))
+            if np.any(np.isfinite(ps.log_w + physics)):
+                ps.log_w = ps.log_w + physics
             return self._report(False, effective_sample_size(ps.log_w), 1.0, res, feasible, False, np.nan, lap=lap)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
@@ -2151,16 +2160,18 @@ class SelfIdentificationFilter:
                 c += 1
             ps.link_lengths = L
         if ps.object_load is not None:  # loads >= 0 with their sum, the mass, inside its range
-            load = np.maximum(x[:, c : c + h.N], 0.0)
+            raw = x[:, c : c + h.N]
             lo, hi = pr.object_mass_range
-            mass = load.sum(axis=1)
-            # the roughened mass folded back at the range's ends (clipped, 4-5% of a weighed
-            # cloud sat on them after each roughening and the interval ended on the bound: a
-            # review), the shares kept
-            fix = _reflect_into(mass, lo, hi) / np.where(mass > 0, mass, 1.0)
-            load *= fix[:, None]
-            load[mass <= 0] = lo / h.N
-            ps.object_load = load
+            # The mass is the roughened loads' sum, which keeps the cloud's mean and variance,
+            # folded back at the range's ends (clipped, 4-5% of a weighed cloud sat on them
+            # after each roughening and the interval ended on the bound: a review). The shares
+            # are the loads folded back at 0. (Loads clipped at 0 before summing had added
+            # mass at every roughening: a light cloud grew 7% in 30 of them with no data.)
+            mass = _reflect_into(raw.sum(axis=1), lo, hi)
+            folded = np.abs(raw)
+            total = folded.sum(axis=1, keepdims=True)
+            shares = np.where(total > 0, folded / np.where(total > 0, total, 1.0), 1.0 / h.N)
+            ps.object_load = mass[:, None] * shares
             c += h.N
         if ps.normals_O is not None:  # roughened as vectors, back on the unit sphere
             n = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
@@ -2197,16 +2208,20 @@ class SelfIdentificationFilter:
         self._set_unknowns(ps, x)
         if self._uses_command():
             if not self.hand.statically_determinate:  # settle the angles to an equilibrium
-                ps.theta = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths,
-                                              stiffness=ps.stiffness,
-                                              **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load)).theta
+                eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths,
+                                        stiffness=ps.stiffness,
+                                        **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
+                # one that found none keeps its roughened angles and weighs nothing
+                ps.theta = np.where(eq.ok[:, None, None], eq.theta, ps.theta)
+                ps.log_w = np.where(eq.ok, ps.log_w, -np.inf)
             ps.stretch = self._commanded_stretch(ps.theta)
         else:
             eq = motion.equilibrium(self.hand, ps.theta, a=ps.a, link_lengths=ps.link_lengths, stiffness=ps.stiffness,
                                     **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
             ps.theta, ps.stretch = eq.theta, eq.stretch
-            if eq.ok.any() and not eq.ok.all():  # no implied tendon state (stretch 0): nothing to move it by
-                ps.log_w = np.where(eq.ok, ps.log_w, -np.inf)
+            # no implied tendon state (stretch 0): nothing to move it by. Where none has one, the
+            # whole cloud weighs nothing and the next measurement draws it again.
+            ps.log_w = np.where(eq.ok, ps.log_w, -np.inf)
 
     def _reinitialise(self, R_meas, t_meas) -> None:
         """Draw the cloud again (every hypothesis implausible): around the estimate of the
