@@ -569,6 +569,17 @@ def test_a_control_section_identifies_then_controls_the_pom():
     assert run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST), iterations=1)["control"] is None
 
 
+def test_a_grasp_that_drops_the_object_is_said_before_the_run():
+    """A physics diagram whose grasp lets the object fall (too little pretension) is refused
+    by name when it starts; it had run on and ended with a tag the camera never saw."""
+    from vlr_drake.builder import run
+    from vlr_drake.systems.physics_plant import PlacementError
+
+    s = load_scenario(DIAGRAMS_DIR / "default.yaml", FAST + "physics: {pretension: 0.5}\n")
+    with pytest.raises(PlacementError, match="the grasp did not hold the apple: .* lost it, and it moved"):
+        run(s, 3)
+
+
 def test_a_control_run_without_iterations_runs_until_its_goals_are_done(tmp_path, capsys):
     """``--run`` without ``--iterations`` had run 10 iterations whatever the scenario, so a
     control section starting after 60 never started. With one the default is what its goals

@@ -1643,6 +1643,19 @@ def test_the_model_plant_truth_stays_an_equilibrium_and_starts_physical():
     for kw, name in [({"dropout": float("nan")}, "dropout"), ({"sigma_position": -1e-3}, "sigma_position")]:
         with pytest.raises(ValueError, match=f"model plant: '{name}'"):
             ModelPlant(m, theta, a, *args, **kw)
+    # a pose that is no rotation, a NaN pose, a missing generator or an object's weight
+    # without gravity had been accepted (every action then refused, or a later error that
+    # named something else)
+    R, t, rng = args
+    for pose, message in [((2 * np.eye(3), t), "'R_PO' is not a rotation matrix"),
+                          ((np.full((3, 3), np.nan), t), "POM pose must be a finite"),
+                          ((R, t[:2]), "POM pose must be a finite")]:
+        with pytest.raises(ValueError, match=message):
+            ModelPlant(m, theta, a, *pose, rng)
+    with pytest.raises(TypeError, match="'rng' must be a numpy Generator"):
+        ModelPlant(m, theta, a, R, t, None)
+    with pytest.raises(ValueError, match="'object_load' needs the 'gravity'"):
+        ModelPlant(m, theta, a, *args, object_load=np.full(3, 0.01))
 
 
 def test_convergence_waits_for_the_identified_hand_parameters():

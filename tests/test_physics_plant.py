@@ -254,7 +254,9 @@ def test_physics_config_loads_from_yaml_and_validates():
                       ({"fall_distance": float("inf")}, "'fall_distance'"),
                       ({"settle_max": 0.0}, "'settle_max' must be positive unless 'fixed_settle_time'"),
                       ({"palm_xyz": 0.4}, "'palm_xyz' must be 3 finite numbers"),
-                      ({"time_step": "0.001"}, "'time_step' must be a positive finite number")]:
+                      ({"time_step": "0.001"}, "'time_step' must be a positive finite number"),
+                      # a window without a plant step sees no motion: every settle had passed at once
+                      ({"settle_window": 0.0005}, "'settle_window' .* must be at least the plant's 'time_step'")]:
         with pytest.raises(ValueError, match=field):
             PhysicsConfig(**kw).validate()
     PhysicsConfig(settle_max=0.0, fixed_settle_time=0.05).validate()  # a fixed settle needs no cap
@@ -489,15 +491,24 @@ def test_truth_agrees_with_the_vlr_kinematics_in_the_finger_plane(name):
 
 
 def test_fixed_action_period():
+    """``fixed_settle_time``: an action settles for exactly that long, and says whether its
+    last window passed the settle test; the grasp keeps the test (the fixed time had cut
+    the grasp's settle short too, the object still moving 4 mm, and every action had been
+    called settled)."""
     physics = PhysicsConfig(fixed_settle_time=0.1)
     _, ph, sim = build_physics_hand(model_o(), preset("apple"), physics)
-    ph.grasp(sim)
+    g = ph.grasp(sim)
+    tested = build_physics_hand(model_o(), preset("apple"), PhysicsConfig())[1:]
+    assert g.settle_time == pytest.approx(tested[0].grasp(tested[1]).settle_time) and g.settle_time != 0.1
     t0 = sim.get_context().get_time()
     r = ph.apply_action(sim, np.array([0.001, -0.001, 0.0005]), render=False)
     assert r.settle_time == pytest.approx(0.1)
     elapsed = sim.get_context().get_time() - t0
     assert elapsed == pytest.approx(physics.action_period)
     assert np.isfinite(r.creep_mm_per_s) and np.all(r.in_contact)
+    _, ph, sim = build_physics_hand(model_o(), preset("apple"), PhysicsConfig(fixed_settle_time=0.002))
+    ph.grasp(sim)
+    assert not ph.apply_action(sim, np.array([0.0015, -0.0015, 0.0]), render=False).settled  # still moving
 
 
 def test_a_grasp_that_does_not_hold_and_an_object_dropped_are_reported():

@@ -65,7 +65,7 @@ from vlr_drake.scenario import (
     ignored_by_plant,
     load_scenario,
 )
-from vlr_drake.systems.physics_plant import PhysicsHand, add_physics_hand, placed_grasp
+from vlr_drake.systems.physics_plant import PhysicsHand, PlacementError, add_physics_hand, placed_grasp
 from vlr_drake.systems.self_identification import (
     ExplorationPolicy,
     ModelPlantSystem,
@@ -523,11 +523,22 @@ def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | No
     if not np.allclose(l, built.l_grasp, atol=1e-9):
         raise RuntimeError(f"physics grasp: placed commands {l} differ from the policy's {built.l_grasp}")
     simulator.Initialize()
+    X_placed = ph.output(root, "X_PO_true")
     if settle_sec is None:
         settle_sec = min(built.scenario.physics.grasp_settle_max, 0.8 * built.period_sec)
     simulator.AdvanceTo(root.get_time() + settle_sec)
     ph.grasp_X_PO = ph.output(root, "X_PO_true")
-    return {"theta_placed": np.asarray(theta0), "command": l, "in_contact": ph.in_contact(root)}
+    in_contact = ph.in_contact(root)
+    shift = float(np.linalg.norm(ph.grasp_X_PO.translation() - X_placed.translation()))
+    if not np.all(in_contact) or shift >= built.scenario.physics.fall_distance:
+        # said here, not later as a tag the camera never saw (the object had fallen out of view)
+        lost = [name for name, held in zip(ph.hand.names, in_contact, strict=True) if not held]
+        raise PlacementError(
+            f"scenario '{built.scenario.name}': the grasp did not hold the {ph.obj.name}: "
+            + (f"{', '.join(lost)} lost it" if lost else "every pad touches it")
+            + f", and it moved {1e3 * shift:.1f} mm from its placement in the grasp's {settle_sec:.2f} s settle "
+            f"(check the grasp's placement and the physics' pretension)")
+    return {"theta_placed": np.asarray(theta0), "command": l, "in_contact": in_contact}
 
 
 # -- diagram pictures ----------------------------------------------------------------------

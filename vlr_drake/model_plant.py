@@ -40,6 +40,17 @@ class ModelPlant:
         truth carries the links' weight and an object's weight at its contacts (motion.move's
         gravity loads); default: none (Eq. 9, the paper's model)."""
         self.hand = hand
+        if object_load is not None and gravity is None:
+            raise ValueError("model plant: an 'object_load' needs the 'gravity' that weighs it (3,) [m/s^2]")
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"model plant: 'rng' must be a numpy Generator (np.random.default_rng(seed)), "
+                            f"got {type(rng).__name__}")
+        R_PO, t_PO = np.asarray(R_PO, float), np.asarray(t_PO, float)
+        if R_PO.shape != (3, 3) or t_PO.shape != (3,) or not (np.isfinite(R_PO).all() and np.isfinite(t_PO).all()):
+            raise ValueError(f"model plant: the POM pose must be a finite R_PO (3, 3) and t_PO (3,), got shapes "
+                             f"{R_PO.shape} and {t_PO.shape}")
+        if not observation.is_rotation(R_PO):
+            raise ValueError(f"model plant: 'R_PO' is not a rotation matrix: {np.round(R_PO, 6).tolist()}")
         self.loads = {} if gravity is None else {
             "gravity": np.asarray(gravity, float).reshape(3),
             "object_load": None if object_load is None else np.asarray(object_load, float).reshape(1, hand.N)}

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from vlr_drake import motion
+from vlr_drake import motion, observation
 from vlr_drake.hand import HandModel
 from vlr_drake.kinematics import is_count
 
@@ -196,11 +196,11 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     a = np.broadcast_to(np.asarray(a, float), (P, N)).copy()
     R = np.broadcast_to(np.asarray(R, float), (P, 3, 3)).copy()
     t = np.broadcast_to(np.asarray(t, float), (P, 3)).copy()
-    with np.errstate(invalid="ignore"):  # a NaN pose fails its hypothesis in the kernel
-        off = np.abs(np.einsum("pji,pjk->pik", R, R) - np.eye(3)).max(axis=(1, 2))
-    if np.any(off > 1e-6) or np.any(np.linalg.det(R[off <= 1e-6]) < 0):
+    finite = np.isfinite(R).all(axis=(1, 2))  # a NaN pose fails its hypothesis in the kernel
+    turned = observation.is_rotation(R[finite])
+    if not turned.all():
         raise ValueError(f"move_rolling: 'R' must hold rotations (R^T R = I, det +1); hypothesis "
-                         f"{int(np.flatnonzero((off > 1e-6) | (np.linalg.det(R) < 0))[0])} is not one")
+                         f"{int(np.flatnonzero(finite)[np.argmin(turned)])} is not one")
     nrm = np.broadcast_to(np.asarray(normals, float), (P, N, 3))
     size = np.linalg.norm(nrm, axis=-1, keepdims=True)
     if not np.all(np.isfinite(size) & (size > 0)):
