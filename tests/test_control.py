@@ -605,6 +605,18 @@ def test_control_step_and_limit_action_refuse_non_finite_values(grasp):
         control.limit_action(grasp.hand, l0, np.full(3, np.nan))  # np.clip keeps NaN
     with pytest.raises(ValueError, match="l_now"):
         control.limit_action(grasp.hand, np.full(3, np.nan), np.zeros(3))
+    # NaN limits had passed through the clamps into the commands; inverted ones had been a
+    # window of one point
+    rng = grasp.hand.tendon_range
+    for bad in (np.full((3, 2), np.nan), rng[:, ::-1]):
+        with pytest.raises(ValueError, match="'limits' must be .* lower <= upper"):
+            control.limit_action(grasp.hand, l0, np.zeros(3), bad)
+    np.testing.assert_array_equal(control.tendon_limits(grasp.hand, np.column_stack([np.full(3, -np.inf), rng[:, 1]])),
+                                  rng)  # +-inf: no limit on that side
+    for unit in ("position_unit", "rotation_unit"):
+        for v in (np.nan, 0.0, -1.0):
+            with pytest.raises(ValueError, match=f"'{unit}' must be a positive finite number"):
+                control.row_weights("full", 1.0, **{"position_unit": 1e-3, "rotation_unit": 0.01, unit: v})
 
 
 def test_servo_refuses_a_non_finite_goal_before_moving(grasp):
@@ -839,6 +851,9 @@ def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a
     c.enabled_input_port().FixValue(cx, [0.0])  # the goals not anchored yet (a lost frame): still waiting
     c.ExecuteForcedEvents(cx)
     assert np.array_equal(c.tendon_command_output_port().Eval(cx), applied)
+    c.enabled_input_port().FixValue(cx, [np.nan])  # had been read as enabled, and a full step taken
+    with pytest.raises(ValueError, match="controller: input 'enabled' must be 0 or 1"):
+        c.ExecuteForcedEvents(cx)
     c.enabled_input_port().FixValue(cx, [1.0])
     for _ in range(5):  # a far goal: the steps pile up against the window about the start
         c.ExecuteForcedEvents(cx)

@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -35,7 +36,9 @@ def test_font_covers_a_to_z_and_scales():
         assert pts[:, 1].max() - pts[:, 1].min() == pytest.approx(12e-3, rel=0.15)
         assert np.abs(pts).max() <= 12e-3
         for s in strokes:
-            assert np.all(np.linalg.norm(np.diff(s, axis=0), axis=1) <= 0.5e-3 + 1e-12)
+            step = np.linalg.norm(np.diff(s, axis=0), axis=1)
+            # no waypoint twice in a row (B, D, P and R had one where an arc starts on a line's end)
+            assert np.all(step <= 0.5e-3 + 1e-12) and np.all(step > 1e-9), c
     assert font.word_letters("sci ence") == list("SCIENCE")
     with pytest.raises(ValueError, match="A-Z"):
         font.word_letters("R2D2")
@@ -148,6 +151,25 @@ def test_writing_stops_scoring_where_the_object_fell(monkeypatch):
     assert r["object_fell"] and not r["success"]
     assert r["waypoints"] > 0 and r["waypoints_unscored"] > 0
     assert r["position_error_mm"]["max"] < 5.0  # no sample of the fallen object
+
+
+@pytest.mark.parametrize("falls_after", [0, 5])
+def test_writing_a_fall_before_a_waypoint_or_a_stroke_keeps_the_result(monkeypatch, tmp_path, falls_after):
+    """A fall before any waypoint was scored (the first pen-up move) had ended the run in
+    np.max of no drift, and one part-way through a letter of several strokes in the plot's
+    pairing of every target stroke with the strokes tried: the result and its plot are kept."""
+    checks = [0]
+
+    def fell(tp):
+        checks[0] += 1
+        return checks[0] > falls_after
+
+    monkeypatch.setattr(common, "object_fell", fell)
+    r = write.run_write("X", seed=0, progress=False, out=str(tmp_path))
+    assert r["object_fell"] and not r["success"] and r["waypoints_unscored"] > 0
+    assert (r["waypoints"] == 0) == (falls_after == 0)
+    assert (r["pom_rotation_drift_deg_max"] is None) == (falls_after == 0)
+    assert all(Path(p).is_file() for p in r["plots"])
 
 
 def test_a_pen_the_model_cannot_move_writes_nothing(monkeypatch):

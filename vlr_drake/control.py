@@ -236,8 +236,9 @@ def row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: fl
     alpha/rotation_unit on the rotation rows, 0 on the rows ``rows`` does not control."""
     if rows not in ROWS:
         raise ValueError(f"'rows' must be one of {ROWS}, got '{rows}'")
-    if not (np.isfinite(alpha) and alpha > 0):
-        raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
+    for name, v in (("alpha", alpha), ("position_unit", position_unit), ("rotation_unit", rotation_unit)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"'{name}' must be a positive finite number, got {v}")
     w = np.concatenate([np.full(3, 1.0 / position_unit), np.full(3, alpha / rotation_unit)])
     if rows == "position":
         w[3:] = 0.0
@@ -338,12 +339,17 @@ def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
 
 
 def tendon_limits(hand: HandModel, limits=None) -> np.ndarray:
-    """(N, 2) command limits: ``limits`` intersected with ``hand.tendon_range``."""
+    """(N, 2) command limits: ``limits`` intersected with ``hand.tendon_range`` (+-inf for no
+    limit on that side). NaN limits, or a lower above an upper one, are a ValueError (NaN had
+    passed through the clamps into the commands)."""
     if limits is None:
         return hand.tendon_range.copy()
     limits = np.asarray(limits, float)
     if limits.shape != (hand.N, 2):
         raise ValueError(f"'limits' must have shape ({hand.N}, 2), got {limits.shape}")
+    if np.any(np.isnan(limits)) or np.any(limits[:, 0] > limits[:, 1]):
+        raise ValueError(f"'limits' must be (lower, upper) pairs with lower <= upper [m], no NaN, got "
+                         f"{limits.tolist()}")
     lo = np.maximum(limits[:, 0], hand.tendon_range[:, 0])
     hi = np.minimum(limits[:, 1], hand.tendon_range[:, 1])
     return np.column_stack([lo, np.maximum(lo, hi)])

@@ -58,13 +58,18 @@ LETTERS: dict[str, list[list[tuple[float, float]]]] = {
 
 
 def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
-    """Points along a polyline (M, 2) at most ``spacing`` apart, keeping every vertex."""
+    """Points along a polyline (M, 2) at most ``spacing`` apart, keeping every vertex once (a
+    vertex repeated, as where an arc starts on a line's last point, had been a waypoint
+    written and scored twice)."""
     if not (np.isfinite(spacing) and spacing > 0):
         raise ValueError(f"'spacing' must be a positive finite number [m], got {spacing}")
     polyline = np.asarray(polyline, float)
     out = [polyline[0]]
     for p, q in zip(polyline[:-1], polyline[1:], strict=True):
-        n = max(1, int(np.ceil(np.linalg.norm(q - p) / spacing)))
+        d = np.linalg.norm(q - p)
+        if d <= 1e-9 * spacing:  # the same point again
+            continue
+        n = max(1, int(np.ceil(d / spacing)))
         out.extend(p + (q - p) * (k / n) for k in range(1, n + 1))
     return np.array(out)
 

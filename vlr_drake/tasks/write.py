@@ -266,10 +266,11 @@ def run_write(
                 d = t_true - t_home
                 path.append([d @ x, d @ y])
                 bar.update(1)
-            paths.append(np.array(path))
+            paths.append(np.array(path).reshape(-1, 2))
             if common.object_fell(tp):
                 break
-        letters_out.append((c, [center2 + s for s in strokes], paths))
+        # the strokes tried (all but those after a fall), each with its written path
+        letters_out.append((c, [center2 + s for s in strokes[:len(paths)]], paths))
         if common.object_fell(tp):
             break
         # the arm moves the paper; the hand goes back to the grasp command
@@ -306,7 +307,7 @@ def run_write(
         "waypoints_unscored": int(total_wp - wp_err.size),
         "control_iterations": int(iterations),
         "measured_position_error_mm": common.stats(wp_err_meas, 1e3),
-        "pom_rotation_drift_deg_max": float(np.max(rot_drift)),
+        "pom_rotation_drift_deg_max": float(np.max(rot_drift)) if rot_drift else None,  # None: none scored
         "servo_failures": failures,
         "writing_plane": {"x": x.tolist(), "y": y.tolist(), "normal": n.tolist()},
         "paper_position_error_mm": {"mean": 0.42, "sd": 0.34},
