@@ -731,6 +731,39 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
     assert main(["replay", str(afile), "--json", str(afile)]) == 2
     assert f"--json {afile} is the trace {afile} too" in capsys.readouterr().err
     assert not list(tmp_path.glob("**/*.json")) and afile.read_text() == "x"
+    # a trace named as the run's default JSON, or a --json named as one of its plots (each had
+    # been written over by the run's own file); --stuck-probability against --filter's (the
+    # --filter had won without a word)
+    out = tmp_path / "out"
+    for argv, said in [(["--trace", str(out / "identify_known_hand_model_seed0.json")], "is the run's result JSON"),
+                       (["--json", str(out / "known_hand_model_seed0_proximal.png")], "is the run's proximal plot"),
+                       (["--stuck-probability", "0.5", "--filter", "stuck_probability=0"], "set the same thing")]:
+        assert main(["identify", "--plant", "model", "--out", str(out), "--no-progress", *argv]) == 2
+        assert said in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_failed_draw_of_identify_draws_keeps_the_run(tmp_path, monkeypatch, capsys):
+    """``identify --draws K`` pools after the run's trace and JSON are written: a draw that
+    fails is said, and the run is kept (it had ended the command with neither written)."""
+    import vlr_drake.trace as tr
+
+    real, calls = tr.replay, [0]
+
+    def second_fails(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise ValueError("filter: a draw that fails")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tr, "replay", second_fails)
+    trace, result = tmp_path / "t.npz", tmp_path / "r.json"
+    assert main(["identify", "--plant", "model", "--particles", "500", "--iterations", "4", "--draws", "3",
+                 "--trace", str(trace), "--json", str(result), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    r = json.loads(result.read_text())
+    assert trace.is_file() and r["iterations"] == 4 and r["draws"] == 3
+    assert r["pooled"]["reason"].startswith("a draw of the filter failed: ValueError: filter: a draw that fails")
+    assert "no pooled estimate" in capsys.readouterr().err
 
 
 def test_json_has_no_nan_or_infinity(tmp_path):

@@ -76,6 +76,13 @@ def test_evidence_profile_favours_the_true_spring_and_link():
     assert rows[1]["errors"]["link_length_error_mm"] is None  # the profiled link is no longer identified
 
 
+def ideal_offset(path) -> float:
+    """The statics profile's offset at 0.1 N m/rad of the trace at ``path`` with the ideal tendon."""
+    trace = IdentificationTrace.load(path)
+    return statics_profile(trace, "stiffness", [0.1], config=dataclasses.replace(trace.filter, tendon="ideal"))[0][
+        "offset_deg"]
+
+
 def test_statics_profile_is_zero_at_the_truth_on_the_model_plant():
     """On the model plant the truth is the VLR moved by Gamma under the motors' commands, so
     its commanded equilibrium is the true state itself at the true spring or link, and
@@ -361,9 +368,15 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--statics", "--prior",
                  "proximal_half_width=0.02"]) == 2
     assert "--prior is for a replay or an evidence profile: a statics profile runs no filter" in capsys.readouterr().err
-    ideal = statics_profile(IdentificationTrace.load(path), "stiffness", [0.1],
-                            config=dataclasses.replace(IdentificationTrace.load(path).filter, tendon="ideal"))
-    assert ideal[0]["offset_deg"] != r["statics"][0]["offset_deg"]
+    # nor the filter settings it does not read, nor another draw (they had been recorded as applied)
+    for extra, said in ((["--filter", "particles=50000"], "reads only tendon and max_substeps"),
+                        (["--filter-seed", "7"], "--filter-seed is for a replay")):
+        assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--statics", *extra]) == 2
+        assert said in capsys.readouterr().err
+    assert main(["replay", str(path), "--profile", "stiffness", "--values", "0.1", "--statics", "--filter",
+                 "tendon=ideal", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["runs"][0]["statics"][0]["offset_deg"] == ideal_offset(path)
+    assert ideal_offset(path) != r["statics"][0]["offset_deg"]
     assert main(["replay", str(path), "--statics"]) == 2
     assert "--statics needs --profile" in capsys.readouterr().err
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2

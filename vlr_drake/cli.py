@@ -256,6 +256,9 @@ def _config_flags(args, opts) -> None:
         key = item.partition("=")[0]
         if key in RUN_SET_FILTER:
             raise ValueError(f"--filter '{item}': the run sets '{key}' itself; use {RUN_SET_FILTER[key]}")
+        if key == "stuck_probability" and getattr(args, "stuck_probability", None) is not None:
+            raise ValueError(f"--filter '{item}' and --stuck-probability {args.stuck_probability} set the same "
+                             "thing: give one (the --filter had won without a word)")
     if getattr(args, "filter", None):
         opts.filter = config_overrides(opts.filter, args.filter, "--filter")
     if getattr(args, "prior", None):
@@ -360,24 +363,51 @@ def identify(args) -> dict:
     out = Path(args.out)
     name = options_run_name(opts)
     stem = f"identify_{name}"
+    path = args.json or str(out / f"{stem}.json")
+    _check_run_files(args, path, out / name)
     meshcat = _meshcat(args)
     on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
     result = run_identification(opts, on_iteration=on_iteration)
     print_summary(result)
     result["draws"] = draws = getattr(args, "draws", 1)  # (the demo's identification has one)
-    if draws > 1:
-        result["pooled"] = pool_run_draws(result["_trace"], draws, progress=not args.no_progress)
     if finish is not None:
         result["recording"] = str(finish())
     if getattr(args, "trace", None):
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
-    path = args.json or str(out / f"{stem}.json")
     if not args.json:
         note_replaced(path, result, IDENTIFY_SETTINGS)
-    write_json(result, path)  # first: the result is kept whatever the plots do
+    write_json(result, path)  # first: the run is kept whatever the pooling and the plots do
+    if draws > 1:  # K times the filter's time, offline: after the run's own result is written
+        try:
+            result["pooled"] = pool_run_draws(result["_trace"], draws, progress=not args.no_progress)
+        except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError) as e:
+            result["pooled"] = {"reason": f"a draw of the filter failed: {type(e).__name__}: {e}"}
+            print(f"vlr-drake identify: warning: no pooled estimate ({result['pooled']['reason']}); the run's own "
+                  "result is kept", file=sys.stderr)
+        write_json(result, path)
     _plots(result, out / name)
     return result
+
+
+#: The plots an identification run may write, ``<out>/<run name>_<what>.png`` (:func:`_plots`).
+PLOT_KINDS = ("proximal", "contacts", "convergence", "stiffness", "links")
+
+
+def _check_run_files(args, json_path: str, stem: Path) -> None:
+    """Refuse a ``--trace`` or ``--json`` that the run's own files would overwrite (or the
+    other way round): the result's JSON (``--json``, else its default in ``--out``) and the
+    plots ``<stem>_<what>.png``. (A trace named as the default JSON had been written over by
+    it, and a ``--json`` named as a plot by the plot.)"""
+    plots = {(stem.parent / f"{stem.name}_{kind}.png").resolve(): kind for kind in PLOT_KINDS}
+    trace = getattr(args, "trace", None)
+    if trace and Path(trace).resolve() == Path(json_path).resolve():
+        raise ValueError(f"--trace {trace} is the run's result JSON too: one would be written over the other "
+                         "(name another file, or give --json)")
+    for flag, given in (("--trace", trace), ("--json", args.json)):
+        if given and Path(given).resolve() in plots:
+            raise ValueError(f"{flag} {given} is the run's {plots[Path(given).resolve()]} plot: the plot would be "
+                             "written over it")
 
 
 def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
@@ -414,7 +444,14 @@ def replay_trace(args) -> dict:
     several traces the table's rows (mean +- SD of the paper's measures); or, with
     ``--profile``, each trace's evidence profile over ``--values``."""
     from vlr_drake.scenario import config_overrides
-    from vlr_drake.trace import IdentificationTrace, draw_seed, evidence_profile, replay, statics_profile
+    from vlr_drake.trace import (
+        STATICS_FILTER_KEYS,
+        IdentificationTrace,
+        draw_seed,
+        evidence_profile,
+        replay,
+        statics_profile,
+    )
 
     if args.profile is None and args.values is not None:
         raise ValueError("--values needs --profile")
@@ -511,8 +548,16 @@ def replay_trace(args) -> dict:
                     _measure(pooled_measured, i, meta, errors, by_plant)
                 draws_of = []
         elif args.statics:
-            if args.prior:  # it runs no filter: said, not recorded as applied
+            # it runs no filter: what only a filter reads is said, not recorded as applied
+            if args.prior:
                 raise ValueError("--prior is for a replay or an evidence profile: a statics profile runs no filter")
+            if args.filter_seed is not None:
+                raise ValueError("--filter-seed is for a replay or an evidence profile: a statics profile runs no "
+                                 "filter")
+            unused = [item for item in args.filter or [] if item.partition("=")[0] not in STATICS_FILTER_KEYS]
+            if unused:
+                raise ValueError(f"--filter {' '.join(unused)}: a statics profile runs no filter and reads only "
+                                 f"{' and '.join(STATICS_FILTER_KEYS)}")
             rows = statics_profile(trace, args.profile, values, config)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
             print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
@@ -547,7 +592,10 @@ def replay_trace(args) -> dict:
                       f"(the sample SD over a trace's draws, few as they are, mean over the traces)")
     pooled_table = {row: _replay_row(v, 1) for row, v in pooled_measured.items()}
     if len(pooled) > 1 and pooled_table:
-        print(f"rows of the pooled estimates (mean +- SD over the traces, each its {args.draws} draws' mixture):")
+        left = [p["trace"] for p in pooled if "reason" in p]
+        print(f"rows of the pooled estimates (mean +- SD over the traces, each its {args.draws} draws' mixture"
+              + (f"; {len(left)} of {len(pooled)} traces could not be pooled: {', '.join(left)}" if left else "")
+              + "):")
         for row, t in pooled_table.items():
             print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} traces; truth inside "
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")

@@ -497,6 +497,10 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
     raise ValueError(f"{what}: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
 
 
+#: The filter settings a statics profile reads (:func:`statics_profile`; it runs no filter).
+STATICS_FILTER_KEYS = ("tendon", "max_substeps")
+
+
 def statics_profile(trace: IdentificationTrace, parameter: str, values,
                     config: pf.FilterConfig | None = None) -> list[dict]:
     """How the VLR with one hand parameter set to each of ``values`` agrees with the plant's
