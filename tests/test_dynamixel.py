@@ -456,6 +456,14 @@ def test_a_motor_turned_while_off_is_reported_and_a_bad_record_replaced(emulator
         assert "motor id 2 reads 1200 ticks, +0.37 turns" in motors.record_findings[0]
     assert "turned while its torque was off" in caplog.text
     assert json.loads(record.read_text())["ticks"]["2"] == 1200
+    # a reset turn count and a finger that sprang back (-1.07 turns): refused as a lost turn is
+    # (it had only been warned about, and the run had started 31 mm of tendon off)
+    emulator.set_present_position(2, 1200 - 4096 - 300)
+    with pytest.raises(DynamixelError, match=r"motor id 2 reads -3196 ticks, -1.07 turns .* half a turn or more"):
+        make_motors(emulator, record_path=record).open()
+    assert not any(emulator.torque_enabled(i) for i in IDS)
+    assert json.loads(record.read_text())["ticks"]["2"] == 1200  # kept: refused again until zeroed
+    emulator.set_present_position(2, 1200)
     record.write_text("{not json")
     with make_motors(emulator, record_path=record) as motors:
         assert motors.torque_on and "cannot be read" in motors.record_findings[0]

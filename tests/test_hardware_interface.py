@@ -230,6 +230,7 @@ def test_tendon_limits_may_narrow_the_hand_s_range_not_widen_it():
         ("max_tendon_speed", 0.05),  # 2.5 mm per 50 ms update
         ("start_tolerance_ticks", 100_000),  # 767 mm of tendon clamped in one jump at start
         ("zero_offset_ticks", [2_000_000, 0, 0]),  # past the motors' multi-turn range
+        ("camera_mode", "sequential"),  # a device read in order: a timed-out frame came late as fresh
     ],
 )
 def test_config_validate_names_bad_field(field, value):
@@ -454,6 +455,7 @@ def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
         step = hw.config.max_tendon_speed * hw.config.period_s
         updates = int(np.ceil(np.max(np.abs(command - sent0)) / step - 1e-9))
         assert updates >= 3
+        begun = time.monotonic()
         for k in range(1, updates + 1):
             hw.ExecuteForcedEvents(ctx)
             emulator.wait_idle()
@@ -466,6 +468,9 @@ def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video):
                 rgba = np.asarray(image.data)
                 assert rgba[..., 3].min() == 255 and rgba[..., :3].max() > 150  # a real frame
         assert [emulator.goal_position(i) for i in IDS] == expected_ticks(command)
+        # updates run back to back, as a Simulator that fell behind real time runs them: each
+        # send waits out period_s, so the ramp is a speed (each had sent a full step at once)
+        assert time.monotonic() - begun >= 0.95 * (updates - 1) * hw.config.period_s
         assert hw.num_ramped == updates - 1  # the last update sends the command itself
         assert np.allclose(hw.get_tendon_position_measured_output_port().Eval(ctx), command, atol=1e-5)
     finally:

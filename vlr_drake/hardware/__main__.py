@@ -112,7 +112,9 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
         )
     except (FileNotFoundError, RuntimeError) as e:
         print(f"calibration: {e}", file=out)
-    with FrameSource(config.camera, config.camera_timeout_s, mode=config.camera_mode,
+    # the size a run asks the device for (a device left at another size had been reported as a
+    # mismatch here, while a run got the calibrated one)
+    with FrameSource(config.camera, config.camera_timeout_s, expected_size=size, mode=config.camera_mode,
                      max_age_s=config.camera_max_frame_age_s) as cam:
         shapes = set()
         for _ in range(a.frames):

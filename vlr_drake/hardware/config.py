@@ -209,6 +209,11 @@ class HardwareConfig:
             raise ValueError(
                 f"{where}: 'camera_mode' must be auto, sequential or latest, got {self.camera_mode!r}"
             )
+        if self.camera_mode == "sequential" and not (isinstance(self.camera, str) and Path(self.camera).is_file()):
+            # a live camera read in order hands over frames that waited in its buffer, and one
+            # that timed out as the next read's fresh frame (a review: 0.8 s old, reported valid)
+            raise ValueError(f"{where}: 'camera_mode' sequential is for a video file; camera {self.camera!r} is a "
+                             "device or a stream: use latest (or auto)")
         for name in ("camera_timeout_s", "camera_max_frame_age_s", "latency_timer_ms", "period_s", "current_unit_a", "max_tendon_speed",
                      "grasp_tolerance", "grasp_timeout_s"):
             v = getattr(self, name)

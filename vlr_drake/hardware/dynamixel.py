@@ -348,16 +348,26 @@ class TendonMotors:
                 f"motor id {i} reads {now} ticks, {turns:+d} turn{'s' if abs(turns) > 1 else ''} from the {last} "
                 f"where the last run left it ({when}): a power cycle or a reboot reset its multi-turn count, so "
                 "zero_offset_ticks is wrong by those turns; measure it again (python -m vlr_drake.hardware zero)")
-        for i, now, last, turns in moved:
+        # Half a turn or more from the record is refused as a lost turn is: a power cycle and a
+        # finger that sprang back after torque off read as -1.07 turns, which had only been
+        # warned about, and the run had started a turn (31 mm of tendon) off (a review).
+        far = [m for m in moved if abs(m[3]) >= 0.5]
+        for i, now, last, turns in far:
             self.record_findings.append(
                 f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
-                f"({when}): turned while its torque was off, so its turn count cannot be checked")
-            log.warning(self.record_findings[-1])
-        if lost:
+                f"({when}): half a turn or more, so a power cycle or a reboot may have reset its multi-turn count "
+                "and it moved as well; measure zero_offset_ticks again (python -m vlr_drake.hardware zero)")
+        for i, now, last, turns in moved:
+            if abs(turns) < 0.5:
+                self.record_findings.append(
+                    f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
+                    f"({when}): turned while its torque was off (less than half a turn: its turn count holds)")
+                log.warning(self.record_findings[-1])
+        if lost or far:
             self._record_trusted = False
             if refuse:
-                raise DynamixelError("; ".join(self.record_findings[:len(lost)]) + f" (record: {self.record_path}). "
-                                     "Torque stays off.")
+                raise DynamixelError("; ".join(self.record_findings[:len(lost) + len(far)])
+                                     + f" (record: {self.record_path}). Torque stays off.")
 
     def accept_positions(self) -> None:
         """Take the present positions as right (they were just zeroed): :meth:`close` records

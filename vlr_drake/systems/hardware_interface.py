@@ -14,7 +14,11 @@ has the simulated hand's ports plus the camera's:
 A periodic unrestricted update (``config.period_s``) clips the command to the tendon limits
 (the config's or the hand's ``tendon_range``), moves it at most ``config.max_tendon_speed``
 x ``period_s`` from the command sent before (so the grasp's first command is a ramp from
-where the motors start, not a jump), converts it to motor ticks
+where the motors start, not a jump), and never sends sooner than ``period_s`` of real time
+after the last send (it waits out the rest): a Simulator that fell behind real time (a slow
+filter, a stalled camera) runs its missed updates back to back, which had sent a full step
+each, 19 mm in 113 ms against the 20 mm/s limit, and had taken the measurement 0.9 T after
+an action a few milliseconds after it (a review). It then converts the command to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
 positions with one sync read, and takes a camera frame (a device or stream: the newest frame
 if it is fresher than ``config.camera_max_frame_age_s``, without waiting; a video file: the
@@ -174,6 +178,7 @@ class HardwareInterface(LeafSystem):
         self.num_updates = 0
         self.num_clipped = 0
         self.num_ramped = 0
+        self._last_send: float | None = None  # time.monotonic() of the last goal sent to the motors
 
     # --- the camera's calibration, for the AprilTag observer ----------------------------------
     def camera_matrix(self) -> np.ndarray:
@@ -223,6 +228,14 @@ class HardwareInterface(LeafSystem):
         state.get_mutable_discrete_state(self._sent_index).set_value(sent)
         log.info("hardware interface started: tendons %s m", np.round(l, 5))
 
+    def _pace(self) -> None:
+        """Wait until ``period_s`` of real time has passed since the last send, so that the
+        ramp's step per update is a speed (``max_tendon_speed``) whatever the Simulator does."""
+        if self._last_send is not None:
+            wait = self.config.period_s - (time.monotonic() - self._last_send)
+            if wait > 0:
+                time.sleep(wait)
+
     def _ramped(self, command: np.ndarray, last: np.ndarray) -> np.ndarray:
         """``command`` moved at most ``max_tendon_speed * period_s`` from ``last`` [m]."""
         step = self.config.max_tendon_speed * self.config.period_s
@@ -237,7 +250,9 @@ class HardwareInterface(LeafSystem):
         updates, start, arrived = 0, time.monotonic(), None
         while True:
             sent = self._ramped(target, sent)
+            self._pace()
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
+            self._last_send = time.monotonic()
             ticks, _ = self.motors.read()
             l = self.motor_map.to_tendon(ticks)
             updates += 1
@@ -246,8 +261,7 @@ class HardwareInterface(LeafSystem):
                 arrived = time.monotonic()
             reached = arrived is not None and off <= cfg.grasp_tolerance
             if reached or (arrived is not None and time.monotonic() - arrived >= cfg.grasp_timeout_s):
-                break
-            time.sleep(cfg.period_s)
+                break  # (the next send waits out period_s: _pace)
         self.grasp_report = {"updates": updates, "seconds": time.monotonic() - start, "largest_offset_m": off,
                              "reached": reached}
         if not reached:
@@ -271,7 +285,9 @@ class HardwareInterface(LeafSystem):
             ramped = self._ramped(sent, last)
             self.num_ramped += bool(np.any(ramped != sent))
             sent = ramped
+            self._pace()
             self.motors.write_goal_ticks(self.motor_map.to_ticks(sent))
+            self._last_send = time.monotonic()
             ticks, current = self.motors.read()
             ok, frame = self.camera.read()
             rgba = _to_rgba(frame) if ok else self._blank
