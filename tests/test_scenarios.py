@@ -417,6 +417,11 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("prior: {object_mass: -0.028}\n", "prior: object_mass must be the object's weighed mass"),
         ("prior: {object_mass: 0.028, object_mass_tolerance: 1.5}\n", "object_mass_tolerance must be a fraction"),
         ("plant: model\nfilter: {gravity_palm: [0.0, 0.0, 9.81]}\n", "'gravity_palm' is a hardware hand's"),
+        # what `vlr-drake identify --scenario` refuses, the builder had built and run (a review)
+        ("plant: model\nexploration: {span: 0.005, window: 0.001}\n", "must be in (0, window]"),
+        ("plant: model\nexploration: {squeeze: 0.001}\n", "squeeze_range must be in (0, squeeze_window]"),
+        ("link_weight: false\nprior: {object_mass: 0.068}\n", "needs link_weight"),
+        ("prior: {object_mass: 0.068}\nfilter: {gravity_loads: held}\n", "needs filter gravity_loads 'following'"),
         ("plant: hardware\n", "hardware"),  # plant hardware without its section
         (
             "plant: hardware\nhardware: {motor_ids: [1, 2, 3], calibration_file: nowhere/intrinsics.yaml}\n",
@@ -475,6 +480,12 @@ def test_what_a_plant_does_not_use_is_named(tmp_path: Path):
     assert ignored_by_identify(m, "physics") == []  # run on the physics plant instead: it takes both
     with pytest.warns(UserWarning, match="the model plant does not use camera, physics"):
         build_diagram(m)
+    with pytest.warns(UserWarning, match="the model plant does not use meshcat"):  # it shows the physics plant only
+        build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "meshcat: true\n"))
+    # a filter setting that does not fit the hand or the prior is said when the diagram is built
+    # (the filter is made at the first measurement: the run had stopped, blaming the camera)
+    with pytest.raises(ValueError, match="normal_guess 'circle' is the rolling model's"):
+        build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "filter: {normal_guess: circle}\n"))
     for path in sorted(DIAGRAMS_DIR.glob("*.yaml")):  # the examples set nothing their plant ignores
         assert ignored_by_plant(load_scenario(path)) == [], path
 

@@ -188,6 +188,13 @@ def wire_identification(
                 builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
 
 
+def _motor_limits(s: Scenario) -> np.ndarray | None:
+    """(N, 2) [m]: a hardware hand's motor limits (``hardware.tendon_lower`` / ``tendon_upper``,
+    within the hand's range and possibly narrower), which the exploration and the controller
+    keep to; None on the other plants."""
+    return np.column_stack(s.hardware.tendon_limits(s.hand_spec_resolved())) if s.plant == "hardware" else None
+
+
 def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: float, window: float) -> dict:
     """The control section's systems, added by name: ``command_switch`` (a PortSwitch of the
     exploration's and the controller's commands), its ``control_phase`` selector (the
@@ -207,8 +214,7 @@ def _add_control(builder: DiagramBuilder, s: Scenario, h: HandModel, l0, T: floa
     builder.Connect(phase.get_output_port(), switch.get_port_selector_input_port())
     l0 = np.asarray(l0, float)
     w = window if c.window_mm is None else 1e-3 * c.window_mm
-    # hardware: also within the motors' limits, which may be narrower than the hand's range
-    limits = np.column_stack(s.hardware.tendon_limits(s.hand_spec_resolved())) if s.plant == "hardware" else None
+    limits = _motor_limits(s)  # hardware: also within the motors' limits
     controller = builder.AddNamedSystem("controller", JacobianController(
         h, l0, T, offset_sec=0.05 * T, rows=c.rows, damping=c.damping, clip=1e-3 * c.clip_mm,
         tol_position=1e-3 * c.tol_position_mm,
@@ -344,6 +350,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     """
     s = scenario.validate()
     ignored = ignored_by_plant(s)
+    if s.plant != "physics" and (s.meshcat or meshcat is not None):  # the diagram shows the physics plant only
+        ignored.append("meshcat")  # (`vlr-drake identify` draws the model plant's hypotheses in it)
     if ignored:  # said, not silently dropped
         warnings.warn(f"scenario '{s.name}': the {s.plant} plant does not use {', '.join(ignored)}", stacklevel=2)
     spec = s.hand_spec_resolved()
@@ -401,7 +409,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> BuiltDi
     span, window = s.exploration.span_and_window(s.plant)
     squeeze, squeeze_window = s.exploration.squeeze_and_window(s.plant, s.experiment())
     policy = ExplorationPolicy(h, l0, T, span=span, window=window, seed=s.seed + SEED_POLICY, squeeze=squeeze,
-                               squeeze_window=squeeze_window)
+                               squeeze_window=squeeze_window, limits=_motor_limits(s))  # as the controller
     config = s.filter
     if s.plant != "hardware":  # the links' weight (hardware: the filter section's gravity_palm)
         from vlr_drake.identify import default_link_weight, filter_gravity
@@ -753,6 +761,9 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         d, h = built.diagram, built.hand
         sys_ctx = built.filter.GetMyContextFromRoot(ctx)
         flt = built.filter.filter(sys_ctx)
+        if flt is None and iterations > 0 and stopped:  # it failed before it started: that, not the camera
+            raise ValueError(f"scenario '{scenario.name}': the self-identification never started: the run stopped "
+                             f"at {stopped}")
         if flt is None and iterations > 0:  # the filter starts at the first POM measurement
             raise ValueError(
                 f"scenario '{scenario.name}': the self-identification never started in {iterations} action "

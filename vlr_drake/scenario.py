@@ -278,7 +278,10 @@ class ModelPlantSettings:
     sigma_rotation_deg: float = 0.5
     # Probability that a measurement is lost (the tag not seen).
     dropout: float = 0.0
-    # True joint stiffness per finger [N m/rad] (N lists of K); empty: the hand's.
+    # True joint stiffness per finger [N m/rad] (N lists of K); empty: the hand's in a diagram
+    # (python -m vlr_drake.builder --run), while `vlr-drake identify` of a stiffness scenario
+    # draws the unknown spring's truth from the seed (identify.STIFFNESS_RANGE), on either
+    # plant, as the experiment's trials do.
     stiffness: list[list[float]] = field(default_factory=list)
     # True proximal link lengths per finger [m] (N lists of K-1); empty: the hand's.
     link_lengths: list[list[float]] = field(default_factory=list)
@@ -617,6 +620,12 @@ class Scenario:
                     f"hardware: 'camera_max_frame_age_s' {self.hardware.camera_max_frame_age_s} s lets a frame from "
                     f"before the action count as its measurement: at most {phase:g} T - 2 period_s = {newest:.3g} s "
                     f"(T = {T} s)")
+        else:
+            # One YAML, one run: what `vlr-drake identify --scenario` refuses (an exploration span
+            # past its window, an object's weight without the links', a squeeze on the model
+            # plant, ...) is refused here, for the diagram builder too (a review found such
+            # files built and run by the one and refused by the other).
+            options_from_scenario(self).validate()
         return self
 
 

@@ -36,7 +36,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.control import FALLBACKS
+from vlr_drake.control import FALLBACKS, tendon_limits
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import Exploration
 from vlr_drake.kinematics import checked_flag, checked_offset, checked_period, checked_seed
@@ -104,6 +104,9 @@ class SelfIdentificationSystem(LeafSystem):
         period_sec, offset_sec = _timing(period_sec, offset_sec)
         self._hand, self._config, self._prior, self._seed = hand, config.validate(), prior, checked_seed(seed)
         pf.warn_if_few_particles(self._config)  # now, not at the first measurement mid-run
+        with warnings.catch_warnings():  # the filter's checks of config, prior and hand together, now too
+            warnings.simplefilter("ignore", pf.FewParticlesWarning)  # (a setting that does not fit the hand
+            pf.SelfIdentificationFilter(hand, self._config, prior, np.random.default_rng(0))  # had stopped the run)
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
         self._a_center = pf._shaped("a_center", a_center, (hand.N,))
         n = hand.N * hand.K
@@ -232,6 +235,9 @@ class ExplorationPolicy(LeafSystem):
     uniform draw in +-``span`` per tendon, reflected inside +-``window`` around the initial
     (grasp) commands and inside the tendon range, plus, with ``squeeze`` > 0, a common-mode
     pull of +-``squeeze`` inside +-``squeeze_window`` (see :class:`vlr_drake.identify.Exploration`).
+    ``limits`` (N, 2) [m] narrow the tendon range it stays in (a hardware hand's motor limits,
+    which the interface would clip the commands to: the policy had walked past them while the
+    tendons sat at the limit).
     While its ``enabled`` input, where connected, reads 0 (the filter's ``started``), it holds
     the command and draws nothing: the first action comes once the filter has started.
 
@@ -240,7 +246,7 @@ class ExplorationPolicy(LeafSystem):
     scores proposals against the filter's hypotheses and lives in the identification loop."""
 
     def __init__(self, hand: HandModel, l_grasp, period_sec: float, span: float = 1.5e-3, window: float = 4e-3,
-                 seed: int = 0, squeeze: float = 0.0, squeeze_window: float = 0.0):
+                 seed: int = 0, squeeze: float = 0.0, squeeze_window: float = 0.0, limits=None):
         super().__init__()
         period_sec, _ = _timing(period_sec)
         self._l0 = np.asarray(l_grasp, float)
@@ -250,7 +256,7 @@ class ExplorationPolicy(LeafSystem):
         self._out = self.DeclareStateOutputPort("tendon_command", self._state)
         self._enabled = self.DeclareVectorInputPort(name="enabled", size=1)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=period_sec, offset_sec=period_sec, update=self._update)
-        self._span, self._window, self._range = span, window, hand.tendon_range
+        self._span, self._window, self._range = span, window, tendon_limits(hand, limits)
         self._squeeze = (squeeze, squeeze_window)
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
 
