@@ -188,29 +188,27 @@ def test_systems_refuse_bad_seeds_and_offsets():
         SelfIdentificationSystem(h, pf.FilterConfig(particles=3000), pf.PriorConfig(), th, a, 1.0, offset_sec=5.0)
 
 
+def _commands(policy, n: int) -> np.ndarray:
+    """The policy's first ``n`` commands (n, N), each read half a period after it."""
+    sim = Simulator(policy)
+    out = []
+    for k in range(1, n + 1):
+        sim.AdvanceTo(k + 0.5)
+        out.append(policy.GetOutputPort("tendon_command").Eval(sim.get_context()).copy())
+    return np.array(out)
+
+
 def test_exploration_policy_stays_in_its_window():
     h, th, a = _grasp()
     l0 = np.full(3, 0.015)
-    pol = ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3)
-    sim = Simulator(pol)
-    ls = []
-    for k in range(1, 60):
-        sim.AdvanceTo(k + 0.5)
-        ls.append(pol.GetOutputPort("tendon_command").Eval(sim.get_context()).copy())
-    ls = np.array(ls)
+    ls = _commands(ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3), 59)
     assert np.all(np.abs(ls - l0) <= 4e-3 + 1e-12)
     steps = np.abs(np.diff(ls, axis=0))
     assert steps.max() <= 1.5e-3 + 1e-12 and steps.mean() > 2e-4  # it does explore
     # a hardware hand's motor limits, narrower than the window: kept to (the policy had walked
     # past them, 0.8 mm, while the interface clipped what reached the motors)
     limits = np.column_stack([l0 - 0.4e-3, l0 + 0.4e-3])
-    pol = ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3, limits=limits)
-    sim = Simulator(pol)
-    ls = []
-    for k in range(1, 40):
-        sim.AdvanceTo(k + 0.5)
-        ls.append(pol.GetOutputPort("tendon_command").Eval(sim.get_context()).copy())
-    ls = np.array(ls)
+    ls = _commands(ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3, limits=limits), 39)
     assert np.all((ls >= limits[:, 0] - 1e-12) & (ls <= limits[:, 1] + 1e-12)) and np.ptp(ls, axis=0).min() > 4e-4
 
 
