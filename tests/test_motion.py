@@ -283,16 +283,43 @@ def test_bad_input_is_refused_with_names(model_o_hand):
     # a review: max_iter -1 ran 5,392 iterations, 2.7 was cut to 2; a NaN step cap took uncapped
     # steps; one <= 0, or a negative squared distance, failed every hypothesis without a word
     for kw, name in [({"max_iter": -1}, "max_iter"), ({"max_iter": 2.7}, "max_iter"), ({"max_step": np.nan}, "max_step"),
-                     ({"max_step": 0.0}, "max_step"), ({"D2": -gs.D2}, "D2")]:
+                     ({"max_step": 0.0}, "max_step"), ({"D2": -gs.D2}, "D2"), ({"max_substeps": -3}, "max_substeps"),
+                     ({"max_substeps": 2.5}, "max_substeps"), ({"max_substeps": True}, "max_substeps")]:
         with pytest.raises(ValueError, match=f"'{name}' must be"):
             motion.move(h, gs.theta, np.zeros(3), **{"a": gs.a, "D2": gs.D2, "stretch": gs.stretch, **kw})
     with pytest.raises(ValueError, match="'link_lengths' must be positive"):
         kinematics.contacts(h, gs.theta, gs.a, -np.ones((1, 3, 1)))
     with pytest.raises(ValueError, match="Newton tolerance"):
         motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch, tolerance="sloppy")
+    # link moments of links without their particles' axis had broadcast into N x N fingers
+    for L in (h.link_lengths, h.link_lengths[:, 0]):
+        with pytest.raises(ValueError, match="'link_lengths' must have shape"):
+            h.link_moments(L)
+    with pytest.raises(ValueError, match="'link_lengths' must be finite lengths > 0"):
+        h.link_moments(-h.link_lengths[None])
     with pytest.raises(motion.TendonLimitError, match="finger_left"):
         motion.move(h, gs.theta, [0.0, 0.002, 0.0], a=gs.a, D2=gs.D2, stretch=gs.stretch,
                     l_now=[0.02, h.tendon_range[1, 1] - 0.001, 0.02])
+
+
+def test_overflowing_numbers_fail_rather_than_pass_as_solved(model_o_hand):
+    """Finite inputs that overflow inside Newton (an action of 1e300 m) had come back solved
+    with NaN angles (max(r, nan) is r: their residual read 0), and a division by a zero scale
+    in one lane had dropped its thread's share of the batch, returned as uninitialised memory.
+    They fail, keep their angles, and a single compiled kernel serves every call (read-only
+    arrays, such as the hand's own, had compiled another copy of it, 12-21 s each)."""
+    h = model_o_hand
+    gs = grasps.sample_grasps(h, np.random.default_rng(0), 4)
+    for dl, stretch in ((np.full(3, 1e300), gs.stretch), (np.zeros(3), np.full((4, 3), 1e300))):
+        r = motion.move(h, gs.theta, dl, a=gs.a, D2=gs.D2, stretch=stretch, check_stability=False)
+        assert not r.ok.any()
+        np.testing.assert_array_equal(r.theta, gs.theta)
+    motion.move(h, gs.theta, np.zeros(3), a=gs.a, D2=gs.D2, stretch=gs.stretch,
+                stiffness=h.stiffness[None].copy(), external_torque=np.zeros((1, 3, 2)))
+    motion.move(h, gs.theta[:1], np.zeros(3), a=gs.a[:1], D2=gs.D2[:1], stretch=gs.stretch[:1])
+    particle_arguments = (0, 1, 2, 3, 4, 5, 6, 11)  # theta, stretch, dl, a, links, springs, D2, rest angles
+    for sig in motion._move_kernel.signatures:
+        assert not any("readonly" in str(sig[i]) for i in particle_arguments), sig
 
 
 @pytest.mark.parametrize("tendon", ["elastic", "ideal"])

@@ -346,6 +346,8 @@ class HandModel:
         theta = np.asarray(theta, float)
         if theta.ndim != 3 or theta.shape[1:] != (self.N, self.K):
             raise ValueError(f"'theta' must have shape (P, {self.N}, {self.K}), got {theta.shape}")
+        if not np.all(np.isfinite(theta)):
+            raise ValueError("'theta' contains NaN or infinite values")
         mu = self.link_moments(link_lengths)
         phi = np.cumsum(theta, axis=-1)
         g_u, g_z = self.gravity_in_finger_planes(gravity).T
@@ -358,6 +360,12 @@ class HandModel:
         own mass at its middle and the mass of the links beyond it at its end
         (:meth:`link_weight_torque`)."""
         L = self.link_lengths[None] if link_lengths is None else np.asarray(link_lengths, float)
+        # (an (N, K-1) array without its particles' axis had broadcast into N x N fingers, and a
+        # (K-1,) one had given every finger the same links)
+        if L.ndim != 3 or L.shape[1:] != (self.N, self.K - 1):
+            raise ValueError(f"'link_lengths' must have shape (P or 1, {self.N}, {self.K - 1}), got {L.shape}")
+        if not np.all(np.isfinite(L) & (L > 0)):
+            raise ValueError("'link_lengths' must be finite lengths > 0 [m]")
         lengths = np.concatenate([np.broadcast_to(L, (L.shape[0], self.N, self.K - 1)),
                                   np.broadcast_to(self.distal_length[None, :, None], (L.shape[0], self.N, 1))], axis=2)
         m = link_mass(self.link_density[None, :, None], self.link_radius[None, :, None], lengths)

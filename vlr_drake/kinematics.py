@@ -237,7 +237,9 @@ def as_particles(name: str, value, shape: tuple, allow_shared: bool = False) -> 
         raise ValueError(f"'{name}' must have shape {want}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"'{name}' contains NaN or infinite values")
-    return np.ascontiguousarray(arr)
+    # C-contiguous and writable, whatever was given: the compiled kernels take one array
+    # type (a read-only view, such as the hand's own arrays, compiled another copy of each)
+    return np.require(arr, np.float64, ["C", "W"])
 
 
 def _particle_count(theta, hand: HandModel) -> int:

@@ -112,7 +112,8 @@ class MoveResult:
             +-3 mm actions, many more from a wide prior's draws). Joint limits and tension
             are not in ``ok`` either (:meth:`tension_feasible`; the filter and the model
             plant add both).
-        iterations: (P,) Newton iterations used.
+        iterations: (P,) Newton steps of the attempt that was kept (a failed attempt that was
+            retried, with the regulariser or with substeps, is not counted).
         residuals: (P, 3) final max residuals: stationarity [N m], constraints [m^2],
             tendon equations [m] (ideal model); for a failed particle, those of the last
             iterate Newton abandoned, not of the input angles it is returned at (a review).
@@ -155,6 +156,13 @@ class Equilibrium:
 
 
 @njit(cache=True)
+def _worst(r, v):  # pragma: no cover - numba
+    """The larger of a residual so far ``r`` and ``v``, NaN if ``v`` is NaN (``max(r, nan)``
+    is ``r``: a lane whose numbers had gone NaN read residual 0 and was called converged)."""
+    return r if (r >= v or r != r) else v  # (r != r: a NaN already, kept)
+
+
+@njit(cache=True)
 def _solve(A, b):  # pragma: no cover - numba
     """Solve A x = b in place (Gaussian elimination, partial pivoting). False if singular."""
     n = A.shape[0]
@@ -174,7 +182,7 @@ def _solve(A, b):  # pragma: no cover - numba
             if v > best:
                 best = v
                 piv = r
-        if best <= 1e-300 or best < 1e-17 * scale:
+        if not best > 1e-300 or best < 1e-17 * scale:  # (a NaN pivot too: not a solution)
             return False
         if piv != c:
             for j in range(c, n):
@@ -475,13 +483,13 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
                 for w in range(W):
                     F[q, w] += G[c, q, w] * lam[c, w]
             for w in range(W):
-                res[0, w] = max(res[0, w], abs(F[q, w]))
+                res[0, w] = _worst(res[0, w], abs(F[q, w]))
     for c in range(m):
         for w in range(W):
             F[n + c, w] = g[c, w]
-            res[1, w] = max(res[1, w], abs(g[c, w]))
+            res[1, w] = _worst(res[1, w], abs(g[c, w]))
             # the same residual as a distance error [m]: |g| / D, g = (d^2 - D^2) / 2
-            res_d[w] = max(res_d[w], abs(g[c, w]) / sqD[c, w])
+            res_d[w] = _worst(res_d[w], abs(g[c, w]) / sqD[c, w])
     if ideal:
         for i in range(N):
             for w in range(W):
@@ -489,7 +497,7 @@ def _residuals_lanes(th, th0, s0, dls, kst, rest, rarm, kappa, G, g, lam, mu, sq
                 for k in range(K):
                     v += rarm[i, k] * (th[i, k, w] - th0[i, k, w])
                 F[n + m + i, w] = v
-                res[2, w] = max(res[2, w], abs(v))
+                res[2, w] = _worst(res[2, w], abs(v))
 
 
 @njit(cache=True)
@@ -708,7 +716,8 @@ def _move_lanes(
             for w in range(W):
                 bad[w] = False
                 tiny1[w] = 1e-9 * hscale[w]
-                tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w]
+                # (a lane whose Hessian overflowed to NaN has no scale: it fails on its NaN residual)
+                tiny2[w] = 1e-9 * gscale[w] * gscale[w] / hscale[w] if hscale[w] > 0 else 0.0
             _lu_lanes(A, F, n, tiny1, tiny2, bad)
             any_bad = False
             for w in range(W):
@@ -1199,7 +1208,7 @@ def _rest_angles(hand: HandModel, P: int, k: np.ndarray, external_torque) -> np.
     """The springs' rest angles (1 or P, N, K) that carry a constant ``external_torque``
     (P or 1, N, K) [N m] at every joint: k (theta - theta0) - tau = k (theta - (theta0 + tau / k))."""
     if external_torque is None:
-        return hand.rest_angles[None]
+        return np.require(hand.rest_angles[None], np.float64, ["C", "W"])  # (one kernel type: as_particles)
     tau = as_particles("external_torque", external_torque, (P, hand.N, hand.K), allow_shared=True)
     if not np.all(np.isfinite(tau)):
         raise ValueError("'external_torque' must be finite")
@@ -1349,6 +1358,8 @@ def move(
     # uncapped steps, and one <= 0 failed every hypothesis without a word)
     if not is_count(max_iter, 1):
         raise ValueError(f"'max_iter' must be an integer >= 1, got {max_iter!r}")
+    if not is_count(max_substeps):  # (-3, 2.5, "4" and True had been taken)
+        raise ValueError(f"'max_substeps' must be an integer >= 0, got {max_substeps!r}")
     if not (is_number(max_step) and 0 < max_step < np.inf):
         raise ValueError(f"'max_step' must be a positive finite angle [rad], got {max_step!r}")
     theta = _check_theta(hand, theta)
@@ -1372,10 +1383,12 @@ def move(
     L, k = _hand_params(hand, P, link_lengths, stiffness)
     rest = _rest_angles(hand, P, k, external_torque)
     mu_all, fc_all, gw, loaded = _gravity_loads(hand, P, L, gravity, object_load)
-    out_theta = np.empty_like(theta)
+    # prefilled with the inputs (the tension with NaN): a hypothesis the kernel does not write
+    # keeps its angles, as a failed one does, never uninitialised memory
+    out_theta = theta.copy()
     lam = np.zeros((P, hand.num_constraints))
-    T = np.empty((P, hand.N))
-    s_out = np.empty((P, hand.N))
+    T = np.full((P, hand.N), np.nan)
+    s_out = s0.copy()
     ok = np.zeros(P, dtype=np.bool_)
     iters = np.zeros(P, dtype=np.int64)
     resid = np.zeros((P, 3))
@@ -1386,6 +1399,7 @@ def move(
         np.array(TOLERANCES[tolerance]), int(max_substeps), out_theta, lam, T, s_out, ok, iters, resid,
         _move_tasks(P),
     )
+    ok &= np.isfinite(out_theta).all(axis=(1, 2)) & np.isfinite(T).all(axis=1) & np.isfinite(lam).all(axis=1)
     stable = ok.copy()
     if check_stability:
         _stability_kernel(out_theta, lam, ok, a, L, k, hand.pad, hand.base, hand.u, hand.moment_arms, hand.kappa,
@@ -1414,7 +1428,7 @@ def stable_equilibria(
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     theta = _check_theta(hand, theta)
     P = theta.shape[0]
-    ok = np.ones(P, dtype=np.bool_) if ok is None else np.ascontiguousarray(np.broadcast_to(ok, (P,)), dtype=np.bool_)
+    ok = np.ones(P, dtype=np.bool_) if ok is None else np.require(np.broadcast_to(ok, (P,)), np.bool_, ["C", "W"])
     lam = np.asarray(multipliers, float)
     if lam.shape == (P, hand.num_constraints):  # (an equilibrium not found may carry NaN: it is not read)
         lam = np.where(ok[:, None], lam, 0.0)
