@@ -270,6 +270,14 @@ def test_the_spring_shows_in_the_motions_to_the_rolling_model():
         run_agreement("toy_block", actions=1, spring_scales=[0.0])
     with pytest.raises(ValueError, match="'spring' must name a finger and joint"):
         run_agreement("toy_block", actions=1, spring_scales=[1.0], spring=(5, 0))
+    # no action solved at every scale (a power grasp, a run of one action): said as none, where
+    # the summary had raised after the whole run
+    from vlr_drake.physics.agreement import _profile_summary
+
+    none = _profile_summary([{"spring_profile": {"rolling_mm": [0.1, None], "rolling_deg": [0.1, 0.2],
+                                                 "eq9_mm": [0.1, 0.2], "eq9_deg": [0.1, 0.2]}}],
+                            {"hands": [object()], "spring": [0, 1], "scales": [0.9, 1.1]})
+    assert none["actions"] == 0 and none["rolling_mm_median"] is None and none["eq9_sum_sq"] is None
 
 
 def test_an_object_that_falls_ends_the_comparison_with_what_it_compared(monkeypatch, tmp_path, capsys):

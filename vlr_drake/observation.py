@@ -19,6 +19,7 @@ __all__ = [
     "CollinearContactsError",
     "triad",
     "pom_pose",
+    "fit_pose",
     "attach",
     "in_frame",
     "rotation_angle",
@@ -192,7 +193,9 @@ def pom_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Returns (R, t, ok): ``ok`` is False where the contacts are (nearly) collinear, or not
     finite, and no pose follows from them; such particles get an identity rotation, never
-    NaN.
+    NaN. The rotation is the exact one of contacts 0-2 (the filter's contacts are rigid, and
+    fit exactly); for points that are not rigid it depends on their order, and
+    :func:`fit_pose` is the least-squares fit.
     """
     p_O = _check_points("p_O", p_O)
     p_P = _check_points("p_P", p_P)
@@ -203,11 +206,33 @@ def pom_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t = np.empty((P, 3))
     area = np.empty(P)
     _pose_kernel(p_O, p_P, R, t, area)
-    ok = area > MIN_TRIANGLE_AREA
+    # (a contact after the third that is not finite had given ok with a NaN position)
+    ok = (area > MIN_TRIANGLE_AREA) & np.isfinite(t).all(axis=1)
     if not ok.all():
         R[~ok] = np.eye(3)
-        t[~ok] = p_P[~ok].mean(axis=1)
+        bad = p_P[~ok]
+        fin = np.isfinite(bad).all(axis=2)  # the finite contacts' centroid (0 where none is)
+        t[~ok] = np.where(fin[..., None], bad, 0.0).sum(axis=1) / np.maximum(fin.sum(axis=1), 1)[:, None]
     return R, t, ok
+
+
+def fit_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares rigid pose (R (P, 3, 3), t (P, 3)) taking points ``p_O`` (P, N, 3)
+    onto ``p_P`` (Kabsch): for points that are not exactly rigid, where :func:`pom_pose`'s
+    exact fit of three of them depends on which three. Non-finite points are a ValueError."""
+    p_O, p_P = _check_points("p_O", p_O), _check_points("p_P", p_P)
+    if p_O.shape != p_P.shape:
+        raise ValueError(f"'p_O' {p_O.shape} and 'p_P' {p_P.shape} must have the same shape")
+    if not (np.all(np.isfinite(p_O)) and np.all(np.isfinite(p_P))):
+        raise ValueError("fit_pose: the points must be finite")
+    c_O, c_P = p_O.mean(axis=1), p_P.mean(axis=1)
+    H = np.einsum("pni,pnj->pij", p_O - c_O[:, None], p_P - c_P[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("pji,pkj->pik", Vt, U)))  # no reflection
+    D = np.zeros_like(H)
+    D[:, 0, 0], D[:, 1, 1], D[:, 2, 2] = 1.0, 1.0, d
+    R = np.einsum("pji,pjk,plk->pil", Vt, D, U)
+    return R, c_P - np.einsum("pij,pj->pi", R, c_O)
 
 
 def attach(p_P, R_PO, t_PO) -> np.ndarray:
@@ -282,12 +307,13 @@ def rotvec(R) -> np.ndarray:
     R = np.asarray(R, float)
     if R.shape[-2:] != (3, 3) or R.ndim not in (2, 3):
         raise ValueError(f"rotvec: R must have shape (3, 3) or (P, 3, 3), got {R.shape}")
+    # (only a reflection is refused here: the kernel's pass takes no full is_rotation test)
     R = np.ascontiguousarray(R.reshape(-1, 3, 3))
     out, det = np.empty((R.shape[0], 3)), np.empty(R.shape[0])
     _rotvec_kernel(R, out, det)  # (the determinants in the same pass: a full is_rotation test
     # per matrix cost six times the rotation vectors on the informative actions' 20,000)
     if not np.all(det > 0.5):  # a reflection (det -1) had come out as the identity
-        raise ValueError("rotvec: R is not a rotation (a reflection, or not a rotation matrix)")
+        raise ValueError("rotvec: R is a reflection (determinant below 0.5), not a rotation")
     return out
 
 
@@ -307,6 +333,12 @@ def blend_poses(R_a, t_a, R_b, t_b, fraction: float) -> tuple[np.ndarray, np.nda
     (R_b (3, 3), t_b (3,)): R_a exp(fraction log(R_a^T R_b)) and the linear blend of t."""
     R_a = np.ascontiguousarray(R_a, dtype=float)
     t_a = np.ascontiguousarray(t_a, dtype=float)
+    # (shapes checked: the kernel reads R_a's count of poses from t_a unchecked, and a shorter
+    # t_a had written past its output's end)
+    if R_a.ndim != 3 or R_a.shape[1:] != (3, 3) or t_a.shape != (R_a.shape[0], 3):
+        raise ValueError(f"blend_poses: R_a must be (P, 3, 3) and t_a (P, 3), got {R_a.shape} and {t_a.shape}")
+    if np.size(R_b) != 9 or np.size(t_b) != 3:
+        raise ValueError(f"blend_poses: R_b must be (3, 3) and t_b (3,), got sizes {np.size(R_b)} and {np.size(t_b)}")
     R_b = np.ascontiguousarray(np.reshape(R_b, (3, 3)), dtype=float)
     t_b = np.ascontiguousarray(np.reshape(t_b, 3), dtype=float)
     R = np.empty_like(R_a)

@@ -196,10 +196,12 @@ def _kinematic_prediction(points, X_before, X_after, R, t):
     """The object's pose after an action if it were attached to ``points`` (N, 3) in P, each
     fixed on its last link, whose poses before and after are ``X_before`` / ``X_after``: the
     object attached to the points at its true pose (R, t) before, then fitted to where the
-    links carry them (Eq. 5's attachment and pose fit). Returns (R_pred, t_pred)."""
+    links carry them (Eq. 5's attachment, and the least-squares pose fit: the points are not
+    rigid, and the exact fit of three of them had depended on the fingers' order). Returns
+    (R_pred, t_pred)."""
     moved = np.array([(X_after[i] @ X_before[i].inverse()).multiply(points[i]) for i in range(len(points))])
     p_O = observation.attach(points[None], R[None], t[None])
-    R1, t1, _ = observation.pom_pose(p_O, moved[None])
+    R1, t1 = observation.fit_pose(p_O, moved[None])
     return R1[0], t1[0]
 
 
@@ -585,9 +587,9 @@ def _profile_summary(rows: list[dict], profile: dict) -> dict | None:
     full = [r["spring_profile"] for r in rows
             if all(x is not None for v in r["spring_profile"].values() for x in v)]
     out = {"spring": profile["spring"], "scales": profile["scales"], "actions": len(full)}
-    for name in ("rolling", "eq9"):
-        mm = np.array([p[name + "_mm"] for p in full]).reshape(len(full), -1)
-        deg = np.array([p[name + "_deg"] for p in full]).reshape(len(full), -1)
+    for name in ("rolling", "eq9"):  # (reshaped to the scales' count: an empty list of actions too)
+        mm = np.array([p[name + "_mm"] for p in full]).reshape(len(full), len(profile["scales"]))
+        deg = np.array([p[name + "_deg"] for p in full]).reshape(len(full), len(profile["scales"]))
         out[name + "_mm_median"] = np.median(mm, axis=0).tolist() if full else None
         out[name + "_deg_median"] = np.median(deg, axis=0).tolist() if full else None
         out[name + "_sum_sq"] = (((mm / PROFILE_UNITS[0]) ** 2 + (deg / PROFILE_UNITS[1]) ** 2).sum(axis=0).tolist()
