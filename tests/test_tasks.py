@@ -340,6 +340,41 @@ def test_reproduce_counts_a_task_that_cannot_start_as_failed(tmp_path, monkeypat
     assert row["succeeded"] == [0, 1] and not row["better"] and row["ours_mean"] is None
 
 
+def test_reproduce_keeps_the_table_when_a_trial_fails(tmp_path, monkeypatch, capsys):
+    """Any failure of one trial (not only a task that cannot start) is a failed trial, said
+    and counted, and the rest run on; the table is written after every trial. A failure late
+    in an hours-long table had lost every finished row."""
+    import vlr_drake.reproduce as rp
+
+    class Trace:
+        def save(self, path):
+            return path
+
+    def identification(opts):  # seed 1's run fails; the others give their seed's errors
+        if opts.seed == 1:
+            raise RuntimeError("the physics solver failed (injected)")
+        return {"experiment": opts.experiment, "object": opts.object or "apple", "seed": opts.seed,
+                "proximal_joint_error_deg": [1.0 + opts.seed] * 3, "iterations": 10, "converged": True,
+                "truth_inside_95_theta": 1.0, "truth_inside_95_contact": 1.0, "_trace": Trace()}
+
+    def stack_fails(**kwargs):
+        raise RuntimeError("a cup fell through the table (injected)")
+
+    monkeypatch.setattr(rp, "run_identification", identification)
+    monkeypatch.setattr(stack, "run_stack", stack_fails)
+    r = rp.reproduce(trials=3, plant="model", out=tmp_path, progress=False, experiments=["known_hand", "stack"])
+    rows = {row["key"]: row for row in r["rows"]}
+    hand = rows["known_hand"]
+    assert hand["failed"] == [1, 3] and hand["samples"] == 2 and not hand["better"]
+    assert hand["ours_mean"] == pytest.approx(2.0)  # seeds 0 and 2: 1 and 3 deg
+    assert rows["known_hand_iterations"]["converged"] == [2, 3]
+    assert rows["stack_position"]["succeeded"] == [0, 3]
+    assert "(1 of 3 failed)" in (tmp_path / "reproduce.md").read_text()
+    data = json.loads((tmp_path / "reproduce.json").read_text())
+    assert data["runs"]["stack"][0]["failed"] == "RuntimeError: a cup fell through the table (injected)"
+    assert len(data["trace_files"]) == 2 and "known_hand, seed 1 failed: RuntimeError" in capsys.readouterr().err
+
+
 def test_write_with_the_filter_model():
     """The identified model (a small filter, kept running during control) also writes."""
     r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)

@@ -11,6 +11,8 @@ whole table, not a result.
 from __future__ import annotations
 
 import json
+import sys
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -121,7 +123,7 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     if traces is not None:  # the filter's inputs, for vlr-drake replay; the plant named where it is
         # not the physics plant (a model-plant reproduce had replaced the physics runs' traces)
         where = "" if plant == "physics" else f"_{plant}"
-        r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz")
+        r["trace"] = str(r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz"))
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
@@ -149,7 +151,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     and :data:`TASK_IDENTIFY_ITERATIONS` for the tasks."""
     from tqdm.auto import tqdm
 
-    from vlr_drake.tasks.common import TaskSetupError, pooled
+    from vlr_drake.tasks.common import TaskSetupError
     from vlr_drake.tasks.maze import run_maze
     from vlr_drake.tasks.stack import run_stack
     from vlr_drake.tasks.write import run_write
@@ -171,8 +173,10 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     runs: dict[str, list] = {}
     # As the paper ran them: the known hand with each of its four objects (Fig. 4; trials
     # each), the stiffness with the toy block (Fig. 5); the novel hands name no object.
-    jobs = [("known_hand", lambda s: [_identify("known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o,
-                                                traces=tr) for o in known_hand_objects(plant)]),
+    # (each object's run its own trial: one that fails loses none of the seed's others)
+    jobs = [("known_hand", lambda s: [_attempt("known_hand", s, lambda o=o: _identify(
+                "known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o, traces=tr))
+                for o in known_hand_objects(plant)]),
             ("stiffness", lambda s: [_identify("stiffness", "model_o", s, plant, particles, iterations, *sc,
                                                obj=STIFFNESS_OBJECT, traces=tr)])]
     for nh in ("NH1", "NH2", "NH3"):
@@ -191,6 +195,10 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
              ("stack", lambda s: run_stack(**task("stack", s)))]
     jobs = [(name, job) for name, job in jobs if name in chosen]
     bar = tqdm(total=len(jobs) * trials, disable=not progress, desc="reproduce", unit="trial")
+    settings = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
+                "seed": seed, "experiments": [name for name, _ in jobs],
+                "scenario": None if scenario is None else scenario.name,
+                "scenario_path": None if scenario_path is None else str(scenario_path)}
     for name, job in jobs:
         runs[name] = []
         for s in seeds:
@@ -201,10 +209,37 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
                 print(f"reproduce: {name}, seed {s}: {e}")
                 r = {"task": name, "seed": s, "success": False, "setup_error": str(e),
                      "position_error_mm": None, "orientation_error_deg": None}
+            except Exception as e:
+                r = _failed(name, s, e)
             runs[name] += r if isinstance(r, list) else [r]
             bar.update(1)
+            _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
     bar.close()
+    return _write_table(out, settings, runs, tr)
 
+
+def _failed(name: str, seed: int, e: Exception) -> dict:
+    """A trial that failed, said (with its traceback) and kept as a result that counts as
+    failed: the rest of the table runs on (a review: a failure late in an hours-long table
+    had lost every finished row)."""
+    print(f"reproduce: {name}, seed {seed} failed: {type(e).__name__}: {e}", file=sys.stderr)
+    traceback.print_exc()
+    return {"seed": seed, "failed": f"{type(e).__name__}: {e}", "success": False,
+            "position_error_mm": None, "orientation_error_deg": None}
+
+
+def _attempt(name: str, seed: int, run) -> dict:
+    """``run()``, or where it fails (an Exception), :func:`_failed`'s result."""
+    try:
+        return run()
+    except Exception as e:
+        return _failed(name, seed, e)
+
+
+def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
+    """The table of ``runs`` (one list of result dicts per experiment) as ``reproduce.md`` and
+    ``reproduce.json`` in ``out``; returns the result dict. Called after every trial, so that
+    a table cut short keeps the rows it finished."""
     measures = {  # row key: (experiment, the paper's measure of one run)
         "known_hand": ("known_hand", IDENTIFICATION_MEASURES["known_hand"]),
         "known_hand_iterations": ("known_hand", lambda r: r["iterations"]),
@@ -217,24 +252,31 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
         "stack_position": ("stack", lambda r: r["position_error_mm"]),
         "stack_orientation": ("stack", lambda r: r["orientation_error_deg"]),
     }
+    from vlr_drake.tasks.common import pooled
+
     rows = []
     for p in PAPER_ROWS:
         name, measure = measures[p.key]
-        if name not in runs:
+        if not runs.get(name):
             continue
-        got = [measure(r) for r in runs[name]]
         is_task = name in ("write", "maze", "stack")
+        ran = runs[name] if is_task else [r for r in runs[name] if "failed" not in r]
+        got = [measure(r) for r in ran]
         if is_task:  # a task's stats: pooled over its samples (a trial with none adds none)
             all_ = pooled(got) or {"mean": float("nan"), "sd": float("nan"), "n": 0}
             mean, sd, over = all_["mean"], all_["sd"], all_["n"]
-        else:  # one number per trial
+        else:  # one number per trial that gave one (a failed run, or a NaN measure, gives none)
             v = np.asarray(got, float)
-            mean, sd, over = float(v.mean()), float(v.std()), len(v)
+            v = v[np.isfinite(v)]
+            mean, sd, over = (float(v.mean()), float(v.std()), len(v)) if v.size else (float("nan"), float("nan"), 0)
         identification = name in ("known_hand", "stiffness", "NH1", "NH2", "NH3") and p.key != "known_hand_iterations"
         row = {"key": p.key, "experiment": p.label, "unit": p.unit, "paper_mean": p.mean, "paper_sd": p.sd,
-               "ours_mean": mean, "ours_sd": sd, "trials": len(got), "samples": over,
+               "ours_mean": mean, "ours_sd": sd, "trials": len(runs[name]), "samples": over,
                "better": bool(mean < p.mean),
-               "truth_inside_95": honesty(runs[name]) if identification else None}
+               "truth_inside_95": honesty(ran) if identification and ran else None}
+        if not is_task and over < len(runs[name]):  # said in the cell, and no row beats the paper with them
+            row["failed"] = [len(runs[name]) - over, len(runs[name])]
+            row["better"] = False
         if is_task:
             # a trial that failed (a letter not written, the marble short of the goal, a cup
             # not nested) does not beat the paper whatever its error samples say
@@ -244,14 +286,13 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
         if p.key == "known_hand_iterations":
             # a run that did not converge counts its budget, a lower bound on the iterations it
             # needs: the row beats the paper only if every run converged
-            done = sum(bool(r["converged"]) for r in runs[name])
-            row["converged"] = [done, len(v)]
-            row["better"] = row["better"] and done == len(v)
+            done = sum(bool(r["converged"]) for r in ran)
+            row["converged"] = [done, len(runs[name])]
+            row["better"] = row["better"] and done == len(runs[name])
         rows.append(row)
-    result = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
-              "seed": seed, "experiments": [name for name, _ in jobs], "scenario": None if scenario is None else scenario.name,
-              "scenario_path": None if scenario_path is None else str(scenario_path),
-              "traces": str(tr) if tr.is_dir() else None, "rows": rows}
+    # the traces this table's runs saved (a folder of an earlier run's had been named too)
+    saved = sorted(str(Path(r["trace"])) for rs in runs.values() for r in rs if r.get("trace"))
+    result = {**settings, "traces": str(traces) if saved else None, "trace_files": saved, "rows": rows}
     (out / "reproduce.md").write_text(format_table(result))
     from vlr_drake.cli import _finite, _json_default  # (JSON has no NaN: a row without samples is null)
 
@@ -271,6 +312,8 @@ def format_table(result: dict) -> str:
         done = f" ({r['converged'][0]} of {r['converged'][1]} converged)" if "converged" in r else ""
         if "succeeded" in r and r["succeeded"][0] < r["succeeded"][1]:
             done += f" ({r['succeeded'][0]} of {r['succeeded'][1]} succeeded)"
+        if "failed" in r:  # runs that failed or gave no number: not in the mean
+            done += f" ({r['failed'][0]} of {r['failed'][1]} failed)"
         lines.append(f"| {r['experiment']} [{r['unit']}] | {r['paper_mean']:{fmt}} +- {r['paper_sd']:{fmt}} | "
                      f"{r['ours_mean']:{fmt}} +- {r['ours_sd']:{fmt}}{done} | {'yes' if r['better'] else 'no'} | "
                      f"{format_honesty(r.get('truth_inside_95'))} |")
