@@ -103,8 +103,9 @@ added, 0.03-0.08 deg remain on all four objects; on the apple the pad moments (1
 the thumb) and the links' weight matter most.
 
 The pads roll (2026-11-28; toy block, 30 random actions, seed 0): attached at the
-touching points the object follows the true links to 0.002 mm / 0.006 deg, at the pads'
-centres only to 0.272 mm / 0.398 deg (apple, 20 actions: 0.015 against 0.157 mm). A
+touching points the object follows the true links to 0.002 mm / 0.003 deg, at the pads'
+centres only to 0.272 mm / 0.396 deg (apple, 20 actions: 0.015 against 0.157 mm; measured
+again on 2026-12-06 with the least-squares fit of the points, observation.fit_pose). A
 rolling pad's centre travels a pad radius times its rotation relative to the object, a
 first-order motion that the VLR's pinned centre lacks; a VLR pinned at the touching points
 instead predicts far worse (3-4 mm on the toy block's actions), because the rolling's
