@@ -76,6 +76,18 @@ def test_too_few_fingers_and_unknown_names():
         HandSpec(name="two", fingers=spec.fingers[:2]).validate()
     with pytest.raises(ValueError, match="'palm_radius': 75.0 m .*millimetres"):
         HandSpec(name="mm", fingers=spec.fingers, palm_radius=75.0).validate()
+    # names go into the SDF (a quote had ended in Drake's XML parser); a scalar moment_arms on
+    # the first finger had raised a TypeError before the finger's own named check
+    with pytest.raises(ValueError, match="hand: field 'name' must be letters"):
+        HandSpec(name='my "hand"', fingers=spec.fingers).validate()
+    bad = model_o()
+    bad.fingers[0].name = "thumb::x"
+    with pytest.raises(ValueError, match="field 'name' must be letters"):
+        bad.validate()
+    bad = model_o()
+    bad.fingers[0].moment_arms = 0.009
+    with pytest.raises(ValueError, match="field 'moment_arms' must be a list"):
+        bad.validate()
     with pytest.raises(ValueError, match="unknown hand"):
         hand_by_name("NH9")
     with pytest.raises(ValueError, match="no finger 'pinky'"):

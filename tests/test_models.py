@@ -275,6 +275,16 @@ placement_xyz: [0.0, 0.0, 0.08]
         (dict(friction=float("nan")), "friction"),
         (dict(tag_size=float("inf")), "tag_size"),
         (dict(rim_height=float("nan")), "rim_height"),
+        # lengths in millimetres (the POM 20 m from its tag had been taken), positions of
+        # another type, and a tag whose corners hang over a cylinder's flat end (a review)
+        (dict(tag_to_pom_xyz=[0.0, 0.0, 20.0]), r"'tag_to_pom_xyz'.*given in millimetres"),
+        (dict(placement_xyz=[0.0, 0.0, 70.0]), r"'placement_xyz'.*given in millimetres"),
+        (dict(shape="box", size=[0.05, 0.05, 0.01], rim_height=8.0), r"'rim_height'.*given in millimetres"),
+        (dict(tag_size=30.0), "tag_size"),
+        (dict(tag_size="0.03"), "tag_size"),
+        (dict(size=0.03), "size"),
+        (dict(placement_xyz=["a", 0.0, 0.0]), "placement_xyz"),
+        (dict(shape="cylinder", size=[0.02, 0.05], tag_size=0.03), "wider than the '-z' face"),
     ],
 )
 def test_bad_object_spec_names_the_field(changes, field):

@@ -26,12 +26,16 @@ from __future__ import annotations
 
 import copy
 import dataclasses as dc
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from vlr_drake import units
+
+#: What a hand's or finger's name may hold: it names the generated SDF's model, links and joints.
+_NAME = r"[A-Za-z0-9_.-]+"
 
 __all__ = [
     "FingerSpec",
@@ -116,6 +120,8 @@ class FingerSpec:
 
         f = self
         where = f"finger '{f.name}'" if where is None else where
+        if not (isinstance(f.name, str) and re.fullmatch(_NAME, f.name)):  # it names SDF links and joints
+            raise ValueError(f"{where}: field 'name' must be letters, digits, '_', '.' or '-', got {f.name!r}")
         if joints is None:
             try:
                 joints = len(f.moment_arms)
@@ -215,6 +221,8 @@ class HandSpec:
 
     def validate(self) -> HandSpec:
         """Check the spec and raise ``ValueError`` naming the offending field."""
+        if not (isinstance(self.name, str) and re.fullmatch(_NAME, self.name)):  # it names the SDF model
+            raise ValueError(f"hand: field 'name' must be letters, digits, '_', '.' or '-', got {self.name!r}")
         if len(self.fingers) < 3:
             raise ValueError(f"hand '{self.name}': a VLR needs at least 3 fingers, got {len(self.fingers)}")
         from vlr_drake.kinematics import is_number  # (kinematics imports this module)
@@ -224,7 +232,8 @@ class HandSpec:
             if not (is_number(v) and 0 < v < np.inf):
                 raise ValueError(f"hand '{self.name}': field '{fname}' must be a finite positive number [m], got {v!r}")
             units.check_length(v, f"hand '{self.name}': field '{fname}'")
-        K = self.fingers[0].num_joints
+        K = self.fingers[0].validate(f"hand '{self.name}', finger '{self.fingers[0].name}'").num_joints  # (first:
+        # a scalar moment_arms had raised a TypeError here, not the finger's named message)
         if K < 2:
             raise ValueError(f"hand '{self.name}': fingers need at least 2 joints, got {K}")
         names = set()
@@ -536,8 +545,9 @@ def hand_by_name(name: str) -> HandSpec:
 def generic_hand(num_fingers: int, num_joints: int, radius: float = 0.055) -> HandSpec:
     """A symmetric hand with ``num_fingers`` fingers of ``num_joints`` joints around a circle.
 
-    Used to exercise the general-N, general-K code paths (the paper's VLR claim). Link
-    lengths are split so that the finger is as long as the Model O's.
+    Used to exercise the general-N, general-K code paths (the paper's VLR claim). The
+    proximal links share the Model O's 62 mm, and the distal link is 40 mm (the Model O's
+    48): a finger 102 mm long.
     """
     if num_fingers < 3 or num_joints < 2:
         raise ValueError("generic_hand needs num_fingers >= 3 and num_joints >= 2")

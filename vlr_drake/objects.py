@@ -114,7 +114,7 @@ class ObjectSpec:
         if self.shape not in SHAPES:
             raise ValueError(f"{where}: field 'shape' must be one of {list(SHAPES)}, got '{self.shape}'")
         n = {"sphere": 1, "box": 3, "cylinder": 2, "capsule": 2}[self.shape]
-        if len(self.size) != n:
+        if not isinstance(self.size, list | tuple | np.ndarray) or len(self.size) != n:
             raise ValueError(
                 f"{where}: field 'size' must have {n} entries for a {self.shape} {SHAPES[self.shape]}, got {self.size}"
             )
@@ -129,8 +129,9 @@ class ObjectSpec:
             raise ValueError(
                 f"{where}: field 'tag_id' must be a tag36h11 id in 0..{TAG36H11_COUNT - 1}, got {self.tag_id}"
             )
-        if not (np.isfinite(self.tag_size) and self.tag_size > 0):
-            raise ValueError(f"{where}: field 'tag_size' must be a finite positive number, got {self.tag_size}")
+        if not (is_number(self.tag_size) and np.isfinite(self.tag_size) and self.tag_size > 0):
+            raise ValueError(f"{where}: field 'tag_size' must be a finite positive number, got {self.tag_size!r}")
+        units.check_length(self.tag_size, f"{where}: field 'tag_size'")
         if self.tag_face not in FACES:
             raise ValueError(f"{where}: field 'tag_face' must be one of {list(FACES)}, got '{self.tag_face}'")
         plate, room = TAG_PLATE_RATIO * self.tag_size, self.face_width()
@@ -139,13 +140,19 @@ class ObjectSpec:
                              f"than the '{self.tag_face}' face ({room:.4g} m)")
         for fname in ["tag_to_pom_xyz", "tag_to_pom_rpy_deg", "placement_xyz", "placement_rpy_deg"]:
             v = getattr(self, fname)
-            if len(v) != 3 or not all(np.isfinite(v)):
-                raise ValueError(f"{where}: field '{fname}' must have 3 finite entries, got {v}")
+            if not (isinstance(v, list | tuple | np.ndarray) and len(v) == 3
+                    and all(is_number(x) and np.isfinite(x) for x in v)):
+                raise ValueError(f"{where}: field '{fname}' must have 3 finite entries, got {v!r}")
+        for fname in ["tag_to_pom_xyz", "placement_xyz"]:  # (20 for 20 mm had put the POM 20 m away)
+            units.check_length(getattr(self, fname), f"{where}: field '{fname}'")
         if len(self.color) != 4 or not all(np.isfinite(c) and 0 <= c <= 1 for c in self.color):
             raise ValueError(f"{where}: field 'color' must be RGBA, 4 entries in [0, 1], got {self.color}")
         for fname in ["friction", "marble_radius", "rim_height"]:  # (NaN < 0 is False)
             if not (is_number(getattr(self, fname)) and np.isfinite(getattr(self, fname)) and getattr(self, fname) >= 0):
                 raise ValueError(f"{where}: field '{fname}' must be a finite number >= 0, got {getattr(self, fname)!r}")
+        for fname in ["marble_radius", "rim_height"]:
+            if getattr(self, fname) > 0:
+                units.check_length(getattr(self, fname), f"{where}: field '{fname}'")
         if (self.marble_radius > 0 or self.rim_height > 0) and self.shape != "box":
             raise ValueError(f"{where}: field 'shape' must be 'box' for a marble maze, got '{self.shape}'")
         if self.marble_radius > 0 and 2 * self.marble_radius >= min(self.size[:2]):
@@ -171,7 +178,9 @@ class ObjectSpec:
     def face_width(self, face: str | None = None) -> float:
         """The narrowest width of the (flat or tangent) face across its normal [m]: what a
         square tag plate on it must fit in (a sphere's and a cylinder's curved side: their
-        diameter, and the cylinder's length)."""
+        diameter, and the cylinder's length; a cylinder's flat end: the side of the square
+        inscribed in its disc, sqrt(2) r, where its diameter had let a tag's corners hang
+        over the edge)."""
         face = self.tag_face if face is None else face
         axis = "xyz".index(face[1])
         s = self.size
@@ -179,8 +188,8 @@ class ObjectSpec:
             return 2 * s[0]
         if self.shape == "box":
             return min(s[i] for i in range(3) if i != axis)
-        if axis == 2:  # a cylinder's or capsule's end
-            return 2 * s[0]
+        if axis == 2:  # a cylinder's flat end, or a capsule's round one
+            return np.sqrt(2.0) * s[0] if self.shape == "cylinder" else 2 * s[0]
         return min(2 * s[0], s[1] + (2 * s[0] if self.shape == "capsule" else 0.0))
 
     def R_BT(self) -> np.ndarray:
