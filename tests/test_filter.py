@@ -473,6 +473,11 @@ def test_informative_exploration_falls_back_to_random_after_a_refusal():
     np.testing.assert_array_equal(ex.next_action(), twin.next_action())
     ex.commit(first)
     np.testing.assert_allclose(ex.l, l0 + first)
+    # committed: the next action is chosen again (only follow() had cleared the choice, so on
+    # the model plant every other action had been a plain draw: a review)
+    twin.commit(first)
+    proposals = np.array([twin.next_action() for _ in range(8)])
+    np.testing.assert_array_equal(ex.next_action(), proposals[np.argmax(proposals[:, 0])])
 
 
 @pytest.mark.slow

@@ -519,6 +519,9 @@ class InformativeExploration:
 
     def commit(self, dl) -> None:
         self.explore.commit(dl)
+        # the choice is made: the next action is chosen again (since 2026-11-27 only follow()
+        # had cleared it, so every other action had been a plain random draw: a review)
+        self._pending = False
 
     def follow(self, l_now) -> None:
         self.explore.follow(l_now)
@@ -702,7 +705,9 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
                        f"the iteration budget (a grasp from which the exploration's actions find no equilibrium)")
             break
         it += 1
+        tc = time.perf_counter()
         dl = explore.next_action()
+        timing["filter"] += time.perf_counter() - tc  # (the informative choice moves the filter's hypotheses)
         try:
             moved = plant.act(dl, timing)
         except RunStopped as e:  # the estimates so far are kept and reported, with why it stopped
@@ -715,7 +720,6 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         if not np.array_equal(explore.l, l_now):  # the plant restated its command
             explore.follow(l_now)
         R, t, valid = plant.measure(timing)
-        lost += not valid
         tf = time.perf_counter()
         try:
             rep = f.step(dl, R, t, valid, tendon_command=l_now)
@@ -725,6 +729,7 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
                           f"{traceback.format_exc()}", RuntimeWarning, stacklevel=2)
             break
         timing["filter"] += time.perf_counter() - tf
+        lost += not valid  # (after the step: a frame whose iteration failed is in no history)
         truths.append(plant.truth())
         recorder.step(dl, R, t, valid, l_now, truths[-1])
         if on_iteration is not None:
@@ -891,6 +896,9 @@ def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, p
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),
         "actions_refused": int(getattr(plant, "refused", 0)),
+        # the physics plant's actions whose settle ran out before the object and joints came to
+        # rest (its measurement taken while they crept); null on the model plant
+        "actions_not_settled": None if not hasattr(plant, "not_settled") else int(plant.not_settled),
         "action_choice": opts.action_choice,
         "link_weight": bool(np.any(opts.filter.gravity_palm)),
         "object_weight": bool(prior.object_mass_unknown),
