@@ -667,7 +667,7 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
                  "--out", str(out)]) == 0
     r = json.loads((out / "identify_known_hand_model_seed0.json").read_text())
     assert r["actions_refused"] == 3 and r["actions_tried"] == 3 and r["iterations"] == 0 and not r["converged"]
-    assert r["stopped"].startswith("iteration 1: the plant refused 3 actions, as many as the iteration budget")
+    assert r["stopped"].startswith("iteration 1: the plant refused 3 actions over the run, as many as the iteration budget")
     assert "no plots: no filter iteration ran (iteration 1: the plant refused 3 actions" in capsys.readouterr().out
     assert not list(out.glob("*.png"))  # (the prior alone had made plots of one point: a legend, no band)
 

@@ -353,8 +353,10 @@ def test_reproduce_keeps_the_table_when_a_trial_fails(tmp_path, monkeypatch, cap
     def identification(opts):  # seed 1's run fails; the others give their seed's errors
         if opts.seed == 1:
             raise RuntimeError("the physics solver failed (injected)")
+        stopped = opts.seed == 2  # stopped early, unconverged: it counts its budget, not its 5 iterations
         return {"experiment": opts.experiment, "object": opts.object or "apple", "seed": opts.seed,
-                "proximal_joint_error_deg": [1.0 + opts.seed] * 3, "iterations": 10, "converged": True,
+                "proximal_joint_error_deg": [1.0 + opts.seed] * 3, "iterations": 5 if stopped else 10,
+                "converged": not stopped, "max_iterations": 100,
                 "truth_inside_95_theta": 1.0, "truth_inside_95_contact": 1.0, "_trace": Trace()}
 
     def stack_fails(**kwargs):
@@ -367,7 +369,8 @@ def test_reproduce_keeps_the_table_when_a_trial_fails(tmp_path, monkeypatch, cap
     hand = rows["known_hand"]
     assert hand["failed"] == [1, 3] and hand["samples"] == 2 and not hand["better"]
     assert hand["ours_mean"] == pytest.approx(2.0)  # seeds 0 and 2: 1 and 3 deg
-    assert rows["known_hand_iterations"]["converged"] == [2, 3]
+    assert rows["known_hand_iterations"]["converged"] == [1, 3]
+    assert rows["known_hand_iterations"]["ours_mean"] == pytest.approx(55.0)  # 10 and the budget, 100
     assert rows["stack_position"]["succeeded"] == [0, 3]
     assert "(1 of 3 failed)" in (tmp_path / "reproduce.md").read_text()
     data = json.loads((tmp_path / "reproduce.json").read_text())

@@ -701,8 +701,9 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
     it = 0  # actions tried; the budget counts filter iterations (len(f.history))
     while len(f.history) < opts.max_iterations:
         if it - len(f.history) >= opts.max_iterations:
-            stopped = (f"iteration {len(f.history) + 1}: the plant refused {it - len(f.history)} actions, as many as "
-                       f"the iteration budget (a grasp from which the exploration's actions find no equilibrium)")
+            stopped = (f"iteration {len(f.history) + 1}: the plant refused {it - len(f.history)} actions over the run, "
+                       f"as many as the iteration budget (the exploration's actions found no equilibrium that often: "
+                       f"a grasp near its fold)")
             break
         it += 1
         tc = time.perf_counter()

@@ -242,7 +242,10 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
     a table cut short keeps the rows it finished."""
     measures = {  # row key: (experiment, the paper's measure of one run)
         "known_hand": ("known_hand", IDENTIFICATION_MEASURES["known_hand"]),
-        "known_hand_iterations": ("known_hand", lambda r: r["iterations"]),
+        # a run that did not converge counts its budget (one that stopped early, e.g. on refused
+        # actions, had counted only the iterations it ran)
+        "known_hand_iterations": ("known_hand", lambda r: r["iterations"] if r["converged"]
+                                  else r.get("max_iterations", r["iterations"])),
         "stiffness": ("stiffness", IDENTIFICATION_MEASURES["stiffness"]),
         **{key: (nh, measure) for nh in ("NH1", "NH2", "NH3") for key, measure in identification_rows("novel_fingers", nh)},
         # the tasks: every waypoint / sample / cup of every trial, pooled (the paper's spread
