@@ -487,7 +487,8 @@ def test_informative_actions_converge_sooner_and_stay_honest():
     actions, with the truth inside the 95% intervals as often. Measured over seeds 0-23
     with the model plant's stable truths (2026-11-27): 34.9 against 44.5 iterations (seeds
     0-7: 41.0 against 50.4), 23 of 24 converged either way, coverage 0.96 / 0.96 (joints /
-    contacts) against 1.00 / 0.97; on the truths of before, half of them on saddles, 31.5
+    contacts) against 1.00 / 0.97 (with every other action informative; every action, since
+    2026-12-06: 29.5 against 44.2, coverage 0.94 / 0.99 against 0.99 / 0.97); on the truths of before, half of them on saddles, 31.5
     against 56 (vlr_drake.identify.ACTION_CHOICE). Coverage
     comes in clumps (a run that misses, misses several values), so a handful of seeds
     scatters: over seeds 0-35 it was 0.97 / 0.94 (FilterConfig.newton_loose_after 8) and
