@@ -351,8 +351,11 @@ def test_max_iter_counts_newton_steps_and_bad_parameters_are_named():
             move_rolling(h, theta[None], *args, **{**kw, **bad})
     with pytest.raises(ValueError, match="'R' must hold rotations"):
         move_rolling(h, theta[None], a, 2 * np.eye(3), *args[2:], **kw)
-    with pytest.raises(ValueError, match="normals"):
-        move_rolling(h, theta[None], *args[:3], np.zeros((h.N, 3)), stretch, **kw)
+    # a hypothesis without normals fails alone (in a filter's cloud it must not stop the run)
+    two = np.stack([args[3], np.zeros((h.N, 3))])
+    moved = move_rolling(h, np.stack([theta, theta]), a, np.eye(3), args[2], two, stretch, **kw)
+    assert moved.ok.tolist() == [True, False]
+    np.testing.assert_array_equal(moved.theta[0], full.theta[0])
 
 
 def test_each_hypothesis_moves_as_it_would_alone():

@@ -185,8 +185,9 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     the side fingers' redundant attachment
     (:func:`vlr_drake.rolling_reference.attachment_directions`), where the KKT matrix is
     nearly singular. ``newton_iterations`` counts each hypothesis' steps. The hand's and the
-    object's parameters (pads, springs, links, mass, normals, gravity, a pose's rotation)
-    are checked, and a ValueError names the one that is not physical."""
+    object's parameters (pads, springs, links, mass, gravity, a pose's rotation) are
+    checked, and a ValueError names the one that is not physical; a hypothesis whose normals
+    are zero or not finite fails alone."""
     theta = np.asarray(theta, float)
     P, N, K = theta.shape
     if (N, K) != (hand.N, hand.K):
@@ -203,8 +204,11 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
                          f"{int(np.flatnonzero(finite)[np.argmin(turned)])} is not one")
     nrm = np.broadcast_to(np.asarray(normals, float), (P, N, 3))
     size = np.linalg.norm(nrm, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(size) & (size > 0)):
-        raise ValueError("move_rolling: 'normals' must be finite, non-zero vectors (P, N, 3)")
+    bad = ~(np.isfinite(size) & (size > 0)).all(axis=(1, 2))  # no normal: that hypothesis fails alone,
+    if bad.any():  # as one with NaN angles does (a NaN normal had divided into NaN silently)
+        theta = theta.copy()
+        theta[bad] = np.nan
+        size = np.where(np.isfinite(size) & (size > 0), size, 1.0)
     nrm = nrm / size
     stretch = np.broadcast_to(np.asarray(stretch, float), (P, N)).copy()
     dl = np.zeros((P, N)) if dl is None else np.broadcast_to(np.asarray(dl, float), (P, N)).copy()
