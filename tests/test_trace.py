@@ -63,6 +63,13 @@ def test_replay_with_other_settings_changes_the_result():
 
 
 def test_evidence_profile_favours_the_true_spring_and_link():
+    """The run's log evidence, summed over its steps, is highest at the true spring (against
+    -25% and +30%) and the true link (against +-15 mm). Fifteen steps of 2,000 particles
+    say little about +-8 mm of NH1's link: over seeds 3-6 the +-8 mm profile's margins were
+    0.2-7.9 nats, one side under 3 on every seed, with random actions or informative ones
+    (2026-12-06, when the model plant's informative choice was mended; the test had asked
+    for 3 nats at +-8 mm, which seed 3's every-other-action informative path had given).
+    At +-15 mm seeds 3-6 give 7-130 nats; seed 7 favours -15 mm by 1.3."""
     r = _run("stiffness", particles=2000, iterations=15, seed=2)
     k = r["stiffness_true_Nm_per_rad"]
     rows = evidence_profile(r["_trace"], "stiffness", [0.75 * k, k, 1.3 * k])
@@ -70,7 +77,7 @@ def test_evidence_profile_favours_the_true_spring_and_link():
     assert rel[1] == 0.0 and rel[0] < -3.0 and rel[2] < -3.0, rel
     r = _run("novel_fingers", "NH1", particles=2000, iterations=15, seed=3)
     L = r["_trace"].truths["link_lengths"][-1][0, 0]
-    rows = evidence_profile(r["_trace"], "link_length:thumb_NF1", [L - 0.008, L, L + 0.008])
+    rows = evidence_profile(r["_trace"], "link_length:thumb_NF1", [L - 0.015, L, L + 0.015])
     rel = [row["relative"] for row in rows]
     assert rel[1] == 0.0 and rel[0] < -3.0 and rel[2] < -3.0, rel
     assert rows[1]["errors"]["link_length_error_mm"] is None  # the profiled link is no longer identified
