@@ -1862,6 +1862,18 @@ def test_prior_angles_can_be_drawn_where_each_hypothesis_own_springs_and_links_s
     f.initialise(theta0, a0, np.eye(3), np.array([0.0, 0.0, 0.1]), tendon_command=l)
     np.testing.assert_allclose(f._theta_center, center, atol=1e-12)
     assert len(f.settled) == 2
+    # a first initialise given a centre draws around that centre's own settle (the shifts,
+    # measured from the centre, had been added to the middle's angles: a review found no
+    # physical draw at a spring 2.5 times the middle's); the re-initialisations keep the middle's
+    k_c = h.stiffness.copy()
+    k_c[0, 1] = 0.35
+    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=500), prior, np.random.default_rng(5))
+    ps = f.initialise(theta0, a0, np.eye(3), np.array([0.0, 0.0, 0.1]), tendon_command=l, stiffness_center=k_c,
+                      scale=0.3)
+    np.testing.assert_allclose(f._theta_center, center, atol=1e-12)
+    near = np.abs(np.log(ps.stiffness[:, 0, 1] / 0.35)) < 0.05
+    want = k_tab.at(np.array([0.35]))[0, 0, 1] + (L_tab.at(ps.link_lengths[near, 2, 0]) - center)[:, 0, 1]
+    assert near.sum() > 20 and np.abs(ps.theta[near, 0, 1] - want).max() < prior.distal_half_width * 0.3 + 0.02
     with pytest.raises(ValueError, match="'angle_centers' must be one of"):
         pf.PriorConfig(angle_centers="placed").validate()
 

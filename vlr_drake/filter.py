@@ -1480,10 +1480,25 @@ class SelfIdentificationFilter:
                              f"[m]; {np.round(a_center, 4).tolist()} is off finger(s) "
                              f"{[h.names[i] for i in np.flatnonzero(off)]}")
         R_PO, t_PO = _pose("initial", R_PO, t_PO)
+        draw_center = theta_center
         if self.prior.angle_centers == "settled" and self.reinitialisations == 0:
             theta_center, self.settled = self.settled_angles(theta_center, a_center)
+            draw_center = theta_center  # (kept for the re-initialisations: the middle's settle)
+            if stiffness_center is not None or link_center is not None:
+                # settled with the prior's middle: moved to where the given centre's springs and
+                # links settle it, which the draws' shifts are measured from (they had been
+                # measured from the centre but added to the middle's angles: a review found no
+                # physical draw at a spring 2.5x the middle's)
+                pr = self.prior
+                k = np.array(h.stiffness, float)
+                L = np.array(h.link_lengths, float)
+                for fi, j in pr.stiffness_unknown:
+                    k[fi, j] = pr.stiffness_middle() if stiffness_center is None else stiffness_center[fi, j]
+                for fi in pr.links_unknown:
+                    L[fi, 0] = pr.link_middle() if link_center is None else link_center[fi, 0]
+                draw_center = theta_center + self._settled_shift(k[None], L[None], None, None)[0]
         centers = (stiffness_center, link_center, mass_center)
-        theta, a, stiff, links, load, stretch = self._grasps(theta_center, a_center, scale, centers)
+        theta, a, stiff, links, load, stretch = self._grasps(draw_center, a_center, scale, centers)
         if self._uses_command():
             stretch = self._commanded_stretch(theta)
         p = kinematics.contacts(h, theta, a, links)
