@@ -394,12 +394,18 @@ def identify(args) -> dict:
 PLOT_KINDS = ("proximal", "contacts", "convergence", "stiffness", "links")
 
 
+def _plot_path(stem: Path, kind: str) -> str:
+    """The file of one of a run's plots (:data:`PLOT_KINDS`)."""
+    assert kind in PLOT_KINDS, kind
+    return f"{stem}_{kind}.png"
+
+
 def _check_run_files(args, json_path: str, stem: Path) -> None:
     """Refuse a ``--trace`` or ``--json`` that the run's own files would overwrite (or the
     other way round): the result's JSON (``--json``, else its default in ``--out``) and the
     plots ``<stem>_<what>.png``. (A trace named as the default JSON had been written over by
     it, and a ``--json`` named as a plot by the plot.)"""
-    plots = {(stem.parent / f"{stem.name}_{kind}.png").resolve(): kind for kind in PLOT_KINDS}
+    plots = {Path(_plot_path(stem, kind)).resolve(): kind for kind in PLOT_KINDS}
     trace = getattr(args, "trace", None)
     if trace and Path(trace).resolve() == Path(json_path).resolve():
         raise ValueError(f"--trace {trace} is the run's result JSON too: one would be written over the other "
@@ -728,17 +734,17 @@ def _plots(result: dict, stem: Path) -> None:
         print(f"no plots: no filter iteration ran ({why})")
         return
     written = [
-        plots.plot_joint_angles(est, truths, names, f"{stem}_proximal.png", joints="proximal"),
-        plots.plot_contacts(est, truths, names, f"{stem}_contacts.png"),
-        plots.plot_convergence(result["_history"], f"{stem}_convergence.png", result["convergence_deg"],
+        plots.plot_joint_angles(est, truths, names, _plot_path(stem, "proximal"), joints="proximal"),
+        plots.plot_contacts(est, truths, names, _plot_path(stem, "contacts")),
+        plots.plot_convergence(result["_history"], _plot_path(stem, "convergence"), result["convergence_deg"],
                                result["convergence_measure"], result.get("parameter_convergence")),
     ]
     if result.get("stiffness_error_Nm_per_rad") is not None:
         which = [(p["finger"], p["joint"]) for p in result["hand_parameters"].values() if p["unit"] == "N m/rad"]
-        written.append(plots.plot_stiffness(est, truths, names, f"{stem}_stiffness.png", which=which))
+        written.append(plots.plot_stiffness(est, truths, names, _plot_path(stem, "stiffness"), which=which))
     if result.get("link_length_error_mm"):
         fingers = [names.index(n) for n in result["link_length_error_mm"]]
-        written.append(plots.plot_link_lengths(est, truths, names, f"{stem}_links.png", fingers=fingers))
+        written.append(plots.plot_link_lengths(est, truths, names, _plot_path(stem, "links"), fingers=fingers))
     for p in written:
         print(f"wrote {p}")
 

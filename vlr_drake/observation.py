@@ -290,10 +290,34 @@ def _in_frame_kernel(p, R, t, out):  # pragma: no cover - numba
 
 def is_rotation(R, tol: float = 1e-6) -> np.ndarray:
     """Whether each 3 x 3 matrix of ``R`` (..., 3, 3) is a rotation: orthonormal within
-    ``tol`` and of determinant +1 (not a reflection); a boolean array of R's leading shape."""
+    ``tol`` and of determinant +1 (not a reflection); a boolean array of R's leading shape.
+    Compiled, one pass: the rolling move checks its hypotheses' poses with it every step
+    (numpy's batched product and determinant took 22 ms at 60,000)."""
     R = np.asarray(R, dtype=np.float64)
-    off = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(-2, -1))
-    return (off <= tol) & (np.linalg.det(R) > 0)
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"is_rotation: R must have shape (..., 3, 3), got {R.shape}")
+    flat = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    ok = np.empty(flat.shape[0], dtype=np.bool_)
+    _is_rotation_kernel(flat, float(tol), ok)
+    return ok.reshape(R.shape[:-2])
+
+
+@njit(cache=True, parallel=True)
+def _is_rotation_kernel(R, tol, ok):  # pragma: no cover - numba
+    """ok[p]: max |R R^T - I| <= tol and det R > 0 (NaN fails both)."""
+    for cc in prange((R.shape[0] + _CHUNK - 1) // _CHUNK):
+        for p in range(cc * _CHUNK, min((cc + 1) * _CHUNK, R.shape[0])):
+            off = 0.0
+            for i in range(3):
+                for j in range(3):
+                    d = R[p, i, 0] * R[p, j, 0] + R[p, i, 1] * R[p, j, 1] + R[p, i, 2] * R[p, j, 2]
+                    e = abs(d - (1.0 if i == j else 0.0))
+                    if not e <= off:  # (NaN too)
+                        off = e
+            det = (R[p, 0, 0] * (R[p, 1, 1] * R[p, 2, 2] - R[p, 1, 2] * R[p, 2, 1])
+                   - R[p, 0, 1] * (R[p, 1, 0] * R[p, 2, 2] - R[p, 1, 2] * R[p, 2, 0])
+                   + R[p, 0, 2] * (R[p, 1, 0] * R[p, 2, 1] - R[p, 1, 1] * R[p, 2, 0]))
+            ok[p] = off <= tol and det > 0.0
 
 
 def rotation_angle(R_a, R_b) -> np.ndarray:

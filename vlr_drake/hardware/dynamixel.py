@@ -352,17 +352,17 @@ class TendonMotors:
         # finger that sprang back after torque off read as -1.07 turns, which had only been
         # warned about, and the run had started a turn (31 mm of tendon) off (a review).
         far = [m for m in moved if abs(m[3]) >= 0.5]
+        near = [m for m in moved if abs(m[3]) < 0.5]
         for i, now, last, turns in far:
             self.record_findings.append(
                 f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
                 f"({when}): half a turn or more, so a power cycle or a reboot may have reset its multi-turn count "
                 "and it moved as well; measure zero_offset_ticks again (python -m vlr_drake.hardware zero)")
-        for i, now, last, turns in moved:
-            if abs(turns) < 0.5:
-                self.record_findings.append(
-                    f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
-                    f"({when}): turned while its torque was off (less than half a turn: its turn count holds)")
-                log.warning(self.record_findings[-1])
+        for i, now, last, turns in near:
+            self.record_findings.append(
+                f"motor id {i} reads {now} ticks, {turns:+.2f} turns from the {last} where the last run left it "
+                f"({when}): turned while its torque was off (less than half a turn: its turn count holds)")
+            log.warning(self.record_findings[-1])
         if lost or far:
             self._record_trusted = False
             if refuse:
