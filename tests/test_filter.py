@@ -418,47 +418,6 @@ def test_roughening_keeps_mean_and_covariance():
     np.testing.assert_allclose(moved, np.sqrt((1 - np.sqrt(1 - h_**2)) ** 2 + h_**2), rtol=0.05)
 
 
-def test_roughening_with_unknown_links_keeps_the_clouds_covariance_and_ridge():
-    """NH2's two links unknown, ten actions in: roughening (the links as their prior's
-    normal scores, the angles and contacts following them in the values' space) keeps the
-    cloud's covariance in the values' space, and the angles' and contacts' spread about
-    their linear fit on the links (the ridge) is what it was. Folded at the range's ends, a
-    link cloud still touching them lost spread (the whitened covariance 0.04 off)."""
-    from vlr_drake.hand import hand_by_name
-
-    h = hand_by_name("NH2").model()
-    th, a = _truth_grasp(h, np.random.default_rng(0))
-    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
-    f = pf.SelfIdentificationFilter(h, pf.FilterConfig(particles=10000), pf.PriorConfig(links_unknown=[0, 1]),
-                                    np.random.default_rng(2))
-    R, t, _ = plant.measure()
-    f.initialise(th, a, R, t, tendon_command=plant.state.tendon_command)
-    rng = np.random.default_rng(5)
-    for _ in range(10):
-        dl = rng.uniform(-1e-3, 1e-3, h.N)
-        if plant.apply_action(dl):
-            R, t, _ = plant.measure()
-            f.step(dl, R, t, tendon_command=plant.state.tendon_command)
-    ps = f.particles.take(pf.systematic_resample(pf.normalise(f.particles.log_w), f.rng))
-    before = f._unknowns(ps)
-    P = f._parameter_columns(ps)
-    assert P.stop - P.start == 2 and before[:, P].min() < 0.033  # the links, still near their range's end
-    f._roughen(ps)
-    after = f._unknowns(ps)
-    W = np.linalg.inv(np.linalg.cholesky(np.cov(before, rowvar=False)))
-    np.testing.assert_allclose(W @ np.cov(after, rowvar=False) @ W.T, np.eye(len(W)), atol=0.02)
-
-    def ridge(x):  # the rest's variance about its linear fit on the links
-        keep = np.ones(x.shape[1], bool)
-        keep[P] = False
-        C = np.cov(x, rowvar=False)
-        B = np.linalg.solve(C[P, P], C[P][:, keep]).T
-        return np.diag(C[keep][:, keep] - B @ C[P][:, keep])
-
-    np.testing.assert_allclose(ridge(after), ridge(before), rtol=0.02)
-    assert np.all(after[:, P] >= 0.030) and np.all(after[:, P] <= 0.075)
-
-
 def test_roughening_falls_back_to_the_symmetric_square_root(monkeypatch):
     """A collapsed cloud's covariance is rank-deficient and its Cholesky factor may not
     exist (10 particles, 10 unknowns: 'Matrix is not positive definite' ended such a run).
@@ -915,11 +874,10 @@ def test_centred_draws_fold_back_at_the_prior_bounds():
     np.testing.assert_allclose(pf._reflect_into(np.array([0.5, 1.2, -0.3, 2.7]), 0.0, 1.0), [0.5, 0.8, 0.3, 0.7])
 
 
-def test_roughening_keeps_springs_links_and_contacts_in_their_ranges():
+def test_roughening_folds_springs_links_and_contacts_back_at_their_ranges():
     """A cloud spread over its whole range, roughened: every spring, link and contact stays
-    in its range (springs and links roughened as their prior's normal scores, contacts
-    folded back onto the pad) and none piles on a bound (clipped, 4-5% of each sat exactly
-    on one), and the cloud keeps its mean."""
+    in its range and none piles on a bound (clipped, 4-5% of each sat exactly on one), and
+    the cloud keeps its mean."""
     from vlr_drake.hand import hand_by_name
 
     h = hand_by_name("NH2").model()
@@ -975,72 +933,6 @@ def test_roughening_keeps_the_objects_mass_and_the_prior_folds_contacts():
     m = ps.object_load.sum(1)
     assert abs(m.mean() / m0.mean() - 1) < 0.005 and abs(m.std() / m0.std() - 1) < 0.05, (m.mean(), m0.mean())
     assert np.all(ps.object_load > 0)
-
-
-def test_prior_scores_are_standard_normals_and_invert():
-    """Springs, links and loads drawn from their prior are independent standard normals as
-    normal scores, and the scores give the values back."""
-    rng = np.random.default_rng(0)
-    n, lo, hi = 200000, 0.02, 0.15
-    load = rng.uniform(lo, hi, n)[:, None] * rng.dirichlet(np.ones(3), n)
-    z = pf.load_scores(load, lo, hi)
-    np.testing.assert_allclose(z.mean(0), 0.0, atol=0.01)
-    np.testing.assert_allclose(np.cov(z, rowvar=False), np.eye(3), atol=0.01)
-    np.testing.assert_allclose(pf.loads_from_scores(z, lo, hi), load, rtol=1e-7, atol=1e-12)
-    # the mass's score moves the mass alone: each contact keeps its share
-    z[:, 0] += 0.5
-    moved = pf.loads_from_scores(z, lo, hi)
-    np.testing.assert_allclose(moved / moved.sum(1, keepdims=True), load / load.sum(1, keepdims=True), rtol=1e-7)
-    L = rng.uniform(0.03, 0.075, n)
-    zl = pf.uniform_scores(L, 0.03, 0.075)
-    assert abs(zl.mean()) < 0.01 and abs(zl.std() - 1) < 0.01
-    np.testing.assert_allclose(pf.uniform_from_scores(zl, 0.03, 0.075), L, rtol=1e-9)
-    # the bounds map to finite scores, and any score to a value in the range
-    assert np.all(np.isfinite(pf.uniform_scores(np.array([0.03, 0.075]), 0.03, 0.075)))
-    v = pf.loads_from_scores(np.array([[-40.0, 40.0, -40.0], [40.0, -40.0, 40.0]]), lo, hi)
-    assert np.all(v >= 0) and np.all((v.sum(1) >= lo - 1e-15) & (v.sum(1) <= hi + 1e-15))
-
-
-def test_roughening_keeps_a_prior_cloud_without_data():
-    """A cloud the data leave alone stays its prior through roughening: springs (log-uniform),
-    links and the object's mass and shares, 120 roughenings with no measurement. Roughened
-    as values and folded back at the ranges' ends, their spread fell to 0.66 / 0.72 / 0.71 of
-    the prior's in 60 roughenings (the cloud wore towards its range's middle, as if the data
-    had narrowed it)."""
-    from vlr_drake.hand import hand_by_name
-
-    h = hand_by_name("NH2").model()
-    th, a = _truth_grasp(h, np.random.default_rng(0))
-    prior = pf.PriorConfig(links_unknown=[0], stiffness_unknown=[(0, 1)], object_mass_unknown=True,
-                           object_mass_range=(0.0, 0.15))
-    cfg = pf.FilterConfig(particles=6000, gravity_palm=[0.0, 0.0, 9.81], gravity_loads="following")
-    f = pf.SelfIdentificationFilter(h, cfg, prior, np.random.default_rng(2))
-    ps = f.initialise(th, a, np.eye(3), np.array([0.0, 0.0, 0.1]),
-                      tendon_command=h.tendon_travel(th[None])[0] + 0.004)
-    (klo, khi), (llo, lhi), (mlo, mhi) = prior.stiffness_range, prior.link_range, prior.object_mass_range
-    # the prior itself (a grasp's physical draws are fewer soft springs: a check of the kernel)
-    rng, n = np.random.default_rng(3), ps.size
-    k, L = ps.stiffness.copy(), ps.link_lengths.copy()
-    k[:, 0, 1] = np.exp(rng.uniform(np.log(klo), np.log(khi), n))
-    L[:, 0, 0] = rng.uniform(llo, lhi, n)
-    ps.stiffness, ps.link_lengths = k, L
-    ps.object_load = rng.uniform(mlo, mhi, n)[:, None] * rng.dirichlet(np.ones(h.N), n)
-
-    def uniforms():  # each quantity mapped to what is uniform on [0, 1] under the prior
-        m = ps.object_load.sum(1)
-        return {"spring": np.log(ps.stiffness[:, 0, 1] / klo) / np.log(khi / klo),
-                "link": (ps.link_lengths[:, 0, 0] - llo) / (lhi - llo), "mass": (m - mlo) / (mhi - mlo),
-                "share": 1 - (1 - ps.object_load[:, 0] / m) ** (h.N - 1)}
-
-    for _ in range(120):
-        ps.log_w = np.zeros(ps.size)
-        f._roughen(ps)
-    grid = np.linspace(0.0, 1.0, 11)
-    for name, u in uniforms().items():
-        assert abs(u.std() * np.sqrt(12) - 1) < 0.05, (name, u.std() * np.sqrt(12))
-        # each tenth of the range keeps its tenth (sampling error about 0.004; worn, the
-        # first tenth of the mass held 0.025 after 60 roughenings)
-        np.testing.assert_allclose(np.histogram(u, grid)[0] / ps.size, 0.1, atol=0.02, err_msg=name)
 
 
 def test_an_unknown_spring_stays_one_per_hypothesis_when_a_batch_keeps_one(monkeypatch):
@@ -1532,16 +1424,13 @@ def test_object_weight_is_identified_where_the_truth_has_it():
     1.02 / 0.35 / 1.21 / 0.78 deg. With the KKT regulariser only where a pivot fails (the
     forty-fifth session; the plant moves with the same Newton): 96 / 162 / 141 / 180 g; over
     seeds 0-19 the mass 141 g on average (138 before), the truth inside 19 of 20 intervals
-    (20 before). Since the loads are roughened as their prior's normal scores (the
-    forty-eighth session; folded at the range's ends, the cloud had narrowed with no
-    evidence), seeds 0-9: intervals 0.57-0.90 of the prior's width (0.50-0.90 before), the
-    mass inside 10 of 10, every contact's share inside 10 of 10 (8 of 10 before)."""
+    (20 before)."""
     load_true = 0.12 * np.array([0.5, 0.25, 0.25])
     masses = []
     for seed in (0, 1):
         est, truth = _run_weighed(seed, load_true, True)
         lo, hi = float(est["object_mass_lo"]), float(est["object_mass_hi"])
-        assert lo <= 0.12 <= hi and hi - lo < 0.9 * 0.25, (seed, lo, float(est["object_mass"]), hi)
+        assert lo <= 0.12 <= hi and hi - lo < 0.8 * 0.25, (seed, lo, float(est["object_mass"]), hi)
         masses.append(float(est["object_mass"]))
         # the split is weakly identified in 40 actions, but honestly: each share inside its interval
         assert np.all((est["object_load_lo"] <= load_true) & (load_true <= est["object_load_hi"])), est["object_load"]

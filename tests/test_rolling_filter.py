@@ -145,9 +145,8 @@ def test_the_hypotheses_draw_and_keep_their_object():
     f._roughen(taken)
     np.testing.assert_allclose(np.linalg.norm(taken.normals_O, axis=-1), 1.0, atol=1e-12)
     assert not np.allclose(taken.com_O, ps.com_O[idx])
-    # the roughened mass stays in its range (as its prior's normal score), none on its ends:
-    # clipped, 4-5% of a weighed cloud had sat on them after each roughening and its
-    # interval ended there (a review)
+    # the roughened mass stays in its range, folded back at its ends: clipped, 4-5% of a
+    # weighed cloud sat on them after each roughening and its interval ended there (review)
     f.prior.object_mass_range = (0.06, 0.09)
     shares = ps.object_load / ps.object_load.sum(axis=1, keepdims=True)
     ps.object_load = shares * np.linspace(0.06, 0.09, ps.size)[:, None]
@@ -156,6 +155,16 @@ def test_the_hypotheses_draw_and_keep_their_object():
     assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12))
     assert np.mean(np.isclose(m, 0.06) | np.isclose(m, 0.09)) < 0.002
     assert abs(np.mean(m) - 0.075) < 0.002 and np.all(ps.object_load >= 0)
+    # the fold scales a hypothesis' loads together: its contacts keep their shares (a review)
+    x = f._unknowns(ps)
+    c = x.shape[1] - 3 * f.hand.N - 3 - f.hand.N  # the loads' columns, before the normals and the centre
+    np.testing.assert_allclose(x[:, c : c + f.hand.N], ps.object_load)  # (the columns found)
+    x[:, c : c + f.hand.N] *= np.linspace(0.5, 1.5, ps.size)[:, None]  # masses 31-135 g: some past each end
+    shares = x[:, c : c + f.hand.N] / x[:, c : c + f.hand.N].sum(axis=1, keepdims=True)
+    f._set_unknowns(ps, x)
+    m = ps.object_load.sum(axis=1)
+    assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12)) and np.any(np.abs(m - x[:, c : c + f.hand.N].sum(1)) > 1e-3)
+    np.testing.assert_allclose(ps.object_load / m[:, None], shares, rtol=1e-12)
 
 
 def test_a_rolling_filter_reinitialises_around_its_object(monkeypatch):

@@ -25,9 +25,7 @@ One iteration (one action dl and one camera measurement of the POM):
 5. resample (systematic) after a valid measurement that left the ESS below
    ``resample_fraction * M`` (0.5; the weights carry over otherwise),
 6. roughen (Liu-West kernel shrinkage: x <- a x + (1 - a) mean + h C^(1/2) eps with C the
-   cloud's covariance, a = sqrt(1 - h^2), which keeps the cloud's mean and covariance;
-   unknown springs, links and object loads as their prior's normal scores, in which the
-   prior is a standard normal the kernel keeps), recompute each tendon state, and
+   cloud's covariance, a = sqrt(1 - h^2), which keeps the cloud's mean and covariance), recompute each tendon state, and
 7. re-anchor the attachment a fraction ``anchor_fraction`` of the way from the particle's own
    predicted POM pose towards the measured one (holding it fixed for ever makes the filter
    overconfident; DESIGN.md section 3).
@@ -55,7 +53,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit, prange
-from scipy import special
 
 from vlr_drake import kinematics, motion, motion_rolling, observation, units
 from vlr_drake.hand import HandModel, HandSpec
@@ -1348,68 +1345,6 @@ def _reflect_into(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return lo + np.where(y > w, 2.0 * w - y, y)
 
 
-#: Probabilities are clipped this far from 0 and 1 before their normal scores (|z| <= 6.0).
-SCORE_EPS = 1e-9
-
-
-def uniform_scores(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Normal scores Phi^-1((x - lo) / (hi - lo)) of values uniform on [lo, hi]: a standard
-    normal for a cloud drawn from that prior (bounds map to about -+6)."""
-    u = (np.asarray(x, float) - lo) / (hi - lo)
-    return special.ndtri(np.clip(u, SCORE_EPS, 1.0 - SCORE_EPS))
-
-
-def uniform_from_scores(z: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """The values in [lo, hi] of normal scores ``z`` (:func:`uniform_scores`' inverse)."""
-    return lo + (hi - lo) * special.ndtr(z)
-
-
-def load_scores(load: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """(M, N) contact loads m w_i as N normal scores that are independent standard normals
-    under the prior (``PriorConfig.object_mass_unknown``: mass m uniform on [lo, hi], shares
-    w uniform on the simplex): the mass's score, then those of the shares' stick-breaking
-    fractions v_i = w_i / (1 - w_1 - ... - w_(i-1)), i < N, each Beta(1, N - i) distributed
-    (CDF 1 - (1 - v)^(N - i))."""
-    load = np.asarray(load, float)
-    N = load.shape[1]
-    mass = load.sum(axis=1)
-    w = np.where(mass[:, None] > 0, load / np.where(mass > 0, mass, 1.0)[:, None], 1.0 / N)
-    z = np.empty_like(load)
-    z[:, 0] = uniform_scores(mass, lo, hi)
-    rest = np.ones(len(load))
-    for i in range(N - 1):
-        v = np.clip(w[:, i] / np.where(rest > 0, rest, 1.0), 0.0, 1.0)
-        z[:, i + 1] = special.ndtri(np.clip(1.0 - (1.0 - v) ** (N - 1 - i), SCORE_EPS, 1.0 - SCORE_EPS))
-        rest = rest - w[:, i]
-    return z
-
-
-def loads_from_scores(z: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """(M, N) contact loads of normal scores ``z`` (:func:`load_scores`' inverse): masses in
-    [lo, hi], shares on the simplex."""
-    z = np.asarray(z, float)
-    N = z.shape[1]
-    load = np.empty_like(z)
-    rest = uniform_from_scores(z[:, 0], lo, hi)  # the mass not yet shared out
-    for i in range(N - 1):
-        v = 1.0 - (1.0 - special.ndtr(z[:, i + 1])) ** (1.0 / (N - 1 - i))
-        load[:, i] = v * rest
-        rest = rest - load[:, i]
-    load[:, N - 1] = rest
-    return load
-
-
-def _sqrt_cov(cov: np.ndarray) -> np.ndarray:
-    """A square root L of a covariance (L L^T = cov): its Cholesky factor, or, for a
-    collapsed cloud's rank-deficient one (few particles, many copies), the symmetric square
-    root, the same covariance where it is positive semi-definite."""
-    try:
-        return np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        lam, V = np.linalg.eigh(cov)
-        return V * np.sqrt(np.clip(lam, 0.0, None))
-
-
 class FewParticlesWarning(UserWarning):
     """A filter with fewer than :data:`CALIBRATED_PARTICLES` hypotheses: it runs, but its
     intervals are too narrow to be trusted (quick checks and tests, not results)."""
@@ -2205,8 +2140,7 @@ class SelfIdentificationFilter:
         return -0.5 * maha2 + norm, maha2
 
     def _unknowns(self, ps: ParticleSet) -> np.ndarray:
-        """The identified quantities as one (M, D) matrix: theta, a, the hand's and the
-        object's parameters (:meth:`_parameter_columns`), then the rolling model's extras."""
+        """The identified quantities as one (M, D) matrix: theta, a, then extras."""
         cols = [ps.theta.reshape(ps.size, -1), ps.a]
         for fi, j in self.prior.stiffness_unknown:
             cols.append(ps.stiffness[:, fi, j][:, None])
@@ -2220,67 +2154,43 @@ class SelfIdentificationFilter:
             cols.append(ps.com_O)
         return np.concatenate(cols, axis=1)
 
-    def _parameter_columns(self, ps: ParticleSet) -> slice:
-        """The columns of :meth:`_unknowns` that hold the unknown springs, links and object
-        loads, the quantities with a bounded prior."""
-        c0 = self.hand.N * (self.hand.K + 1)
-        n = len(self.prior.stiffness_unknown) + len(self.prior.links_unknown)
-        return slice(c0, c0 + n + (0 if ps.object_load is None else self.hand.N))
-
-    def _parameter_scores(self, p: np.ndarray, inverse: bool = False) -> np.ndarray:
-        """(M, P) parameters (:meth:`_parameter_columns`) as their prior's normal scores,
-        independent standard normals under the prior: springs as uniform in log k (or k),
-        links uniform, loads by :func:`load_scores`; with ``inverse``, the parameters of
-        scores ``p``, inside their ranges."""
-        pr = self.prior
-        klo, khi = pr.stiffness_range
-        log_k = pr.stiffness_prior == "log_uniform"
-        if log_k:
-            klo, khi = np.log(klo), np.log(khi)
-        out = np.empty_like(p)
-        c = 0
-        for _ in pr.stiffness_unknown:
-            if inverse:
-                k = uniform_from_scores(p[:, c], klo, khi)
-                out[:, c] = np.exp(k) if log_k else k
-            else:
-                out[:, c] = uniform_scores(np.log(p[:, c]) if log_k else p[:, c], klo, khi)
-            c += 1
-        for _ in pr.links_unknown:
-            out[:, c] = (uniform_from_scores if inverse else uniform_scores)(p[:, c], *pr.link_range)
-            c += 1
-        if c < p.shape[1]:  # the object's loads
-            out[:, c:] = (loads_from_scores if inverse else load_scores)(p[:, c:], *pr.object_mass_range)
-        return out
-
     def _set_unknowns(self, ps: ParticleSet, x: np.ndarray) -> None:
-        """The identified quantities from ``x`` laid out as :meth:`_unknowns`: contacts folded
-        back onto the pad at its ends, as the prior's draws are (clipped, a third of a prior
-        drawn 3 mm from the pad's end had sat exactly on it); springs, links and loads as
-        they are (roughening keeps them inside their ranges), normals back on the sphere."""
         h, pr = self.hand, self.prior
         n = h.N * h.K
         ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
+        # contacts, springs and links folded back at their ranges' ends, as the prior's draws
+        # are (clipped, up to 4% of an NH1 cloud's link sat on a bound after a roughening)
         ps.a = _reflect_into(x[:, n : n + h.N], *self._contact_bounds)
         c = n + h.N
         if pr.stiffness_unknown:
             k = ps.stiffness.copy()
             for fi, j in pr.stiffness_unknown:
-                k[:, fi, j] = x[:, c]
+                k[:, fi, j] = _reflect_into(x[:, c], *pr.stiffness_range)
                 c += 1
             ps.stiffness = k
         if pr.links_unknown:
             L = ps.link_lengths.copy()
             for fi in pr.links_unknown:
-                L[:, fi, 0] = x[:, c]
+                L[:, fi, 0] = _reflect_into(x[:, c], *pr.link_range)
                 c += 1
             ps.link_lengths = L
-        if ps.object_load is not None:
-            ps.object_load = x[:, c : c + h.N].copy()
+        if ps.object_load is not None:  # loads >= 0 with their sum, the mass, inside its range
+            raw = x[:, c : c + h.N]
+            lo, hi = pr.object_mass_range
+            # The mass is the roughened loads' sum, which keeps the cloud's mean and variance,
+            # folded back at the range's ends (clipped, 4-5% of a weighed cloud sat on them
+            # after each roughening and the interval ended on the bound: a review). The shares
+            # are the loads folded back at 0. (Loads clipped at 0 before summing had added
+            # mass at every roughening: a light cloud grew 7% in 30 of them with no data.)
+            mass = _reflect_into(raw.sum(axis=1), lo, hi)
+            folded = np.abs(raw)
+            total = folded.sum(axis=1, keepdims=True)
+            shares = np.where(total > 0, folded / np.where(total > 0, total, 1.0), 1.0 / h.N)
+            ps.object_load = mass[:, None] * shares
             c += h.N
         if ps.normals_O is not None:  # roughened as vectors, back on the unit sphere
-            nv = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
-            ps.normals_O = nv / np.linalg.norm(nv, axis=-1, keepdims=True)
+            n = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
+            ps.normals_O = n / np.linalg.norm(n, axis=-1, keepdims=True)
             c += 3 * h.N
         if ps.com_O is not None:
             ps.com_O = x[:, c : c + 3].copy()
@@ -2295,45 +2205,21 @@ class SelfIdentificationFilter:
         and covariance. The full covariance matters: joint angles and contact positions of a
         finger form a nearly degenerate ridge, and per-coordinate jitter would knock
         particles off it.
-
-        Unknown springs, links and object loads p have bounded priors: they are roughened by
-        the same kernel as their prior's normal scores z (:meth:`_parameter_scores`), in
-        which the prior is a standard normal the kernel keeps as it is, and the rest y
-        follow in the values' own space as the joint kernel has them follow,
-        y <- a y + (1 - a) mean_y + B d + h C_(y|p)^(1/2) eps_y, with B = C_yp C_pp^-1 and
-        d = p' - (a p + (1 - a) mean_p) the parameters' jitter (for a kernel in the values'
-        space the two are the joint kernel). Roughened as values and folded back at their
-        ranges' ends, a cloud the data left alone had narrowed towards its range's middle
-        with no evidence: a prior's spread fell to 0.66 (log-uniform spring), 0.72 (link)
-        and 0.71 (mass) of itself in 60 roughenings. Roughened jointly in scores, the angles'
-        ridge along the links bent with the scores' stretch of the range's ends (NH2 and NH3
-        on the model plant, seeds 0-8: link errors 1.1 mm against 0.6 mm).
         """
         hh = self.config.roughening
         shrink = np.sqrt(1.0 - hh * hh)
         x = self._unknowns(ps)
-        P = self._parameter_columns(ps)
         mean = x.mean(axis=0)
         cov = np.cov(x, rowvar=False) + 1e-18 * np.eye(x.shape[1])
-        eps = self.rng.standard_normal(x.shape)
-        if P.stop == P.start:
-            x = shrink * x + (1.0 - shrink) * mean + eps @ (hh * _sqrt_cov(cov).T)
-        else:
-            keep = np.ones(x.shape[1], bool)
-            keep[P] = False
-            p = x[:, P]
-            z = self._parameter_scores(p)
-            z_new = shrink * z + (1.0 - shrink) * z.mean(axis=0) + eps[:, P] @ (hh * _sqrt_cov(np.atleast_2d(
-                np.cov(z, rowvar=False)) + 1e-18 * np.eye(z.shape[1])).T)
-            p_new = self._parameter_scores(z_new, inverse=True)
-            d = p_new - (shrink * p + (1.0 - shrink) * mean[P])
-            C_pp, C_yp, C_yy = cov[P, P], cov[keep][:, P], cov[keep][:, keep]
-            B = np.linalg.lstsq(C_pp, C_yp.T, rcond=None)[0].T  # C_yp C_pp^-1
-            y = x[:, keep]
-            y_new = (shrink * y + (1.0 - shrink) * mean[keep] + d @ B.T
-                     + eps[:, keep] @ (hh * _sqrt_cov(C_yy - B @ C_yp.T).T))
-            x = np.empty_like(x)
-            x[:, keep], x[:, P] = y_new, p_new
+        try:
+            Lc = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:  # a collapsed cloud (few particles, many copies): rank-deficient
+            lam, V = np.linalg.eigh(cov)  # the symmetric square root, same covariance where it is PSD
+            Lc = V * np.sqrt(np.clip(lam, 0.0, None))
+        jitter = self.rng.standard_normal(x.shape) @ (hh * Lc.T)
+        x *= shrink  # in place: x is the fresh matrix of _unknowns
+        x += (1.0 - shrink) * mean
+        x += jitter
         self._set_unknowns(ps, x)
         if self._uses_command():
             if not self.hand.statically_determinate:  # settle the angles to an equilibrium
