@@ -2205,6 +2205,14 @@ class SelfIdentificationFilter:
         and covariance. The full covariance matters: joint angles and contact positions of a
         finger form a nearly degenerate ridge, and per-coordinate jitter would knock
         particles off it.
+
+        Springs, links and the object's mass fold back at their ranges' ends
+        (:meth:`_set_unknowns`), which takes spread away that the next roughening does not
+        give back: a cloud the data leave alone narrows towards its range's middle (to
+        0.66-0.72 of its spread in 60 roughenings). Roughening them as their prior's normal
+        scores instead keeps such a cloud, but measured worse on the physics plant (NF1's
+        link and the rolling model's object mass settled against their ranges' lower ends):
+        docs/results.md, forty-eighth session.
         """
         hh = self.config.roughening
         shrink = np.sqrt(1.0 - hh * hh)
