@@ -1345,6 +1345,26 @@ def _reflect_into(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return lo + np.where(y > w, 2.0 * w - y, y)
 
 
+def _fold_keeping_spread(x: np.ndarray, lo: float, hi: float, rounds: int = 3) -> np.ndarray:
+    """Roughened values ``x`` (M,) or (M, n) folded back into [lo, hi] (:func:`_reflect_into`),
+    each column that reached past a bound then spread about its mean back to the standard
+    deviation it had before the fold (and folded again; ``rounds`` times): roughening keeps
+    the cloud's variance, and a fold alone takes some away each time, so that a cloud the data
+    leave alone had narrowed towards its range's middle (a prior's spread to 0.66-0.72 of
+    itself in 60 roughenings). Columns that stayed inside are returned as they were."""
+    x = np.asarray(x, float)
+    past = np.any((x < lo) | (x > hi), axis=0)
+    if not np.any(past):
+        return _reflect_into(x, lo, hi)
+    target = x.std(axis=0)
+    y = _reflect_into(x, lo, hi)
+    for _ in range(rounds):
+        m, sd = y.mean(axis=0), y.std(axis=0)
+        scale = np.where(past & (sd > 0), target / np.where(sd > 0, sd, 1.0), 1.0)
+        y = _reflect_into(m + (y - m) * scale, lo, hi)
+    return y
+
+
 class FewParticlesWarning(UserWarning):
     """A filter with fewer than :data:`CALIBRATED_PARTICLES` hypotheses: it runs, but its
     intervals are too narrow to be trusted (quick checks and tests, not results)."""
@@ -2142,8 +2162,9 @@ class SelfIdentificationFilter:
     def _unknowns(self, ps: ParticleSet) -> np.ndarray:
         """The identified quantities as one (M, D) matrix: theta, a, then extras."""
         cols = [ps.theta.reshape(ps.size, -1), ps.a]
-        for fi, j in self.prior.stiffness_unknown:
-            cols.append(ps.stiffness[:, fi, j][:, None])
+        for fi, j in self.prior.stiffness_unknown:  # log k for the log-uniform prior: its own space
+            k = ps.stiffness[:, fi, j]
+            cols.append((np.log(k) if self.prior.stiffness_prior == "log_uniform" else k)[:, None])
         for fi in self.prior.links_unknown:
             cols.append(ps.link_lengths[:, fi, 0][:, None])
         if ps.object_load is not None:
@@ -2164,14 +2185,18 @@ class SelfIdentificationFilter:
         c = n + h.N
         if pr.stiffness_unknown:
             k = ps.stiffness.copy()
+            lo, hi = pr.stiffness_range
             for fi, j in pr.stiffness_unknown:
-                k[:, fi, j] = _reflect_into(x[:, c], *pr.stiffness_range)
+                if pr.stiffness_prior == "log_uniform":  # roughened as log k (_unknowns)
+                    k[:, fi, j] = np.exp(_fold_keeping_spread(x[:, c], np.log(lo), np.log(hi)))
+                else:
+                    k[:, fi, j] = _fold_keeping_spread(x[:, c], lo, hi)
                 c += 1
             ps.stiffness = k
         if pr.links_unknown:
             L = ps.link_lengths.copy()
             for fi in pr.links_unknown:
-                L[:, fi, 0] = _reflect_into(x[:, c], *pr.link_range)
+                L[:, fi, 0] = _fold_keeping_spread(x[:, c], *pr.link_range)
                 c += 1
             ps.link_lengths = L
         if ps.object_load is not None:  # loads >= 0 with their sum, the mass, inside its range
@@ -2182,7 +2207,7 @@ class SelfIdentificationFilter:
             # after each roughening and the interval ended on the bound: a review). The shares
             # are the loads folded back at 0. (Loads clipped at 0 before summing had added
             # mass at every roughening: a light cloud grew 7% in 30 of them with no data.)
-            mass = _reflect_into(raw.sum(axis=1), lo, hi)
+            mass = _fold_keeping_spread(raw.sum(axis=1), lo, hi)
             folded = np.abs(raw)
             total = folded.sum(axis=1, keepdims=True)
             shares = np.where(total > 0, folded / np.where(total > 0, total, 1.0), 1.0 / h.N)
