@@ -1353,15 +1353,16 @@ def _fold_keeping_spread(x: np.ndarray, lo: float, hi: float, rounds: int = 3) -
     leave alone had narrowed towards its range's middle (a prior's spread to 0.66-0.72 of
     itself in 60 roughenings). Columns that stayed inside are returned as they were."""
     x = np.asarray(x, float)
+    y = _reflect_into(x, lo, hi)
     past = np.any((x < lo) | (x > hi), axis=0)
     if not np.any(past):
-        return _reflect_into(x, lo, hi)
-    target = x.std(axis=0)
-    y = _reflect_into(x, lo, hi)
+        return y
+    cols = (Ellipsis, past) if x.ndim > 1 else (Ellipsis,)
+    target, z = x[cols].std(axis=0), y[cols]
     for _ in range(rounds):
-        m, sd = y.mean(axis=0), y.std(axis=0)
-        scale = np.where(past & (sd > 0), target / np.where(sd > 0, sd, 1.0), 1.0)
-        y = _reflect_into(m + (y - m) * scale, lo, hi)
+        m, sd = z.mean(axis=0), z.std(axis=0)
+        z = _reflect_into(m + (z - m) * np.divide(target, sd, out=np.ones_like(sd), where=sd > 0), lo, hi)
+    y[cols] = z
     return y
 
 
@@ -2160,7 +2161,8 @@ class SelfIdentificationFilter:
         return -0.5 * maha2 + norm, maha2
 
     def _unknowns(self, ps: ParticleSet) -> np.ndarray:
-        """The identified quantities as one (M, D) matrix: theta, a, then extras."""
+        """The identified quantities as one (M, D) matrix: theta, a, then extras (an unknown
+        spring as log k under the log-uniform prior, the space the prior is uniform in)."""
         cols = [ps.theta.reshape(ps.size, -1), ps.a]
         for fi, j in self.prior.stiffness_unknown:  # log k for the log-uniform prior: its own space
             k = ps.stiffness[:, fi, j]
@@ -2180,7 +2182,8 @@ class SelfIdentificationFilter:
         n = h.N * h.K
         ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
         # contacts, springs and links folded back at their ranges' ends, as the prior's draws
-        # are (clipped, up to 4% of an NH1 cloud's link sat on a bound after a roughening)
+        # are (clipped, up to 4% of an NH1 cloud's link sat on a bound after a roughening);
+        # springs, links and the mass given back the spread the fold takes (_fold_keeping_spread)
         ps.a = _reflect_into(x[:, n : n + h.N], *self._contact_bounds)
         c = n + h.N
         if pr.stiffness_unknown:
@@ -2203,7 +2206,7 @@ class SelfIdentificationFilter:
             raw = x[:, c : c + h.N]
             lo, hi = pr.object_mass_range
             # The mass is the roughened loads' sum, which keeps the cloud's mean and variance,
-            # folded back at the range's ends (clipped, 4-5% of a weighed cloud sat on them
+            # folded back at the range's ends keeping its spread (clipped, 4-5% of a weighed cloud sat on them
             # after each roughening and the interval ended on the bound: a review). The shares
             # are the loads folded back at 0. (Loads clipped at 0 before summing had added
             # mass at every roughening: a light cloud grew 7% in 30 of them with no data.)
@@ -2231,12 +2234,13 @@ class SelfIdentificationFilter:
         finger form a nearly degenerate ridge, and per-coordinate jitter would knock
         particles off it.
 
-        Springs, links and the object's mass fold back at their ranges' ends
-        (:meth:`_set_unknowns`), which takes spread away that the next roughening does not
-        give back: a cloud the data leave alone narrows towards its range's middle (to
-        0.66-0.72 of its spread in 60 roughenings). Roughening them as their prior's normal
-        scores instead keeps such a cloud, but measured worse on the physics plant (NF1's
-        link and the rolling model's object mass settled against their ranges' lower ends):
+        Springs (as log k under the log-uniform prior), links and the object's mass fold
+        back at their ranges' ends, and each is then spread back to the standard deviation
+        the fold took from it (:func:`_fold_keeping_spread`): folded alone, a cloud the data
+        leave alone narrowed towards its range's middle (to 0.66-0.72 of its spread in 60
+        roughenings), as if measured. Roughening them as their prior's normal scores kept
+        such a cloud as well, but measured worse on the physics plant (NF1's link and the
+        rolling model's object mass settled against their ranges' lower ends):
         docs/results.md, forty-eighth session.
         """
         hh = self.config.roughening
