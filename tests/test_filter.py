@@ -936,17 +936,18 @@ def test_roughening_keeps_the_objects_mass_and_the_prior_folds_contacts():
 
 
 def test_a_fold_gives_back_the_spread_it_takes():
-    """Columns that reached past a bound are folded back and spread to their standard
-    deviation before the fold; a column that stayed inside is returned as it was."""
+    """Values that reached past a bound are folded back and spread to their standard
+    deviation before the fold; values that stayed inside are returned as they were."""
     rng = np.random.default_rng(0)
     inside = rng.uniform(0.2, 0.8, 5000)
+    np.testing.assert_array_equal(pf._fold_keeping_spread(inside, 0.0, 1.0), inside)
     past = rng.normal(0.1, 0.15, 5000)  # a third of it below 0
-    y = pf._fold_keeping_spread(np.stack([inside, past], axis=1), 0.0, 1.0)
-    np.testing.assert_array_equal(y[:, 0], inside)
-    assert np.all((y[:, 1] >= 0.0) & (y[:, 1] <= 1.0))
-    folded = pf._reflect_into(past, 0.0, 1.0)
-    assert folded.std() < 0.75 * past.std()  # what the fold alone leaves
-    assert abs(y[:, 1].std() / past.std() - 1) < 0.02
+    y = pf._fold_keeping_spread(past, 0.0, 1.0)
+    assert np.all((y >= 0.0) & (y <= 1.0))
+    assert pf._reflect_into(past, 0.0, 1.0).std() < 0.75 * past.std()  # what the fold alone leaves
+    assert abs(y.std() / past.std() - 1) < 0.02
+    # a cloud with no spread stays where the fold puts it
+    np.testing.assert_allclose(pf._fold_keeping_spread(np.full(4, -0.1), 0.0, 1.0), np.full(4, 0.1), rtol=1e-12)
 
 
 def test_roughening_keeps_a_prior_cloud_without_data():

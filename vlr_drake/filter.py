@@ -1346,23 +1346,22 @@ def _reflect_into(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 
 def _fold_keeping_spread(x: np.ndarray, lo: float, hi: float, rounds: int = 3) -> np.ndarray:
-    """Roughened values ``x`` (M,) or (M, n) folded back into [lo, hi] (:func:`_reflect_into`),
-    each column that reached past a bound then spread about its mean back to the standard
-    deviation it had before the fold (and folded again; ``rounds`` times): roughening keeps
-    the cloud's variance, and a fold alone takes some away each time, so that a cloud the data
+    """Roughened values ``x`` (M,) folded back into [lo, hi] (:func:`_reflect_into`) and,
+    where some reached past a bound, spread about their mean back to the standard deviation
+    they had before the fold (and folded again; ``rounds`` times): roughening keeps the
+    cloud's variance, and a fold alone takes some away each time, so that a cloud the data
     leave alone had narrowed towards its range's middle (a prior's spread to 0.66-0.72 of
-    itself in 60 roughenings). Columns that stayed inside are returned as they were."""
+    itself in 60 roughenings). Values that all stayed inside are returned as they were."""
     x = np.asarray(x, float)
     y = _reflect_into(x, lo, hi)
-    past = np.any((x < lo) | (x > hi), axis=0)
-    if not np.any(past):
+    if not np.any((x < lo) | (x > hi)):
         return y
-    cols = (Ellipsis, past) if x.ndim > 1 else (Ellipsis,)
-    target, z = x[cols].std(axis=0), y[cols]
+    target = x.std()
     for _ in range(rounds):
-        m, sd = z.mean(axis=0), z.std(axis=0)
-        z = _reflect_into(m + (z - m) * np.divide(target, sd, out=np.ones_like(sd), where=sd > 0), lo, hi)
-    y[cols] = z
+        m, sd = y.mean(), y.std()
+        if not sd > 0:
+            break
+        y = _reflect_into(m + (y - m) * (target / sd), lo, hi)
     return y
 
 
@@ -2206,8 +2205,9 @@ class SelfIdentificationFilter:
             raw = x[:, c : c + h.N]
             lo, hi = pr.object_mass_range
             # The mass is the roughened loads' sum, which keeps the cloud's mean and variance,
-            # folded back at the range's ends keeping its spread (clipped, 4-5% of a weighed cloud sat on them
-            # after each roughening and the interval ended on the bound: a review). The shares
+            # folded back at the range's ends keeping its spread (clipped, 4-5% of a weighed
+            # cloud sat on them after each roughening and the interval ended on the bound: a
+            # review). The shares
             # are the loads folded back at 0. (Loads clipped at 0 before summing had added
             # mass at every roughening: a light cloud grew 7% in 30 of them with no data.)
             mass = _fold_keeping_spread(raw.sum(axis=1), lo, hi)
