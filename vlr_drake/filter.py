@@ -1503,7 +1503,7 @@ class SelfIdentificationFilter:
         draw_center = theta_center
         if self.prior.angle_centers == "settled" and self.reinitialisations == 0:
             theta_center, self.settled = self.settled_angles(theta_center, a_center)
-            draw_center = theta_center  # (kept for the re-initialisations: the middle's settle)
+            draw_center = theta_center  # the draws' centre; theta_center, the middle's settle, is kept for re-initialising
             if stiffness_center is not None or link_center is not None:
                 # settled with the prior's middle: moved to where the given centre's springs and
                 # links settle it, which the draws' shifts are measured from (they had been
