@@ -935,6 +935,22 @@ def test_roughening_keeps_the_objects_mass_and_the_prior_folds_contacts():
     assert np.all(ps.object_load > 0)
 
 
+def test_loads_go_to_log_ratios_and_back():
+    """Roughening's coordinates of the object's loads (the mass and its shares' log-ratios)
+    give the loads back; a contact that carries nothing keeps a finite log-ratio (the share
+    floor), and a cloud without mass gets equal shares, never a NaN."""
+    rng = np.random.default_rng(0)
+    load = rng.uniform(0.02, 0.2, 50)[:, None] * rng.dirichlet(np.ones(3), 50)
+    x = pf._mass_and_log_ratios(load)
+    assert x.shape == (50, 3)
+    np.testing.assert_allclose(x[:, 0][:, None] * pf._shares_from_log_ratios(x[:, 1:]), load, rtol=1e-12)
+    odd = pf._mass_and_log_ratios(np.array([[0.0, 0.03, 0.01], [0.0, 0.0, 0.0]]))
+    assert np.all(np.isfinite(odd))
+    np.testing.assert_allclose(pf._shares_from_log_ratios(odd[:, 1:]), [[0.0, 0.75, 0.25], [1 / 3, 1 / 3, 1 / 3]],
+                               atol=1e-11)
+    assert np.all(np.isfinite(pf._shares_from_log_ratios(np.array([[800.0, -800.0]]))))
+
+
 def test_a_fold_gives_back_the_spread_it_takes():
     """Values that reached past a bound are folded back and spread to their standard
     deviation before the fold; values that stayed inside are returned as they were."""
@@ -956,7 +972,9 @@ def test_roughening_keeps_a_prior_cloud_without_data():
     ranges' ends without giving back the spread the fold takes, their spread fell to 0.66 /
     0.72 / 0.71 of the prior's in 60 roughenings (the cloud wore towards its range's middle,
     as if the data had narrowed it), and the spring, roughened as k, lost its log-uniform
-    shape. (The contacts' shares of the mass still wear: Dirichlet shares folded at 0.)"""
+    shape. The contacts' shares of the mass keep their Dirichlet prior's spread too: roughened
+    as loads folded back at 0 they had worn towards equal shares (a share's SD 0.236 -> 0.11,
+    shares under 5% 0.098 -> 0.008 of the cloud after 120 roughenings)."""
     from vlr_drake.hand import hand_by_name
 
     h = hand_by_name("NH2").model()
@@ -986,6 +1004,12 @@ def test_roughening_keeps_a_prior_cloud_without_data():
         # each tenth of the range keeps its tenth (sampling error about 0.004; worn, the
         # first tenth of the mass held 0.025 after 60 roughenings)
         np.testing.assert_allclose(np.histogram(u, np.linspace(0.0, 1.0, 11))[0] / n, 0.1, atol=0.025, err_msg=name)
+    shares = ps.object_load / m[:, None]  # each Beta(1, N - 1) under the prior: SD 0.236 for N = 3
+    sd0 = np.sqrt((h.N - 1) / (h.N**2 * (h.N + 1)))
+    under = 1 - (1 - 0.05) ** (h.N - 1)  # the prior's fraction of shares under 5%
+    for i in range(h.N):
+        assert 0.85 < shares[:, i].std() / sd0 < 1.25, (i, shares[:, i].std() / sd0)
+        assert 0.6 * under < np.mean(shares[:, i] < 0.05) < 1.6 * under, (i, np.mean(shares[:, i] < 0.05))
 
 
 def test_an_unknown_spring_stays_one_per_hypothesis_when_a_batch_keeps_one(monkeypatch):

@@ -155,15 +155,17 @@ def test_the_hypotheses_draw_and_keep_their_object():
     assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12))
     assert np.mean(np.isclose(m, 0.06) | np.isclose(m, 0.09)) < 0.002
     assert abs(np.mean(m) - 0.075) < 0.002 and np.all(ps.object_load >= 0)
-    # the fold scales a hypothesis' loads together: its contacts keep their shares (a review)
+    # the fold scales a hypothesis' loads together: its contacts keep their shares (a review),
+    # roughened as the mass and the shares' log-ratios
     x = f._unknowns(ps)
     c = x.shape[1] - 3 * f.hand.N - 3 - f.hand.N  # the loads' columns, before the normals and the centre
-    np.testing.assert_allclose(x[:, c : c + f.hand.N], ps.object_load)  # (the columns found)
-    x[:, c : c + f.hand.N] *= np.linspace(0.5, 1.5, ps.size)[:, None]  # masses 31-135 g: some past each end
-    shares = x[:, c : c + f.hand.N] / x[:, c : c + f.hand.N].sum(axis=1, keepdims=True)
+    np.testing.assert_allclose(x[:, c], ps.object_load.sum(axis=1))  # (the columns found)
+    shares = ps.object_load / ps.object_load.sum(axis=1, keepdims=True)
+    np.testing.assert_allclose(x[:, c + 1 : c + f.hand.N], np.log(shares[:, :-1] / shares[:, -1:]))
+    x[:, c] *= np.linspace(0.5, 1.5, ps.size)  # masses 31-135 g: some past each end
     f._set_unknowns(ps, x)
     m = ps.object_load.sum(axis=1)
-    assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12)) and np.any(np.abs(m - x[:, c : c + f.hand.N].sum(1)) > 1e-3)
+    assert np.all((m >= 0.06 - 1e-12) & (m <= 0.09 + 1e-12)) and np.any(np.abs(m - x[:, c]) > 1e-3)
     np.testing.assert_allclose(ps.object_load / m[:, None], shares, rtol=1e-12)
 
 
