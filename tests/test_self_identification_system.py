@@ -352,6 +352,8 @@ def test_filter_system_checks_its_nominal_grasp_at_construction():
         SelfIdentificationSystem(h, cfg, prior, th * np.nan, a, period_sec=1.0)
     with pytest.raises(ValueError, match="a_center"):
         SelfIdentificationSystem(h, cfg, prior, th, np.full(3, np.inf), period_sec=1.0)
+    with pytest.raises(ValueError, match="'a_center' must lie along the last links"):  # mm for m: was refused
+        SelfIdentificationSystem(h, cfg, prior, th, a * 1000, period_sec=1.0)  # only at the first measurement
 
 
 def test_filter_system_names_a_non_finite_tendon_command_port():

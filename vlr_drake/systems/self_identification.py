@@ -108,7 +108,7 @@ class SelfIdentificationSystem(LeafSystem):
             warnings.simplefilter("ignore", pf.FewParticlesWarning)  # (a setting that does not fit the hand
             pf.SelfIdentificationFilter(hand, self._config, prior, np.random.default_rng(0))  # had stopped the run)
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
-        self._a_center = pf._shaped("a_center", a_center, (hand.N,))
+        self._a_center = pf.contact_center(hand, a_center)  # on the links, now, not at the first measurement
         n = hand.N * hand.K
         self._command = self.DeclareVectorInputPort(name="tendon_command", size=hand.N)
         self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
