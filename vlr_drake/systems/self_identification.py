@@ -259,6 +259,10 @@ class ExplorationPolicy(LeafSystem):
         self._span, self._window, self._range = span, window, tendon_limits(hand, limits)
         self._squeeze = (squeeze, squeeze_window)
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
+        out = (self._l0 < self._range[:, 0]) | (self._l0 > self._range[:, 1])
+        if np.any(out):  # its window would collapse onto the limit: one jump there, then no exploration
+            raise ValueError(f"exploration: 'l_grasp' {np.round(1e3 * self._l0, 3).tolist()} mm is outside the tendon "
+                             f"limits {np.round(1e3 * self._range, 3).tolist()} mm (tendon(s) {np.flatnonzero(out).tolist()})")
 
     def _update(self, context, discrete_state):
         if self._enabled.HasValue(context) and not checked_flag(self._enabled.Eval(context)[0], "exploration: input 'enabled'"):
