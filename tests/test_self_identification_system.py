@@ -210,6 +210,10 @@ def test_exploration_policy_stays_in_its_window():
     limits = np.column_stack([l0 - 0.4e-3, l0 + 0.4e-3])
     ls = _commands(ExplorationPolicy(h, l0, period_sec=1.0, span=1.5e-3, window=4e-3, seed=3, limits=limits), 39)
     assert np.all((ls >= limits[:, 0] - 1e-12) & (ls <= limits[:, 1] + 1e-12)) and np.ptp(ls, axis=0).min() > 4e-4
+    # a grasp outside the limits is named: the policy had jumped to the limit in one action
+    # (5 mm, against a 1.5 mm span) and stayed there, its window collapsed, exploring nothing
+    with pytest.raises(ValueError, match=r"'l_grasp' \[15.0, 15.0, 15.0\] mm is outside the tendon limits"):
+        ExplorationPolicy(h, l0, period_sec=1.0, limits=np.column_stack([np.zeros(3), np.full(3, 0.010)]))
 
 
 def test_identification_loop_under_the_simulator():
@@ -352,6 +356,8 @@ def test_filter_system_checks_its_nominal_grasp_at_construction():
         SelfIdentificationSystem(h, cfg, prior, th * np.nan, a, period_sec=1.0)
     with pytest.raises(ValueError, match="a_center"):
         SelfIdentificationSystem(h, cfg, prior, th, np.full(3, np.inf), period_sec=1.0)
+    with pytest.raises(ValueError, match="'a_center' must lie along the last links"):  # mm for m: was refused
+        SelfIdentificationSystem(h, cfg, prior, th, a * 1000, period_sec=1.0)  # only at the first measurement
 
 
 def test_filter_system_names_a_non_finite_tendon_command_port():

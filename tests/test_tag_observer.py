@@ -48,7 +48,7 @@ from test_tag_pose import pose_errors, render_tag_view
 
 from vlr_drake.perception.apriltag import tag_image
 from vlr_drake.perception.camera import CameraConfig
-from vlr_drake.perception.image_noise import add_pixel_noise
+from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
 from vlr_drake.perception.tag_pose import TagObserverConfig, to_gray, vtk_render_intrinsics
 from vlr_drake.systems.tag_observer import NoisyPoseSensor, TagObserver, rotation_from_vector
 
@@ -347,8 +347,11 @@ def test_observer_bad_arguments(camera):
     K = camera.intrinsic_matrix()
     with pytest.raises(ValueError, match="K"):
         make_observer(np.eye(2), camera)
-    with pytest.raises(ValueError, match="input_scale"):
-        make_observer(K, camera, input_scale=0)
+    for bad in (0, 1.5, np.inf, np.nan):  # inf and NaN ended in int()'s errors, which name nothing
+        with pytest.raises(ValueError, match="input_scale.*must be a positive integer"):
+            make_observer(K, camera, input_scale=bad)
+        with pytest.raises(ValueError, match="scale: must be a positive integer"):
+            downsample_area(np.zeros((4, 4), np.uint8), bad)
     with pytest.raises(ValueError, match="update_period_sec"):
         make_observer(K, camera, update_period_sec=0.0)
     for offset in (-0.01, 0.1, np.nan):  # within the period, or the update never lines up with the filter's

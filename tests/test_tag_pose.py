@@ -357,8 +357,9 @@ def test_bad_inputs_raise_clear_errors(K, views):
         estimate_tag_pose(np.zeros((3, 2)), TAG_SIZE, K)
     with pytest.raises(ValueError, match="K"):
         estimate_tag_pose(np.zeros((4, 2)), TAG_SIZE, np.eye(2))
-    with pytest.raises(ValueError, match="tag_size"):
-        estimate_tag_pose(np.zeros((4, 2)), -1.0, K)
+    for bad in (-1.0, np.inf, True):  # inf gave None (a lost tag), True a 1 m tag
+        with pytest.raises(ValueError, match="tag_size: must be a finite number > 0"):
+            estimate_tag_pose(project(views[0][0], K), bad, K)
     with pytest.raises(ValueError, match="dist"):
         estimate_tag_pose(project(views[0][0], K), TAG_SIZE, K, np.zeros(3))
     with pytest.raises(ValueError, match="corner_refinement"):

@@ -11,7 +11,13 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from vlr_drake import kinematics, observation
 from vlr_drake.filter import ParticleSet
-from vlr_drake.visualization import HypothesisDrawer, cylinder_mesh, hypothesis_points, save_recording
+from vlr_drake.visualization import (
+    HypothesisDrawer,
+    TaskView,
+    cylinder_mesh,
+    hypothesis_points,
+    save_recording,
+)
 
 
 class Spy:
@@ -282,3 +288,21 @@ def test_a_new_drawer_and_clear_keep_the_scene_right(model_o_hand, rng):
     spy.calls.clear()
     new.clear()
     assert spy.last("SetTransform", "/hypotheses")[1].IsExactlyEqualTo(X_WP)
+
+
+def test_task_view_names_a_bad_pose_or_setting(meshcat):
+    """The object's pose went to Meshcat unchecked (Drake's RotationMatrix takes any matrix,
+    and NaN), where the target's was checked; a NaN step_time failed later under another name."""
+    view = TaskView(meshcat, prefix="/test_task_view")
+    view.object_pose(np.eye(3), [0.0, 0.0, 0.1])
+    assert len(view.trail) == 1
+    with pytest.raises(ValueError, match="object_pose: R must be a rotation matrix"):
+        view.object_pose(2 * np.eye(3), [0.0, 0.0, 0.1])
+    with pytest.raises(ValueError, match="object_pose: .*t 3 finite numbers"):
+        view.object_pose(np.eye(3), [0.0, np.nan, 0.1])
+    with pytest.raises(ValueError, match="target_pose: R must be a rotation matrix"):
+        view.target_pose(np.ones((3, 3)), np.zeros(3))
+    assert len(view.trail) == 1 and view.time == pytest.approx(view.step_time)  # nothing recorded
+    for name in ("step_time", "axis_length"):
+        with pytest.raises(ValueError, match=f"{name} must be a positive finite number"):
+            TaskView(meshcat, **{name: np.nan})

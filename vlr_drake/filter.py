@@ -98,6 +98,19 @@ def _shaped(name: str, x, shape: tuple) -> np.ndarray:
     return as_particles(name, arr.reshape(shape), shape)  # its finiteness check and message
 
 
+def contact_center(hand: HandModel, a_center) -> np.ndarray:
+    """The nominal contacts ``a_center`` (N,) [m] along the last links, checked: finite and
+    within 0..``hand.distal_length`` (one off a link would be clipped to its end: it is named
+    instead; metres, not mm?), or a ValueError."""
+    a_center = _shaped("a_center", a_center, (hand.N,))
+    off = (a_center < 0) | (a_center > hand.distal_length)
+    if np.any(off):
+        raise ValueError(f"filter: 'a_center' must lie along the last links, 0..{np.round(hand.distal_length, 4).tolist()} "
+                         f"[m]; {np.round(a_center, 4).tolist()} is off finger(s) "
+                         f"{[hand.names[i] for i in np.flatnonzero(off)]}")
+    return a_center
+
+
 def _pose(name: str, R, t) -> tuple[np.ndarray, np.ndarray]:
     """A measured or nominal POM pose as a (3, 3) rotation and a (3,) position, checked:
     finite (a lost tag is ``valid=False``, not NaN), and R a rotation to 1e-6."""
@@ -1520,12 +1533,7 @@ class SelfIdentificationFilter:
                 "filter: tendon_reference 'commanded' needs the absolute tendon command: pass "
                 "tendon_command=(N,) [m] to initialise() (or set tendon_reference='implied')")
         theta_center = _shaped("theta_center", theta_center, (h.N, h.K))
-        a_center = _shaped("a_center", a_center, (h.N,))
-        off = (a_center < 0) | (a_center > h.distal_length)
-        if np.any(off):  # it would be clipped to a link's end: say so instead (metres, not mm?)
-            raise ValueError(f"filter: 'a_center' must lie along the last links, 0..{np.round(h.distal_length, 4).tolist()} "
-                             f"[m]; {np.round(a_center, 4).tolist()} is off finger(s) "
-                             f"{[h.names[i] for i in np.flatnonzero(off)]}")
+        a_center = contact_center(h, a_center)
         R_PO, t_PO = _pose("initial", R_PO, t_PO)
         draw_center = theta_center
         if self.prior.angle_centers == "settled" and self.reinitialisations == 0:

@@ -357,8 +357,9 @@ class TaskView:
     """
 
     def __init__(self, meshcat: Meshcat, prefix: str = "/task", step_time: float = 0.1, axis_length: float = 0.02):
-        if step_time <= 0:
-            raise ValueError(f"step_time must be positive, got {step_time}")
+        for name, value in (("step_time", step_time), ("axis_length", axis_length)):  # (NaN had passed: every
+            if not (kinematics.is_number(value) and 0 < value < np.inf):  # later call failed on another name)
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         self.meshcat, self.prefix = meshcat, prefix.rstrip("/")
         self.step_time, self.axis_length = float(step_time), float(axis_length)
         self.time = 0.0
@@ -390,21 +391,17 @@ class TaskView:
 
     def target_pose(self, R, t) -> None:
         """Show the target pose (R (3, 3), t (3,)) from now until the next target."""
-        R, t = np.asarray(R, float), np.asarray(t, float)
-        if R.shape != (3, 3) or not observation.is_rotation(R) or t.shape != (3,) or not np.all(np.isfinite(t)):
-            raise ValueError(f"target_pose: R must be a rotation matrix and t 3 finite numbers, got "
-                             f"{np.round(R, 6).tolist()}, {t.tolist()}")
+        X = _checked_pose("target_pose", R, t)
         folder = self._next_target()
-        self.meshcat.SetTransform(folder, RigidTransform(RotationMatrix(np.asarray(R, float)), np.asarray(t, float)))
+        self.meshcat.SetTransform(folder, X)
         self._triad(f"{folder}/pose", 1.5)
 
     def object_pose(self, R, t) -> None:
         """Record the object's true POM pose as the next step."""
+        X = _checked_pose("object_pose", R, t)  # (Drake's RotationMatrix takes any matrix, and NaN)
         self.time += self.step_time
-        t = np.asarray(t, float)
-        X = RigidTransform(RotationMatrix(np.asarray(R, float)), t)
         self.meshcat.SetTransform(f"{self.prefix}/object", X, self.time)
-        self.trail.append(t.copy())
+        self.trail.append(X.translation())
 
     def follow(self, plant, true_pose):
         """``plant`` with an ``apply_action`` that records ``true_pose()`` after each action."""
@@ -416,6 +413,15 @@ class TaskView:
             self.meshcat.SetLine(f"{self.prefix}/trail", np.ascontiguousarray(np.array(self.trail).T), 1.0,
                                  Rgba(0.4, 0.4, 0.4, 1))
         return save_recording(self.meshcat, path, publish_recording=True)
+
+
+def _checked_pose(name: str, R, t) -> RigidTransform:
+    """The pose (R (3, 3), t (3,) [m]) as a RigidTransform, or a ValueError naming ``name``."""
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    if R.shape != (3, 3) or not observation.is_rotation(R) or t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"{name}: R must be a rotation matrix and t 3 finite numbers, got "
+                         f"{np.round(R, 6).tolist()}, {t.tolist()}")
+    return RigidTransform(RotationMatrix(R), t)
 
 
 class _Followed:

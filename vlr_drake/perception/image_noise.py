@@ -13,6 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from vlr_drake.kinematics import is_number
+
 
 def _check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
     image = np.asarray(image)
@@ -25,13 +27,19 @@ def _check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
     return image
 
 
+def checked_scale(scale, name: str = "scale") -> int:
+    """A downsampling factor as an int: a whole number >= 1 (2.0 too), or a ValueError that
+    names it (NaN and inf had ended in int()'s own errors, which name nothing)."""
+    if not (is_number(scale) and np.isfinite(scale) and float(scale).is_integer() and scale >= 1):
+        raise ValueError(f"{name}: must be a positive integer, got {scale!r}")
+    return int(scale)
+
+
 def downsample_area(image: np.ndarray, scale: int) -> np.ndarray:
     """Shrink an image by the integer factor ``scale`` with ``cv2.INTER_AREA`` (block mean).
     Height and width must be multiples of ``scale``; scale 1 returns the image unchanged."""
     image = _check_image(image)
-    if int(scale) != scale or scale < 1:
-        raise ValueError(f"scale: must be a positive integer, got {scale}")
-    scale = int(scale)
+    scale = checked_scale(scale)
     if scale == 1:
         return image
     h, w = image.shape[:2]

@@ -41,6 +41,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vlr_drake.kinematics import is_number
 from vlr_drake.perception.apriltag import check_tag_id, dictionary, tag_corners
 
 #: Corner refinement methods by name (``TagObserverConfig.corner_refinement``).
@@ -345,8 +346,8 @@ def estimate_tag_pose(
         raise ValueError(f"corners: must be 4 x 2 pixel coordinates, got shape {corners.shape}")
     if not np.all(np.isfinite(corners)):
         raise ValueError(f"corners: must be finite, got {corners.tolist()}")
-    if not tag_size > 0:
-        raise ValueError(f"tag_size: must be > 0 [m], got {tag_size}")
+    if not (is_number(tag_size) and 0 < tag_size < np.inf):  # inf gave no pose, reported as a lost tag
+        raise ValueError(f"tag_size: must be a finite number > 0 [m], got {tag_size!r}")
     K, dist = _check_intrinsics(K, dist)
     object_points = tag_corners(tag_size)
     candidates = []

@@ -108,7 +108,7 @@ class SelfIdentificationSystem(LeafSystem):
             warnings.simplefilter("ignore", pf.FewParticlesWarning)  # (a setting that does not fit the hand
             pf.SelfIdentificationFilter(hand, self._config, prior, np.random.default_rng(0))  # had stopped the run)
         self._theta_center = pf._shaped("theta_center", theta_center, (hand.N, hand.K))
-        self._a_center = pf._shaped("a_center", a_center, (hand.N,))
+        self._a_center = pf.contact_center(hand, a_center)  # on the links, now, not at the first measurement
         n = hand.N * hand.K
         self._command = self.DeclareVectorInputPort(name="tendon_command", size=hand.N)
         self._X_PO = self.DeclareAbstractInputPort(name="X_PO_measured", model_value=AbstractValue.Make(RigidTransform()))
@@ -259,6 +259,10 @@ class ExplorationPolicy(LeafSystem):
         self._span, self._window, self._range = span, window, tendon_limits(hand, limits)
         self._squeeze = (squeeze, squeeze_window)
         Exploration(self._l0, self._range, span, window, None, squeeze, squeeze_window)  # checks the settings
+        out = (self._l0 < self._range[:, 0]) | (self._l0 > self._range[:, 1])
+        if np.any(out):  # its window would collapse onto the limit: one jump there, then no exploration
+            raise ValueError(f"exploration: 'l_grasp' {np.round(1e3 * self._l0, 3).tolist()} mm is outside the tendon "
+                             f"limits {np.round(1e3 * self._range, 3).tolist()} mm (tendon(s) {np.flatnonzero(out).tolist()})")
 
     def _update(self, context, discrete_state):
         if self._enabled.HasValue(context) and not checked_flag(self._enabled.Eval(context)[0], "exploration: input 'enabled'"):

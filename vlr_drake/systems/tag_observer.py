@@ -36,7 +36,7 @@ from pydrake.systems.framework import BasicVector, Context, LeafSystem, State, V
 from pydrake.systems.sensors import ImageRgba8U
 
 from vlr_drake.kinematics import checked_offset, checked_period, checked_seed
-from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
+from vlr_drake.perception.image_noise import add_pixel_noise, checked_scale, downsample_area
 from vlr_drake.perception.tag_pose import (
     TagObserverConfig,
     _check_intrinsics,
@@ -108,9 +108,7 @@ class TagObserver(LeafSystem):
         self._dist = None if dist is None else np.asarray(dist, dtype=np.float64).ravel()
         self._X_PC = check_pose(X_PC, "X_PC")
         self._X_TO = check_pose(X_TO, "X_TO", optional=True)
-        if int(input_scale) != input_scale or input_scale < 1:
-            raise ValueError(f"'input_scale' must be a positive integer, got {input_scale}")
-        self._input_scale = int(input_scale)
+        self._input_scale = checked_scale(input_scale, "'input_scale'")
         if image_size is not None and (len(image_size) != 2 or min(image_size) <= 0):
             raise ValueError(f"'image_size' must be (width, height) > 0, got {image_size}")
         self._image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
