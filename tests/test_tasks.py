@@ -201,6 +201,42 @@ def test_a_maze_run_the_marble_skipped_scores_nothing():
     assert maze.run_maze(seed=0, plant="model", model="true", progress=False)["skipped_runs"] == 0
 
 
+def test_a_maze_plate_that_fell_is_not_scored(monkeypatch):
+    """The step in which the plate falls out of the hand ends the run: the fallen plate's
+    pose is no sample (it had been scored, 90 deg off its goal), and a run stopped before
+    its first step is not one the marble skipped (a fall during identification had been
+    counted as a skipped run)."""
+    make = common.make_model_plant
+
+    def falling(*args, **kwargs):
+        tp = make(*args, **kwargs)
+        apply, count = tp.plant.apply_action, [0]
+
+        def apply_action(dl):
+            if getattr(tp, "fell", None):
+                return False
+            count[0] += 1
+            if count[0] == 12:  # the 12th control action drops it, turned 90 deg
+                tp.fell = "the object fell out of the hand"
+                tp.plant.state.R_PO = observation.rotvec_to_matrix(np.array([0.5 * np.pi, 0.0, 0.0]))[0] \
+                    @ tp.plant.state.R_PO
+                return False
+            return apply(dl)
+
+        tp.plant.apply_action = apply_action
+        return tp
+
+    monkeypatch.setattr(common, "make_model_plant", falling)
+    r = maze.run_maze(seed=0, progress=False)
+    assert r["object_fell"] and not r["success"] and r["stopped"] == "object_fell"
+    assert r["orientation_error_deg"]["max"] < 10.0 and r["orientation_error_all_deg"]["max"] < 10.0
+    monkeypatch.setattr(common, "make_model_plant", make)
+    monkeypatch.setattr(common, "object_fell", lambda tp: True)  # fell before the first run
+    r = maze.run_maze(seed=0, progress=False)
+    assert r["stopped"] == "object_fell" and r["control_iterations"] == 0
+    assert r["skipped_runs"] == 0 and r["orientation_error_deg"] is None
+
+
 def test_maze_parse_and_path():
     mz = maze.parse_maze(maze.MAZE)
     assert (mz["rows"], mz["cols"]) == (4, 4) and mz["start"] == (0, 0) and mz["goal"] == (3, 3)

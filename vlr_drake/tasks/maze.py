@@ -331,6 +331,9 @@ def run_maze(
             if rep.reason == "lost_tag":  # the camera lost the plate for good: nothing to steer by
                 success, stopped = False, "lost_tag"
                 break
+            if common.object_fell(tp):  # the plate fell during this step: its pose is no sample (a
+                success, stopped = False, "object_fell"  # fallen plate had been scored, 90 deg off)
+                break
             settled = settled or rep.reached or rep.reason != "budget"
             marble.step(g_plate(), period)
             time_s += period
@@ -345,7 +348,8 @@ def run_maze(
                 run_samples += 1
         if run_samples == 0 and run_steps > 0:  # the marble left before the servo settled: score its last sample
             settled_err.append(errs[-1])
-        elif run_steps == 0:  # the marble had passed this run's goal already: nothing of it to score
+        elif run_steps == 0 and success:  # the marble had passed this run's goal already: nothing to score
+            # (a run stopped before its first step, e.g. by a fall during identification, is not one)
             skipped_runs += 1
         bar.update(1)
         if not success:
