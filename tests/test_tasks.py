@@ -348,6 +348,36 @@ def test_stack_on_the_model_plant(tmp_path):
     assert os.path.getsize(r["plots"][0]) > 1000
 
 
+def test_a_cup_that_fell_is_not_scored(monkeypatch):
+    """A cup that falls out of the hand (as the physics plant's seed 1 second cup did) is
+    reported, not nested, and left out of the error stats: its fallen pose had been scored
+    (a 100 mm drop in the mean of four cups)."""
+    make, made = common.make_model_plant, [0]
+
+    def falling(*args, **kwargs):
+        tp = make(*args, **kwargs)
+        if "R_PO" not in kwargs:  # (the nominal grasp, not the cup controlled)
+            return tp
+        made[0] += 1
+        if made[0] == 2:  # the second cup drops at its first action
+            def apply_action(dl):
+                if not getattr(tp, "fell", None):
+                    tp.fell = "the object fell out of the hand"
+                    tp.plant.state.t_PO = tp.plant.state.t_PO + np.array([0.0, 0.0, -0.1])
+                return False
+
+            tp.plant.apply_action = apply_action
+        return tp
+
+    monkeypatch.setattr(common, "make_model_plant", falling)
+    r = stack.run_stack(seed=0, progress=False)
+    assert [c["object_fell"] for c in r["cups"]] == [False, True, False, False]
+    assert not r["cups"][1]["nested"] and not r["success"]
+    assert r["position_error_mm"]["n"] == 3 and r["position_error_mm"]["max"] < 5.0
+    assert r["orientation_error_deg"]["n"] == 3 and r["initial_position_error_mm"]["n"] == 3
+    assert r["cups_fell"] == 1
+
+
 def test_a_cup_whose_draw_finds_no_grasp_is_grasped_again():
     """Seed 9's first cup draws no grasp away from a fold: it is drawn again (its own
     generator), and the other cups are stacked as before; the run had ended there, the cups
