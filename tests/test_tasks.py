@@ -500,6 +500,15 @@ def test_task_grasps_have_room_to_move():
         loose.plant.possible_actions(np.zeros(3))
 
 
+def test_a_bad_identification_count_is_named():
+    """The tasks' identification count (the Python API's; the CLI checks its own): 2.5
+    failed inside range() without naming it, -1 and True ran none or one silently."""
+    tp = common.make_model_plant(0)
+    for bad in (2.5, -1, True, float("nan")):
+        with pytest.raises(ValueError, match="'identify_iterations' must be an integer >= 0"):
+            common.make_model_fn("filter", tp, particles=100, identify_iterations=bad)
+
+
 def test_non_finite_letter_sizes_are_refused():
     """A NaN height passed both checks (NaN <= 0 is False) and gave NaN strokes: NaN goals."""
     with pytest.raises(ValueError, match="height"):

@@ -12,7 +12,7 @@ import numpy as np
 from vlr_drake import control, grasps
 from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel, model_o
-from vlr_drake.kinematics import is_number
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.model_plant import ModelPlant
 
 __all__ = [
@@ -276,6 +276,8 @@ def make_model_fn(
     """
     if kind not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
+    if not is_count(identify_iterations):  # (2.5 had failed in range(), -1 run none silently)
+        raise ValueError(f"'identify_iterations' must be an integer >= 0, got {identify_iterations!r}")
     plant, h = tp.plant, tp.hand
     if kind == "true":
 
