@@ -100,6 +100,9 @@ def test_other_tasks_reject_bad_settings():
             maze.run_maze(progress=False, **kw)
     with pytest.raises(ValueError, match=r"the start 'S' and the goal 'G' are the same cell \(0, 0\)"):
         maze.parse_maze("+--+\n|SG|\n+--+\n")
+    for empty in ("", "\n  \n"):  # (an IndexError before)
+        with pytest.raises(ValueError, match="maze text must have at least one cell"):
+            maze.parse_maze(empty)
 
 
 def test_servo_names_its_bad_settings():

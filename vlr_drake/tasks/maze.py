@@ -66,7 +66,7 @@ def parse_maze(text: str) -> dict:
     goal cells."""
     lines = [ln for ln in text.strip("\n").splitlines() if ln.strip()]
     rows = (len(lines) - 1) // 2
-    cols = (len(lines[0].rstrip()) - 1) // 3
+    cols = (len(lines[0].rstrip()) - 1) // 3 if lines else 0  # (no line: an IndexError before)
     if rows < 1 or cols < 1:
         raise ValueError("maze text must have at least one cell")
     lines = [ln.ljust(3 * cols + 1) for ln in lines]
