@@ -350,13 +350,6 @@ def check_positive(**values) -> None:
             raise ValueError(f"'{name}' must be a positive finite number, got {v!r}")
 
 
-def check_finite(**values) -> None:
-    """ValueError naming the first of ``values`` that is not a finite number."""
-    for name, v in values.items():
-        if not (is_number(v) and np.isfinite(v)):
-            raise ValueError(f"'{name}' must be a finite number, got {v!r}")
-
-
 def pooled(runs: list[dict | None]) -> dict | None:
     """The :func:`stats` of all the values of several runs together (mean, SD over every
     waypoint, sample or cup of every run, as the paper gives its task figures), from each
