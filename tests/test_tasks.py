@@ -512,6 +512,15 @@ def test_a_bad_identification_count_is_named():
             common.make_model_fn("filter", tp, particles=100, identify_iterations=bad)
 
 
+def test_a_bad_grip_window_is_named():
+    """grip_window's own check: a NaN window had been refused as NaN 'limits', a string
+    window as a TypeError of '<='."""
+    hand = common.model_o().model()
+    for bad in (float("nan"), "4e-3", 0.0):
+        with pytest.raises(ValueError, match="'window' must be positive"):
+            common.grip_window(hand, np.zeros(hand.N), bad)
+
+
 def test_non_finite_letter_sizes_are_refused():
     """A NaN height passed both checks (NaN <= 0 is False) and gave NaN strokes: NaN goals."""
     with pytest.raises(ValueError, match="height"):

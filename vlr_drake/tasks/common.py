@@ -324,8 +324,8 @@ def grip_window(hand: HandModel, l_grasp, window: float) -> np.ndarray:
     """(N, 2) tendon command limits: +-``window`` [m] around the grasp's commands, within
     the tendon range (see :func:`vlr_drake.control.tendon_limits`)."""
     l_grasp = np.asarray(l_grasp, float).reshape(hand.N)
-    if window <= 0:
-        raise ValueError(f"'window' must be positive, got {window}")
+    if not (is_number(window) and window > 0):  # (NaN had been named as NaN 'limits')
+        raise ValueError(f"'window' must be positive, got {window!r}")
     return control.tendon_limits(hand, np.column_stack([l_grasp - window, l_grasp + window]))
 
 
