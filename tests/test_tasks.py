@@ -266,6 +266,18 @@ def test_marble_rolls_downhill_and_stops_at_walls():
     assert m.cell_of() == (0, 2)
 
 
+def test_the_marble_simulator_names_its_bad_settings():
+    """A restitution of 3 had bounced the marble to 1e251 m/s without a word; a zero or NaN
+    step, or a NaN duration, failed in arithmetic that named neither."""
+    mz = maze.parse_maze(maze.MAZE)
+    for kw, name in [({"restitution": 3.0}, "restitution"), ({"damping": -5.0}, "damping"), ({"dt": 0.0}, "dt"),
+                     ({"dt": float("nan")}, "dt"), ({"cell": float("nan")}, "cell")]:
+        with pytest.raises(ValueError, match=f"'{name}' must be"):
+            maze.MarbleMaze(mz, **kw).step(np.array([2.0, 0.0, -9.6]), 1.0)
+    with pytest.raises(ValueError, match="'duration' must be"):
+        maze.MarbleMaze(mz).step(np.array([2.0, 0.0, -9.6]), float("nan"))
+
+
 def test_maze_on_the_model_plant(tmp_path):
     r = maze.run_maze(seed=0, out=str(tmp_path), progress=False)
     check_fields(r, "maze")
