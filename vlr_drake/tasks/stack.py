@@ -132,7 +132,10 @@ def run_stack(
     """Stack the four cups; returns the task result dict (docs/result-files.md).
 
     Each cup: a fresh grasp (seeded), an unknown tilt of ``tilt_range_deg`` (either sign)
-    and offset up to ``offset_range`` [m]; aligned with ``alpha``; released. The default
+    and offset up to ``offset_range`` [m] along each of the two directions the grasp
+    translates most (up to sqrt(2) ``offset_range`` in all); aligned with ``alpha``;
+    released (model plant; the physics plant's tilt and offset are where its cup settles,
+    see the module's docstring). The default
     tilts are those the Model O's fingertip grasp can correct: with the contacts at the
     pads' centres of curvature (rolling), squeezing further past ~10 deg of correction has
     no equilibrium (the grasp's fold); measured over 6 seeds x 4 cups on the model plant,
