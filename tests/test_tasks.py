@@ -100,6 +100,9 @@ def test_other_tasks_reject_bad_settings():
             maze.run_maze(progress=False, **kw)
     with pytest.raises(ValueError, match=r"the start 'S' and the goal 'G' are the same cell \(0, 0\)"):
         maze.parse_maze("+--+\n|SG|\n+--+\n")
+    for empty in ("", "\n  \n"):  # (an IndexError before)
+        with pytest.raises(ValueError, match="maze text must have at least one cell"):
+            maze.parse_maze(empty)
 
 
 def test_servo_names_its_bad_settings():
@@ -201,6 +204,42 @@ def test_a_maze_run_the_marble_skipped_scores_nothing():
     assert maze.run_maze(seed=0, plant="model", model="true", progress=False)["skipped_runs"] == 0
 
 
+def test_a_maze_plate_that_fell_is_not_scored(monkeypatch):
+    """The step in which the plate falls out of the hand ends the run: the fallen plate's
+    pose is no sample (it had been scored, 90 deg off its goal), and a run stopped before
+    its first step is not one the marble skipped (a fall during identification had been
+    counted as a skipped run)."""
+    make = common.make_model_plant
+
+    def falling(*args, **kwargs):
+        tp = make(*args, **kwargs)
+        apply, count = tp.plant.apply_action, [0]
+
+        def apply_action(dl):
+            if getattr(tp, "fell", None):
+                return False
+            count[0] += 1
+            if count[0] == 12:  # the 12th control action drops it, turned 90 deg
+                tp.fell = "the object fell out of the hand"
+                tp.plant.state.R_PO = observation.rotvec_to_matrix(np.array([0.5 * np.pi, 0.0, 0.0]))[0] \
+                    @ tp.plant.state.R_PO
+                return False
+            return apply(dl)
+
+        tp.plant.apply_action = apply_action
+        return tp
+
+    monkeypatch.setattr(common, "make_model_plant", falling)
+    r = maze.run_maze(seed=0, progress=False)
+    assert r["object_fell"] and not r["success"] and r["stopped"] == "object_fell"
+    assert r["orientation_error_deg"]["max"] < 10.0 and r["orientation_error_all_deg"]["max"] < 10.0
+    monkeypatch.setattr(common, "make_model_plant", make)
+    monkeypatch.setattr(common, "object_fell", lambda tp: True)  # fell before the first run
+    r = maze.run_maze(seed=0, progress=False)
+    assert r["stopped"] == "object_fell" and r["control_iterations"] == 0
+    assert r["skipped_runs"] == 0 and r["orientation_error_deg"] is None
+
+
 def test_maze_parse_and_path():
     mz = maze.parse_maze(maze.MAZE)
     assert (mz["rows"], mz["cols"]) == (4, 4) and mz["start"] == (0, 0) and mz["goal"] == (3, 3)
@@ -225,6 +264,18 @@ def test_marble_rolls_downhill_and_stops_at_walls():
     assert m.cell_of() == (1, 2)
     m.step(np.array([0.0, -2.0, -9.6]), 2.0)  # uphill along f: wall above (1, 0..1) but gap at (1, 2)
     assert m.cell_of() == (0, 2)
+
+
+def test_the_marble_simulator_names_its_bad_settings():
+    """A restitution of 3 had bounced the marble to 1e251 m/s without a word; a zero or NaN
+    step, or a NaN duration, failed in arithmetic that named neither."""
+    mz = maze.parse_maze(maze.MAZE)
+    for kw, name in [({"restitution": 3.0}, "restitution"), ({"damping": -5.0}, "damping"), ({"dt": 0.0}, "dt"),
+                     ({"dt": float("nan")}, "dt"), ({"cell": float("nan")}, "cell")]:
+        with pytest.raises(ValueError, match=f"'{name}' must be"):
+            maze.MarbleMaze(mz, **kw).step(np.array([2.0, 0.0, -9.6]), 1.0)
+    with pytest.raises(ValueError, match="'duration' must be"):
+        maze.MarbleMaze(mz).step(np.array([2.0, 0.0, -9.6]), float("nan"))
 
 
 def test_maze_on_the_model_plant(tmp_path):
@@ -310,6 +361,36 @@ def test_stack_on_the_model_plant(tmp_path):
     assert r["position_error_mm"]["mean"] < 0.5 * r["initial_position_error_mm"]["mean"]  # the baseline
     assert r["success"]
     assert os.path.getsize(r["plots"][0]) > 1000
+
+
+def test_a_cup_that_fell_is_not_scored(monkeypatch):
+    """A cup that falls out of the hand (as the physics plant's seed 1 second cup did) is
+    reported, not nested, and left out of the error stats: its fallen pose had been scored
+    (a 100 mm drop in the mean of four cups)."""
+    make, made = common.make_model_plant, [0]
+
+    def falling(*args, **kwargs):
+        tp = make(*args, **kwargs)
+        if "R_PO" not in kwargs:  # (the nominal grasp, not the cup controlled)
+            return tp
+        made[0] += 1
+        if made[0] == 2:  # the second cup drops at its first action
+            def apply_action(dl):
+                if not getattr(tp, "fell", None):
+                    tp.fell = "the object fell out of the hand"
+                    tp.plant.state.t_PO = tp.plant.state.t_PO + np.array([0.0, 0.0, -0.1])
+                return False
+
+            tp.plant.apply_action = apply_action
+        return tp
+
+    monkeypatch.setattr(common, "make_model_plant", falling)
+    r = stack.run_stack(seed=0, progress=False)
+    assert [c["object_fell"] for c in r["cups"]] == [False, True, False, False]
+    assert not r["cups"][1]["nested"] and not r["success"]
+    assert r["position_error_mm"]["n"] == 3 and r["position_error_mm"]["max"] < 5.0
+    assert r["orientation_error_deg"]["n"] == 3 and r["initial_position_error_mm"]["n"] == 3
+    assert r["cups_fell"] == 1
 
 
 def test_a_cup_whose_draw_finds_no_grasp_is_grasped_again():
@@ -432,6 +513,24 @@ def test_task_grasps_have_room_to_move():
         assert copy.deepcopy(loose.plant).apply_action(dl) == p
     with pytest.raises(ValueError, match="possible_actions"):
         loose.plant.possible_actions(np.zeros(3))
+
+
+def test_a_bad_identification_count_is_named():
+    """The tasks' identification count (the Python API's; the CLI checks its own): 2.5
+    failed inside range() without naming it, -1 and True ran none or one silently."""
+    tp = common.make_model_plant(0)
+    for bad in (2.5, -1, True, float("nan")):
+        with pytest.raises(ValueError, match="'identify_iterations' must be an integer >= 0"):
+            common.make_model_fn("filter", tp, particles=100, identify_iterations=bad)
+
+
+def test_a_bad_grip_window_is_named():
+    """grip_window's own check: a NaN window had been refused as NaN 'limits', a string
+    window as a TypeError of '<='."""
+    hand = common.model_o().model()
+    for bad in (float("nan"), "4e-3", 0.0):
+        with pytest.raises(ValueError, match="'window' must be positive"):
+            common.grip_window(hand, np.zeros(hand.N), bad)
 
 
 def test_non_finite_letter_sizes_are_refused():

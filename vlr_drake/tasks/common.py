@@ -12,7 +12,7 @@ import numpy as np
 from vlr_drake import control, grasps
 from vlr_drake import filter as pf
 from vlr_drake.hand import HandModel, model_o
-from vlr_drake.kinematics import is_number
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.model_plant import ModelPlant
 
 __all__ = [
@@ -276,6 +276,8 @@ def make_model_fn(
     """
     if kind not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got '{kind}'")
+    if not is_count(identify_iterations):  # (2.5 had failed in range(), -1 run none silently)
+        raise ValueError(f"'identify_iterations' must be an integer >= 0, got {identify_iterations!r}")
     plant, h = tp.plant, tp.hand
     if kind == "true":
 
@@ -322,8 +324,8 @@ def grip_window(hand: HandModel, l_grasp, window: float) -> np.ndarray:
     """(N, 2) tendon command limits: +-``window`` [m] around the grasp's commands, within
     the tendon range (see :func:`vlr_drake.control.tendon_limits`)."""
     l_grasp = np.asarray(l_grasp, float).reshape(hand.N)
-    if window <= 0:
-        raise ValueError(f"'window' must be positive, got {window}")
+    if not (is_number(window) and window > 0):  # (NaN had been named as NaN 'limits')
+        raise ValueError(f"'window' must be positive, got {window!r}")
     return control.tendon_limits(hand, np.column_stack([l_grasp - window, l_grasp + window]))
 
 
@@ -346,13 +348,6 @@ def check_positive(**values) -> None:
     for name, v in values.items():
         if not (is_number(v) and 0 < v < np.inf):
             raise ValueError(f"'{name}' must be a positive finite number, got {v!r}")
-
-
-def check_finite(**values) -> None:
-    """ValueError naming the first of ``values`` that is not a finite number."""
-    for name, v in values.items():
-        if not (is_number(v) and np.isfinite(v)):
-            raise ValueError(f"'{name}' must be a finite number, got {v!r}")
 
 
 def pooled(runs: list[dict | None]) -> dict | None:

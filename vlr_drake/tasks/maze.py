@@ -66,7 +66,7 @@ def parse_maze(text: str) -> dict:
     goal cells."""
     lines = [ln for ln in text.strip("\n").splitlines() if ln.strip()]
     rows = (len(lines) - 1) // 2
-    cols = (len(lines[0].rstrip()) - 1) // 3
+    cols = (len(lines[0].rstrip()) - 1) // 3 if lines else 0  # (no line: an IndexError before)
     if rows < 1 or cols < 1:
         raise ValueError("maze text must have at least one cell")
     lines = [ln.ljust(3 * cols + 1) for ln in lines]
@@ -162,6 +162,15 @@ class MarbleMaze:
     dt: float = 1e-3  # integration step [s]
 
     def __post_init__(self):
+        # (a restitution of 3 had bounced the marble to 1e251 m/s, a zero or NaN step failed
+        # in the step count's division or int(); a review)
+        for name, value, lo, hi, unit in (("cell", self.cell, 0.0, np.inf, "m"), ("dt", self.dt, 0.0, np.inf, "s")):
+            if not (is_number(value) and lo < value < hi):
+                raise ValueError(f"marble maze: '{name}' must be a positive finite number [{unit}], got {value!r}")
+        if not (is_number(self.damping) and 0 <= self.damping < np.inf):
+            raise ValueError(f"marble maze: 'damping' must be a finite number >= 0 [1/s], got {self.damping!r}")
+        if not (is_number(self.restitution) and 0 <= self.restitution <= 1):
+            raise ValueError(f"marble maze: 'restitution' must be in [0, 1], got {self.restitution!r}")
         if not 0 < self.radius < 0.5 * self.cell:
             raise ValueError(f"marble radius must be in (0, cell/2), got {self.radius}")
         r, c = self.maze["start"]
@@ -184,6 +193,8 @@ class MarbleMaze:
     def step(self, g_plate: np.ndarray, duration: float) -> None:
         """Advance by ``duration`` [s] under gravity ``g_plate`` (3,) in the plate frame
         expressed along (s, f, normal)."""
+        if not (is_number(duration) and 0 <= duration < np.inf):
+            raise ValueError(f"marble maze: 'duration' must be a finite number >= 0 [s], got {duration!r}")
         acc = (5.0 / 7.0) * np.asarray(g_plate, float)[:2]
         for _ in range(max(1, int(round(duration / self.dt)))):
             self.vel += self.dt * (acc - self.damping * self.vel)
@@ -331,6 +342,9 @@ def run_maze(
             if rep.reason == "lost_tag":  # the camera lost the plate for good: nothing to steer by
                 success, stopped = False, "lost_tag"
                 break
+            if common.object_fell(tp):  # the plate fell during this step: its pose is no sample (a
+                success, stopped = False, "object_fell"  # fallen plate had been scored, 90 deg off)
+                break
             settled = settled or rep.reached or rep.reason != "budget"
             marble.step(g_plate(), period)
             time_s += period
@@ -345,7 +359,8 @@ def run_maze(
                 run_samples += 1
         if run_samples == 0 and run_steps > 0:  # the marble left before the servo settled: score its last sample
             settled_err.append(errs[-1])
-        elif run_steps == 0:  # the marble had passed this run's goal already: nothing of it to score
+        elif run_steps == 0 and success:  # the marble had passed this run's goal already: nothing to score
+            # (a run stopped before its first step, e.g. by a fall during identification, is not one)
             skipped_runs += 1
         bar.update(1)
         if not success:

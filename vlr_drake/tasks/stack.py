@@ -132,7 +132,10 @@ def run_stack(
     """Stack the four cups; returns the task result dict (docs/result-files.md).
 
     Each cup: a fresh grasp (seeded), an unknown tilt of ``tilt_range_deg`` (either sign)
-    and offset up to ``offset_range`` [m]; aligned with ``alpha``; released. The default
+    and offset up to ``offset_range`` [m] along each of the two directions the grasp
+    translates most (up to sqrt(2) ``offset_range`` in all); aligned with ``alpha``;
+    released (model plant; the physics plant's tilt and offset are where its cup settles,
+    see the module's docstring). The default
     tilts are those the Model O's fingertip grasp can correct: with the contacts at the
     pads' centres of curvature (rolling), squeezing further past ~10 deg of correction has
     no equilibrium (the grasp's fold); measured over 6 seeds x 4 cups on the model plant,
@@ -257,8 +260,11 @@ def run_stack(
         )
         bar.update(1)
     bar.close()
-    pos = np.array([c["position_error_mm"] for c in cups])
-    rot = np.array([c["orientation_error_deg"] for c in cups])
+    # a cup that fell out of the hand is not nested, and its pose is no alignment error (a
+    # fallen cup had been scored 100 mm off): the stats are over the cups still held
+    held = [c for c in cups if not c["object_fell"]]
+    pos = np.array([c["position_error_mm"] for c in held])
+    rot = np.array([c["orientation_error_deg"] for c in held])
     result = {
         "task": "stack",
         "scenario": scenario,
@@ -272,9 +278,10 @@ def run_stack(
         "orientation_error_deg": common.stats(rot, 1.0),
         # where the grasps left the cups before any control: the baseline the control improves
         # on (the cups' clearance lets most of them nest uncontrolled; these errors do not)
-        "initial_position_error_mm": common.stats([c["initial_position_error_mm"] for c in cups], 1.0),
-        "initial_orientation_error_deg": common.stats([c["initial_orientation_error_deg"] for c in cups], 1.0),
+        "initial_position_error_mm": common.stats([c["initial_position_error_mm"] for c in held], 1.0),
+        "initial_orientation_error_deg": common.stats([c["initial_orientation_error_deg"] for c in held], 1.0),
         "success": bool(all(c["nested"] for c in cups)),
+        "cups_fell": len(cups) - len(held),  # not in the error stats (each cup's entry says which)
         "cups": cups,
         "paper_position_error_mm": {"mean": 2.1, "sd": 0.92},
         "paper_orientation_error_deg": {"mean": 5.16, "sd": 1.83},

@@ -15,7 +15,8 @@ millimetres wide, so letters come out smaller than the paper's.
 
 Waypoints are the strokes resampled every ``spacing``; each waypoint is a
 :func:`vlr_drake.control.servo_to` goal (position rows only). Pen-up moves go to a
-stroke's start and are not scored. Errors are of the true POM position against the
+stroke's start; the path there is not scored, the start is (the stroke's first waypoint,
+where the move ends). Errors are of the true POM position against the
 waypoint when the servo ends (the model plant knows the truth), reported as the task fields
 of docs/result-files.md.
 """
