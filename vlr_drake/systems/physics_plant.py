@@ -61,7 +61,6 @@ import copy
 import time
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
@@ -104,6 +103,7 @@ from vlr_drake.models import (
 )
 from vlr_drake.objects import ObjectSpec, object_sdf, tag_mesh_uri
 from vlr_drake.perception.camera import CameraConfig
+from vlr_drake.perception.image_noise import add_pixel_noise, downsample_area
 from vlr_drake.systems.tendons import TendonForces
 
 __all__ = [
@@ -339,8 +339,9 @@ class ImageDownsampler(LeafSystem):
     ``rgb_image`` (W x H). With INTER_AREA a pixel of the output is the mean of a scale x
     scale block, so the intrinsics scale exactly (f/scale, (c + 0.5)/scale - 0.5). The noise
     of a frame is drawn from ``numpy.random.default_rng((seed, PIXEL_NOISE_STREAM, t_us))``
-    (t_us: the context's time in microseconds), as the TagObserver's, so an image depends on the seed and the
-    time only, not on how often or in which order the output was evaluated."""
+    (t_us: the context's time in microseconds; the TagObserver's own noise draws from
+    ``(seed, t_us)``), so an image depends on the seed and the time only, not on how often or
+    in which order the output was evaluated."""
 
     def __init__(self, width: int, height: int, scale: int, noise_std: float = 0.0, seed: int = 0):
         super().__init__()
@@ -367,14 +368,10 @@ class ImageDownsampler(LeafSystem):
             raise ValueError(
                 f"image_in must be {self._w * self._s} x {self._h * self._s}, got {src.shape[1]} x {src.shape[0]}"
             )
-        if self._s > 1:
-            dst = cv2.resize(src, (self._w, self._h), interpolation=cv2.INTER_AREA)
-        else:
-            dst = src.copy()
-        if self._noise > 0:
+        dst = downsample_area(src, self._s)
+        if self._noise > 0:  # (the alpha channel kept)
             rng = np.random.default_rng((self._seed, PIXEL_NOISE_STREAM, int(round(context.get_time() * 1e6))))
-            noisy = dst[..., :3].astype(np.float64) + rng.normal(0.0, self._noise, dst[..., :3].shape)
-            dst[..., :3] = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+            dst = add_pixel_noise(dst, self._noise, rng)
         out = output.get_mutable_value()
         out.resize(self._w, self._h)
         out.mutable_data[:] = dst.reshape(self._h, self._w, 4)
