@@ -253,6 +253,24 @@ class PhysicsTaskPlant:
         return np.array(self.theta0, float), prior.guessed_contacts(self.a0, rng, self.hand)
 
 
+def check_plant(plant: str) -> None:
+    """ValueError unless ``plant`` names a task's plant: "model" or "physics"."""
+    if plant not in ("model", "physics"):
+        raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+
+
+def task_plant(plant: str, seed: int, physics_object: str, physics=None, camera=None, *,
+               sigma_position: float, sigma_rotation_deg: float):
+    """The plant a task runs on: the model plant (a grasp drawn from ``seed``, measurement
+    noise ``sigma_position`` [m] and ``sigma_rotation_deg``; :func:`make_model_plant`) or the
+    physics plant holding ``physics_object`` (:class:`PhysicsTaskPlant`)."""
+    check_plant(plant)
+    if plant == "model":
+        return make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
+                                min_possible=MIN_POSSIBLE_ACTIONS)
+    return PhysicsTaskPlant(physics_object, seed, physics, camera)
+
+
 def make_model_fn(
     kind: str,
     tp,

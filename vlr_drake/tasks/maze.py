@@ -251,8 +251,7 @@ def run_maze(
     true pose per action (:class:`vlr_drake.visualization.TaskView`); the recording is saved as
     ``maze.html`` in ``out``.
     """
-    if plant not in ("model", "physics"):
-        raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+    common.check_plant(plant)
     common.check_positive(period=period, segment_time=segment_time, tol_rotation_deg=tol_rotation_deg, window=window)
     # the plate's steering tilt and its constant bias towards the fall axis: angles the grasp
     # can turn (a negative tilt steered the wrong way, 363 deg wrapped round and 30 deg was
@@ -267,13 +266,8 @@ def run_maze(
     cells = maze_path(mz)
     order = {cell: i for i, cell in enumerate(cells)}
     runs = orientation_sequence(cells, np.deg2rad(tilt_deg))
-    if plant == "model":
-        tp = common.make_model_plant(
-            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
-            min_possible=common.MIN_POSSIBLE_ACTIONS,
-        )
-    else:
-        tp = common.PhysicsTaskPlant("marble_maze", seed, physics, camera)
+    tp = common.task_plant(plant, seed, "marble_maze", physics, camera, sigma_position=sigma_position,
+                           sigma_rotation_deg=sigma_rotation_deg)
     model_fn, filt = common.make_model_fn(
         model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
         action_range=action_range, window=window,

@@ -155,8 +155,7 @@ def run_stack(
     pose per action (:class:`vlr_drake.visualization.TaskView`); the recording is saved as
     ``stack.html`` in ``out``.
     """
-    if plant not in ("model", "physics"):
-        raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+    common.check_plant(plant)
     if not (np.isfinite(alpha) and alpha > 0):
         raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
     if len(tilt_range_deg) != 2 or not (0 <= tilt_range_deg[0] <= tilt_range_deg[1] < np.inf):  # NaN too

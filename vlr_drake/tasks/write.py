@@ -188,8 +188,7 @@ def run_write(
     ``write.html`` in ``out``.
     """
     letters = font.word_letters(word)
-    if plant not in ("model", "physics"):
-        raise ValueError(f"plant must be 'model' or 'physics', got '{plant}'")
+    common.check_plant(plant)
     if not 0 < letter_height <= 12e-3:  # NaN too
         raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
     common.check_positive(spacing=spacing, tol_position=tol_position, window=window)
@@ -197,13 +196,8 @@ def run_write(
         raise ValueError(f"'max_steps' must be an integer >= 1, got {max_steps!r}")
     from tqdm.auto import tqdm
 
-    if plant == "model":
-        tp = common.make_model_plant(
-            seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
-            min_possible=common.MIN_POSSIBLE_ACTIONS,
-        )
-    else:
-        tp = common.PhysicsTaskPlant(physics_object, seed, physics, camera)
+    tp = common.task_plant(plant, seed, physics_object, physics, camera, sigma_position=sigma_position,
+                           sigma_rotation_deg=sigma_rotation_deg)
     model_fn, filt = common.make_model_fn(
         model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
         action_range=action_range, window=window,
