@@ -275,7 +275,7 @@ def run_stack(
         "alpha_units": {"position_m": STACK_POSITION_UNIT, "rotation_rad": STACK_ROTATION_UNIT},
         "position_error_mm": common.stats(pos, 1.0),
         "orientation_error_deg": common.stats(rot, 1.0),
-        # where the grasps left the cups before any control: the baseline the control improves
+        # where the grasps (and a filter's identification moves) left the cups: the baseline the control improves
         # on (the cups' clearance lets most of them nest uncontrolled; these errors do not)
         "initial_position_error_mm": common.stats([c["initial_position_error_mm"] for c in held], 1.0),
         "initial_orientation_error_deg": common.stats([c["initial_orientation_error_deg"] for c in held], 1.0),
