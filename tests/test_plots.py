@@ -1,5 +1,7 @@
 """Plots of the identification history: files are written and the drawn data are the inputs."""
 
+import re
+
 import matplotlib
 import numpy as np
 import pytest
@@ -259,7 +261,12 @@ def test_hypotheses_still_segments_in_mm(rng, tmp_path):
     with pytest.raises(ValueError, match="joints must be finite"):
         plots.make_hypotheses_figure(bad, contacts)
     with pytest.raises(ValueError, match="pom_position must be finite"):
-        plots.make_hypotheses_figure(joints, contacts, np.full(3, np.inf))
+        plots.make_hypotheses_figure(joints, contacts, np.full((P, 3), np.inf))
+    # one POM position per particle (HypothesisDrawer.draw's): an empty array had failed inside
+    # matplotlib ("Axis limits cannot be NaN or Inf"), a (P, 2) one in numpy's reshape
+    for shape in ((0, 3), (P, 2), (2, 3)):
+        with pytest.raises(ValueError, match=re.escape(f"pom_position must have shape ({P}, 3), got {shape}")):
+            plots.make_hypotheses_figure(joints, contacts, np.zeros(shape))
 
 
 def test_every_column_keeps_its_iteration_axis():

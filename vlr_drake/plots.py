@@ -412,6 +412,10 @@ def make_hypotheses_figure(
     p_hat = contacts.mean(axis=0) if estimate_contacts is None else np.asarray(estimate_contacts, dtype=float)
     if p_hat.shape != (N, 3):
         raise ValueError(f"estimate_contacts must have shape ({N}, 3), got {p_hat.shape}")
+    # one POM position per particle, as HypothesisDrawer.draw takes them (an empty array had
+    # ended in "Axis limits cannot be NaN or Inf", a (P, 2) one in numpy's reshape error)
+    if pom_position is not None and np.shape(pom_position) != (P, 3):
+        raise ValueError(f"pom_position must have shape ({P}, 3), got {np.shape(pom_position)}")
     for name, value in [("joints", joints), ("contacts", contacts), ("estimate_contacts", p_hat),
                         ("pom_position", pom_position)]:
         if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
@@ -423,7 +427,7 @@ def make_hypotheses_figure(
     # E^C: pairs of estimated contacts, and each to the POM
     seg_c = [(p_hat[a] * mm, p_hat[b] * mm) for a in range(N) for b in range(a + 1, N)]
     if pom_position is not None:
-        pom = np.asarray(pom_position, dtype=float).reshape(-1, 3).mean(axis=0) * mm
+        pom = np.asarray(pom_position, dtype=float).mean(axis=0) * mm
         seg_c += [(p_hat[i] * mm, pom) for i in range(N)]
     fig = Figure(figsize=(6.0, 5.5), layout="constrained")
     FigureCanvasAgg(fig)
