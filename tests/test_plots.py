@@ -223,6 +223,16 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_joint_angles_figure(est, tr, NAMES, joints="distal")
     with pytest.raises(ValueError, match="which"):
         plots.make_stiffness_figure(est, tr, NAMES, which=[(3, 0)])
+    # a bare pair failed in a TypeError ("'int' object is not iterable"), and a fraction was cut
+    # to a whole finger or joint and drawn
+    with pytest.raises(ValueError, match=r"which: 0 is not a \(finger, joint\) pair"):
+        plots.make_stiffness_figure(est, tr, NAMES, which=(0, 1))
+    with pytest.raises(ValueError, match=r"which: \(0, 1.5\) is not a joint of a 3 x 2 hand"):
+        plots.make_stiffness_figure(est, tr, NAMES, which=[(0, 1.5)])
+    with pytest.raises(ValueError, match="fingers: 0.5 is not a finger of a 3-finger hand"):
+        plots.make_link_lengths_figure(est, tr, NAMES, fingers=[0.5])
+    with pytest.raises(ValueError, match="fingers must be a list, got 1"):
+        plots.make_link_lengths_figure(est, tr, NAMES, fingers=1)
     bad = [dict(e) for e in est]
     bad[2]["a_lo"] = np.zeros(N + 1)
     with pytest.raises(ValueError, match=r"estimates\[2\]\['a_lo'\]"):

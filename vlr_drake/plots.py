@@ -33,6 +33,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from vlr_drake.kinematics import is_count
+
 __all__ = [
     "Panel",
     "band_figure",
@@ -126,6 +128,29 @@ def _quantity(estimates, truths, key: str, shape: tuple, scale: float):
     hi = scale * _stack(estimates, f"{key}_hi", shape)
     truth = _truth_series(truths, key, shape, T)
     return mean, lo, hi, None if truth is None else scale * truth
+
+
+def _entries(name: str, value) -> list:
+    """The entries of the sequence ``value``, or a ValueError naming ``name``."""
+    try:
+        return list(value)
+    except TypeError:
+        raise ValueError(f"{name} must be a list, got {value!r}") from None
+
+
+def _joints(which, N: int, K: int) -> list[tuple[int, int]]:
+    """``which`` as (finger, joint) pairs of whole indices of an N x K hand, or a ValueError
+    naming the entry (a bare pair, (0, 1), had failed in a TypeError; 0.7 was cut to 0)."""
+    pairs = []
+    for w in _entries("which", which):
+        try:
+            fi, j = w
+        except (TypeError, ValueError):
+            raise ValueError(f"which: {w!r} is not a (finger, joint) pair; e.g. which=[(0, 1)]") from None
+        if not (is_count(fi) and is_count(j) and fi < N and j < K):
+            raise ValueError(f"which: ({fi!r}, {j!r}) is not a joint of a {N} x {K} hand")
+        pairs.append((int(fi), int(j)))
+    return pairs
 
 
 def _iterations(iterations: Sequence[int] | None, T: int) -> np.ndarray:
@@ -240,12 +265,9 @@ def make_stiffness_figure(
     """Joint stiffness [N m/rad] of the (finger, joint) pairs in ``which`` (Fig. 5B; the
     paper's experiment identifies the thumb's distal joint, (0, 1) on the Model O)."""
     N, K = _dims(estimates, names)
-    which = [tuple(int(v) for v in w) for w in which]
+    which = _joints(which, N, K)
     if not which:
         raise ValueError("which is empty: name at least one (finger, joint)")
-    for fi, j in which:
-        if not (0 <= fi < N and 0 <= j < K):
-            raise ValueError(f"which: ({fi}, {j}) is not a joint of a {N} x {K} hand")
     mean, lo, hi, truth = _quantity(estimates, truths, "stiffness", (N, K), 1.0)
     panels = [
         Panel(
@@ -272,12 +294,13 @@ def make_link_lengths_figure(
     """Link lengths L_ik [mm] of the given fingers (all by default) against iterations
     (Fig. 8E): one panel per link, a row per finger."""
     N, K = _dims(estimates, names)
-    fingers = list(range(N)) if fingers is None else [int(f) for f in fingers]
+    fingers = list(range(N)) if fingers is None else _entries("fingers", fingers)
     if not fingers:
         raise ValueError("fingers is empty: name at least one finger")
-    for fi in fingers:
-        if not 0 <= fi < N:
-            raise ValueError(f"fingers: {fi} is not a finger of a {N}-finger hand")
+    for fi in fingers:  # (0.5 had been cut to finger 0)
+        if not (is_count(fi) and fi < N):
+            raise ValueError(f"fingers: {fi!r} is not a finger of a {N}-finger hand")
+    fingers = [int(fi) for fi in fingers]
     mean, lo, hi, truth = _quantity(estimates, truths, "link_lengths", (N, K - 1), 1e3)
     panels = [
         Panel(
