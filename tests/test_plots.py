@@ -239,6 +239,13 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_contacts_figure(bad, tr, NAMES)
     with pytest.raises(ValueError, match="empty"):
         plots.make_convergence_figure([])
+    # a truth that is not a dict (an AttributeError), iterations that are not finite numbers
+    # (NaN drew empty axes; a word, numpy's "could not convert string to float")
+    with pytest.raises(ValueError, match=r"truths\[1\] must be a dict of truths or None, got list"):
+        plots.make_contacts_figure(est, [tr[0], [0.02] * N, *tr[2:]], NAMES)
+    for iterations in (np.full(T, np.nan), ["a"] * T):
+        with pytest.raises(ValueError, match="iterations must be finite numbers"):
+            plots.make_contacts_figure(est, tr, NAMES, iterations=iterations)
     with pytest.raises(ValueError, match=r"estimates\[0\] has no 'theta'"):  # was an AttributeError
         plots.make_contacts_figure([None, *est[1:]], None, NAMES)
 

@@ -24,7 +24,7 @@ global state.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,6 +95,8 @@ def _truth_series(truths: Sequence[dict | None] | None, key: str, shape: tuple, 
     out = np.full((T, *shape), np.nan)
     any_known = False
     for t, tr in enumerate(truths):
+        if tr is not None and not isinstance(tr, Mapping):  # (an AttributeError on 'get')
+            raise ValueError(f"truths[{t}] must be a dict of truths or None, got {type(tr).__name__}")
         if tr is None or tr.get(key) is None:
             continue
         value = np.asarray(tr[key], dtype=float)
@@ -156,7 +158,12 @@ def _joints(which, N: int, K: int) -> list[tuple[int, int]]:
 def _iterations(iterations: Sequence[int] | None, T: int) -> np.ndarray:
     if iterations is None:
         return np.arange(T)
-    it = np.asarray(iterations, dtype=float)
+    try:
+        it = np.asarray(iterations, dtype=float)
+    except (TypeError, ValueError):
+        it = None
+    if it is None or not np.all(np.isfinite(it)):  # (NaN had drawn empty axes)
+        raise ValueError(f"iterations must be finite numbers, got {iterations!r}")
     if it.shape != (T,):
         raise ValueError(f"iterations must have shape ({T},) to match the estimates, got {it.shape}")
     return it
