@@ -156,6 +156,13 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
     truths = {**trace.truths, "a": np.full_like(trace.truths["a"], np.nan)}
     with pytest.raises(ValueError, match="truths 'a' must be finite numbers"):
         IdentificationTrace(**{**trace.__dict__, "truths": truths}).validate()
+    # a hand-made trace's lists, as a loaded trace's arrays (an AttributeError, a TypeError)
+    listed = IdentificationTrace(**{**trace.__dict__, "valid": trace.valid.tolist(),
+                                    "truths": {k: v.tolist() for k, v in trace.truths.items()}}).validate()
+    np.testing.assert_array_equal(listed.valid, trace.valid)
+    np.testing.assert_array_equal(listed.truths["theta"], trace.truths["theta"])
+    with pytest.raises(ValueError, match="'truths' must be a dict of arrays or None, got list"):
+        IdentificationTrace(**{**trace.__dict__, "truths": [trace.truths]}).validate()
     with pytest.raises(ValueError, match="meta 'plant' must be a name"):
         IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "plant": ["model"]}}).validate()
     known = IdentificationTrace(**{**trace.__dict__, "prior": dataclasses.replace(trace.prior, stiffness_unknown=[])})

@@ -142,6 +142,7 @@ class IdentificationTrace:
             self.valid = valid = valid.astype(bool)
         if valid.dtype != bool:
             raise ValueError(f"trace: 'valid' must be booleans (or 0/1), got {valid.dtype}")
+        self.valid = valid  # (a list of flags had failed below in a TypeError on its indexing)
         for name in ("R", "t"):
             if np.asarray(getattr(self, name)).dtype.kind not in "fiu":
                 raise ValueError(f"trace: '{name}' must be numbers, got {np.asarray(getattr(self, name)).dtype}")
@@ -157,6 +158,10 @@ class IdentificationTrace:
             raise ValueError(f"trace: step {k + 1} is marked valid but its POM rotation is not a rotation matrix: "
                              f"{np.round(self.R[k], 6).tolist()}")
         if self.truths is not None:
+            if not isinstance(self.truths, dict):
+                raise ValueError(f"trace: 'truths' must be a dict of arrays or None, got {type(self.truths).__name__}")
+            # arrays, as a loaded trace's are (a hand-made trace's lists had failed in an AttributeError)
+            self.truths = {k: np.asarray(v) for k, v in self.truths.items()}
             missing = [k for k in TRUTH_KEYS if k not in self.truths]
             if missing:
                 raise ValueError(f"trace: truths lack {missing}")
