@@ -204,6 +204,12 @@ def test_files_written_and_no_pyplot_state(tmp_path, rng):
     for p in written:
         assert p.exists() and p.stat().st_size > 1000, p
     assert written[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the format is the suffix's: none (matplotlib had written "<path>.png" and returned a path
+    # that did not exist) or another is named, and no folder is made for it
+    for name in ("none/convergence", "other/convergence.v2"):
+        with pytest.raises(ValueError, match=r"convergence.*: the plot's file needs an image suffix \(.*\.png"):
+            plots.plot_convergence(_reports(), tmp_path / name)
+        assert not (tmp_path / name).parent.exists()
     assert matplotlib.get_backend() == before
     import sys
 

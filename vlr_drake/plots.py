@@ -493,8 +493,15 @@ def make_hypotheses_figure(
 
 # ------------------------------------------------------------------------------ files
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
-    """Write ``fig`` (format from the suffix), creating the folder; returns the path."""
+    """Write ``fig`` (format from the suffix), creating the folder; returns the path. A
+    suffix that is no image format (or none) is a ValueError naming the path, before any
+    folder is made (without one, matplotlib had written ``<path>.png`` and the path returned
+    did not exist)."""
     path = Path(path)
+    formats = fig.canvas.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise ValueError(f"{path}: the plot's file needs an image suffix ({', '.join('.' + f for f in sorted(formats))}), "
+                         f"got {path.suffix or 'none'!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
     return path
