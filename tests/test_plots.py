@@ -245,6 +245,13 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_contacts_figure(bad, tr, NAMES)
     with pytest.raises(ValueError, match="empty"):
         plots.make_convergence_figure([])
+    # the thresholds are the run's settings (a word failed in a format code error, NaN drew none)
+    for threshold in ("2", np.nan, -1.0):
+        with pytest.raises(ValueError, match="threshold_deg must be a finite number >= 0"):
+            plots.make_convergence_figure(_reports(), threshold_deg=threshold)
+    for threshold in ("0.05", np.nan, -0.1):
+        with pytest.raises(ValueError, match="parameter_threshold must be None or a positive finite fraction"):
+            plots.make_convergence_figure(_reports(), parameter_threshold=threshold)
     # a truth that is not a dict (an AttributeError), iterations that are not finite numbers
     # (NaN drew empty axes; a word, numpy's "could not convert string to float")
     with pytest.raises(ValueError, match=r"truths\[1\] must be a dict of truths or None, got list"):

@@ -33,7 +33,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 
 __all__ = [
     "Panel",
@@ -350,6 +350,15 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
         from vlr_drake.filter import FilterConfig
 
         threshold_deg = FilterConfig().convergence_deg
+    # the run's settings, as FilterConfig.validate takes them (a word had failed in a format
+    # code error, NaN drawn no threshold, and a negative one below the axis)
+    if not (is_number(threshold_deg) and np.isfinite(threshold_deg) and threshold_deg >= 0):
+        raise ValueError(f"threshold_deg must be a finite number >= 0 [deg] (FilterConfig.convergence_deg), "
+                         f"got {threshold_deg!r}")
+    c = parameter_threshold
+    if c is not None and not (is_number(c) and np.isfinite(c) and c > 0):
+        raise ValueError(f"parameter_threshold must be None or a positive finite fraction "
+                         f"(FilterConfig.parameter_convergence), got {c!r}")
     if measure not in ("half_width", "full_width"):
         raise ValueError(f"measure must be 'half_width' or 'full_width' (FilterConfig.convergence_measure), got {measure!r}")
     label = "mean 95% half-width" if measure == "half_width" else "mean 95% interval width"
