@@ -1,5 +1,7 @@
 """Plots of the identification history: files are written and the drawn data are the inputs."""
 
+import re
+
 import matplotlib
 import numpy as np
 import pytest
@@ -202,6 +204,12 @@ def test_files_written_and_no_pyplot_state(tmp_path, rng):
     for p in written:
         assert p.exists() and p.stat().st_size > 1000, p
     assert written[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the format is the suffix's: none (matplotlib had written "<path>.png" and returned a path
+    # that did not exist) or another is named, and no folder is made for it
+    for name in ("none/convergence", "other/convergence.v2"):
+        with pytest.raises(ValueError, match=r"convergence.*: the plot's file needs an image suffix \(.*\.png"):
+            plots.plot_convergence(_reports(), tmp_path / name)
+        assert not (tmp_path / name).parent.exists()
     assert matplotlib.get_backend() == before
     import sys
 
@@ -221,12 +229,36 @@ def test_bad_inputs_name_the_field(rng):
         plots.make_joint_angles_figure(est, tr, NAMES, joints="distal")
     with pytest.raises(ValueError, match="which"):
         plots.make_stiffness_figure(est, tr, NAMES, which=[(3, 0)])
+    # a bare pair failed in a TypeError ("'int' object is not iterable"), and a fraction was cut
+    # to a whole finger or joint and drawn
+    with pytest.raises(ValueError, match=r"which: 0 is not a \(finger, joint\) pair"):
+        plots.make_stiffness_figure(est, tr, NAMES, which=(0, 1))
+    with pytest.raises(ValueError, match=r"which: \(0, 1.5\) is not a joint of a 3 x 2 hand"):
+        plots.make_stiffness_figure(est, tr, NAMES, which=[(0, 1.5)])
+    with pytest.raises(ValueError, match="fingers: 0.5 is not a finger of a 3-finger hand"):
+        plots.make_link_lengths_figure(est, tr, NAMES, fingers=[0.5])
+    with pytest.raises(ValueError, match="fingers must be a list, got 1"):
+        plots.make_link_lengths_figure(est, tr, NAMES, fingers=1)
     bad = [dict(e) for e in est]
     bad[2]["a_lo"] = np.zeros(N + 1)
     with pytest.raises(ValueError, match=r"estimates\[2\]\['a_lo'\]"):
         plots.make_contacts_figure(bad, tr, NAMES)
     with pytest.raises(ValueError, match="empty"):
         plots.make_convergence_figure([])
+    # the thresholds are the run's settings (a word failed in a format code error, NaN drew none)
+    for threshold in ("2", np.nan, -1.0):
+        with pytest.raises(ValueError, match="threshold_deg must be a finite number >= 0"):
+            plots.make_convergence_figure(_reports(), threshold_deg=threshold)
+    for threshold in ("0.05", np.nan, -0.1):
+        with pytest.raises(ValueError, match="parameter_threshold must be None or a positive finite fraction"):
+            plots.make_convergence_figure(_reports(), parameter_threshold=threshold)
+    # a truth that is not a dict (an AttributeError), iterations that are not finite numbers
+    # (NaN drew empty axes; a word, numpy's "could not convert string to float")
+    with pytest.raises(ValueError, match=r"truths\[1\] must be a dict of truths or None, got list"):
+        plots.make_contacts_figure(est, [tr[0], [0.02] * N, *tr[2:]], NAMES)
+    for iterations in (np.full(T, np.nan), ["a"] * T):
+        with pytest.raises(ValueError, match="iterations must be finite numbers"):
+            plots.make_contacts_figure(est, tr, NAMES, iterations=iterations)
     with pytest.raises(ValueError, match=r"estimates\[0\] has no 'theta'"):  # was an AttributeError
         plots.make_contacts_figure([None, *est[1:]], None, NAMES)
 
@@ -259,7 +291,12 @@ def test_hypotheses_still_segments_in_mm(rng, tmp_path):
     with pytest.raises(ValueError, match="joints must be finite"):
         plots.make_hypotheses_figure(bad, contacts)
     with pytest.raises(ValueError, match="pom_position must be finite"):
-        plots.make_hypotheses_figure(joints, contacts, np.full(3, np.inf))
+        plots.make_hypotheses_figure(joints, contacts, np.full((P, 3), np.inf))
+    # one POM position per particle (HypothesisDrawer.draw's): an empty array had failed inside
+    # matplotlib ("Axis limits cannot be NaN or Inf"), a (P, 2) one in numpy's reshape
+    for shape in ((0, 3), (P, 2), (2, 3)):
+        with pytest.raises(ValueError, match=re.escape(f"pom_position must have shape ({P}, 3), got {shape}")):
+            plots.make_hypotheses_figure(joints, contacts, np.zeros(shape))
 
 
 def test_every_column_keeps_its_iteration_axis():

@@ -83,6 +83,23 @@ def test_evidence_profile_favours_the_true_spring_and_link():
     assert rows[1]["errors"]["link_length_error_mm"] is None  # the profiled link is no longer identified
 
 
+def test_an_evidence_profile_fixes_a_parameter_of_the_prior_it_is_given():
+    """With ``prior`` (replay's --prior), the profiled spring or link is the given prior's: the
+    trace's had been read whatever it said, so another spring was fixed while the given one
+    stayed unknown, and a link the given prior identifies was refused as known."""
+    trace = _run("stiffness", iterations=2)["_trace"]
+    k = trace.hand.fingers[1].stiffness[1]
+    prior = dataclasses.replace(trace.prior, stiffness_unknown=[(1, 1)])
+    row, = evidence_profile(trace, "stiffness", [k], prior=prior)
+    assert "stiffness:finger_left/1" not in row["replay"]["hand_parameters"]  # the given prior's spring, fixed
+    prior = dataclasses.replace(trace.prior, links_unknown=[1])
+    L = trace.hand.fingers[1].link_lengths[0]
+    row, = evidence_profile(trace, "link_length:finger_left", [L], prior=prior)
+    assert "link_length:finger_left" not in row["replay"]["hand_parameters"]
+    with pytest.raises(ValueError, match="finger 'finger_right' has a known link length in the given prior"):
+        evidence_profile(trace, "link_length:finger_right", [L], prior=prior)
+
+
 def ideal_offset(path) -> float:
     """The statics profile's offset at 0.1 N m/rad of the trace at ``path`` with the ideal tendon."""
     trace = IdentificationTrace.load(path)
@@ -139,6 +156,13 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
     truths = {**trace.truths, "a": np.full_like(trace.truths["a"], np.nan)}
     with pytest.raises(ValueError, match="truths 'a' must be finite numbers"):
         IdentificationTrace(**{**trace.__dict__, "truths": truths}).validate()
+    # a hand-made trace's lists, as a loaded trace's arrays (an AttributeError, a TypeError)
+    listed = IdentificationTrace(**{**trace.__dict__, "valid": trace.valid.tolist(),
+                                    "truths": {k: v.tolist() for k, v in trace.truths.items()}}).validate()
+    np.testing.assert_array_equal(listed.valid, trace.valid)
+    np.testing.assert_array_equal(listed.truths["theta"], trace.truths["theta"])
+    with pytest.raises(ValueError, match="'truths' must be a dict of arrays or None, got list"):
+        IdentificationTrace(**{**trace.__dict__, "truths": [trace.truths]}).validate()
     with pytest.raises(ValueError, match="meta 'plant' must be a name"):
         IdentificationTrace(**{**trace.__dict__, "meta": {**trace.meta, "plant": ["model"]}}).validate()
     known = IdentificationTrace(**{**trace.__dict__, "prior": dataclasses.replace(trace.prior, stiffness_unknown=[])})

@@ -24,7 +24,7 @@ global state.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +32,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
+
+from vlr_drake.kinematics import is_count, is_number
 
 __all__ = [
     "Panel",
@@ -93,6 +95,8 @@ def _truth_series(truths: Sequence[dict | None] | None, key: str, shape: tuple, 
     out = np.full((T, *shape), np.nan)
     any_known = False
     for t, tr in enumerate(truths):
+        if tr is not None and not isinstance(tr, Mapping):  # (an AttributeError on 'get')
+            raise ValueError(f"truths[{t}] must be a dict of truths or None, got {type(tr).__name__}")
         if tr is None or tr.get(key) is None:
             continue
         value = np.asarray(tr[key], dtype=float)
@@ -128,10 +132,38 @@ def _quantity(estimates, truths, key: str, shape: tuple, scale: float):
     return mean, lo, hi, None if truth is None else scale * truth
 
 
+def _entries(name: str, value) -> list:
+    """The entries of the sequence ``value``, or a ValueError naming ``name``."""
+    try:
+        return list(value)
+    except TypeError:
+        raise ValueError(f"{name} must be a list, got {value!r}") from None
+
+
+def _joints(which, N: int, K: int) -> list[tuple[int, int]]:
+    """``which`` as (finger, joint) pairs of whole indices of an N x K hand, or a ValueError
+    naming the entry (a bare pair, (0, 1), had failed in a TypeError; 0.7 was cut to 0)."""
+    pairs = []
+    for w in _entries("which", which):
+        try:
+            fi, j = w
+        except (TypeError, ValueError):
+            raise ValueError(f"which: {w!r} is not a (finger, joint) pair; e.g. which=[(0, 1)]") from None
+        if not (is_count(fi) and is_count(j) and fi < N and j < K):
+            raise ValueError(f"which: ({fi!r}, {j!r}) is not a joint of a {N} x {K} hand")
+        pairs.append((int(fi), int(j)))
+    return pairs
+
+
 def _iterations(iterations: Sequence[int] | None, T: int) -> np.ndarray:
     if iterations is None:
         return np.arange(T)
-    it = np.asarray(iterations, dtype=float)
+    try:
+        it = np.asarray(iterations, dtype=float)
+    except (TypeError, ValueError):
+        it = None
+    if it is None or not np.all(np.isfinite(it)):  # (NaN had drawn empty axes)
+        raise ValueError(f"iterations must be finite numbers, got {iterations!r}")
     if it.shape != (T,):
         raise ValueError(f"iterations must have shape ({T},) to match the estimates, got {it.shape}")
     return it
@@ -240,12 +272,9 @@ def make_stiffness_figure(
     """Joint stiffness [N m/rad] of the (finger, joint) pairs in ``which`` (Fig. 5B; the
     paper's experiment identifies the thumb's distal joint, (0, 1) on the Model O)."""
     N, K = _dims(estimates, names)
-    which = [tuple(int(v) for v in w) for w in which]
+    which = _joints(which, N, K)
     if not which:
         raise ValueError("which is empty: name at least one (finger, joint)")
-    for fi, j in which:
-        if not (0 <= fi < N and 0 <= j < K):
-            raise ValueError(f"which: ({fi}, {j}) is not a joint of a {N} x {K} hand")
     mean, lo, hi, truth = _quantity(estimates, truths, "stiffness", (N, K), 1.0)
     panels = [
         Panel(
@@ -272,12 +301,13 @@ def make_link_lengths_figure(
     """Link lengths L_ik [mm] of the given fingers (all by default) against iterations
     (Fig. 8E): one panel per link, a row per finger."""
     N, K = _dims(estimates, names)
-    fingers = list(range(N)) if fingers is None else [int(f) for f in fingers]
+    fingers = list(range(N)) if fingers is None else _entries("fingers", fingers)
     if not fingers:
         raise ValueError("fingers is empty: name at least one finger")
-    for fi in fingers:
-        if not 0 <= fi < N:
-            raise ValueError(f"fingers: {fi} is not a finger of a {N}-finger hand")
+    for fi in fingers:  # (0.5 had been cut to finger 0)
+        if not (is_count(fi) and fi < N):
+            raise ValueError(f"fingers: {fi!r} is not a finger of a {N}-finger hand")
+    fingers = [int(fi) for fi in fingers]
     mean, lo, hi, truth = _quantity(estimates, truths, "link_lengths", (N, K - 1), 1e3)
     panels = [
         Panel(
@@ -320,6 +350,15 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
         from vlr_drake.filter import FilterConfig
 
         threshold_deg = FilterConfig().convergence_deg
+    # the run's settings, as FilterConfig.validate takes them (a word had failed in a format
+    # code error, NaN drawn no threshold, and a negative one below the axis)
+    if not (is_number(threshold_deg) and np.isfinite(threshold_deg) and threshold_deg >= 0):
+        raise ValueError(f"threshold_deg must be a finite number >= 0 [deg] (FilterConfig.convergence_deg), "
+                         f"got {threshold_deg!r}")
+    c = parameter_threshold
+    if c is not None and not (is_number(c) and np.isfinite(c) and c > 0):
+        raise ValueError(f"parameter_threshold must be None or a positive finite fraction "
+                         f"(FilterConfig.parameter_convergence), got {c!r}")
     if measure not in ("half_width", "full_width"):
         raise ValueError(f"measure must be 'half_width' or 'full_width' (FilterConfig.convergence_measure), got {measure!r}")
     label = "mean 95% half-width" if measure == "half_width" else "mean 95% interval width"
@@ -412,6 +451,10 @@ def make_hypotheses_figure(
     p_hat = contacts.mean(axis=0) if estimate_contacts is None else np.asarray(estimate_contacts, dtype=float)
     if p_hat.shape != (N, 3):
         raise ValueError(f"estimate_contacts must have shape ({N}, 3), got {p_hat.shape}")
+    # one POM position per particle, as HypothesisDrawer.draw takes them (an empty array had
+    # ended in "Axis limits cannot be NaN or Inf", a (P, 2) one in numpy's reshape error)
+    if pom_position is not None and np.shape(pom_position) != (P, 3):
+        raise ValueError(f"pom_position must have shape ({P}, 3), got {np.shape(pom_position)}")
     for name, value in [("joints", joints), ("contacts", contacts), ("estimate_contacts", p_hat),
                         ("pom_position", pom_position)]:
         if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
@@ -423,7 +466,7 @@ def make_hypotheses_figure(
     # E^C: pairs of estimated contacts, and each to the POM
     seg_c = [(p_hat[a] * mm, p_hat[b] * mm) for a in range(N) for b in range(a + 1, N)]
     if pom_position is not None:
-        pom = np.asarray(pom_position, dtype=float).reshape(-1, 3).mean(axis=0) * mm
+        pom = np.asarray(pom_position, dtype=float).mean(axis=0) * mm
         seg_c += [(p_hat[i] * mm, pom) for i in range(N)]
     fig = Figure(figsize=(6.0, 5.5), layout="constrained")
     FigureCanvasAgg(fig)
@@ -459,8 +502,15 @@ def make_hypotheses_figure(
 
 # ------------------------------------------------------------------------------ files
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
-    """Write ``fig`` (format from the suffix), creating the folder; returns the path."""
+    """Write ``fig`` (format from the suffix), creating the folder; returns the path. A
+    suffix that is no image format (or none) is a ValueError naming the path, before any
+    folder is made (without one, matplotlib had written ``<path>.png`` and the path returned
+    did not exist)."""
     path = Path(path)
+    formats = fig.canvas.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise ValueError(f"{path}: the plot's file needs an image suffix ({', '.join('.' + f for f in sorted(formats))}), "
+                         f"got {path.suffix or 'none'!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
     return path

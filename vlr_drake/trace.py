@@ -142,6 +142,7 @@ class IdentificationTrace:
             self.valid = valid = valid.astype(bool)
         if valid.dtype != bool:
             raise ValueError(f"trace: 'valid' must be booleans (or 0/1), got {valid.dtype}")
+        self.valid = valid  # (a list of flags had failed below in a TypeError on its indexing)
         for name in ("R", "t"):
             if np.asarray(getattr(self, name)).dtype.kind not in "fiu":
                 raise ValueError(f"trace: '{name}' must be numbers, got {np.asarray(getattr(self, name)).dtype}")
@@ -157,6 +158,10 @@ class IdentificationTrace:
             raise ValueError(f"trace: step {k + 1} is marked valid but its POM rotation is not a rotation matrix: "
                              f"{np.round(self.R[k], 6).tolist()}")
         if self.truths is not None:
+            if not isinstance(self.truths, dict):
+                raise ValueError(f"trace: 'truths' must be a dict of arrays or None, got {type(self.truths).__name__}")
+            # arrays, as a loaded trace's are (a hand-made trace's lists had failed in an AttributeError)
+            self.truths = {k: np.asarray(v) for k, v in self.truths.items()}
             missing = [k for k in TRUTH_KEYS if k not in self.truths]
             if missing:
                 raise ValueError(f"trace: truths lack {missing}")
@@ -467,9 +472,11 @@ def _step_count(k, steps: int) -> int:
     return int(k)
 
 
-def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str):
+def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what: str,
+                       prior: pf.PriorConfig | None = None):
     """Checked ``values`` (V,) and the (finger, joint) of a profile's ``parameter`` (see
-    :func:`evidence_profile`; joint 0 for a link length); errors start with ``what``."""
+    :func:`evidence_profile`; joint 0 for a link length) among ``prior``'s unknowns (the
+    trace's by default); errors start with ``what``."""
     try:
         values = np.atleast_1d(np.asarray(values, float))
     except (TypeError, ValueError):
@@ -478,10 +485,11 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
         raise ValueError(f"{what}: 'values' must be a non-empty list of numbers")
     if not np.all(np.isfinite(values)) or np.any(values <= 0):
         raise ValueError(f"{what}: '{parameter}' values must be finite and positive, got {values.tolist()}")
-    prior, names = trace.prior, trace.hand.finger_names()
+    whose = "the trace's prior" if prior is None else "the given prior"
+    prior, names = trace.prior if prior is None else prior, trace.hand.finger_names()
     if parameter == "stiffness":
         if not prior.stiffness_unknown:
-            raise ValueError(f"{what}: the trace's prior identifies no stiffness")
+            raise ValueError(f"{what}: {whose} identifies no stiffness")
         fi, j = (int(x) for x in prior.stiffness_unknown[0])
         return values, fi, j
     if parameter.startswith("link_length:"):
@@ -491,7 +499,7 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
         fi = names.index(finger)
         if fi not in [int(x) for x in prior.links_unknown]:
             unknown = [names[int(i)] for i in prior.links_unknown]
-            raise ValueError(f"{what}: finger '{finger}' has a known link length in this trace "
+            raise ValueError(f"{what}: finger '{finger}' has a known link length in {whose} "
                              f"(unknown: {unknown or 'none'})")
         return values, fi, 0
     raise ValueError(f"{what}: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
@@ -571,8 +579,11 @@ def evidence_profile(trace: IdentificationTrace, parameter: str, values, config:
     the prior had been the trace's whatever the command said). Where every value's log
     evidence is -inf (a step that no hypothesis follows), a ValueError names the steps.
     """
-    values, fi, j = _profile_parameter(trace, parameter, values, "evidence profile")
     base_prior = trace.prior if prior is None else prior
+    # the parameter is one of the prior's the replays use (the trace's had been read whatever
+    # ``prior`` said: another first spring was fixed and the given one left unknown, and a
+    # link the given prior identifies was refused as known)
+    values, fi, j = _profile_parameter(trace, parameter, values, "evidence profile", prior)
     rows = []
     for v in values:
         spec, prior = copy.deepcopy(trace.hand), copy.deepcopy(base_prior)
