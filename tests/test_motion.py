@@ -756,7 +756,12 @@ def test_grasp_helpers_check_what_they_return(model_o_hand):
     l0 = h.tendon_travel(gs.theta) + gs.stretch
     assert h.within_tendon_range(l0).all()
     for kw, msg in [({"count": 0}, "'count'"), ({"contact_range": (-0.01, 0.02)}, "'contact_range'"),
-                    ({"proximal_range": (0.3, 0.1)}, "'proximal_range'")]:
+                    ({"proximal_range": (0.3, 0.1)}, "'proximal_range'"),
+                    # (these had drawn max_draws grasps, keeping none, then asked for wider ranges)
+                    ({"min_tension": np.nan, "max_draws": 20_000}, "'min_tension' must be a number"),
+                    ({"max_tension": 0.1, "max_draws": 20_000}, "'max_tension' \\(0.1\\) must be >= 'min_tension'"),
+                    ({"min_stability": np.nan, "stable": True, "max_draws": 20_000}, "'min_stability'"),
+                    ({"max_draws": 0}, "'max_draws'")]:
         with pytest.raises(ValueError, match=msg):
             grasps.sample_grasps(h, rng, **{"count": 5, **kw})
     th, a = gs.theta[0], gs.a[0]

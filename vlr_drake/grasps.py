@@ -25,7 +25,7 @@ import numpy as np
 
 from vlr_drake import kinematics, motion
 from vlr_drake.hand import HandModel
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 
 __all__ = ["GraspSample", "sample_grasps", "squeezes", "all_pairs", "constraint_gradients", "reduced_hessian_min_eig",
            "lagrangian_hessian", "commanded_equilibrium", "settle_under_command"]
@@ -240,6 +240,15 @@ def sample_grasps(
             raise ValueError(f"'{name}' must be finite (low, high) with low <= high, got {(lo, hi)}")
     if contact_range[0] < 0:
         raise ValueError(f"'contact_range' must lie on the last links (>= 0 m), got {contact_range}")
+    # (a NaN bound, or a maximum tension below the minimum, had kept nothing: max_draws draws,
+    # 2,000,000 by default, then an error that asked for wider ranges)
+    for name, value in (("min_tension", min_tension), ("max_tension", max_tension), ("min_stability", min_stability)):
+        if not (is_number(value) and not np.isnan(value)):
+            raise ValueError(f"'{name}' must be a number, got {value!r}")
+    if max_tension < min_tension:
+        raise ValueError(f"'max_tension' ({max_tension}) must be >= 'min_tension' ({min_tension}) [N]")
+    if not is_count(max_draws, 1):
+        raise ValueError(f"'max_draws' must be an integer >= 1, got {max_draws!r}")
     N, K = hand.N, hand.K
     kept: list[tuple] = []
     total = 0
