@@ -756,7 +756,12 @@ def test_grasp_helpers_check_what_they_return(model_o_hand):
     l0 = h.tendon_travel(gs.theta) + gs.stretch
     assert h.within_tendon_range(l0).all()
     for kw, msg in [({"count": 0}, "'count'"), ({"contact_range": (-0.01, 0.02)}, "'contact_range'"),
-                    ({"proximal_range": (0.3, 0.1)}, "'proximal_range'")]:
+                    ({"proximal_range": (0.3, 0.1)}, "'proximal_range'"),
+                    # (these had drawn max_draws grasps, keeping none, then asked for wider ranges)
+                    ({"min_tension": np.nan, "max_draws": 20_000}, "'min_tension' must be a number"),
+                    ({"max_tension": 0.1, "max_draws": 20_000}, "'max_tension' \\(0.1\\) must be >= 'min_tension'"),
+                    ({"min_stability": np.nan, "stable": True, "max_draws": 20_000}, "'min_stability'"),
+                    ({"max_draws": 0}, "'max_draws'")]:
         with pytest.raises(ValueError, match=msg):
             grasps.sample_grasps(h, rng, **{"count": 5, **kw})
     th, a = gs.theta[0], gs.a[0]
@@ -766,6 +771,16 @@ def test_grasp_helpers_check_what_they_return(model_o_hand):
     assert grasps.commanded_equilibrium(h, th, a, l0[0])[1]
     with pytest.raises(ValueError, match="tendon model must be one of"):
         grasps.lagrangian_hessian(h, th, a, gs.multipliers[0], tendon="Elastic")
+    # reduced_hessian_min_eig's per-particle parameters, shared or not; the hand's own (N, K)
+    # stiffness had been indexed by particle and failed in a numpy reshape
+    eig = grasps.reduced_hessian_min_eig(h, gs.theta[:2], gs.a[:2], gs.multipliers[:2])
+    np.testing.assert_array_equal(grasps.reduced_hessian_min_eig(
+        h, gs.theta[:2], gs.a[:2], gs.multipliers[:2], link_lengths=h.link_lengths[None],
+        stiffness=np.stack([h.stiffness] * 2)), eig)
+    for kw, msg in (({"stiffness": h.stiffness}, r"'stiffness' must have shape \(2, 3, 2\) or \(1, 3, 2\), got \(3, 2\)"),
+                    ({"link_lengths": h.link_lengths}, r"'link_lengths' must have shape \(2, 3, 1\)")):
+        with pytest.raises(ValueError, match=msg):
+            grasps.reduced_hessian_min_eig(h, gs.theta[:2], gs.a[:2], gs.multipliers[:2], **kw)
     lam = gs.multipliers[:3].copy()
     lam[1] = np.nan
     st = motion.stable_equilibria(h, gs.theta[:3], lam, a=gs.a[:3], ok=np.array([True, False, True]))

@@ -158,8 +158,13 @@ def test_physics_overrides_parse_and_name_bad_keys():
 def test_bad_direction_is_named():
     with pytest.raises(ValueError, match="'direction' must be a nonzero vector of 3"):
         run_agreement(direction=[1.0, 0.0])
-    with pytest.raises(ValueError, match="'actions' must be >= 1"):
+    with pytest.raises(ValueError, match="'actions' must be an integer >= 1"):
         run_agreement(actions=0)
+    # (2.5 actions and a NaN sweep step had failed only after the grasp, the step named as 'dl')
+    with pytest.raises(ValueError, match="'actions' must be an integer >= 1, got 2.5"):
+        run_agreement(actions=2.5)
+    with pytest.raises(ValueError, match="'step' must be a finite number"):
+        run_agreement(direction=[-1.0, 1.0, 1.0], step=float("nan"))
     with pytest.raises(ValueError, match="'hold' must be a duration >= 0"):
         run_agreement(hold=-1.0)
 

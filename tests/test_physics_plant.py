@@ -196,6 +196,31 @@ def test_exploration_stays_in_the_window():
         )
 
 
+def test_exploration_and_the_check_name_bad_settings():
+    """From a review: exploration_step, a copy of the identification's walk, took a negative
+    window (lo above hi: every action jumped to center - window) or a NaN step silently, and
+    run_check took 2.5 or -1 actions (a TypeError, or NaN statistics, after the grasp)."""
+    from vlr_drake.identify import Exploration
+
+    rng_T = hand_by_name("model_o").model().tendon_range
+    center = np.array([0.018, 0.012, 0.0005])
+    for step, window, name in ((0.0015, -0.001, "window"), (np.nan, 0.004, "step"), (-0.001, 0.004, "step")):
+        with pytest.raises(ValueError, match=f"'{name}'"):
+            exploration_step(np.random.default_rng(0), center, center, step, window, rng_T)
+    # the same walk as the identification's, draw for draw
+    explore = Exploration(center, rng_T, 0.0015, 0.004, np.random.default_rng(5))
+    rng, l = np.random.default_rng(5), center.copy()
+    for _ in range(50):
+        dl = exploration_step(rng, l, center, 0.0015, 0.004, rng_T)
+        np.testing.assert_array_equal(dl, explore.next_action())
+        explore.commit(dl)
+        l = l + dl
+    for kw, name in (({"actions": 2.5}, "'actions'"), ({"actions": -1}, "'actions'"), ({"window": np.inf}, "'window'"),
+                     ({"step": -0.001}, "'step'")):
+        with pytest.raises(ValueError, match=name):
+            run_check("apple", "model_o", **kw)
+
+
 def test_image_downsampler_averages_blocks_and_seeds_noise():
     w, h, s = 4, 3, 2
     big = np.zeros((h * s, w * s, 4), np.uint8)

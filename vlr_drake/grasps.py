@@ -25,7 +25,7 @@ import numpy as np
 
 from vlr_drake import kinematics, motion
 from vlr_drake.hand import HandModel
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 
 __all__ = ["GraspSample", "sample_grasps", "squeezes", "all_pairs", "constraint_gradients", "reduced_hessian_min_eig",
            "lagrangian_hessian", "commanded_equilibrium", "settle_under_command"]
@@ -166,7 +166,10 @@ def lagrangian_hessian(hand: HandModel, theta, a, multipliers, link_lengths=None
 
 def reduced_hessian_min_eig(hand: HandModel, theta, a, multipliers, link_lengths=None, stiffness=None,
                             tendon="elastic") -> np.ndarray:
-    """Smallest eigenvalue of the reduced Hessian, per particle (P,) [N m/rad].
+    """Smallest eigenvalue of the reduced Hessian, per particle (P,) [N m/rad], of the
+    configurations ``theta`` (P, N, K) with contacts ``a`` (P, N), ``multipliers`` (P, m)
+    and, where given, per-particle ``link_lengths`` (P or 1, N, K-1) and ``stiffness``
+    (P or 1, N, K).
 
     Positive: the configuration is a strict constrained minimum of Eq. 9's energy.
     For the ideal tendon the tangent space also keeps the tendon lengths fixed. Where the
@@ -176,10 +179,17 @@ def reduced_hessian_min_eig(hand: HandModel, theta, a, multipliers, link_lengths
     """
     theta = np.asarray(theta, float)
     P = theta.shape[0]
+    N, K = hand.N, hand.K
+    # (the hand's own (N, K) stiffness had been indexed by particle: a row of it, then a
+    # numpy reshape error)
+    if link_lengths is not None:
+        link_lengths = kinematics.as_particles("link_lengths", link_lengths, (P, N, K - 1), allow_shared=True)
+    if stiffness is not None:
+        stiffness = kinematics.as_particles("stiffness", stiffness, (P, N, K), allow_shared=True)
     out = np.empty(P)
     for p in range(P):
-        L = None if link_lengths is None else np.asarray(link_lengths)[min(p, len(link_lengths) - 1)]
-        k = None if stiffness is None else np.asarray(stiffness)[min(p, len(stiffness) - 1)]
+        L = None if link_lengths is None else link_lengths[min(p, len(link_lengths) - 1)]
+        k = None if stiffness is None else stiffness[min(p, len(stiffness) - 1)]
         H, G = lagrangian_hessian(hand, theta[p], np.asarray(a)[p], np.asarray(multipliers)[p], L, k, tendon)
         A = G if tendon == "elastic" else np.vstack([G, hand.R])
         _, S, Vt = np.linalg.svd(A)
@@ -240,6 +250,15 @@ def sample_grasps(
             raise ValueError(f"'{name}' must be finite (low, high) with low <= high, got {(lo, hi)}")
     if contact_range[0] < 0:
         raise ValueError(f"'contact_range' must lie on the last links (>= 0 m), got {contact_range}")
+    # (a NaN bound, or a maximum tension below the minimum, had kept nothing: max_draws draws,
+    # 2,000,000 by default, then an error that asked for wider ranges)
+    for name, value in (("min_tension", min_tension), ("max_tension", max_tension), ("min_stability", min_stability)):
+        if not (is_number(value) and not np.isnan(value)):
+            raise ValueError(f"'{name}' must be a number, got {value!r}")
+    if max_tension < min_tension:
+        raise ValueError(f"'max_tension' ({max_tension}) must be >= 'min_tension' ({min_tension}) [N]")
+    if not is_count(max_draws, 1):
+        raise ValueError(f"'max_draws' must be an integer >= 1, got {max_draws!r}")
     N, K = hand.N, hand.K
     kept: list[tuple] = []
     total = 0

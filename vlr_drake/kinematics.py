@@ -3,7 +3,7 @@
 Finger i is planar. In its plane (coordinates x along u_i, z along the palm normal) the
 chain of *virtual* links (Eq. 2) has lengths ``ell_k`` and absolute angles ``psi_k``:
 
-    ell_k = L_k,           psi_k = phi_k              (k < K-1, physical links)
+    ell_k = L_k,           psi_k = phi_k              (k < K, physical links)
     ell_K = d_i = |(a_i, n_i)|,  psi_K = phi_K + gamma_i,  gamma_i = atan2(n_i, a_i)
 
 with ``phi_k = theta_1 + ... + theta_k``. Joint k+1 sits at ``q_{k+1} = q_k + ell_k e(psi_k)``

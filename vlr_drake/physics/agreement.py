@@ -152,6 +152,7 @@ from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, hand_by_name, model_o
 from vlr_drake.identify import EXPLORATION, default_squeeze
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.physics.statics import LOADS, commanded_offsets, plant_loads
 from vlr_drake.systems.physics_plant import PhysicsConfig
 
@@ -328,8 +329,10 @@ def run_agreement(
     from vlr_drake.identify import Exploration, IdentifyOptions, RunStopped
     from vlr_drake.physics_identify import PhysicsAdapter
 
-    if actions < 1:
-        raise ValueError(f"'actions' must be >= 1, got {actions}")
+    if not is_count(actions, 1):  # (2.5 had failed in range() after the grasp)
+        raise ValueError(f"'actions' must be an integer >= 1, got {actions!r}")
+    if not (is_number(step) and np.isfinite(step)):  # (NaN had been named as 'dl' after the grasp)
+        raise ValueError(f"'step' must be a finite number [m], got {step!r}")
     if not (np.isfinite(hold) and hold >= 0):
         raise ValueError(f"'hold' must be a duration >= 0 [s], got {hold}")
     spec = hand if hand is not None else model_o()

@@ -26,11 +26,20 @@ import numpy as np
 
 from vlr_drake.entry import check_output, count, plain, run
 from vlr_drake.hand import hand_by_name
+from vlr_drake.identify import Exploration
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.objects import PAPER_OBJECTS, ObjectSpec, preset
 from vlr_drake.perception.camera import CameraConfig
 from vlr_drake.systems.physics_plant import PhysicsConfig, build_physics_hand
 
 __all__ = ["CheckResult", "exploration_step", "run_check", "main"]
+
+
+def _check_walk(step, window) -> None:
+    """The random walk's ``step`` and ``window`` [m]: finite numbers >= 0, or a ValueError naming them."""
+    for name, value in (("step", step), ("window", window)):
+        if not (is_number(value) and 0 <= value < np.inf):
+            raise ValueError(f"'{name}' must be a finite number >= 0 [m], got {value!r}")
 
 
 def exploration_step(
@@ -42,13 +51,13 @@ def exploration_step(
     tendon_range: np.ndarray,
 ) -> np.ndarray:
     """A random action dl (uniform in +-step per tendon) such that current + dl stays within
-    center +- window and the tendon range, reflecting at the bounds."""
-    lo = np.maximum(center - window, tendon_range[:, 0])
-    hi = np.minimum(center + window, tendon_range[:, 1])
-    target = current + rng.uniform(-step, step, size=current.shape)
-    target = np.where(target > hi, 2 * hi - target, target)
-    target = np.where(target < lo, 2 * lo - target, target)
-    return np.clip(target, lo, hi) - current
+    center +- window and the tendon range, reflecting at the bounds: the identification's
+    walk (:class:`vlr_drake.identify.Exploration`) from ``current``. A step or window that
+    is negative or not finite is named."""
+    _check_walk(step, window)
+    explore = Exploration(center, tendon_range, step, window, rng)
+    explore.l = np.array(current, float)
+    return explore.next_action()
 
 
 @dataclass
@@ -96,6 +105,9 @@ def run_check(
 ) -> CheckResult:
     """Grasp ``obj`` with ``hand_name`` and apply ``actions`` random actions (see module doc).
     With ``html``, the run is recorded in Meshcat and saved there as static HTML."""
+    if not is_count(actions):  # (2.5 had failed in range() and -1 had given NaN statistics, after the grasp)
+        raise ValueError(f"'actions' must be an integer >= 0, got {actions!r}")
+    _check_walk(step, window)  # before the plant is built and grasps
     obj = preset(obj) if isinstance(obj, str) else obj
     rng = np.random.default_rng(seed)
     physics = physics or PhysicsConfig()
