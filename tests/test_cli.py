@@ -744,7 +744,17 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
                        (["--stuck-probability", "0.5", "--filter", "stuck_probability=0"], "set the same thing")]:
         assert main(["identify", "--plant", "model", "--out", str(out), "--no-progress", *argv]) == 2
         assert said in capsys.readouterr().err
-    assert not out.exists()
+    # a --json or --trace where the run makes its --out folder (or a folder above it): the run had
+    # ended in a traceback, its plots or its result never written
+    small = ["--particles", "100", "--iterations", "1", "--no-progress"]
+    up = tmp_path / "up"
+    for argv, flag, given in [(["identify", "--plant", "model", "--out", str(out)], "--json", out),
+                              (["identify", "--plant", "model", "--out", str(out)], "--trace", out),
+                              (["write", "I", "--plant", "model", "--model", "true", "--out", str(out)], "--json", out),
+                              (["identify", "--plant", "model", "--out", str(up / "o")], "--json", up)]:
+        assert main([*argv, *small, flag, str(given)]) == 2
+        assert f"{flag} {given} is the --out folder" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "up").exists()
 
 
 def test_a_failed_draw_of_identify_draws_keeps_the_run(tmp_path, monkeypatch, capsys):

@@ -172,6 +172,14 @@ def _check_outputs(args) -> None:
     check_output("--json", getattr(args, "json", None))
     if args.command == "identify":  # (replay's traces are its inputs)
         check_output("--trace", args.trace)
+    # a file where the run makes its --out folder (a review: --json or --trace named as --out
+    # ended a finished run in a traceback, its result or its plots never written)
+    out = Path(args.out).resolve() if getattr(args, "out", None) else None
+    for flag, given in (("--json", getattr(args, "json", None)),
+                        ("--trace", args.trace if args.command == "identify" else None)):
+        if out is not None and given and Path(given).resolve() in (out, *out.parents):
+            raise ValueError(f"{flag} {given} is the --out folder {args.out} (or a folder above it): the run writes "
+                             "its results and plots in that folder; name a file")
     # the JSON over the run's trace, or over a trace a replay reads (a review: identify wrote
     # its JSON over the trace it had just saved)
     json_path = getattr(args, "json", None)
