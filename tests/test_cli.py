@@ -926,6 +926,26 @@ def test_demo_refuses_a_scenario_of_another_experiment_before_anything_runs(caps
     assert "self-check" not in out and "holds another hand than the Model O's" in err
 
 
+def test_demo_says_an_unused_object_once_and_refuses_a_bad_one_before_anything_runs(tmp_path, capsys, monkeypatch):
+    """The demo builds its identification's options twice: the --object warning was said
+    twice; and an unknown --object was refused only after the self-check had run."""
+    import vlr_drake.cli as cli
+    import vlr_drake.identify as idm
+
+    def stop(opts, on_iteration=None):
+        raise ValueError("the identification starts here")
+
+    monkeypatch.setattr(cli, "selfcheck", lambda seed: {})
+    monkeypatch.setattr(idm, "run_identification", stop)
+    args = ["demo", "--plant", "model", "--no-progress", "--out", str(tmp_path)]
+    assert main([*args, "--object", "gelatin_box"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("does not use the object") == 1 and "the identification starts here" in err
+    assert main(["demo", "--object", "teapot", "--no-progress", "--out", str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert "self-check" not in out and "unknown object 'teapot'" in err
+
+
 def test_builder_refuses_flags_its_run_would_drop(capsys):
     """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
     example diagrams do not go with it (a review found them silently dropped), and a bad

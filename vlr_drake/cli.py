@@ -216,9 +216,9 @@ def _identify_options(args):
         hand=args.hand, seed=args.seed, particles=args.particles, max_iterations=args.iterations,
         progress=not args.no_progress, action_choice=getattr(args, "actions", None),
     )
-    ignored = ([] if args.loaded is None or getattr(args, "told_ignored", False)
-               else ignored_by_identify(args.loaded, opts.plant))
-    args.told_ignored = True  # once per command (the demo builds the options twice)
+    first = not getattr(args, "told_ignored", False)  # warnings once per command (the demo builds the
+    args.told_ignored = True  # options twice; its --object warning had been said twice)
+    ignored = [] if args.loaded is None or not first else ignored_by_identify(args.loaded, opts.plant)
     if ignored:  # said, not silently dropped (once the scenario is known to run), each with why
         by_plant = ignored_by_plant(args.loaded, opts.plant)
         diagram = [n for n in ignored if n not in by_plant]
@@ -227,7 +227,7 @@ def _identify_options(args):
                                       if by_plant else [])
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': an identification run does not use "
               f"{'; nor '.join(why)}", file=sys.stderr)
-    if args.object is not None and opts.plant == "model":  # said, not silently dropped
+    if first and args.object is not None and opts.plant == "model":  # said, not silently dropped
         print(f"vlr-drake {args.command}: warning: --object {args.object}: the model plant does not use the object "
               "(its truth is the VLR, Eq. 9); the physics plant holds it", file=sys.stderr)
     if args.loaded is None:
@@ -823,7 +823,9 @@ def demo(args) -> None:
     if s is not None and (s.hand_spec is not None or s.hand not in (None, "model_o")):
         raise ValueError(f"demo: scenario '{s.name}' holds another hand than the Model O's (the demo's); "
                          f"run it with vlr-drake identify --scenario")
-    _identify_options(args)  # a scenario for another experiment is refused before anything runs
+    # a scenario for another experiment, or a bad --object, is refused before anything runs (an
+    # unknown --object had been refused after the self-check)
+    _identify_options(args).validate()
     print("== self-check: the motion function, batched vs MathematicalProgram ==")
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
