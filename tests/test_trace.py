@@ -560,8 +560,9 @@ def test_a_replay_under_another_filter_seed(tmp_path, capsys):
         extra = [] if seed is None else ["--filter-seed", str(seed)]
         assert main(["replay", str(path), "--no-progress", "--json", str(out), *extra]) == 0
         outs[seed] = json.loads(out.read_text())["runs"][0]
-        # the run's own seed is the same draw, and says so (the README's example had been it)
-        warned = f"--filter-seed {seed} is the filter seed {path} was run with: the same draw" in capsys.readouterr().out
+        # the run's own seed is the same draw, and says so (the README's example had been it), on
+        # stderr as every warning (it had been printed among the results, on stdout)
+        warned = f"--filter-seed {seed} is the filter seed {path} was run with: the same draw" in capsys.readouterr().err
         assert warned is (seed == trace.filter_seed), seed
     assert outs[None] == outs[trace.filter_seed] and outs[None]["filter_seed"] == trace.filter_seed
     other = outs[trace.filter_seed + 1]

@@ -508,7 +508,7 @@ def replay_trace(args) -> dict:
         same = [str(path) for path, trace in traces if trace.filter_seed == args.filter_seed]
         if same:  # (identify seeds its filter with seed + 1: a seed-0 run's filter seed is 1)
             print(f"vlr-drake replay: warning: --filter-seed {args.filter_seed} is the filter seed "
-                  f"{', '.join(same)} was run with: the same draw, not another")
+                  f"{', '.join(same)} was run with: the same draw, not another", file=sys.stderr)
         traces = [(path, dataclasses.replace(trace, filter_seed=args.filter_seed)) for path, trace in traces]
     for path, trace in traces if at_steps else ():  # and all checked: no replay is lost to a later trace's error
         if any(not 1 <= k <= trace.steps for k in at_steps):
