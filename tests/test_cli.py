@@ -588,6 +588,30 @@ def test_tasks_take_a_scenario(tmp_path, command):
         assert list(out.glob("*.png"))
 
 
+def test_a_task_with_the_true_model_refuses_the_filters_settings(tmp_path, capsys, monkeypatch):
+    """--model true runs no filter: its --particles and --iterations had been taken and
+    ignored without a word; with --model filter they reach the task (the budget its own 40
+    where not given)."""
+    import vlr_drake.tasks.write as tw
+
+    for flags in (["--particles", "5000"], ["--iterations", "20"]):
+        assert main(["write", "I", "--plant", "model", "--model", "true", "--no-progress", "--out", str(tmp_path),
+                     *flags]) == 2
+        assert f"{flags[0]} set the self-identification of --model filter" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+    seen = []
+
+    def stop(word, **kwargs):
+        seen.append(kwargs)
+        raise ValueError("the task starts here")
+
+    monkeypatch.setattr(tw, "run_write", stop)
+    for flags in (["--particles", "500", "--iterations", "7"], []):
+        assert main(["write", "I", "--plant", "model", "--no-progress", "--out", str(tmp_path), *flags]) == 2
+    assert seen[0]["particles"] == 500 and seen[0]["identify_iterations"] == 7
+    assert "particles" not in seen[1] and "identify_iterations" not in seen[1]
+
+
 def test_a_task_names_what_it_does_not_take_from_a_scenario(tmp_path, capsys):
     """The tasks hold their own objects, filter and prior: a scenario that sets them is run,
     with a warning naming those fields, not silently."""

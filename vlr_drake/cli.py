@@ -759,8 +759,14 @@ def _plots(result: dict, stem: Path) -> None:
 
 # ------------------------------------------------------------------------------ tasks
 def task(args) -> dict:
-    common = dict(model=args.model, out=args.out, progress=not args.no_progress, identify_iterations=args.iterations,
-                  meshcat=_meshcat(args), **_task_settings(args))
+    given = [flag for flag, value in (("--particles", args.particles), ("--iterations", args.iterations))
+             if value is not None]
+    if args.model == "true" and given:  # said, not silently ignored
+        raise ValueError(f"{', '.join(given)} set the self-identification of --model filter; --model true controls "
+                         "with the plant's hidden truth and runs no filter")
+    budget = {} if args.iterations is None else {"identify_iterations": args.iterations}  # (else the task's, 40)
+    common = dict(model=args.model, out=args.out, progress=not args.no_progress, meshcat=_meshcat(args), **budget,
+                  **_task_settings(args))
     if args.command == "write":
         from vlr_drake.tasks.write import run_write
 
@@ -1034,7 +1040,7 @@ def main(argv: list[str] | None = None) -> int:
                             ("maze", "play a marble maze (orientation control)"),
                             ("stack", "stack cups (SE(3) control with the rotational weight alpha)")]:
         p = _parser(name, sub, help_text)
-        _common(p, particles=3000, iterations=40, least_iterations=0)
+        _common(p, particles=3000, iterations=None, least_iterations=0, iterations_help="40")
         p.add_argument("--model", choices=["true", "filter"], default="filter",
                        help="the controller's model: the plant's hidden truth, or self-identified first")
         if name == "write":
