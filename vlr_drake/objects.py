@@ -300,7 +300,7 @@ def preset(name: str) -> ObjectSpec:
       side along the palm normal and its 89 mm side across (y).
     Task objects: ``cup_1`` .. ``cup_4`` (YCB 065 stacking cups, four in decreasing size,
     modelled as closed cylinders), ``cup_target`` (a larger cup to stack into),
-    ``marble_maze`` (a 90 mm plate with a rim and a 12 mm marble on the face towards the
+    ``marble_maze`` (a 75 x 90 mm plate with a rim and a 12 mm marble on the face towards the
     palm, tag in the middle).
     """
     if name == "apple":
