@@ -465,6 +465,7 @@ def test_write_with_the_filter_model():
     check_fields(r, "write")
     # the filter kept updating during control: every control action was also evidence
     assert r["model"] == "filter" and r["filter_iterations"] > 30 + r["waypoints"]
+    assert (r["particles"], r["identify_iterations"]) == (1000, 30)  # the setup, recorded
     # an identified (imperfect) model with camera feedback still follows the letter
     assert r["success"] and r["position_error_mm"]["mean"] < 0.6  # mm, on a 1.6 mm letter (measured 0.41)
 

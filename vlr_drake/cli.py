@@ -73,7 +73,7 @@ IDENTIFY_SETTINGS = ("experiment", "scenario_path", "hand", "object", "plant", "
                      "action_choice", "draws", "object_mass_given_kg", "object_mass_tolerance", "filter_settings",
                      "prior_settings")
 #: ... and of a task's.
-TASK_SETTINGS = ("task", "plant", "model", "word", "scenario", "particles", "alpha")
+TASK_SETTINGS = ("task", "plant", "model", "word", "scenario", "particles", "identify_iterations", "alpha")
 
 
 def note_replaced(path: Path, result: dict, keys: tuple) -> None:

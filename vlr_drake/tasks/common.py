@@ -271,6 +271,15 @@ def task_plant(plant: str, seed: int, physics_object: str, physics=None, camera=
     return PhysicsTaskPlant(physics_object, seed, physics, camera)
 
 
+def model_settings(model: str, particles: int, identify_iterations: int) -> dict:
+    """A task result's record of its self-identification's setup: ``particles`` and
+    ``identify_iterations`` with ``model`` "filter", None for both with the true model (no
+    filter runs)."""
+    used = model == "filter"
+    return {"particles": int(particles) if used else None,
+            "identify_iterations": int(identify_iterations) if used else None}
+
+
 def make_model_fn(
     kind: str,
     tp,

@@ -368,6 +368,7 @@ def run_maze(
         "seed": seed,
         "plant": plant,
         "model": model,
+        **common.model_settings(model, particles, identify_iterations),
         "position_error_mm": None,
         "orientation_error_deg": common.stats(np.deg2rad(settled_err), np.rad2deg(1.0)),
         "success": bool(reached),

@@ -271,6 +271,7 @@ def run_stack(
         "seed": seed,
         "plant": plant,
         "model": model,
+        **common.model_settings(model, particles, identify_iterations),
         "alpha": alpha,
         "alpha_units": {"position_m": STACK_POSITION_UNIT, "rotation_rad": STACK_ROTATION_UNIT},
         "position_error_mm": common.stats(pos, 1.0),

@@ -289,6 +289,7 @@ def run_write(
         "seed": seed,
         "plant": plant,
         "model": model,
+        **common.model_settings(model, particles, identify_iterations),
         "word": word.upper(),
         "position_error_mm": pos,
         "orientation_error_deg": None,
