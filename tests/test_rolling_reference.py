@@ -137,6 +137,9 @@ def test_bad_input_is_named():
     good = dict(theta=theta, a=a, R=np.eye(3), t=np.zeros(3), normals=normals, stretch=stretch)
     with pytest.raises(ValueError, match="'theta' must be a finite array of shape \\(3, 2\\)"):
         solve_rolling(h, RollingState(**{**good, "theta": theta.ravel()}))
+    for R in (np.diag([1.0, 1.0, -1.0]), 2.0 * np.eye(3)):  # a reflection, a scaled rotation
+        with pytest.raises(ValueError, match="'R' must be a rotation"):
+            solve_rolling(h, RollingState(**{**good, "R": R}))
     with pytest.raises(ValueError, match="'normals' must be nonzero"):
         solve_rolling(h, RollingState(**{**good, "normals": np.zeros((3, 3))}))
     with pytest.raises(ValueError, match="needs 'com'"):
