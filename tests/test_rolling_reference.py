@@ -354,6 +354,15 @@ def test_max_iter_counts_newton_steps_and_bad_parameters_are_named():
             move_rolling(h, theta[None], *args, **{**kw, **bad})
     with pytest.raises(ValueError, match="'R' must hold rotations"):
         move_rolling(h, theta[None], a, 2 * np.eye(3), *args[2:], **kw)
+    # misshapen arrays are named (numpy's broadcast error, or a failed unpacking, had named none)
+    with pytest.raises(ValueError, match="'theta' must have shape"):
+        move_rolling(h, theta, *args, **kw)
+    with pytest.raises(ValueError, match="'a' must broadcast to shape \\(1, 3\\)"):
+        move_rolling(h, theta[None], a[:2], *args[1:], **kw)
+    for bad in (dict(com=np.zeros((1, 2))), dict(dl=np.zeros(2)), dict(stiffness=np.ones((2, 3, 2))),
+                dict(curvature_radius=np.ones(2))):
+        with pytest.raises(ValueError, match=f"'{next(iter(bad))}' must broadcast"):
+            move_rolling(h, theta[None], *args, **{**kw, **bad})
     # a hypothesis without normals fails alone (in a filter's cloud it must not stop the run)
     two = np.stack([args[3], np.zeros((h.N, 3))])
     moved = move_rolling(h, np.stack([theta, theta]), a, np.eye(3), args[2], two, stretch, **kw)
