@@ -120,6 +120,8 @@ def guessed_normals(hand: HandModel, p, kind: str = "flexion_plane") -> np.ndarr
     p = np.asarray(p, float)
     if p.ndim != 3 or p.shape[1:] != (hand.N, 3):
         raise ValueError(f"guessed_normals: 'p' must have shape (P, {hand.N}, 3), got {p.shape}")
+    if not np.all(np.isfinite(p)):  # (a NaN had been called a contact at the centroid, or failed in an SVD)
+        raise ValueError("guessed_normals: 'p' contains NaN or infinite values")
     if kind not in NORMAL_GUESSES:
         raise ValueError(f"guessed_normals: 'kind' must be one of {NORMAL_GUESSES}, got '{kind}'")
     if kind == "circle":
@@ -144,6 +146,10 @@ def circle_centres(p: np.ndarray) -> np.ndarray:
     the contacts' least-squares plane, the centre c minimising sum_i (|p_i - c|^2 - r^2)^2
     (exact through three contacts); the centroid where the contacts are fewer than three or
     collinear."""
+    p = np.asarray(p, float)
+    if p.ndim != 3 or p.shape[2] != 3 or not np.all(np.isfinite(p)):
+        raise ValueError(f"circle_centres: 'p' must be finite contacts of shape (P, N, 3), got shape {p.shape}"
+                         + ("" if np.all(np.isfinite(p)) else " with NaN or infinite values"))
     m = p.mean(axis=1)
     d = p - m[:, None]
     if p.shape[1] < 3:
