@@ -148,8 +148,9 @@ def test_bad_input_is_named():
         solve_rolling(h, RollingState(**good, object_mass=-1.0))
     with pytest.raises(ValueError, match="'dl' must be a finite array of shape \\(3,\\)"):
         solve_rolling(h, RollingState(**good), dl=np.zeros(2))
-    with pytest.raises(ValueError, match="'pad_radius' must be >= 0"):
-        solve_rolling(h, RollingState(**good), pad_radius=-1e-3)
+    for bad in (-1e-3, np.full(2, 1e-3)):
+        with pytest.raises(ValueError, match="'pad_radius' must be one or 3 radii >= 0"):
+            solve_rolling(h, RollingState(**good), pad_radius=bad)
     with pytest.raises(ValueError, match="'gravity' must be a finite"):
         solve_rolling(h, RollingState(**good), gravity=np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match="'curvature_radius' must be 3 radii > 0"):

@@ -232,9 +232,10 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     dl = np.zeros(N) if dl is None else np.asarray(dl, float)
     if dl.shape != (N,) or not np.all(np.isfinite(dl)):
         raise ValueError(f"rolling: 'dl' must be a finite array of shape ({N},), got {dl.shape}")
-    r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
-    if not np.all(np.isfinite(r) & (r >= 0)):
-        raise ValueError(f"rolling: 'pad_radius' must be >= 0 [m], got {np.asarray(r).tolist()}")
+    r = hand.pad_radius if pad_radius is None else np.asarray(pad_radius, float)
+    if r.size not in (1, N) or not np.all(np.isfinite(r) & (r >= 0)):  # (a wrong count failed in numpy's broadcast)
+        raise ValueError(f"rolling: 'pad_radius' must be one or {N} radii >= 0 [m], got {r.tolist()}")
+    r = np.broadcast_to(r.reshape(-1), (N,))
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     if g.shape != (3,) or not np.all(np.isfinite(g)):
         raise ValueError(f"rolling: 'gravity' must be a finite (3,) vector [m/s^2], got {g.shape}")
