@@ -510,6 +510,30 @@ def test_reference_solver_reports_failure(model_o_hand):
         ref.solve_move(model_o_hand, gs.theta[0], np.zeros(3), a=gs.a[0], D2=gs.D2[0], stretch=gs.stretch[0], solver="cplex")
 
 
+def test_the_reference_names_bad_input(model_o_hand):
+    """solve_move refuses what motion.move refuses, naming it: an object load without gravity
+    (it had been ignored) or below zero, a misshapen or non-finite array (a numpy reshape
+    error; a solver failure), a search box or tolerance that is not a positive number (a
+    NaN box had aborted the process in Drake)."""
+    gs = grasps.sample_grasps(model_o_hand, np.random.default_rng(4), 1)
+    args = (model_o_hand, gs.theta[0], np.zeros(3))
+    kw = dict(a=gs.a[0], D2=gs.D2[0], stretch=gs.stretch[0])
+    g = np.array([0.0, 0.0, -9.81])
+    for bad, match in ((dict(object_load=np.full(3, 0.05)), "'object_load' needs 'gravity'"),
+                       (dict(object_load=np.full(3, -0.05), gravity=g), "'object_load' must be >= 0"),
+                       (dict(a=gs.a[0][:2]), "'a' must have shape \\(3,\\)"),
+                       (dict(stretch=np.array([np.nan, 0.0, 0.0])), "'stretch' contains NaN"),
+                       (dict(D2=-gs.D2[0]), "'D2' must be squared contact distances"),
+                       (dict(stiffness=-model_o_hand.stiffness), "must be positive"),
+                       (dict(gravity=np.zeros(2)), "'gravity' must have shape"),
+                       (dict(tolerance=-1.0), "'tolerance' must be a positive"),
+                       (dict(local_range=np.nan), "'local_range' must be a positive")):
+        with pytest.raises(ValueError, match=match):
+            ref.solve_move(*args, **{**kw, **bad})
+    with pytest.raises(ValueError, match="'dl' must have shape"):
+        ref.solve_move(model_o_hand, gs.theta[0], np.zeros(2), **kw)
+
+
 def test_a_placed_grasp_settles_where_the_model_moves_it(model_o_hand):
     """grasps.settle_under_command: a grasp placed at theta whose tendons are then pulled to
     l + dl settles where Gamma moves it with the action dl (the filter's nominal grasp on the

@@ -308,6 +308,13 @@ def test_the_circle_guess_is_a_round_objects_normals():
     np.testing.assert_allclose(circle_centres(four), centre[:1], atol=1e-12)
     line = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]])
     np.testing.assert_allclose(circle_centres(line), line.mean(axis=1))
+    # contacts that are not finite, or misshapen, are named (a NaN had been called a contact at
+    # the centroid, or failed in numpy's SVD; a (N, 3) array in an einsum)
+    for kind in ("flexion_plane", "circle"):
+        with pytest.raises(ValueError, match="'p' contains NaN"):
+            guessed_normals(h, np.where(np.arange(3)[None, :, None] == 1, np.nan, p[:1]), kind)
+    with pytest.raises(ValueError, match="circle_centres: 'p' must be finite contacts of shape \\(P, N, 3\\)"):
+        circle_centres(p[0])
 
 
 def test_either_guess_draws_half_the_hypotheses_around_each():

@@ -137,6 +137,9 @@ def test_bad_input_is_named():
     good = dict(theta=theta, a=a, R=np.eye(3), t=np.zeros(3), normals=normals, stretch=stretch)
     with pytest.raises(ValueError, match="'theta' must be a finite array of shape \\(3, 2\\)"):
         solve_rolling(h, RollingState(**{**good, "theta": theta.ravel()}))
+    for R in (np.diag([1.0, 1.0, -1.0]), 2.0 * np.eye(3)):  # a reflection, a scaled rotation
+        with pytest.raises(ValueError, match="'R' must be a rotation"):
+            solve_rolling(h, RollingState(**{**good, "R": R}))
     with pytest.raises(ValueError, match="'normals' must be nonzero"):
         solve_rolling(h, RollingState(**{**good, "normals": np.zeros((3, 3))}))
     with pytest.raises(ValueError, match="needs 'com'"):
@@ -145,8 +148,9 @@ def test_bad_input_is_named():
         solve_rolling(h, RollingState(**good, object_mass=-1.0))
     with pytest.raises(ValueError, match="'dl' must be a finite array of shape \\(3,\\)"):
         solve_rolling(h, RollingState(**good), dl=np.zeros(2))
-    with pytest.raises(ValueError, match="'pad_radius' must be >= 0"):
-        solve_rolling(h, RollingState(**good), pad_radius=-1e-3)
+    for bad in (-1e-3, np.full(2, 1e-3)):
+        with pytest.raises(ValueError, match="'pad_radius' must be one or 3 radii >= 0"):
+            solve_rolling(h, RollingState(**good), pad_radius=bad)
     with pytest.raises(ValueError, match="'gravity' must be a finite"):
         solve_rolling(h, RollingState(**good), gravity=np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match="'curvature_radius' must be 3 radii > 0"):
@@ -351,6 +355,15 @@ def test_max_iter_counts_newton_steps_and_bad_parameters_are_named():
             move_rolling(h, theta[None], *args, **{**kw, **bad})
     with pytest.raises(ValueError, match="'R' must hold rotations"):
         move_rolling(h, theta[None], a, 2 * np.eye(3), *args[2:], **kw)
+    # misshapen arrays are named (numpy's broadcast error, or a failed unpacking, had named none)
+    with pytest.raises(ValueError, match="'theta' must have shape"):
+        move_rolling(h, theta, *args, **kw)
+    with pytest.raises(ValueError, match="'a' must broadcast to shape \\(1, 3\\)"):
+        move_rolling(h, theta[None], a[:2], *args[1:], **kw)
+    for bad in (dict(com=np.zeros((1, 2))), dict(dl=np.zeros(2)), dict(stiffness=np.ones((2, 3, 2))),
+                dict(curvature_radius=np.ones(2))):
+        with pytest.raises(ValueError, match=f"'{next(iter(bad))}' must broadcast"):
+            move_rolling(h, theta[None], *args, **{**kw, **bad})
     # a hypothesis without normals fails alone (in a filter's cloud it must not stop the run)
     two = np.stack([args[3], np.zeros((h.N, 3))])
     moved = move_rolling(h, np.stack([theta, theta]), a, np.eye(3), args[2], two, stretch, **kw)

@@ -24,6 +24,7 @@ import numpy as np
 from pydrake.solvers import IpoptSolver, MathematicalProgram, SnoptSolver, SolverOptions
 
 from vlr_drake.hand import HandModel
+from vlr_drake.kinematics import is_number
 from vlr_drake.motion import TENDON_MODELS, equilibrium
 
 __all__ = ["MotionSolveError", "ReferenceResult", "solve_move", "SOLVERS"]
@@ -46,6 +47,18 @@ class ReferenceResult:
     tension: np.ndarray  # (N,)
     solver: str
     solve_time_s: float
+
+
+def _values(name: str, value, shape: tuple) -> np.ndarray:
+    """``value`` as a finite array of ``shape`` (any array of that many values), or a
+    ValueError naming it (a wrong size had failed in numpy's reshape, a NaN as a solver
+    failure, and a NaN ``local_range`` had aborted the process in Drake)."""
+    x = np.asarray(value, float)
+    if x.size != int(np.prod(shape)):
+        raise ValueError(f"'{name}' must have shape {shape}, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"'{name}' contains NaN or infinite values")
+    return x.reshape(shape)
 
 
 def _contact_expressions(hand: HandModel, x, a, L):
@@ -94,24 +107,43 @@ def solve_move(
     D2 (m,), stretch (N,), external_torque (N, K) [N m] or None; ``gravity`` (3,) [m/s^2]
     and ``object_load`` (N,) [kg]: the gravity loads of :func:`vlr_drake.motion.move`, as
     their potential (the links' -sum_l mu_l (g_u sin phi_l + g_z cos phi_l) per finger, the
-    contacts' -sum_i m_i g . p_i). Raises :class:`MotionSolveError` if the solver fails."""
+    contacts' -sum_i m_i g . p_i). Raises :class:`MotionSolveError` if the solver fails, a
+    ValueError naming an input that is misshapen, not finite or not physical."""
     if tendon not in TENDON_MODELS:
         raise ValueError(f"tendon model must be one of {TENDON_MODELS}, got '{tendon}'")
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got '{solver}'")
+    for name, value in (("tolerance", tolerance), ("local_range", local_range)):
+        if not (is_number(value) and 0 < value < np.inf):
+            raise ValueError(f"'{name}' must be a positive finite number, got {value!r}")
     N, K = hand.N, hand.K
     theta0 = np.asarray(theta, float)
     if theta0.shape != (N, K):
         raise ValueError(f"'theta' must have shape ({N}, {K}), got {theta0.shape}")
-    dl = np.asarray(dl, float).reshape(N)
-    a = np.asarray(a, float).reshape(N)
-    D2 = np.asarray(D2, float).reshape(hand.num_constraints)
-    L = hand.link_lengths if link_lengths is None else np.asarray(link_lengths, float).reshape(N, K - 1)
-    k = hand.stiffness if stiffness is None else np.asarray(stiffness, float).reshape(N, K)
+    theta0 = _values("theta", theta0, (N, K))
+    dl = _values("dl", dl, (N,))
+    a = _values("a", a, (N,))
+    D2 = _values("D2", D2, (hand.num_constraints,))
+    if np.any(D2 < 0):
+        raise ValueError(f"'D2' must be squared contact distances >= 0 [m^2], got {D2.tolist()}")
+    L = hand.link_lengths if link_lengths is None else _values("link_lengths", link_lengths, (N, K - 1))
+    k = hand.stiffness if stiffness is None else _values("stiffness", stiffness, (N, K))
+    if np.any(L <= 0) or np.any(k <= 0):  # as motion.move refuses them
+        raise ValueError("'link_lengths' and 'stiffness' must be positive")
+    if external_torque is not None:
+        external_torque = _values("external_torque", external_torque, (N, K))
+    if gravity is not None:
+        gravity = _values("gravity", gravity, (3,))
+    if object_load is not None:  # as motion.move refuses them (a load without gravity had been ignored)
+        if gravity is None:
+            raise ValueError("'object_load' needs 'gravity' (the gravity in the palm frame [m/s^2])")
+        object_load = _values("object_load", object_load, (N,))
+        if np.any(object_load < 0):
+            raise ValueError("'object_load' must be >= 0 [kg]")
     if tendon == "elastic":
         if stretch is None:
             raise ValueError("the elastic tendon model needs 'stretch'")
-        s0 = np.asarray(stretch, float).reshape(N)
+        s0 = _values("stretch", stretch, (N,))
 
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(N * K, "theta")

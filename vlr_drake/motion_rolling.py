@@ -120,6 +120,8 @@ def guessed_normals(hand: HandModel, p, kind: str = "flexion_plane") -> np.ndarr
     p = np.asarray(p, float)
     if p.ndim != 3 or p.shape[1:] != (hand.N, 3):
         raise ValueError(f"guessed_normals: 'p' must have shape (P, {hand.N}, 3), got {p.shape}")
+    if not np.all(np.isfinite(p)):  # (a NaN had been called a contact at the centroid, or failed in an SVD)
+        raise ValueError("guessed_normals: 'p' contains NaN or infinite values")
     if kind not in NORMAL_GUESSES:
         raise ValueError(f"guessed_normals: 'kind' must be one of {NORMAL_GUESSES}, got '{kind}'")
     if kind == "circle":
@@ -144,6 +146,10 @@ def circle_centres(p: np.ndarray) -> np.ndarray:
     the contacts' least-squares plane, the centre c minimising sum_i (|p_i - c|^2 - r^2)^2
     (exact through three contacts); the centroid where the contacts are fewer than three or
     collinear."""
+    p = np.asarray(p, float)
+    if p.ndim != 3 or p.shape[2] != 3 or not np.all(np.isfinite(p)):
+        raise ValueError(f"circle_centres: 'p' must be finite contacts of shape (P, N, 3), got shape {p.shape}"
+                         + ("" if np.all(np.isfinite(p)) else " with NaN or infinite values"))
     m = p.mean(axis=1)
     d = p - m[:, None]
     if p.shape[1] < 3:
@@ -189,20 +195,18 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     checked, and a ValueError names the one that is not physical; a hypothesis whose normals
     are zero or not finite fails alone."""
     theta = np.asarray(theta, float)
-    P, N, K = theta.shape
-    if (N, K) != (hand.N, hand.K):
+    if theta.ndim != 3 or theta.shape[1:] != (hand.N, hand.K):
         raise ValueError(f"move_rolling: 'theta' must have shape (P, {hand.N}, {hand.K}), got {theta.shape}")
+    P, N, K = theta.shape
     if not is_count(max_iter, 1):
         raise ValueError(f"move_rolling: 'max_iter' must be an integer >= 1, got {max_iter!r}")
-    a = np.broadcast_to(np.asarray(a, float), (P, N)).copy()
-    R = np.broadcast_to(np.asarray(R, float), (P, 3, 3)).copy()
-    t = np.broadcast_to(np.asarray(t, float), (P, 3)).copy()
+    a, R, t = _broadcast("a", a, (P, N)), _broadcast("R", R, (P, 3, 3)), _broadcast("t", t, (P, 3))
     finite = np.isfinite(R).all(axis=(1, 2))  # a NaN pose fails its hypothesis in the kernel
     turned = observation.is_rotation(R[finite])
     if not turned.all():
         raise ValueError(f"move_rolling: 'R' must hold rotations (R^T R = I, det +1); hypothesis "
                          f"{int(np.flatnonzero(finite)[np.argmin(turned)])} is not one")
-    nrm = np.broadcast_to(np.asarray(normals, float), (P, N, 3))
+    nrm = _broadcast("normals", normals, (P, N, 3))
     size = np.linalg.norm(nrm, axis=-1, keepdims=True)
     bad = ~(np.isfinite(size) & (size > 0)).all(axis=(1, 2))  # no normal: that hypothesis fails alone,
     if bad.any():  # as one with NaN angles does (a NaN normal had divided into NaN silently)
@@ -210,12 +214,12 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
         theta[bad] = np.nan
         size = np.where(np.isfinite(size) & (size > 0), size, 1.0)
     nrm = nrm / size
-    stretch = np.broadcast_to(np.asarray(stretch, float), (P, N)).copy()
-    dl = np.zeros((P, N)) if dl is None else np.broadcast_to(np.asarray(dl, float), (P, N)).copy()
-    r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
+    stretch = _broadcast("stretch", stretch, (P, N))
+    dl = np.zeros((P, N)) if dl is None else _broadcast("dl", dl, (P, N))
+    r = hand.pad_radius if pad_radius is None else _broadcast("pad_radius", pad_radius, (N,))
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
-    k = np.broadcast_to(hand.stiffness if stiffness is None else np.asarray(stiffness, float), (P, N, K)).copy()
-    mass = np.zeros(P) if object_mass is None else np.broadcast_to(np.asarray(object_mass, float), (P,)).copy()
+    k = _broadcast("stiffness", hand.stiffness if stiffness is None else stiffness, (P, N, K))
+    mass = np.zeros(P) if object_mass is None else _broadcast("object_mass", object_mass, (P,))
     for name, value, fine in (("pad_radius", r, "finite radii >= 0 [m]"), ("stiffness", k, "finite springs > 0 [N m/rad]"),
                               ("object_mass", mass, "finite masses >= 0 [kg]")):
         if not np.all(np.isfinite(value) & ((value > 0) if name == "stiffness" else (value >= 0))):
@@ -235,7 +239,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     p0, _, _ = _kinematics(hand, theta, a, L)
     cO = np.einsum("pij,pnj->pni", RT, p0 - t[:, None])  # centres in the object frame
     nO = np.einsum("pij,pnj->pni", RT, nrm)
-    comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, np.asarray(com, float) - t)
+    comO = np.zeros((P, 3)) if com is None else np.einsum("pij,pj->pi", RT, _broadcast("com", com, (P, 3)) - t)
     hinge = hinge_axes(hand)  # (N, 3)
     # v_i = cO_i + r_i (R^T (dphi_i h_i - w)) x nO_i = cO_i - r_i [nO_i]x R^T (dphi_i h_i - w)
     B = r[None, :, None, None] * np.einsum("pnij,pjk->pnik", _skew(nO), RT)  # dv_i/dw (P, N, 3, 3)
@@ -244,7 +248,7 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     # kap_i = r_i^2 / (radius_i + r_i) and P_t the projection off the normal (a ball on a ball)
     kap = np.zeros((P, N))
     if curvature_radius is not None:
-        rad = np.broadcast_to(np.asarray(curvature_radius, float), (P, N))
+        rad = _broadcast("curvature_radius", curvature_radius, (P, N))
         if np.any(np.isnan(rad)) or not np.all(rad > 0):
             raise ValueError("move_rolling: 'curvature_radius' must be radii > 0 [m] (inf: a flat face)")
         kap = np.where(np.isfinite(rad), r[None] ** 2 / (rad + r[None]), 0.0)
@@ -267,6 +271,16 @@ def move_rolling(hand: HandModel, theta, a, R, t, normals, stretch, dl=None, gra
     s_new = stretch + dl - np.einsum("nk,pnk->pn", hand.moment_arms, x_theta - theta)
     return RollingMove(x_theta, C @ R, t + tau, ok, iterations, s_new, hand.kappa[None] * s_new, iters)
 
+
+
+def _broadcast(name: str, value, shape: tuple) -> np.ndarray:
+    """move_rolling's ``value`` broadcast to ``shape`` (a writable float copy), or a ValueError
+    naming it (numpy's broadcast error had named no argument)."""
+    x = np.asarray(value, float)
+    try:
+        return np.broadcast_to(x, shape).copy()
+    except ValueError:
+        raise ValueError(f"move_rolling: '{name}' must broadcast to shape {shape}, got {x.shape}") from None
 
 
 def _skew(v):

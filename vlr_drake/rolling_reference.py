@@ -41,7 +41,7 @@ import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 from pydrake.solvers import IpoptSolver, MathematicalProgram
 
-from vlr_drake import kinematics
+from vlr_drake import kinematics, observation
 from vlr_drake.hand import HandModel
 
 __all__ = ["RollingState", "RollingResult", "RollingSolveError", "attachment_directions", "solve_rolling"]
@@ -91,7 +91,8 @@ class RollingState:
     pad_offset: np.ndarray | None = None
 
     def checked(self, hand: HandModel) -> RollingState:
-        """This state with its arrays shaped and finite, or a ValueError naming the field."""
+        """This state with its arrays shaped and finite (R a rotation, the normals unit), or a
+        ValueError naming the field."""
         N, K = hand.N, hand.K
         shapes = {"theta": (N, K), "a": (N,), "R": (3, 3), "t": (3,), "normals": (N, 3), "stretch": (N,)}
         out = {}
@@ -101,6 +102,8 @@ class RollingState:
                 raise ValueError(f"rolling state: '{name}' must be a finite array of shape {shape}, got "
                                  f"{x.shape if x.shape != shape else 'non-finite values'}")
             out[name] = x
+        if not observation.is_rotation(out["R"]):  # (a reflection had been solved, a scaled R failed in IPOPT)
+            raise ValueError("rolling state: 'R' must be a rotation (R^T R = I, det +1)")
         norms = np.linalg.norm(out["normals"], axis=1)
         if not np.all(norms > 0):
             raise ValueError("rolling state: 'normals' must be nonzero vectors")
@@ -229,9 +232,10 @@ def solve_rolling(hand: HandModel, state: RollingState, dl=None, gravity=None, p
     dl = np.zeros(N) if dl is None else np.asarray(dl, float)
     if dl.shape != (N,) or not np.all(np.isfinite(dl)):
         raise ValueError(f"rolling: 'dl' must be a finite array of shape ({N},), got {dl.shape}")
-    r = hand.pad_radius if pad_radius is None else np.broadcast_to(np.asarray(pad_radius, float), (N,))
-    if not np.all(np.isfinite(r) & (r >= 0)):
-        raise ValueError(f"rolling: 'pad_radius' must be >= 0 [m], got {np.asarray(r).tolist()}")
+    r = hand.pad_radius if pad_radius is None else np.asarray(pad_radius, float)
+    if r.size not in (1, N) or not np.all(np.isfinite(r) & (r >= 0)):  # (a wrong count failed in numpy's broadcast)
+        raise ValueError(f"rolling: 'pad_radius' must be one or {N} radii >= 0 [m], got {r.tolist()}")
+    r = np.broadcast_to(r.reshape(-1), (N,))
     g = np.zeros(3) if gravity is None else np.asarray(gravity, float)
     if g.shape != (3,) or not np.all(np.isfinite(g)):
         raise ValueError(f"rolling: 'gravity' must be a finite (3,) vector [m/s^2], got {g.shape}")
