@@ -305,3 +305,25 @@ def test_an_object_that_falls_ends_the_comparison_with_what_it_compared(monkeypa
     assert len(r["actions"]) == 1 and r["stopped"] == "action 2: the apple fell out of the hand (injected)"
     assert r["hold"] is None and json.loads(path.read_text())["stopped"] == r["stopped"]
     assert "stopped at action 2: the apple fell out" in capsys.readouterr().out
+
+
+
+def test_the_model_state_starts_at_the_vlrs_equilibrium_or_says_it_has_none(monkeypatch):
+    """The agreement's VLR starts from the tendon state that holds the plant's grasp (the
+    Model O's angles kept as they are), and a grasp the VLR holds with no tendon state is
+    said (it had started from a zero stretch, silently)."""
+    import dataclasses
+
+    from vlr_drake import grasps, motion
+    from vlr_drake.physics import agreement
+
+    h = model_o().model()
+    g = grasps.sample_grasps(h, np.random.default_rng(0), 1)
+    R, t = np.eye(3), np.array([0.0, 0.0, 0.1])
+    state = agreement._ModelState(h, g.theta[0], g.a[0], R, t)
+    eq = motion.equilibrium(h, g.theta, a=g.a)
+    np.testing.assert_array_equal(state.theta, g.theta)
+    np.testing.assert_array_equal(state.stretch, eq.stretch)
+    monkeypatch.setattr(motion, "equilibrium", lambda *args, **kw: dataclasses.replace(eq, ok=np.array([False])))
+    with pytest.raises(RuntimeError, match="no tendon state that holds the plant's grasp"):
+        agreement._ModelState(h, g.theta[0], g.a[0], R, t)

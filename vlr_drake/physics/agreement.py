@@ -170,8 +170,13 @@ class _ModelState:
 
     def __init__(self, h, theta, a, R, t):
         self.h, self.a = h, np.asarray(a, float)[None]
-        self.theta = np.asarray(theta, float)[None]
-        self.stretch = motion.equilibrium(h, self.theta, a=self.a).stretch
+        eq = motion.equilibrium(h, np.asarray(theta, float)[None], a=self.a)
+        if not eq.ok[0]:  # (it had started from a zero stretch, silently)
+            raise RuntimeError("agreement: the VLR finds no tendon state that holds the plant's grasp (no "
+                               "equilibrium at its true angles and contacts); nothing to compare the plant with")
+        # the equilibrium's angles: the plant's (the Model O's), or settled to the nearest
+        # equilibrium on a hand with more joints than tendons and contacts
+        self.theta, self.stretch = eq.theta, eq.stretch
         self.p_O = observation.attach(kinematics.contacts(h, self.theta, self.a), R[None], t[None])
 
     def move(self, dl) -> bool:
