@@ -76,7 +76,8 @@ def squeezes(hand: HandModel, theta, a, multipliers, link_lengths=None, tol: flo
     ``generic_hand(6, 3)`` passing lambda < 0 in 300,000 draws); the squeeze is then
     sought as a linear programme over all pairs, with pair forces that leave the joints'
     torques unchanged (force along a finger's hinge axis, which its joints carry). ``tol``:
-    the least squeeze accepted, relative to the largest |lambda|.
+    the least squeeze the linear programme accepts, relative to the largest |lambda| (five or
+    more fingers only: with every pair constrained the test is lambda < 0, without a margin).
     """
     lam = np.asarray(multipliers, float).reshape(-1, hand.num_constraints)
     strict = np.all(lam < 0, axis=1)
