@@ -161,6 +161,11 @@ def test_bad_traces_and_profiles_are_named(tmp_path):
                                     "truths": {k: v.tolist() for k, v in trace.truths.items()}}).validate()
     np.testing.assert_array_equal(listed.valid, trace.valid)
     np.testing.assert_array_equal(listed.truths["theta"], trace.truths["theta"])
+    # a truth no trace keeps is said, not saved and dropped at load without a word
+    extra = IdentificationTrace(**{**trace.__dict__, "truths": {**trace.truths, "tilt": trace.truths["a"]}})
+    with pytest.raises(ValueError, match=r"truths \['tilt'\] are not truths a trace keeps"):
+        extra.save(tmp_path / "extra.npz")
+    assert not (tmp_path / "extra.npz").exists()
     with pytest.raises(ValueError, match="'truths' must be a dict of arrays or None, got list"):
         IdentificationTrace(**{**trace.__dict__, "truths": [trace.truths]}).validate()
     with pytest.raises(ValueError, match="meta 'plant' must be a name"):

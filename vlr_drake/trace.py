@@ -165,6 +165,10 @@ class IdentificationTrace:
             missing = [k for k in TRUTH_KEYS if k not in self.truths]
             if missing:
                 raise ValueError(f"trace: truths lack {missing}")
+            unknown = sorted(set(self.truths) - set(TRUTH_KEYS + OPTIONAL_TRUTH_KEYS))
+            if unknown:  # (saved, then dropped by load without a word)
+                raise ValueError(f"trace: truths {unknown} are not truths a trace keeps: "
+                                 f"{list(TRUTH_KEYS + OPTIONAL_TRUTH_KEYS)}")
             for k in self.truths:
                 if np.ndim(self.truths[k]) == 0 or self.truths[k].shape[0] != T + 1:
                     raise ValueError(f"trace: truths '{k}' must have {T + 1} rows (start and every step), "
@@ -187,6 +191,7 @@ class IdentificationTrace:
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
         """Write the trace as one compressed ``.npz`` (arrays, and the settings as JSON)."""
+        self.validate()  # (what load would refuse or drop is said before it is written)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         header = {"version": TRACE_VERSION, "hand": dataclasses.asdict(self.hand),
