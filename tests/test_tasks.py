@@ -127,10 +127,10 @@ def test_servo_names_its_bad_settings():
         control.servo_to(np.eye(3), np.zeros(3), Broken(), None)
 
 
-def test_writing_stops_scoring_where_the_object_fell(monkeypatch):
-    """The waypoints after a fall had been scored at the fallen object's pose (a 79 mm mean
-    error drowning the samples before it): they are counted, not scored."""
-    make = common.make_model_plant
+def _dropping(make, at: int, drop):
+    """``make`` (common.make_model_plant) whose plants drop their object at their ``at``-th
+    action (``drop(state)`` moves it as the fall does) and report it as the physics plant
+    reports a fall: the action refused, ``fell`` set, and every later action refused."""
 
     def falling(*args, **kwargs):
         tp = make(*args, **kwargs)
@@ -140,15 +140,25 @@ def test_writing_stops_scoring_where_the_object_fell(monkeypatch):
             if getattr(tp, "fell", None):
                 return False
             count[0] += 1
-            if count[0] == 25:  # the 25th action drops it, as the physics plant reports a fall
+            if count[0] == at:
                 tp.fell = "the object fell out of the hand"
-                tp.plant.state.t_PO = tp.plant.state.t_PO + np.array([0.0, 0.0, -0.1])
+                drop(tp.plant.state)
                 return False
             return apply(dl)
 
         tp.plant.apply_action = apply_action
         return tp
 
+    return falling
+
+
+def test_writing_stops_scoring_where_the_object_fell(monkeypatch):
+    """The waypoints after a fall had been scored at the fallen object's pose (a 79 mm mean
+    error drowning the samples before it): they are counted, not scored."""
+    def drop(state):
+        state.t_PO = state.t_PO + np.array([0.0, 0.0, -0.1])
+
+    falling = _dropping(common.make_model_plant, 25, drop)  # the 25th action drops it
     monkeypatch.setattr(common, "make_model_plant", falling)
     r = write.run_write("E", seed=0, progress=False)
     assert r["object_fell"] and not r["success"]
@@ -211,24 +221,10 @@ def test_a_maze_plate_that_fell_is_not_scored(monkeypatch):
     counted as a skipped run)."""
     make = common.make_model_plant
 
-    def falling(*args, **kwargs):
-        tp = make(*args, **kwargs)
-        apply, count = tp.plant.apply_action, [0]
+    def drop(state):  # turned 90 deg
+        state.R_PO = observation.rotvec_to_matrix(np.array([0.5 * np.pi, 0.0, 0.0]))[0] @ state.R_PO
 
-        def apply_action(dl):
-            if getattr(tp, "fell", None):
-                return False
-            count[0] += 1
-            if count[0] == 12:  # the 12th control action drops it, turned 90 deg
-                tp.fell = "the object fell out of the hand"
-                tp.plant.state.R_PO = observation.rotvec_to_matrix(np.array([0.5 * np.pi, 0.0, 0.0]))[0] \
-                    @ tp.plant.state.R_PO
-                return False
-            return apply(dl)
-
-        tp.plant.apply_action = apply_action
-        return tp
-
+    falling = _dropping(make, 12, drop)  # the 12th control action drops it
     monkeypatch.setattr(common, "make_model_plant", falling)
     r = maze.run_maze(seed=0, progress=False)
     assert r["object_fell"] and not r["success"] and r["stopped"] == "object_fell"
