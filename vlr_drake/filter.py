@@ -2213,6 +2213,9 @@ class SelfIdentificationFilter:
         return np.concatenate(cols, axis=1)
 
     def _set_unknowns(self, ps: ParticleSet, x: np.ndarray) -> None:
+        """The identified quantities from ``x`` laid out as :meth:`_unknowns`, each back in
+        its range: contacts folded onto the pad, springs, links and the mass folded keeping
+        their spread, the shares from their log-ratios, the normals on the unit sphere."""
         h, pr = self.hand, self.prior
         n = h.N * h.K
         ps.theta = x[:, :n].reshape(-1, h.N, h.K).copy()
@@ -2248,8 +2251,8 @@ class SelfIdentificationFilter:
             ps.object_load = mass[:, None] * _shares_from_log_ratios(x[:, c + 1 : c + h.N])
             c += h.N
         if ps.normals_O is not None:  # roughened as vectors, back on the unit sphere
-            n = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
-            ps.normals_O = n / np.linalg.norm(n, axis=-1, keepdims=True)
+            nv = x[:, c : c + 3 * h.N].reshape(-1, h.N, 3)
+            ps.normals_O = nv / np.linalg.norm(nv, axis=-1, keepdims=True)
             c += 3 * h.N
         if ps.com_O is not None:
             ps.com_O = x[:, c : c + 3].copy()

@@ -139,7 +139,7 @@ class IdentificationTrace:
                 raise ValueError(f"trace: '{name}' must be finite numbers{where}")
         valid = np.asarray(self.valid)
         if valid.dtype.kind in "iu" and np.isin(valid, (0, 1)).all():  # 0/1 flags, as a hand-made trace may have
-            self.valid = valid = valid.astype(bool)
+            valid = valid.astype(bool)
         if valid.dtype != bool:
             raise ValueError(f"trace: 'valid' must be booleans (or 0/1), got {valid.dtype}")
         self.valid = valid  # (a list of flags had failed below in a TypeError on its indexing)
