@@ -157,6 +157,10 @@ def test_bad_input_is_named():
         solve_rolling(h, RollingState(**good, curvature_radius=np.array([0.03, 0.0, 0.03])))
     with pytest.raises(ValueError, match="'pad_offset' must be a finite array of shape \\(3, 3\\)"):
         solve_rolling(h, RollingState(**good, pad_offset=np.zeros(3)))
+    # not numbers at all: named, not numpy's "could not convert string to float"
+    for name, value in (("object_mass", "heavy"), ("t", ["0", "x", "0"])):
+        with pytest.raises(ValueError, match=f"'{name}' must be numbers"):
+            solve_rolling(h, RollingState(**{**good, name: value}))
 
 
 def test_the_batched_rolling_solver_agrees_with_the_reference():

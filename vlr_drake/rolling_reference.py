@@ -97,7 +97,7 @@ class RollingState:
         shapes = {"theta": (N, K), "a": (N,), "R": (3, 3), "t": (3,), "normals": (N, 3), "stretch": (N,)}
         out = {}
         for name, shape in shapes.items():
-            x = np.asarray(getattr(self, name), float)
+            x = self._numbers(name)
             if x.shape != shape or not np.all(np.isfinite(x)):
                 raise ValueError(f"rolling state: '{name}' must be a finite array of shape {shape}, got "
                                  f"{x.shape if x.shape != shape else 'non-finite values'}")
@@ -108,28 +108,36 @@ class RollingState:
         if not np.all(norms > 0):
             raise ValueError("rolling state: 'normals' must be nonzero vectors")
         out["normals"] = out["normals"] / norms[:, None]
-        mass = float(self.object_mass)
-        if not (np.isfinite(mass) and mass >= 0):
+        mass = self._numbers("object_mass")
+        if not (mass.shape == () and np.isfinite(mass) and mass >= 0):
             raise ValueError(f"rolling state: 'object_mass' must be a finite number >= 0 [kg], got {self.object_mass}")
         com = None
         if mass > 0:
-            com = np.asarray(self.com, float) if self.com is not None else None
+            com = self._numbers("com") if self.com is not None else None
             if com is None or com.shape != (3,) or not np.all(np.isfinite(com)):
                 raise ValueError("rolling state: an object with mass needs 'com', its centre of mass (3,) in the "
                                  "palm frame [m]")
         curvature = None
         if self.curvature_radius is not None:
-            curvature = np.asarray(self.curvature_radius, float)
+            curvature = self._numbers("curvature_radius")
             if curvature.shape != (N,) or np.any(np.isnan(curvature)) or not np.all(curvature > 0):
                 raise ValueError(f"rolling state: 'curvature_radius' must be {N} radii > 0 [m] (inf: a flat face), "
                                  f"got {np.asarray(self.curvature_radius).tolist()}")
         offset = None
         if self.pad_offset is not None:
-            offset = np.asarray(self.pad_offset, float)
+            offset = self._numbers("pad_offset")
             if offset.shape != (N, 3) or not np.all(np.isfinite(offset)):
                 raise ValueError(f"rolling state: 'pad_offset' must be a finite array of shape ({N}, 3), got "
                                  f"{offset.shape if offset.shape != (N, 3) else 'non-finite values'}")
-        return RollingState(com=com, object_mass=mass, curvature_radius=curvature, pad_offset=offset, **out)
+        return RollingState(com=com, object_mass=float(mass), curvature_radius=curvature, pad_offset=offset, **out)
+
+    def _numbers(self, name: str) -> np.ndarray:
+        """The field ``name`` as a float array, or a ValueError naming it (a string or None had
+        surfaced as numpy's message, which names no field)."""
+        try:
+            return np.asarray(getattr(self, name), float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"rolling state: '{name}' must be numbers, got {getattr(self, name)!r}") from err
 
 
 @dataclass
