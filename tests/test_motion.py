@@ -549,6 +549,11 @@ def test_a_placed_grasp_settles_where_the_model_moves_it(model_o_hand):
         settled = grasps.settle_under_command(h, gs.theta[p], gs.a[p], l + dl)
         np.testing.assert_allclose(settled, moved.theta[0], atol=1e-8)
         assert np.abs(settled - gs.theta[p]).max() > 1e-3
+    # a command or angles of the wrong shape are named (numpy's reshape message named neither)
+    with pytest.raises(ValueError, match=r"'tendon_command' must have shape \(3,\), got \(2,\)"):
+        grasps.commanded_equilibrium(h, gs.theta[0], gs.a[0], l[:2])
+    with pytest.raises(ValueError, match=r"'theta' must have shape \(3, 2\), got \(6,\)"):
+        grasps.settle_under_command(h, gs.theta[0].ravel(), gs.a[0], l)
 
 
 def test_lane_elimination_solves_symmetric_systems_and_flags_small_pivots(rng):

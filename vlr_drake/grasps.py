@@ -303,12 +303,13 @@ def commanded_equilibrium(hand: HandModel, theta, a, tendon_command, link_length
     ``theta`` where Newton, with continuation, finds no equilibrium. ``external_torque``
     (N, K) [N m]: further joint torques; ``gravity`` (3,) [m/s^2] and ``object_load`` (N,)
     [kg]: the links' and the object's weight, following the angles (:func:`vlr_drake.motion.move`)."""
-    theta = np.asarray(theta, float).reshape(1, hand.N, hand.K)
+    # named when misshapen (numpy's reshape message named neither the array nor the hand)
+    theta = kinematics.as_particles("theta", theta, (hand.N, hand.K))[None]
     a = np.broadcast_to(np.asarray(a, float), (hand.N,)).reshape(1, hand.N).copy()
     L = None if link_lengths is None else np.asarray(link_lengths, float).reshape(1, hand.N, hand.K - 1)
     if D2 is None:
         D2 = motion.contact_distances_sq(hand, kinematics.contacts(hand, theta, a, L))
-    stretch = np.asarray(tendon_command, float).reshape(1, hand.N) - hand.tendon_travel(theta)
+    stretch = kinematics.as_particles("tendon_command", tendon_command, (hand.N,))[None] - hand.tendon_travel(theta)
     res = motion.move(hand, theta, np.zeros(hand.N), a=a, D2=np.asarray(D2, float).reshape(1, -1), stretch=stretch,
                       link_lengths=L, stiffness=stiffness, max_substeps=64, check_stability=False,
                       external_torque=None if external_torque is None else np.reshape(external_torque, (1, hand.N, hand.K)),
