@@ -313,6 +313,7 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     # what an identification reports too (a diagram run had said nothing of lost tags, a cloud
     # drawn again, a fallen object): here none of them; the model plant has no fall to check
     assert r["lost_measurements"] == 0 and r["reinitialisations"] == 0 and r["object_fell"] is None
+    assert r["actions_refused"] == 0
     assert np.isfinite(r["log_evidence"]) and r["log_evidence"] != 0.0
     # most tags lost: said, and counted
     with pytest.warns(UserWarning, match=r"most filter iterations had no measurement \(3 of 4 lost\)"):

@@ -329,6 +329,30 @@ def test_model_plant_system_refuses_a_non_finite_command():
         sim.AdvanceTo(1.5)
 
 
+def test_model_plant_system_counts_the_actions_it_refuses():
+    """A command the model plant has no nearby equilibrium for (the thumb's tendon 5 mm
+    tighter on this grasp) leaves it where it was, its measured tendon positions unchanged,
+    and is counted (a diagram run's ``actions_refused``; it had gone unreported); a possible
+    one is taken and not counted."""
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1))
+    l0 = plant.state.tendon_command.copy()
+    far, near = np.array([5e-3, 0.0, 0.0]), np.array([1e-3, 0.0, 0.0])
+    assert plant.possible_actions(np.stack([far, near])).tolist() == [False, True]
+    sys = ModelPlantSystem(plant, 1.0)
+    sim = Simulator(sys)
+    ctx = sim.get_mutable_context()
+    sys.GetInputPort("tendon_command").FixValue(ctx, l0 + far)
+    sim.AdvanceTo(2.5)  # three updates (at 0.25, 1.25, 2.25 s), each refused
+    assert sys.refused(ctx) == 3
+    np.testing.assert_array_equal(sys.GetOutputPort("tendon_position_measured").Eval(ctx), l0)
+    np.testing.assert_array_equal(sys.GetOutputPort("theta_true").Eval(ctx), th.ravel())
+    sys.GetInputPort("tendon_command").FixValue(ctx, l0 + near)
+    sim.AdvanceTo(3.5)
+    assert sys.refused(ctx) == 3
+    np.testing.assert_allclose(sys.GetOutputPort("tendon_position_measured").Eval(ctx), l0 + near, atol=1e-15)
+
+
 @pytest.mark.parametrize("l_grasp, match", [(np.full(3, np.nan), "finite"), (np.full(2, 0.015), "shape")])
 def test_exploration_refuses_a_bad_grasp_command(l_grasp, match):
     """A NaN grasp command used to give NaN tendon commands on the policy's output; a

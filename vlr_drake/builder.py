@@ -679,12 +679,14 @@ def _hardware_summary(plant) -> dict | None:
 
 def _run_record(flt, built: BuiltDiagram, ctx) -> dict:
     """A diagram run's ``lost_measurements`` (iterations without a tag pose),
-    ``reinitialisations``, ``log_evidence`` (as an identification run's) and, on the physics
-    plant, ``object_fell`` (the object moved ``fall_distance`` from the grasp or a pad lost
-    it; None on the other plants)."""
+    ``reinitialisations``, ``log_evidence``, ``actions_refused`` (as an identification run's:
+    the model plant's; the physics plant and hardware refuse none) and, on the physics plant,
+    ``object_fell`` (the object moved ``fall_distance`` from the grasp or a pad lost it; None
+    on the other plants)."""
     hist = [] if flt is None else flt.history
     ph = built.physics_hand
     return {"lost_measurements": int(sum(not r.measured for r in hist)),
+            "actions_refused": built.plant.refused(ctx) if isinstance(built.plant, ModelPlantSystem) else 0,
             "reinitialisations": 0 if flt is None else int(flt.reinitialisations),
             "log_evidence": float(np.nansum([r.log_evidence for r in hist])),
             "object_fell": None if ph is None or ph.grasp_X_PO is None else ph.object_fell(ctx)}
@@ -881,6 +883,7 @@ def main(argv: list[str] | None = None) -> int:
         said = [f"stopped at {r['stopped']}" if r["stopped"] else "",
                 f"{r['lost_measurements']} iterations without a tag pose" if r["lost_measurements"] else "",
                 f"{r['reinitialisations']} re-initialisations" if r["reinitialisations"] else "",
+                f"{r['actions_refused']} actions refused by the model plant" if r["actions_refused"] else "",
                 "the object fell out of the hand" if r["object_fell"] else ""]
         if any(said):
             print("; ".join(s for s in said if s))

@@ -313,7 +313,15 @@ class ModelPlantSystem(LeafSystem):
             raise ValueError(f"model plant: input 'tendon_command' is not finite: {l.tolist()}")
         dl = l - plant.state.tendon_command
         if np.any(np.abs(dl) > 0):
-            plant.apply_action(dl)  # a failed solve leaves the plant where it was
+            # a refused action (no nearby equilibrium) leaves the plant where it was: its
+            # measured tendon positions say so to the filter, and refused() counts it
+            plant.apply_action(dl)
+
+    def refused(self, context) -> int:
+        """Actions the model plant refused so far in ``context`` (its own or the root's):
+        where it found no nearby equilibrium for the command (an identification run's
+        ``actions_refused``)."""
+        return int(self._p(self.GetMyContextFromRoot(context)).failures)
 
     def _p(self, context) -> ModelPlant:
         return context.get_abstract_state(self._plant).get_value()
