@@ -768,6 +768,19 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
                        (["--stuck-probability", "0.5", "--filter", "stuck_probability=0"], "set the same thing")]:
         assert main(["identify", "--plant", "model", "--out", str(out), "--no-progress", *argv]) == 2
         assert said in capsys.readouterr().err
+    # the demo's --json named as its writing's plot or result (the plot had been written over
+    # the identification's result), a task's --json as its plot: refused before anything runs
+    for argv, said in [(["demo", "--json", str(out / "write_path.png")], "is the write task's plot"),
+                       (["demo", "--json", str(out / "demo_write.json")], "is the demo's writing result"),
+                       (["demo", "--json", str(out / "known_hand_seed0_convergence.png")],
+                        "is the run's convergence plot"),
+                       (["write", "I", "--model", "true", "--json", str(out / "write_path.png")],
+                        "is the write task's plot"),
+                       (["maze", "--model", "true", "--json", str(out / "maze.html")],
+                        "is the maze task's Meshcat recording")]:
+        assert main([*argv, "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr()
+        assert said in err.err and "self-check" not in err.out
     # a --json or --trace where the run makes its --out folder (or a folder above it): the run had
     # ended in a traceback, its plots or its result never written
     small = ["--particles", "100", "--iterations", "1", "--no-progress"]

@@ -372,7 +372,7 @@ def identify(args) -> dict:
     name = options_run_name(opts)
     stem = f"identify_{name}"
     path = args.json or str(out / f"{stem}.json")
-    _check_run_files(args, path, out / name)
+    _check_own_files(args, _identify_files(args, opts))
     meshcat = _meshcat(args)
     on_iteration, finish = _meshcat_hypotheses(meshcat, out / f"{stem}.html") if meshcat else (None, None)
     result = run_identification(opts, on_iteration=on_iteration)
@@ -408,20 +408,31 @@ def _plot_path(stem: Path, kind: str) -> str:
     return f"{stem}_{kind}.png"
 
 
-def _check_run_files(args, json_path: str, stem: Path) -> None:
-    """Refuse a ``--trace`` or ``--json`` that the run's own files would overwrite (or the
-    other way round): the result's JSON (``--json``, else its default in ``--out``) and the
-    plots ``<stem>_<what>.png``. (A trace named as the default JSON had been written over by
-    it, and a ``--json`` named as a plot by the plot.)"""
-    plots = {Path(_plot_path(stem, kind)).resolve(): kind for kind in PLOT_KINDS}
-    trace = getattr(args, "trace", None)
-    if trace and Path(trace).resolve() == Path(json_path).resolve():
-        raise ValueError(f"--trace {trace} is the run's result JSON too: one would be written over the other "
-                         "(name another file, or give --json)")
-    for flag, given in (("--trace", trace), ("--json", args.json)):
-        if given and Path(given).resolve() in plots:
-            raise ValueError(f"{flag} {given} is the run's {plots[Path(given).resolve()]} plot: the plot would be "
-                             "written over it")
+def _identify_files(args, opts) -> dict[Path, str]:
+    """The files an identification run writes in ``--out`` besides ``--json`` and ``--trace``,
+    each with what it is: its default JSON (without ``--json``), its plots
+    ``<out>/<run name>_<what>.png`` and its Meshcat recording."""
+    from vlr_drake.identify import options_run_name
+
+    out, name = Path(args.out), options_run_name(opts)
+    files = {Path(_plot_path(out / name, kind)): f"the run's {kind} plot" for kind in PLOT_KINDS}
+    files[out / f"identify_{name}.html"] = "the run's Meshcat recording"
+    if not args.json:
+        files[out / f"identify_{name}.json"] = "the run's result JSON (name another file, or give --json)"
+    return files
+
+
+def _check_own_files(args, files: dict) -> None:
+    """Refuse a ``--trace`` or ``--json`` that one of the command's own ``files`` (path: what
+    it is) would overwrite, or be written over by, before anything runs. (A trace named as
+    identify's default JSON had been written over by it, a ``--json`` named as a plot by the
+    plot, and the demo's identification result by the writing's plot.)"""
+    files = {Path(path).resolve(): what for path, what in files.items()}
+    for flag in ("--trace", "--json"):
+        given = getattr(args, flag[2:], None)
+        if given and Path(given).resolve() in files:
+            raise ValueError(f"{flag} {given} is {files[Path(given).resolve()]} too: one would be written over "
+                             "the other")
 
 
 def pool_run_draws(trace, draws: int, progress: bool = False) -> dict:
@@ -764,6 +775,9 @@ def task(args) -> dict:
     if args.model == "true" and given:  # said, not silently ignored
         raise ValueError(f"{', '.join(given)} set the self-identification of --model filter; --model true controls "
                          "with the plant's hidden truth and runs no filter")
+    from vlr_drake.tasks.common import output_files
+
+    _check_own_files(args, {Path(args.out) / f: what for f, what in output_files(args.command).items()})
     budget = {} if args.iterations is None else {"identify_iterations": args.iterations}  # (else the task's, 40)
     common = dict(model=args.model, out=args.out, progress=not args.no_progress, meshcat=_meshcat(args), **budget,
                   **_task_settings(args))
@@ -822,6 +836,10 @@ def bench(args) -> dict:
 
 
 # ------------------------------------------------------------------------------ demo
+#: The demo's writing result, in ``--out`` (its identification's JSON: ``--json`` or identify's).
+DEMO_WRITE_JSON = "demo_write.json"
+
+
 def demo(args) -> None:
     t0 = time.perf_counter()
     args.experiment, args.hand = "known_hand", "model_o"
@@ -831,7 +849,13 @@ def demo(args) -> None:
                          f"run it with vlr-drake identify --scenario")
     # a scenario for another experiment, or a bad --object, is refused before anything runs (an
     # unknown --object had been refused after the self-check)
-    _identify_options(args).validate()
+    opts = _identify_options(args)
+    opts.validate()
+    from vlr_drake.tasks.common import output_files
+
+    out = Path(args.out)
+    _check_own_files(args, {**_identify_files(args, opts), out / DEMO_WRITE_JSON: "the demo's writing result",
+                            **{out / f: what for f, what in output_files("write").items()}})
     print("== self-check: the motion function, batched vs MathematicalProgram ==")
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
@@ -847,7 +871,7 @@ def demo(args) -> None:
     pos = result["position_error_mm"]
     print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
           f"plot in {args.out}/write_path.png")
-    write_json(result, str(Path(args.out) / "demo_write.json"))
+    write_json(result, str(Path(args.out) / DEMO_WRITE_JSON))
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; outputs in {args.out}/")
 
 

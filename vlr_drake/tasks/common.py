@@ -411,6 +411,16 @@ def followed(view, tp):
     return view.follow(tp.plant, tp.true_pose)
 
 
+#: Each task's plot in its ``out`` folder (and, with Meshcat, its recording ``<task>.html``).
+PLOT_FILES = {"write": "write_path.png", "maze": "maze.png", "stack": "stack.png"}
+
+
+def output_files(task: str) -> dict[str, str]:
+    """The files a task run writes in its ``out`` folder besides its JSON, by name: what each
+    is (the command line refuses a ``--json`` that one of them would overwrite)."""
+    return {PLOT_FILES[task]: f"the {task} task's plot", f"{task}.html": f"the {task} task's Meshcat recording"}
+
+
 def save_view(view, out: str | None, name: str, result: dict) -> None:
     """Save the view's recording as ``out/<name>.html`` and name it in ``result["recording"]``."""
     if view is not None and out is not None:

@@ -391,7 +391,7 @@ def run_maze(
     if out is not None:
         os.makedirs(out, exist_ok=True)
         result["plots"] = [
-            _plot(mz, marble, np.array(track), times, errs, switch_times, os.path.join(out, "maze.png"))
+            _plot(mz, marble, np.array(track), times, errs, switch_times, os.path.join(out, common.PLOT_FILES["maze"]))
         ]
     common.save_view(view, out, "maze", result)
     return result

@@ -288,7 +288,7 @@ def run_stack(
     }
     if out is not None:
         os.makedirs(out, exist_ok=True)
-        result["plots"] = [_plot(cups, os.path.join(out, "stack.png"), alpha)]
+        result["plots"] = [_plot(cups, os.path.join(out, common.PLOT_FILES["stack"]), alpha)]
     common.save_view(view, out, "stack", result)
     return result
 

@@ -312,7 +312,7 @@ def run_write(
         result["filter_iterations"] = int(filt.iteration)
     if out is not None:
         os.makedirs(out, exist_ok=True)
-        result["plots"] = [_plot(letters_out, reach, os.path.join(out, "write_path.png"), word)]
+        result["plots"] = [_plot(letters_out, reach, os.path.join(out, common.PLOT_FILES["write"]), word)]
     common.save_view(view, out, "write", result)
     return result
 
