@@ -178,6 +178,12 @@ class TendonForces(LeafSystem):
     # -- events and outputs ---------------------------------------------------------------
 
     def _update_ramp(self, context: Context, discrete_state: DiscreteValues) -> None:
+        """Start a ramp at a new command (at this update: a command given between updates
+        waits up to one ``update_period``), and hold the applied pull at the ramp's value at
+        the end of this period: it leads the ramp by one period and reaches the command at
+        ``ramp_time - update_period``, while the damping term's rate is the ramp's over the
+        whole ``ramp_time`` (0.5% of a 0.2 s ramp at the 1 ms default; the plant allows
+        ``ramp_time + 2 update_period`` for an action)."""
         N = self._N
         x = context.get_discrete_state(self._ramp_state).value().copy()
         t = context.get_time()
