@@ -559,3 +559,21 @@ def test_grasp_angles_in_radians_are_warned_about():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_scenario(DIAGRAMS_DIR / "hardware.yaml", "grasp: {theta_deg: [[10, 30], [12, 35], [12, 35]]}\n")
+
+
+@pytest.mark.parametrize(("override", "named"), [
+    ("exploration: {span: 0.005, window: 0.001}\n", "exploration: 'span' (0.005 m) must not exceed 'window' (0.001"),
+    # the model plant example's span against the hardware's default window (1.2 mm)
+    ("exploration: {span: 0.0015}\n", "exploration: 'span' (0.0015 m) must not exceed 'window' (0.0012"),
+    ("prior: {stiffness_unknown: [[0, 1]]}\nexploration: {squeeze_window: 0.001}\n", "'squeeze' (0.0015 m)"),
+    ("exploration: {squeeze_window: 0.001}\n", "'squeeze' (0.0 m) must be in (0, 'squeeze_window']"),
+])
+def test_a_hardware_exploration_keeps_the_other_plants_rules(override, named):
+    """What the model and physics plants refuse (through identify's options), a span past its
+    window or a squeeze past its own, was accepted, built and run on hardware: the draws,
+    reflected once, were clipped onto the window's edges."""
+    path = DIAGRAMS_DIR / "hardware.yaml"
+    with pytest.raises(ValueError, match=re.escape(named)) as info:
+        load_scenario(path, override)
+    assert str(path) in str(info.value)
+    assert load_scenario(path, "exploration: {span: 0.001}\n").exploration.span == 0.001

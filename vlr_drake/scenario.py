@@ -603,6 +603,18 @@ class Scenario:
             if self.hardware is None:
                 raise ValueError("'hardware': plant 'hardware' needs a hardware section")
             _with_section("hardware", lambda: self.hardware.validate(num_fingers=N))
+            # the exploration's rules that options_from_scenario checks on the other plants
+            # (a review: a span past the hardware's 1.2 mm window was built and run, its draws
+            # reflected once and clipped onto the window's edges)
+            span, window = self.exploration.span_and_window(self.plant)
+            if not span <= window:
+                raise ValueError(f"exploration: 'span' ({span} m) must not exceed 'window' ({window} m; the "
+                                 "hardware's default where not given): each action is reflected inside the window")
+            squeeze, squeeze_window = self.exploration.squeeze_and_window(self.plant, self.experiment())
+            if squeeze > squeeze_window or (squeeze > 0) != (squeeze_window > 0):
+                raise ValueError(f"exploration: 'squeeze' ({squeeze} m) must be in (0, 'squeeze_window'] "
+                                 f"({squeeze_window} m), or both 0 (the defaults of the plant and experiment "
+                                 "where not given)")
             T = self.period_sec()
             if self.hardware.period_s * HARDWARE_UPDATES_PER_ACTION_MIN > T * (1 + 1e-9):
                 raise ValueError(
