@@ -326,6 +326,17 @@ def test_run_returns_the_estimate_and_the_truth(capsys):
     assert "model_plant: 1 iterations" in capsys.readouterr().out
 
 
+def test_a_run_s_iterations_are_a_count():
+    """run(scenario, 2.5) had run 2 iterations and run(scenario, True) 1, without a word, and
+    a NaN aborted the interpreter in Drake's AdvanceTo; they are refused before the build."""
+    from vlr_drake.builder import run
+
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST)
+    for bad in (2.5, True, -1, float("nan"), "3"):
+        with pytest.raises(ValueError, match="'iterations' must be an integer >= 0"):
+            run(s, bad)
+
+
 def test_a_diagram_run_keeps_the_iterations_before_a_failure(filter_fails_at_4):
     """A failure inside a simulated diagram (here the filter's fourth update) had ended the
     run in a traceback, its iterations lost: the result is the state before the failed

@@ -724,8 +724,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     A hardware interface is closed (torque off) at the end, before the draws are filtered."""
     import time
 
-    if iterations < 0:
-        raise ValueError(f"'iterations' must be >= 0, got {iterations}")
+    if not is_count(iterations):  # (2.5 had run 2, True 1; NaN aborted the interpreter in AdvanceTo)
+        raise ValueError(f"'iterations' must be an integer >= 0, got {iterations!r}")
     if trace is not None and iterations == 0:
         raise ValueError("'iterations' is 0: a trace needs at least one iteration (the filter starts at the first)")
     if not is_count(draws, 1):
