@@ -549,6 +549,13 @@ def test_help_lists_the_plants_and_a_bad_trace_path_is_refused_before_the_run(tm
     assert "- hardware: exploration -> hand" in text and "- model:" in text  # the whole list
     with pytest.raises(ValueError, match="--trace: '.*' is a folder"):
         main(["--run", str(DIAGRAMS_DIR / "model_plant.yaml"), "--trace", str(tmp_path)])
+    # the JSON had been written over the trace it names (a hardware run's only record of its
+    # measurements): refused before the run, as identify refuses it
+    same = tmp_path / "run.npz"
+    with pytest.raises(ValueError, match="--json .* is the trace .* too"):
+        main(["--run", "model_plant", "--iterations", "1", "--set", FAST, "--trace", str(same),
+              "--json", str(tmp_path / "." / "run.npz")])
+    assert not same.exists()
 
 
 def test_a_control_section_identifies_then_controls_the_pom():

@@ -872,6 +872,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
         check_output("--json", args.json)
+        if args.trace and args.json and Path(args.trace).resolve() == Path(args.json).resolve():
+            # (the JSON had been written over the trace it names, the only record of a hardware run's measurements)
+            raise ValueError(f"--json {args.json} is the trace {args.trace} too: one would be written over the other")
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
         scenario = load_scenario(find_scenario(args.run), args.set)
         iterations = default_iterations(scenario) if args.iterations is None else args.iterations
