@@ -577,3 +577,20 @@ def test_a_hardware_exploration_keeps_the_other_plants_rules(override, named):
         load_scenario(path, override)
     assert str(path) in str(info.value)
     assert load_scenario(path, "exploration: {span: 0.001}\n").exploration.span == 0.001
+
+
+def test_what_a_task_s_plant_does_not_use_is_named():
+    """The tasks take the model plant's noise, the physics and the camera, but each only on
+    its own plant: a model scenario's camera, or the control example's quieter stand-in run
+    on the physics plant, had been dropped without the warning the other unused fields get."""
+    from vlr_drake.scenario import ignored_by_tasks
+
+    m = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "camera: {pixel_noise_std: 5.0}\nphysics: {time_step: 0.002}\n")
+    assert ignored_by_tasks(m) == ["camera", "physics"]
+    assert ignored_by_tasks(m, "physics") == []  # on the physics plant the task takes both
+    control = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml")
+    assert ignored_by_tasks(control) == ["control"]
+    assert ignored_by_tasks(control, "physics") == [
+        "control", "model_plant.sigma_position", "model_plant.sigma_rotation_deg"]
+    for name in ("model_plant", "default"):  # the examples the tasks' docs name set nothing unused
+        assert ignored_by_tasks(load_scenario(DIAGRAMS_DIR / f"{name}.yaml")) == []

@@ -286,11 +286,12 @@ def _task_settings(args) -> dict:
     from vlr_drake.scenario import ignored_by_tasks, task_settings
 
     kw = task_settings(args.loaded, args.scenario_path, seed=args.seed, plant=args.plant, particles=args.particles)
-    ignored = [] if args.loaded is None else ignored_by_tasks(args.loaded)
+    ignored = [] if args.loaded is None else ignored_by_tasks(args.loaded, kw["plant"])
     if ignored:  # said, not silently dropped
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': the task does not use "
               f"{', '.join(ignored)} (it takes the seed, plant, particle count, exploration, the model plant's "
-              f"noise, physics and camera; its objects, filter and prior are its own)", file=sys.stderr)
+              f"noise on the model plant, physics and camera on the physics plant; its objects, filter and prior are "
+              f"its own)", file=sys.stderr)
     return kw if args.loaded is not None else {**kw, "scenario": None}
 
 

@@ -965,9 +965,11 @@ TASK_FIELDS = {"filter": {"particles"}, "exploration": {"span", "window"},
                "model_plant": {"sigma_position", "sigma_rotation_deg"}}
 
 
-def ignored_by_tasks(scenario: Scenario) -> list[str]:
+def ignored_by_tasks(scenario: Scenario, plant: str | None = None) -> list[str]:
     """The fields of ``scenario`` set away from their defaults that the tasks do not use
-    (they hold their own objects, and build their filter, prior and truth themselves), as
+    (they hold their own objects, and build their filter, prior and truth themselves), nor,
+    of those they take, the task's ``plant`` (default: the scenario's; :func:`ignored_by_plant`:
+    the model plant's camera and physics, the physics plant's the model plant's noise), as
     dotted names, so that a command can say so rather than ignore them silently."""
     default = Scenario()
     out = []
@@ -980,7 +982,9 @@ def ignored_by_tasks(scenario: Scenario) -> list[str]:
                     if g.name not in TASK_FIELDS[f.name] and _differs(getattr(mine, g.name), getattr(theirs, g.name))]
         elif _differs(mine, theirs):
             out.append(f.name)
-    return out
+    taken = [*TASK_SECTIONS, *(f"{section}.{name}" for section, names in TASK_FIELDS.items() for name in names)]
+    by_plant = [n for n in _plant_ignores(scenario.plant if plant is None else plant) if n in taken]
+    return out + [n for n in _set_fields(scenario, by_plant) if n not in out]
 
 
 #: What an identification run (``vlr-drake identify``) does not take from a scenario: the
