@@ -594,3 +594,18 @@ def test_what_a_task_s_plant_does_not_use_is_named():
         "control", "model_plant.sigma_position", "model_plant.sigma_rotation_deg"]
     for name in ("model_plant", "default"):  # the examples the tasks' docs name set nothing unused
         assert ignored_by_tasks(load_scenario(DIAGRAMS_DIR / f"{name}.yaml")) == []
+
+
+def test_a_hardware_camera_s_settings_that_its_calibration_replaces_are_named():
+    """On hardware the camera's intrinsics and image size are the calibration file's and the
+    real camera's; only its pose in the palm is the scenario's. A width or field of view
+    written for the real camera had been dropped without a word."""
+    from vlr_drake.builder import build_diagram
+    from vlr_drake.scenario import ignored_by_plant
+
+    s = load_scenario(DIAGRAMS_DIR / "hardware.yaml",
+                      "camera: {width: 1280, fov_y_deg: 60.0, xyz: [0.0, 0.0, -0.03]}\n")
+    assert ignored_by_plant(s) == ["camera.width", "camera.fov_y_deg"]
+    with pytest.warns(UserWarning, match="the hardware plant does not use camera.width, camera.fov_y_deg"):
+        build_diagram(s).plant.close()
+    assert ignored_by_plant(load_scenario(DIAGRAMS_DIR / "hardware.yaml", "camera: {rpy_deg: [0, 0, 90]}\n")) == []

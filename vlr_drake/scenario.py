@@ -1006,7 +1006,8 @@ def ignored_by_plant(scenario: Scenario, plant: str | None = None) -> list[str]:
     (default: the scenario's) does not use, as dotted names: the model plant takes no object,
     camera, observer or physics; the others take no model-plant truth (the physics plant does take
     ``model_plant.center_offset_fraction``, for its guess of the contacts); only hardware
-    takes ``grasp``, ``hardware`` and ``filter.gravity_palm``."""
+    takes ``grasp``, ``hardware`` and ``filter.gravity_palm``, and of the camera only its pose
+    (``camera.xyz`` and ``rpy_deg``: the intrinsics are the calibration file's)."""
     return _set_fields(scenario, _plant_ignores(scenario.plant if plant is None else plant))
 
 
@@ -1019,6 +1020,10 @@ def _plant_ignores(plant: str) -> list[str]:
                   if not (plant == "physics" and f.name == "center_offset_fraction")]
     if plant == "hardware":
         names.append("physics")
+        # the camera's intrinsics and images are the calibration file's and the real camera's:
+        # of the camera section only its pose in the palm is used (a review: a width or field of
+        # view written for the real camera had been dropped without a word)
+        names += [f"camera.{f.name}" for f in dataclasses.fields(CameraConfig) if f.name not in ("xyz", "rpy_deg")]
     else:
         names += ["grasp", "hardware", "filter.gravity_palm"]
     return names
