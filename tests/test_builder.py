@@ -337,6 +337,19 @@ def test_a_run_s_iterations_are_a_count():
             run(s, bad)
 
 
+def test_initialize_s_settle_is_a_time_before_the_filter_s_first_measurement():
+    """initialize's settle_sec had been taken as given: a negative or NaN one aborted the
+    interpreter in AdvanceTo on the physics plant, one past 0.9 T settled through the filter's
+    first update; off the physics plant it was dropped unchecked."""
+    from vlr_drake.builder import build_diagram, initialize
+
+    b = build_diagram(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", FAST))
+    for bad in (-1.0, float("nan"), 0.95 * b.period_sec, "0.5"):
+        with pytest.raises(ValueError, match="'settle_sec' must be a time in \\[0, 0.9 T\\)"):
+            initialize(b, Simulator(b.diagram), settle_sec=bad)
+    assert initialize(b, Simulator(b.diagram), settle_sec=0.5)["in_contact"] is None
+
+
 def test_a_diagram_run_keeps_the_iterations_before_a_failure(filter_fails_at_4):
     """A failure inside a simulated diagram (here the filter's fourth update) had ended the
     run in a traceback, its iterations lost: the result is the state before the failed

@@ -52,7 +52,7 @@ from vlr_drake.entry import check_output, count, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.models import PAD_FRACTION
 from vlr_drake.perception.tag_pose import TagObserverConfig, vtk_render_intrinsics
@@ -514,13 +514,21 @@ def initialize(built: BuiltDiagram, simulator: Simulator, settle_sec: float | No
     before the filter's first update at 0.9 T) so the grasp settles under the object's
     weight. Hardware: ``Initialize``, in which the interface opens the motors and closes the
     hand on the grasp's commands, then the real-time clock starts. The model plant:
-    ``Initialize`` only. Returns ``{"theta_placed", "command",
-    "in_contact"}`` (the last two None/all-True off the physics plant).
+    ``Initialize`` only (``settle_sec``, checked, is the physics plant's). Returns
+    ``{"theta_placed", "command", "in_contact"}`` (``theta_placed`` and ``in_contact`` None
+    off the physics plant; on it ``in_contact`` is all True: a grasp that lost the object
+    raises :class:`PlacementError`).
 
     One simulator per physics diagram: a second ``Simulator`` of the same ``built.diagram``,
     made after the first was freed, rendered frames without the object's textured tag from
     about 0.6 s on (drake 1.51's VTK renderer with textured models; :func:`run` builds a
     diagram per run and is not touched). Build the diagram again for another run."""
+    first = pf.FILTER_PHASE * built.period_sec
+    if settle_sec is not None and not (is_number(settle_sec) and 0 <= settle_sec < first):
+        # (a negative or NaN settle aborted the interpreter in AdvanceTo; one past 0.9 T settled
+        # through the filter's first update and the first action)
+        raise ValueError(f"'settle_sec' must be a time in [0, {pf.FILTER_PHASE:g} T) = [0, {first:.3g}) s, before the "
+                         f"filter's first measurement, got {settle_sec!r}")
     root = simulator.get_mutable_context()
     if built.physics_hand is None:
         simulator.Initialize()  # hardware: the motors open and close on the grasp (HardwareInterface)
