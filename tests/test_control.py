@@ -613,6 +613,16 @@ def test_control_step_and_limit_action_refuse_non_finite_values(grasp):
             control.limit_action(grasp.hand, l0, np.zeros(3), bad)
     np.testing.assert_array_equal(control.tendon_limits(grasp.hand, np.column_stack([np.full(3, -np.inf), rng[:, 1]])),
                                   rng)  # +-inf: no limit on that side
+    # limits that miss the range (here in mm) had become one point outside it, silently: the
+    # commands could then only tighten (a review)
+    mm = 1e3 * np.column_stack([l0 - 2e-3, l0 + 2e-3])
+    for bad in (mm, rng - 1.0):
+        with pytest.raises(ValueError, match="'limits' .* miss the hand's tendon range"):
+            control.tendon_limits(grasp.hand, bad)
+        with pytest.raises(ValueError, match="miss the hand's tendon range"):
+            control.limit_action(grasp.hand, l0, np.full(3, -1e-3), bad)
+    touching = np.column_stack([rng[:, 1], rng[:, 1] + 1.0])  # one point of the range is a window
+    np.testing.assert_array_equal(control.tendon_limits(grasp.hand, touching), rng[:, [1, 1]])
     for unit in ("position_unit", "rotation_unit"):
         for v in (np.nan, 0.0, -1.0):
             with pytest.raises(ValueError, match=f"'{unit}' must be a positive finite number"):

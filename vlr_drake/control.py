@@ -340,8 +340,9 @@ def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
 
 def tendon_limits(hand: HandModel, limits=None) -> np.ndarray:
     """(N, 2) command limits: ``limits`` intersected with ``hand.tendon_range`` (+-inf for no
-    limit on that side). NaN limits, or a lower above an upper one, are a ValueError (NaN had
-    passed through the clamps into the commands)."""
+    limit on that side). NaN limits, a lower above an upper one, or limits that miss the
+    range altogether (e.g. given in millimetres), are a ValueError (NaN had passed through the
+    clamps into the commands; limits past the range had become one point outside it)."""
     if limits is None:
         return hand.tendon_range.copy()
     limits = np.asarray(limits, float)
@@ -352,7 +353,11 @@ def tendon_limits(hand: HandModel, limits=None) -> np.ndarray:
                          f"{limits.tolist()}")
     lo = np.maximum(limits[:, 0], hand.tendon_range[:, 0])
     hi = np.minimum(limits[:, 1], hand.tendon_range[:, 1])
-    return np.column_stack([lo, np.maximum(lo, hi)])
+    if np.any(lo > hi):
+        raise ValueError(f"'limits' {limits.tolist()} m miss the hand's tendon range "
+                         f"{hand.tendon_range.tolist()} m for tendons {np.flatnonzero(lo > hi).tolist()} "
+                         "(lengths are in metres)")
+    return np.column_stack([lo, hi])
 
 
 @dataclass
