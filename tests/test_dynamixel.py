@@ -321,6 +321,13 @@ def test_bad_constructor_arguments():
         TendonMotors("/dev/null", 1000000, IDS, (np.ones(3), np.zeros(3)))
     with pytest.raises(ValueError, match=r"goal_current_raw must be in 1..2047"):
         TendonMotors("/dev/null", 1000000, IDS, LIMITS, goal_current_raw=0)
+    # what the config refuses, the driver refuses too: -1 retries had opened nothing but an
+    # UnboundLocalError, and mode 3 (single-turn position) had been written to the motors
+    for kw, match in [({"comm_retries": -1}, "comm_retries must be >= 0"),
+                      ({"start_tolerance_ticks": -1}, "start_tolerance_ticks must be >= 0"),
+                      ({"operating_mode": 3}, "operating_mode must be 4 .* or 5")]:
+        with pytest.raises(ValueError, match=match):
+            TendonMotors("/dev/null", 1000000, IDS, LIMITS, **kw)
 
 
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])

@@ -208,6 +208,9 @@ class TendonMotors:
             )
         self.tick_lower, self.tick_upper = lo, hi
         self.operating_mode = int(operating_mode)
+        if self.operating_mode not in (4, 5):  # (3, single-turn position, had been written to the motors)
+            raise ValueError(f"operating_mode must be 4 (extended position) or 5 (current-based position), "
+                             f"got {operating_mode}")
         self.goal_current_raw = int(goal_current_raw)
         if self.operating_mode == 5 and not 1 <= self.goal_current_raw <= GOAL_CURRENT_MAX:
             raise ValueError(f"goal_current_raw must be in 1..{GOAL_CURRENT_MAX} in current-based position mode (5), "
@@ -216,6 +219,10 @@ class TendonMotors:
         self.comm_retries = int(comm_retries)
         self.unconfirmed: list[int] = []  # motors that did not confirm the last torque off
         self.start_tolerance_ticks = int(start_tolerance_ticks)
+        # (-1 retries had made no attempt at all: the first transaction an UnboundLocalError)
+        for name, v in (("comm_retries", self.comm_retries), ("start_tolerance_ticks", self.start_tolerance_ticks)):
+            if v < 0:
+                raise ValueError(f"{name} must be >= 0, got {v}")
         self.ticks_per_rev = int(ticks_per_rev)
         if self.ticks_per_rev <= 0:
             raise ValueError(f"ticks_per_rev must be positive, got {ticks_per_rev}")
