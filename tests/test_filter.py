@@ -1782,6 +1782,19 @@ def test_the_model_plant_truth_stays_an_equilibrium_and_starts_physical():
         ModelPlant(m, theta, a, R, t, None)
     with pytest.raises(ValueError, match="'object_load' needs the 'gravity'"):
         ModelPlant(m, theta, a, *args, object_load=np.full(3, 0.01))
+    # a misshapen input is named (numpy's "cannot reshape array of size 3 into shape (3,2)"
+    # had named none of them)
+    for kw, name in [({"stiffness": np.ones(3)}, "stiffness"), ({"link_lengths": np.ones(2)}, "link_lengths"),
+                     ({"gravity": [0.0, -9.81]}, "gravity"),
+                     ({"gravity": [0.0, 0.0, -9.81], "object_load": [0.01, 0.01]}, "object_load")]:
+        with pytest.raises(ValueError, match=rf"model plant: '{name}' must have shape \("):
+            ModelPlant(m, theta, a, *args, **kw)
+    with pytest.raises(ValueError, match=r"model plant: 'theta' must have shape \(3, 2\)"):
+        ModelPlant(m, theta[:, :1], a, *args)
+    with pytest.raises(ValueError, match=r"model plant: 'a' must have shape \(3,\)"):
+        ModelPlant(m, theta, a[:2], *args)
+    with pytest.raises(ValueError, match=r"model plant: 'dl' must have shape \(3,\)"):
+        ModelPlant(m, theta, a, *args).apply_action([1e-4, 0.0])
 
 
 def test_convergence_waits_for_the_identified_hand_parameters():

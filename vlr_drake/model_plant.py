@@ -19,6 +19,15 @@ from vlr_drake.hand import HandModel
 __all__ = ["ModelPlantState", "ModelPlant"]
 
 
+def _sized(name: str, x, shape: tuple) -> np.ndarray:
+    """``x`` as floats of ``shape`` (any array of as many numbers is taken), else a ValueError
+    naming it (numpy's "cannot reshape array of size 2 into shape (3,)" had named nothing)."""
+    x = np.asarray(x, float)
+    if x.size != int(np.prod(shape)):
+        raise ValueError(f"model plant: '{name}' must have shape {shape}, got {x.shape}")
+    return x.reshape(shape)
+
+
 @dataclass
 class ModelPlantState:
     theta: np.ndarray  # (N, K)
@@ -52,12 +61,12 @@ class ModelPlant:
         if not observation.is_rotation(R_PO):
             raise ValueError(f"model plant: 'R_PO' is not a rotation matrix: {np.round(R_PO, 6).tolist()}")
         self.loads = {} if gravity is None else {
-            "gravity": np.asarray(gravity, float).reshape(3),
-            "object_load": None if object_load is None else np.asarray(object_load, float).reshape(1, hand.N)}
+            "gravity": _sized("gravity", gravity, (3,)),
+            "object_load": None if object_load is None else _sized("object_load", object_load, (1, hand.N))}
         self.rng = rng
-        self.stiffness = hand.stiffness.copy() if stiffness is None else np.asarray(stiffness, float).reshape(hand.N, hand.K)
+        self.stiffness = hand.stiffness.copy() if stiffness is None else _sized("stiffness", stiffness, (hand.N, hand.K))
         self.link_lengths = (hand.link_lengths.copy() if link_lengths is None
-                             else np.asarray(link_lengths, float).reshape(hand.N, hand.K - 1))
+                             else _sized("link_lengths", link_lengths, (hand.N, hand.K - 1)))
         for name, v in (("sigma_position", sigma_position), ("sigma_rotation", sigma_rotation),
                         ("contact_drift", contact_drift)):
             if not (np.isfinite(v) and v >= 0):
@@ -68,8 +77,8 @@ class ModelPlant:
         self.tendon = tendon
         self.contact_drift = contact_drift
         self.failures = 0  # actions for which the model found no nearby equilibrium
-        theta = np.asarray(theta, float).reshape(hand.N, hand.K)
-        a = np.asarray(a, float).reshape(hand.N)
+        theta = _sized("theta", theta, (hand.N, hand.K))
+        a = _sized("a", a, (hand.N,))
         if np.any(a < 0) or np.any(a > hand.distal_length):
             raise ValueError(f"model plant: the initial contacts {a.tolist()} m are not on the last links "
                              f"(0 to {hand.distal_length.tolist()} m)")
@@ -138,7 +147,7 @@ class ModelPlant:
         cannot get there either; the ideal tendon's ill-conditioned solve otherwise jumps to
         far-away roots for mm actions (joints at -130 deg)."""
         h, s = self.hand, self.state
-        dl = np.asarray(dl, float).reshape(h.N)
+        dl = _sized("dl", dl, (h.N,))
         res, ok = self._moves(dl[None], l_now=s.tendon_command)
         if not ok[0]:
             self.failures += 1
