@@ -817,6 +817,22 @@ def test_a_failed_draw_of_identify_draws_keeps_the_run(tmp_path, monkeypatch, ca
     assert "no pooled estimate" in capsys.readouterr().err
 
 
+def test_reproduce_refuses_a_json_over_its_own_table(tmp_path, capsys, monkeypatch):
+    """reproduce's --json named as its own reproduce.json (or .md) is refused before anything
+    runs: the table without its runs had been written over the file that keeps every trial."""
+    import vlr_drake.reproduce
+
+    ran = []
+    monkeypatch.setattr(vlr_drake.reproduce, "reproduce", lambda **kw: ran.append(kw))
+    out = tmp_path / "out"
+    for name, said in (("reproduce.json", "is the table's JSON with every trial's result"),
+                       ("reproduce.md", "is the table's markdown")):
+        assert main(["reproduce", "--plant", "model", "--out", str(out), "--json", str(out / name),
+                     "--no-progress"]) == 2
+        assert said in capsys.readouterr().err
+    assert not ran
+
+
 def test_json_has_no_nan_or_infinity(tmp_path):
     """JSON has no NaN or Infinity: a non-finite float is written as null."""
     from vlr_drake.cli import write_json

@@ -1173,6 +1173,10 @@ def _command(args) -> int:
             if args.quick and given:  # said, not silently replaced by the quick run's
                 raise ValueError(f"--quick sets the trials, particles and iterations itself (1, 1,000 and 8): "
                                  f"drop {', '.join(given)} or --quick")
+            # (a --json named as the table's own reproduce.json had written the table without its
+            # runs over it: every trial's result lost)
+            _check_own_files(args, {Path(args.out) / "reproduce.json": "the table's JSON with every trial's result",
+                                    Path(args.out) / "reproduce.md": "the table's markdown"})
             r = reproduce(trials=5 if args.trials is None else args.trials, plant=args.plant,
                           particles=(args.particles if args.particles is not None
                                      else args.loaded.filter.particles if args.loaded else 20_000),
