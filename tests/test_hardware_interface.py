@@ -275,6 +275,27 @@ def test_bring_up_tool_refuses_no_frames(capsys):
         assert f"--frames: must be >= 1, got {frames}" in capsys.readouterr().err
 
 
+def test_bring_up_tool_takes_a_hardware_sections_paths_relative_to_its_file(tag_video, tmp_path, monkeypatch):
+    """A hardware section file's relative calibration_file is next to it, as a scenario's is
+    (the bring-up tool had looked in the working folder, and said the file does not exist)."""
+    import io
+
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    path, poses = tag_video
+    (tmp_path / "hw").mkdir()
+    write_intrinsics(tmp_path / "hw" / "cam.yaml", intrinsics())
+    (tmp_path / "hw" / "hw.yaml").write_text(f"camera: {path}\ncalibration_file: cam.yaml\nmotor_record: motors.json\n")
+    monkeypatch.chdir(tmp_path)
+    out = io.StringIO()
+    assert bring_up(["camera", "--config", "hw/hw.yaml", "--frames", "2"], out=out) == 0
+    assert f"calibration {tmp_path / 'hw' / 'cam.yaml'}: {W} x {H}" in out.getvalue()
+    cfg = load_hardware_config(filename="hw/hw.yaml", data="calibration_file: other.yaml\n", resolve=True)
+    assert cfg.calibration_file == "other.yaml" and cfg.motor_record == str(tmp_path / "hw" / "motors.json")
+    # without resolve, as add_hardware_interface takes it (with its own base_dir)
+    assert load_hardware_config(filename="hw/hw.yaml").calibration_file == "cam.yaml"
+
+
 def test_config_validate_checks_finger_count():
     with pytest.raises(ValueError, match="'motor_ids' has 3 motors but the hand has 4"):
         HardwareConfig().validate(num_fingers=4)

@@ -7,7 +7,8 @@
 
 ``--config`` is a hardware section (:class:`vlr_drake.hardware.config.HardwareConfig`) or a
 scenario file with one (``diagrams/hardware.yaml``);
-``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. No command enables torque.
+``--set 'port: /dev/ttyUSB1'`` overrides fields as YAML text. Relative paths in the file
+(``calibration_file``, ``motor_record``) are relative to its folder. No command enables torque.
 ``zero``: straighten every finger by hand with its tendon just taut, then run it; it prints
 the present positions as ``zero_offset_ticks`` (measure again after a motor power cycle, which
 resets the multi-turn count; a run refuses a motor that lost turns, against the positions
@@ -51,7 +52,9 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
                    help="status: the hand whose tendon_range gives the limits where the config gives none "
                         "(default model_o)")
     a = p.parse_args(argv)
-    config = load_hardware_config(filename=a.config, data=a.set).validate()
+    # a hardware section's relative paths (calibration_file, motor_record) as a scenario's: relative
+    # to its file (they had been taken relative to the working folder)
+    config = load_hardware_config(filename=a.config, data=a.set, resolve=True).validate()
 
     if a.command == "reboot":
         from vlr_drake.hardware.dynamixel import hardware_error_text

@@ -340,10 +340,13 @@ class TendonMotorMap:
         return np.minimum(a, b), np.maximum(a, b)
 
 
-def load_hardware_config(filename: str | None = None, data: str | None = None) -> HardwareConfig:
+def load_hardware_config(filename: str | None = None, data: str | None = None, *,
+                         resolve: bool = False) -> HardwareConfig:
     """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file).
     The file is a hardware section, or a scenario file (:class:`vlr_drake.scenario.Scenario`,
-    e.g. ``diagrams/hardware.yaml``) whose ``hardware`` section is taken. A missing file
+    e.g. ``diagrams/hardware.yaml``) whose ``hardware`` section is taken; a scenario file's
+    relative paths are taken as relative to its folder, and with ``resolve`` a hardware
+    section file's too (the text's stay as given). A missing file
     raises ``FileNotFoundError``; an unknown or mistyped field ``ValueError`` naming the
     file or the text."""
     import yaml
@@ -362,7 +365,7 @@ def load_hardware_config(filename: str | None = None, data: str | None = None) -
                 raise ValueError("a scenario file without a 'hardware' section")
             config = yaml_load_typed(schema=HardwareConfig, filename=filename,
                                      child_name="hardware" if scenario else None, defaults=config)
-            if scenario:  # relative to the scenario file, as the scenario loader has it
+            if scenario or resolve:  # relative to the scenario file, as the scenario loader has it
                 config.resolve_paths(Path(filename).resolve().parent)
         except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
