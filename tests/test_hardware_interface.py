@@ -383,6 +383,11 @@ def test_a_stalled_camera_gives_no_frame_once_its_last_is_too_old(emulator):
         cam.release()
     with pytest.raises(ValueError, match="'max_age_s' must be positive"):
         FrameSource(0, max_age_s=0.0)
+    # a NaN or infinite timeout is named (NaN had opened as "camera '0' did not open within nan
+    # s"; an infinite wait overflows concurrent.futures' timeout: OverflowError)
+    for bad in (float("nan"), float("inf"), 0.0):
+        with pytest.raises(ValueError, match="'timeout_s' must be a positive finite time"):
+            FrameSource(0, timeout_s=bad, capture_factory=FakeCapture(1))
     with pytest.raises(ValueError, match="'camera_max_frame_age_s' must be positive"):
         HardwareConfig(camera_max_frame_age_s=-1.0).validate()
     hw = HardwareInterface(model_o(), make_config(emulator, 0, camera_max_frame_age_s=0.15),

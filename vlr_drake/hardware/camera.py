@@ -192,8 +192,8 @@ class FrameSource:
         capture_factory=None,
         max_age_s: float | None = None,
     ):
-        if timeout_s <= 0:
-            raise ValueError(f"camera: 'timeout_s' must be positive, got {timeout_s}")
+        if not (timeout_s > 0 and np.isfinite(timeout_s)):  # (NaN had said "did not open within nan s")
+            raise ValueError(f"camera: 'timeout_s' must be a positive finite time [s], got {timeout_s}")
         if max_age_s is not None and not max_age_s > 0:
             raise ValueError(f"camera: 'max_age_s' must be positive, got {max_age_s}")
         if mode not in CAMERA_MODES:
