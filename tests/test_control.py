@@ -513,7 +513,7 @@ def test_closed_loop_diagram_on_the_model_plant(grasp):
     assert np.all(l >= grasp.hand.tendon_range[:, 0]) and np.all(l <= grasp.hand.tendon_range[:, 1])
 
 
-def test_an_unphysical_mean_estimate_falls_back_to_the_nearest_hypothesis(grasp):
+def test_an_unphysical_mean_estimate_falls_back_to_the_nearest_hypothesis(grasp, monkeypatch):
     """The filter's weighted mean need not be a grasp: where the side fingers mirror each
     other (measured on the physics plant, handwriting seed 0) it implies a pushing tendon.
     Its perturbed actions have equilibria of the equations (they had none while the KKT
@@ -545,6 +545,19 @@ def test_an_unphysical_mean_estimate_falls_back_to_the_nearest_hypothesis(grasp)
     m = fn(np.zeros(h.N), R, t, True)
     assert m.physical and any(np.allclose(m.theta, c["theta"], atol=1e-9) for c in f.nearest_hypotheses(8))
     control.jacobian(m)
+    # usable at the servo's own step: the model_fn tries its models with the eps it is given
+    # (it had always tried them at the default, whatever step the servo then used)
+    steps, real = [], control.jacobian
+
+    def recorded(model, eps=control.JACOBIAN_EPS, retries=2):
+        steps.append(eps)
+        return real(model, eps, retries)
+
+    monkeypatch.setattr(control, "jacobian", recorded)
+    control.filter_model_fn(f, h, eps=0.05e-3)(np.zeros(h.N), R, t, True)
+    assert steps and set(steps) == {0.05e-3}
+    with pytest.raises(ValueError, match="'retries' must be an integer >= 0"):
+        real(m, retries=-1)  # (it had tried nothing and said "no equilibrium on either side")
 
 
 # ------------------------------------------------------------------ bad input and failures

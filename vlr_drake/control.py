@@ -196,7 +196,12 @@ def upsilon(model: ControlModel, dl) -> np.ndarray:
     return out[0] if single else out
 
 
-def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.ndarray:
+#: The central differences' tendon step [m] of the Jacobian (Eq. 10): the default of
+#: :func:`jacobian`, :func:`servo_to`, :func:`filter_model_fn` and the JacobianController.
+JACOBIAN_EPS = 0.2e-3
+
+
+def jacobian(model: ControlModel, eps: float = JACOBIAN_EPS, retries: int = 2) -> np.ndarray:
     """J (6, N) = dUpsilon/dl by central differences with step ``eps`` [m] (Eq. 10).
 
     A column whose perturbed move finds no equilibrium is retried with eps/4 (``retries``
@@ -204,6 +209,8 @@ def jacobian(model: ControlModel, eps: float = 0.2e-3, retries: int = 2) -> np.n
     """
     if not (kinematics.is_number(eps) and 0 < eps < np.inf):  # NaN too
         raise ValueError(f"'eps' must be a positive finite number, got {eps!r}")
+    if not kinematics.is_count(retries):  # (-1 had tried nothing and said "no equilibrium")
+        raise ValueError(f"'retries' must be an integer >= 0, got {retries!r}")
     N = model.hand.N
     J = np.full((6, N), np.nan)
     todo = np.arange(N)
@@ -417,7 +424,7 @@ def servo_to(
     gain: float = 0.7,
     damping: float = 0.01,
     clip: float = 1.0e-3,
-    eps: float = 0.2e-3,
+    eps: float = JACOBIAN_EPS,
     tol_position: float = 0.05e-3,
     tol_rotation: float = np.deg2rad(0.2),
     max_steps: int = 30,
@@ -608,18 +615,18 @@ def true_model_fn(plant) -> Callable[[np.ndarray, np.ndarray, np.ndarray, bool],
 FALLBACKS = 8
 
 
-def _jacobian_if_usable(model: ControlModel, eps: float | None = None) -> np.ndarray | None:
-    """The model's Jacobian (Eq. 10) when it is a physical grasp and every perturbed action
-    has an equilibrium, else None: what makes a model usable for control."""
+def _jacobian_if_usable(model: ControlModel, eps: float = JACOBIAN_EPS) -> np.ndarray | None:
+    """The model's Jacobian (Eq. 10, step ``eps``) when it is a physical grasp and every
+    perturbed action has an equilibrium, else None: what makes a model usable for control."""
     if not model.physical:
         return None
     try:
-        return jacobian(model) if eps is None else jacobian(model, eps)
+        return jacobian(model, eps)
     except RuntimeError:
         return None
 
 
-def usable_model(hand: HandModel, est: dict, R, t, *, tendon: str = "elastic", eps: float | None = None):
+def usable_model(hand: HandModel, est: dict, R, t, *, tendon: str = "elastic", eps: float = JACOBIAN_EPS):
     """``(model, J)``: the :class:`ControlModel` of ``est`` anchored at the measured pose
     (R, t) and its Jacobian when it is a physical grasp whose Jacobian exists, else those of
     the first of ``est["fallbacks"]`` (estimate dicts, e.g. the filter's nearest hypotheses)
@@ -635,7 +642,8 @@ def usable_model(hand: HandModel, est: dict, R, t, *, tendon: str = "elastic", e
     return None
 
 
-def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks: int = FALLBACKS):
+def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks: int = FALLBACKS,
+                    eps: float = JACOBIAN_EPS):
     """``model_fn`` for :func:`servo_to` backed by a
     :class:`vlr_drake.filter.SelfIdentificationFilter`: every control action (non-zero dl)
     is also one filter iteration (evidence), so rolling contacts are tracked.
@@ -647,17 +655,19 @@ def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks
     than its members: on the physics plant (handwriting 'SCIENCE', seed 0) it settled where
     the side fingers mirror each other, with a pushing tendon (-13 N) or a side pair pulled
     apart, and no perturbed action had an equilibrium: 53 control steps ended
-    "no_equilibrium" and the letters came out 3.6-4.0 mm off (0.12 mm with the fallback)."""
+    "no_equilibrium" and the letters came out 3.6-4.0 mm off (0.12 mm with the fallback).
+    ``eps``: the Jacobian's step the servo uses (:func:`servo_to`'s), at which a model must
+    be usable."""
 
     def fn(dl, R, t, valid):
         if np.any(dl):
             filt.step(dl, R, t, valid)
         model = ControlModel.from_estimate(hand, filt.estimate(), R, t, tendon=tendon)
-        if _jacobian_if_usable(model) is not None:
+        if _jacobian_if_usable(model, eps) is not None:
             return model
         for est in filt.nearest_hypotheses(fallbacks):  # only when the mean is no usable model
             candidate = ControlModel.from_estimate(hand, est, R, t, tendon=tendon)
-            if _jacobian_if_usable(candidate) is not None:
+            if _jacobian_if_usable(candidate, eps) is not None:
                 return candidate
         return model
 

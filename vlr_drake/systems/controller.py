@@ -84,7 +84,7 @@ class JacobianController(LeafSystem):
         gain: float = 0.7,
         damping: float = 0.01,
         clip: float = 1.0e-3,
-        eps: float = 0.2e-3,
+        eps: float = control.JACOBIAN_EPS,
         tol_position: float = 0.1e-3,
         tol_rotation: float = np.deg2rad(0.3),
         tendon: str = "elastic",
