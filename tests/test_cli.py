@@ -959,13 +959,18 @@ def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, mo
     assert rp.TASK_IDENTIFY_ITERATIONS == 100
 
 
-@pytest.mark.parametrize("trials", [0, 2.5, True, "5"])
-def test_reproduce_names_a_bad_trial_count(tmp_path, trials):
-    """From Python a fractional count had ended in range()'s TypeError, and True ran 1 trial."""
+@pytest.mark.parametrize("field, value", [("trials", 0), ("trials", 2.5), ("trials", True), ("trials", "5"),
+                                          ("particles", 0), ("particles", 1e3), ("iterations", -1),
+                                          ("iterations", 0), ("seed", -1), ("seed", 1.5)])
+def test_reproduce_names_a_bad_count(tmp_path, field, value):
+    """From Python a fractional count had ended in range()'s TypeError, and True ran 1 trial; a
+    bad particle count, budget or seed failed every trial in turn, each with its own message."""
     from vlr_drake.reproduce import reproduce
 
-    with pytest.raises(ValueError, match=r"reproduce: 'trials' must be an integer >= 1, got "):
-        reproduce(trials=trials, plant="model", out=tmp_path, progress=False, experiments=["known_hand"])
+    kw = {"plant": "model", "out": tmp_path, "progress": False, "experiments": ["known_hand"], field: value}
+    with pytest.raises(ValueError, match=rf"reproduce: '{field}' must be an integer >= [01], got "):
+        reproduce(**kw)
+    assert not (tmp_path / "reproduce.json").exists()
 
 
 def test_demo_refuses_a_scenario_of_another_experiment_before_anything_runs(capsys):

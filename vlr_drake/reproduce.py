@@ -158,8 +158,10 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
 
     if quick:
         trials, particles, iterations = 1, 1000, 8
-    if not is_count(trials, 1):
-        raise ValueError(f"reproduce: 'trials' must be an integer >= 1, got {trials!r}")
+    # checked once here, not by every trial in turn (each of which had failed on its own)
+    for name, value in (("trials", trials), ("particles", particles), ("seed", seed), ("iterations", iterations)):
+        if not (value is None and name == "iterations") and not is_count(value, 0 if name == "seed" else 1):
+            raise ValueError(f"reproduce: '{name}' must be an integer >= {0 if name == 'seed' else 1}, got {value!r}")
     chosen = EXPERIMENTS if experiments is None else tuple(experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:
