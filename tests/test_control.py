@@ -609,6 +609,8 @@ def test_controller_system_refuses_a_non_finite_initial_command(grasp):
 
 def test_control_step_and_limit_action_refuse_non_finite_values(grasp):
     J = np.vstack([np.eye(3), np.eye(3)])
+    with pytest.raises(ValueError, match=r"'t_goal' and 't' must have shape \(3,\), got \(3, 1\) and \(3,\)"):
+        control.pose_error6(np.eye(3), np.zeros((3, 1)), np.eye(3), np.zeros(3))  # (had broadcast to (3, 3))
     with pytest.raises(ValueError, match="error6"):
         control.control_step(J, np.full(6, np.nan))
     with pytest.raises(ValueError, match="'J'"):

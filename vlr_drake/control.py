@@ -322,8 +322,11 @@ def control_step(
 def pose_error6(R_goal, t_goal, R, t) -> np.ndarray:
     """Error (6,) = [t_goal - t, rotvec(R_goal R^T)] in the palm frame (same convention as
     :func:`upsilon`, so a step with dphi = error reaches the goal)."""
+    t_goal, t = (np.asarray(x, float) for x in (t_goal, t))
+    if t_goal.shape != (3,) or t.shape != (3,):  # (a broadcasting error had named neither)
+        raise ValueError(f"pose_error6: 't_goal' and 't' must have shape (3,), got {t_goal.shape} and {t.shape}")
     dw = observation.rotvec(np.asarray(R_goal) @ np.asarray(R).T)[0]
-    return np.concatenate([np.asarray(t_goal, float) - np.asarray(t, float), dw])
+    return np.concatenate([t_goal - t, dw])
 
 
 def limit_action(hand: HandModel, l_now, dl, limits=None) -> np.ndarray:
@@ -380,7 +383,7 @@ class ServoReport:
     t_closest: np.ndarray
     closest_position_error: float  # [m]
     closest_rotation_error: float  # [rad]
-    at_limit: bool  # some tendon ended at its range limit
+    at_limit: bool  # some tendon ended at a limit of the servo's ``limits`` (default: its range)
     history: list = field(default_factory=list)  # per iteration: (position_error, rotation_error, dl)
     lost: int = 0  # measurements that came without the tag (the pose was predicted instead)
     R_final: np.ndarray | None = None  # the pose at the end: measured, else predicted (for ``resume``)
@@ -574,13 +577,8 @@ def servo_to(
         history.append((ep, er, dl_lim))
         if on_step is not None:
             on_step(it, R_last, t_last)
-    l_now = _tendon_command(plant)
-    at_limit = bool(
-        np.any(
-            (l_now <= tendon_limits(hand, limits)[:, 0] + 1e-9)
-            | (l_now >= tendon_limits(hand, limits)[:, 1] - 1e-9)
-        )
-    )
+    l_now, lim = _tendon_command(plant), tendon_limits(hand, limits)
+    at_limit = bool(np.any((l_now <= lim[:, 0] + 1e-9) | (l_now >= lim[:, 1] - 1e-9)))
     return ServoReport(
         reached=reason == "reached",
         reason=reason,
