@@ -1163,6 +1163,17 @@ def test_a_small_cloud_says_its_intervals_are_too_narrow():
                                     np.random.default_rng(0))
 
 
+@pytest.mark.parametrize("field", ["roughening", "ess_fraction", "resample_fraction", "anchor_fraction",
+                                   "stuck_probability", "likelihood_width"])
+@pytest.mark.parametrize("value", ["0.5", True, [0.5]])
+def test_filter_fractions_must_be_numbers(field, value):
+    """Text or a list had ended validate() in a TypeError from a comparison ("'<' not supported
+    between instances of 'int' and 'str'"), and True had been taken as 1 (resample at every step,
+    anchor all the way, every stuck hypothesis kept)."""
+    with pytest.raises(ValueError, match=f"filter: '{field}' must be a number, got"):
+        pf.FilterConfig(**{field: value}).validate()
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

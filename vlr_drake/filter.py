@@ -1082,9 +1082,10 @@ class FilterConfig:
         if not kinematics.is_count(self.particles, 10):
             raise ValueError(f"filter: 'particles' must be an integer >= 10, got {self.particles!r}")
         for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas",
-                     "motion_error", "convergence_deg"):
+                     "motion_error", "convergence_deg", "roughening", "ess_fraction", "resample_fraction",
+                     "anchor_fraction", "stuck_probability", "likelihood_width"):
             v = getattr(self, name)
-            if not kinematics.is_number(v):
+            if not (kinematics.is_number(v) or (v is None and name in ("stuck_probability", "likelihood_width"))):
                 raise ValueError(f"filter: '{name}' must be a number, got {v!r}")
         for name in ("sigma_position", "sigma_rotation", "likelihood_dof", "divergence_sigmas"):
             v = getattr(self, name)
