@@ -1174,6 +1174,14 @@ def test_filter_fractions_must_be_numbers(field, value):
         pf.FilterConfig(**{field: value}).validate()
 
 
+@pytest.mark.parametrize("value", [9.81, None, "0,0,-9.81", [0.0, "x", -9.81], np.array([0.0, np.nan, -9.81])])
+def test_gravity_that_is_no_three_numbers_is_named(value):
+    """A single number or None had ended validate() in a TypeError raised while its own
+    message was written ("'float' object is not iterable"); text, an unnamed ValueError."""
+    with pytest.raises(ValueError, match=r"filter: 'gravity_palm' must be 3 finite numbers \[m/s\^2\], got"):
+        pf.FilterConfig(gravity_palm=value).validate()
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

@@ -1147,9 +1147,14 @@ class FilterConfig:
         c = self.parameter_convergence
         if c is not None and not (kinematics.is_number(c) and np.isfinite(c) and c > 0):
             raise ValueError(f"filter: 'parameter_convergence' must be None or a positive finite fraction, got {c!r}")
-        g = np.asarray(self.gravity_palm, float)
+        try:
+            g = np.asarray(self.gravity_palm, float)
+        except (TypeError, ValueError):  # text, None in a list: named below
+            g = np.full(1, np.nan)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got {list(self.gravity_palm)}")
+            v = self.gravity_palm  # (a number has no list() to show: the message had raised a TypeError)
+            raise ValueError(f"filter: 'gravity_palm' must be 3 finite numbers [m/s^2], got "
+                             f"{list(v) if isinstance(v, list | tuple) else repr(v)}")
         units.check_gravity(g, "filter: 'gravity_palm'")
         if self.motion_model not in MOTION_MODELS:
             raise ValueError(f"filter: 'motion_model' must be one of {MOTION_MODELS}, got '{self.motion_model}'")
