@@ -1182,6 +1182,18 @@ def test_gravity_that_is_no_three_numbers_is_named(value):
         pf.FilterConfig(gravity_palm=value).validate()
 
 
+@pytest.mark.parametrize("value", ["false", "no", 0, 1, None])
+def test_the_configurations_switches_must_be_true_or_false(value):
+    """Text was read by its truth: settle_prior "false" settled every prior draw, and
+    object_mass_unknown "false" identified the object's weight."""
+    with pytest.raises(ValueError, match="filter: 'settle_prior' must be True or False, got"):
+        pf.FilterConfig(settle_prior=value).validate()
+    with pytest.raises(ValueError, match="prior: 'object_mass_unknown' must be True or False, got"):
+        pf.PriorConfig(object_mass_unknown=value).validate()
+    pf.FilterConfig(settle_prior=np.bool_(True)).validate()
+    pf.PriorConfig(object_mass_unknown=np.bool_(False)).validate()
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()

@@ -702,6 +702,8 @@ class PriorConfig:
             repeated = sorted({e for e in entries if entries.count(e) > 1})
             if repeated:
                 raise ValueError(f"prior: {name} names {repeated} more than once")
+        if not isinstance(self.object_mass_unknown, bool | np.bool_):  # "false" had been read as true
+            raise ValueError(f"prior: 'object_mass_unknown' must be True or False, got {self.object_mass_unknown!r}")
         if np.shape(self.object_mass_range) != (2,):
             raise ValueError(f"prior: 'object_mass_range' must be (min, max) [kg], got {self.object_mass_range}")
         if self.object_mass_unknown:
@@ -1097,6 +1099,8 @@ class FilterConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"filter: '{name}' must be a finite number >= 0, got {v}")
+        if not isinstance(self.settle_prior, bool | np.bool_):  # "false" had been read as true
+            raise ValueError(f"filter: 'settle_prior' must be True or False, got {self.settle_prior!r}")
         if self.tendon not in motion.TENDON_MODELS:
             raise ValueError(f"filter: 'tendon' must be one of {motion.TENDON_MODELS}, got '{self.tendon}'")
         if self.tendon_reference not in TENDON_REFERENCES:
