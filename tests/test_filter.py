@@ -1194,6 +1194,19 @@ def test_the_configurations_switches_must_be_true_or_false(value):
     pf.PriorConfig(object_mass_unknown=np.bool_(False)).validate()
 
 
+@pytest.mark.parametrize("field, value", [("stiffness_unknown", [(1.5, 0)]), ("stiffness_unknown", [(True, 1)]),
+                                          ("stiffness_unknown", [(0, 1, 2)]), ("stiffness_unknown", [0, 1]),
+                                          ("stiffness_unknown", None), ("links_unknown", [1.0]),
+                                          ("links_unknown", [True]), ("links_unknown", 2), ("links_unknown", ["1"])])
+def test_unknowns_must_name_fingers_and_joints_by_integers(field, value):
+    """A float index (1.5, or 1.0) had passed the prior's check and failed at the first draw in
+    numpy's 'only integers ... are valid indices', True had named finger 1 and failed there in
+    a shape mismatch, and a misshapen list ended in a TypeError from unpacking."""
+    with pytest.raises(ValueError, match=f"prior: '{field}' must be a list of"):
+        pf.PriorConfig(**{field: value}).validate(3, 2)
+    pf.PriorConfig(stiffness_unknown=[(np.int64(0), 1)], links_unknown=(np.int64(2),)).validate(3, 2)
+
+
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="particles"):
         pf.FilterConfig(particles=1).validate()
