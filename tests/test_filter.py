@@ -2167,6 +2167,17 @@ def test_bad_step_arguments_are_refused_before_the_iteration_counts():
     assert f.step(dl, R, t, valid=1, tendon_command=plant.state.tendon_command).iteration == 1
 
 
+def test_nearest_hypotheses_takes_a_count():
+    """A negative count had sliced the sorted hypotheses from the far end: -1 gave all but the
+    farthest (299 of 300; control.filter_model_fn(fallbacks=-1) then tried every one), 2.0 a
+    TypeError from the slice."""
+    h, plant, f = _filter_and_plant(6, particles=300)
+    for bad in (-1, 2.0, True, None):
+        with pytest.raises(ValueError, match="nearest_hypotheses' 'count' must be an integer >= 0"):
+            f.nearest_hypotheses(bad)
+    assert len(f.nearest_hypotheses(np.int64(3))) == 3 and f.nearest_hypotheses(0) == []
+
+
 def test_a_failed_re_initialisation_around_the_estimate_draws_from_the_whole_prior(monkeypatch):
     """Where no physical grasp is found around the estimate (the prior's draws all fail),
     the re-initialisation draws from the whole prior around the nominal grasp, as a second

@@ -2408,6 +2408,8 @@ class SelfIdentificationFilter:
         dicts (``theta``, ``a``, ``stiffness``, ``link_lengths``, ``contacts``): distances in
         units of each identified quantity's weighted standard deviation. Unlike the mean, each
         is one of the hypotheses the filter moved."""
+        if not kinematics.is_count(count):  # -1 had sliced off the farthest: M - 1 hypotheses
+            raise ValueError(f"filter: nearest_hypotheses' 'count' must be an integer >= 0, got {count!r}")
         ps = self.particles
         w = normalise(ps.log_w)
         x = self._unknowns(ps)
