@@ -2164,6 +2164,10 @@ def test_bad_step_arguments_are_refused_before_the_iteration_counts():
         with pytest.raises((ValueError, TypeError), match=message):
             f.step(dl, R, t, **kwargs)
         assert f.iteration == 0 and not f.history
+    # a position without its rotation had been taken as no measurement at all (measured False)
+    with pytest.raises(ValueError, match="a measured position 't_meas' without its rotation 'R_meas'"):
+        f.step(dl, None, t)
+    assert f.iteration == 0 and not f.history
     assert f.step(dl, R, t, valid=1, tendon_command=plant.state.tendon_command).iteration == 1
 
 

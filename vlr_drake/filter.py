@@ -1997,10 +1997,12 @@ class SelfIdentificationFilter:
     def step(self, dl, R_meas=None, t_meas=None, valid: bool = True, tendon_command=None) -> StepReport:
         """One iteration of Algorithm 1 for action ``dl`` (N,) and the measured POM pose.
 
-        With ``valid`` False (lost tag) the particles are moved but not weighed,
-        resampled or re-anchored: nothing is learnt and nothing is corrupted (with the
-        rolling model each hypothesis' contacts are re-expressed in the object pose its move
-        predicts, as the pads rolled over the object).
+        With ``valid`` False (lost tag), or no pose given (both ``R_meas`` and ``t_meas``
+        None), the particles are moved but not weighed by the camera, resampled or
+        re-anchored: nothing is learnt from it and nothing is corrupted (a hypothesis the
+        move left unphysical still weighs nothing, one held by friction its
+        ``stuck_probability``; with the rolling model each hypothesis' contacts are
+        re-expressed in the object pose its move predicts, as the pads rolled over the object).
         ``tendon_command`` (N,) [m]: the absolute tendon pull after the action, where the
         motors report it (hardware); by default the previous command plus ``dl``.
         """
@@ -2010,6 +2012,9 @@ class SelfIdentificationFilter:
         # checked before anything moves or is counted: a bad input changes nothing
         dl = _shaped("dl", dl, (h.N,))
         valid = kinematics.checked_flag(valid, "filter: 'valid'")
+        if valid and R_meas is None and t_meas is not None:  # had been a step without a measurement
+            raise ValueError("filter: a measured position 't_meas' without its rotation 'R_meas'; pass both, "
+                             "or valid=False for a lost tag")
         if valid and R_meas is not None:
             R_meas, t_meas = _pose("measured", R_meas, t_meas)
         if tendon_command is not None:
