@@ -1194,6 +1194,18 @@ def test_the_configurations_switches_must_be_true_or_false(value):
     pf.PriorConfig(object_mass_unknown=np.bool_(False)).validate()
 
 
+@pytest.mark.parametrize("field, value", [("proximal_half_width", "0.1"), ("contact_half_width", True),
+                                          ("min_tension", None), ("com_half_width", [0.02]),
+                                          ("link_range", (0.03,)), ("stiffness_range", "0.05-0.4"),
+                                          ("object_mass_range", (0.0, "0.2"))])
+def test_the_priors_numbers_must_be_numbers(field, value):
+    """Text had ended in a bare TypeError ("'<' not supported ..."), True been read as 1 (rad
+    or m), a range that is no pair in "cannot unpack"."""
+    with pytest.raises(ValueError, match=f"prior: '{field}' must be a"):
+        pf.PriorConfig(**{field: value}).validate()
+    pf.PriorConfig(link_range=np.array([0.03, 0.075]), proximal_half_width=np.float64(0.1)).validate()
+
+
 @pytest.mark.parametrize("field, value", [("stiffness_unknown", [(1.5, 0)]), ("stiffness_unknown", [(True, 1)]),
                                           ("stiffness_unknown", [(0, 1, 2)]), ("stiffness_unknown", [0, 1]),
                                           ("stiffness_unknown", None), ("links_unknown", [1.0]),

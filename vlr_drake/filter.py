@@ -670,6 +670,16 @@ class PriorConfig:
         """Check the settings, and with ``N`` and ``K`` that the unknowns name fingers and
         joints of a hand of N fingers of K joints; raises ``ValueError`` naming the field.
         (``contact_limits`` needs the hand's links: :meth:`contact_bounds`.)"""
+        # numbers first (text had ended in a bare TypeError, True been read as 1 rad or 1 m, and a
+        # range that is no pair in "cannot unpack")
+        for name in ("proximal_half_width", "distal_half_width", "contact_half_width", "min_tension",
+                     "com_half_width"):
+            if not kinematics.is_number(getattr(self, name)):
+                raise ValueError(f"prior: '{name}' must be a number, got {getattr(self, name)!r}")
+        for name in ("stiffness_range", "link_range", "object_mass_range"):
+            v = getattr(self, name)
+            if not (isinstance(v, list | tuple | np.ndarray) and len(v) == 2 and all(kinematics.is_number(x) for x in v)):
+                raise ValueError(f"prior: '{name}' must be a pair of numbers (min, max), got {v!r}")
         widths = {n: getattr(self, n) for n in ("proximal_half_width", "distal_half_width", "contact_half_width")}
         bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
         if bad:
