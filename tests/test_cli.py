@@ -1052,3 +1052,22 @@ def test_a_diagram_run_writes_its_result(tmp_path, capsys):
     with pytest.raises(SystemExit):
         builder_main(["--json", str(path)])
     assert "--json needs --run SCENARIO" in capsys.readouterr().err
+
+
+def test_an_existing_output_file_that_is_not_writable_is_refused_before_the_run(tmp_path, monkeypatch):
+    """A result file protected from writing (chmod a-w) in a writable folder passed the check,
+    and the run ended, its result lost, in a PermissionError traceback when it wrote it."""
+    import os
+
+    from vlr_drake.entry import check_output
+
+    old = tmp_path / "result.json"
+    old.write_text("{}")
+    old.chmod(0o444)
+    real = os.access
+    # (root may write it anyway: os.access as another user sees it)
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if (str(p) == str(old) and mode & os.W_OK)
+                        else real(p, mode, **kw))
+    with pytest.raises(ValueError, match="--json: '.*result.json' exists and is not writable"):
+        check_output("--json", old)
+    check_output("--json", tmp_path / "new.json")  # a new file in the same folder is fine

@@ -158,9 +158,9 @@ def count(least: int):
 
 def check_output(flag: str, path, *, folder: bool = False) -> None:
     """Refuse, before a run, an output path that the run could not write at its end:
-    a file where a folder is wanted or the reverse, a file among its parent folders, or
-    a parent that is not writable. Folders that do not exist yet are fine (they are
-    made). Raises ValueError naming ``flag``."""
+    a file where a folder is wanted or the reverse, a file among its parent folders, a
+    parent that is not writable, or an existing file that is not. Folders that do not exist
+    yet are fine (they are made). Raises ValueError naming ``flag``."""
     import os
     import tempfile
     from pathlib import Path
@@ -172,6 +172,10 @@ def check_output(flag: str, path, *, folder: bool = False) -> None:
         raise ValueError(f"{flag}: '{path}' is a file, not a folder")
     if not folder and p.is_dir():
         raise ValueError(f"{flag}: '{path}' is a folder; give a file in it")
+    # an existing file the run replaces at its end (its folder writable, a file protected
+    # from writing had passed and the finished run's result was lost in a PermissionError)
+    if not folder and p.is_file() and not os.access(p, os.W_OK):
+        raise ValueError(f"{flag}: '{path}' exists and is not writable")
     for parent in ([p] if folder else []) + list(p.parents):
         if parent.exists():
             if not parent.is_dir():
