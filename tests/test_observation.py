@@ -169,3 +169,19 @@ def test_in_frame_expresses_points_in_each_particles_frame(rng):
     np.testing.assert_allclose(back, p, atol=1e-14)
     with pytest.raises(ValueError, match="do not match"):
         observation.in_frame(p, R[:3], t)
+
+
+def test_attach_refuses_contacts_and_poses_it_cannot_attach_by(rng):
+    """attach had called NaN contacts collinear, given NaN attachments for a NaN contact after
+    the third or a NaN pose, and mirrored ones for a reflection R_PO, all without a word."""
+    p = rng.normal(size=(1, 4, 3)) * 0.05
+    for i in (0, 3):
+        bad = p.copy()
+        bad[0, i, 0] = np.nan
+        with pytest.raises(ValueError, match="the contacts are not finite"):
+            observation.attach(bad, np.eye(3)[None], np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="POM pose .* is not finite"):
+        observation.attach(p, np.eye(3)[None], np.full((1, 3), np.nan))
+    with pytest.raises(ValueError, match="R_PO is not a rotation"):
+        observation.attach(p, np.diag([1.0, 1.0, -1.0])[None], np.zeros((1, 3)))
+    np.testing.assert_allclose(observation.attach(p, np.eye(3)[None], np.zeros((1, 3))), p)

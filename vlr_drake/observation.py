@@ -239,11 +239,20 @@ def attach(p_P, R_PO, t_PO) -> np.ndarray:
     """Contacts expressed in the POM frame: p^O = R_PO^T (p^P - t_PO), (P, N, 3).
 
     ``R_PO`` (P or 1, 3, 3) and ``t_PO`` (P or 1, 3) is the observed POM pose. Raises
-    :class:`CollinearContactsError` if any particle's contacts are collinear.
+    :class:`CollinearContactsError` if any particle's contacts are collinear, and ValueError
+    for contacts or a pose that are not finite or an ``R_PO`` that is not a rotation.
     """
     p_P = _check_points("p_P", p_P)
     R_PO = np.asarray(R_PO, float).reshape(-1, 3, 3)
     t_PO = np.asarray(t_PO, float).reshape(-1, 3)
+    # (NaN contacts had been called collinear, or after the third given NaN attachments; a NaN
+    # pose NaN attachments, and a reflection mirrored ones, all silently)
+    if not np.all(np.isfinite(p_P)):
+        raise ValueError("attach: the contacts are not finite")
+    if not (np.all(np.isfinite(R_PO)) and np.all(np.isfinite(t_PO))):
+        raise ValueError("attach: the POM pose (R_PO, t_PO) is not finite")
+    if not np.all(is_rotation(R_PO)):
+        raise ValueError("attach: R_PO is not a rotation matrix (orthonormal, determinant +1)")
     F = triad(p_P)
     if not np.all(np.isfinite(F)):
         raise CollinearContactsError("the first three contacts are collinear: they do not define an object pose")
