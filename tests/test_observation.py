@@ -185,3 +185,11 @@ def test_attach_refuses_contacts_and_poses_it_cannot_attach_by(rng):
     with pytest.raises(ValueError, match="R_PO is not a rotation"):
         observation.attach(p, np.diag([1.0, 1.0, -1.0])[None], np.zeros((1, 3)))
     np.testing.assert_allclose(observation.attach(p, np.eye(3)[None], np.zeros((1, 3))), p)
+
+
+def test_rotvec_names_a_matrix_that_is_not_finite():
+    """A NaN matrix (a lost pose) had been refused as "a reflection"."""
+    with pytest.raises(ValueError, match="rotvec: R is not finite"):
+        observation.rotvec(np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match="reflection"):
+        observation.rotvec(np.diag([1.0, 1.0, -1.0]))

@@ -346,6 +346,8 @@ def rotvec(R) -> np.ndarray:
     _rotvec_kernel(R, out, det)  # (the determinants in the same pass: a full is_rotation test
     # per matrix cost six times the rotation vectors on the informative actions' 20,000)
     if not np.all(det > 0.5):  # a reflection (det -1) had come out as the identity
+        if not np.all(np.isfinite(R)):  # (NaN had been reported as a reflection)
+            raise ValueError("rotvec: R is not finite")
         raise ValueError("rotvec: R is a reflection (determinant below 0.5), not a rotation")
     return out
 
