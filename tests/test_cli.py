@@ -1071,3 +1071,12 @@ def test_an_existing_output_file_that_is_not_writable_is_refused_before_the_run(
     with pytest.raises(ValueError, match="--json: '.*result.json' exists and is not writable"):
         check_output("--json", old)
     check_output("--json", tmp_path / "new.json")  # a new file in the same folder is fine
+
+
+def test_the_commands_help_reads_as_plain_text(capsys):
+    """``vlr-drake --help`` had shown its docstring's reST literals (``--scenario``) as typed,
+    where the other tools' help texts drop them (entry.plain)."""
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "The vlr-drake command line" in out and "takes --scenario" in out and "``" not in out

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, count, report, warning_lines
+from vlr_drake.entry import USER_ERRORS, count, plain, report, warning_lines
 
 
 def _json_default(o):
@@ -995,7 +995,7 @@ def _parser(name: str, sub, help_text: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="vlr-drake", description=__doc__,
+    parser = argparse.ArgumentParser(prog="vlr-drake", description=plain(__doc__),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
