@@ -1201,7 +1201,7 @@ def test_the_configurations_switches_must_be_true_or_false(value):
 def test_the_priors_numbers_must_be_numbers(field, value):
     """Text had ended in a bare TypeError ("'<' not supported ..."), True been read as 1 (rad
     or m), a range that is no pair in "cannot unpack"."""
-    with pytest.raises(ValueError, match=f"prior: '{field}' must be a"):
+    with pytest.raises(ValueError, match=f"prior: '{field}' must be (a number|\\(min, max\\), a pair)"):
         pf.PriorConfig(**{field: value}).validate()
     pf.PriorConfig(link_range=np.array([0.03, 0.075]), proximal_half_width=np.float64(0.1)).validate()
 

@@ -679,7 +679,7 @@ class PriorConfig:
         for name in ("stiffness_range", "link_range", "object_mass_range"):
             v = getattr(self, name)
             if not (isinstance(v, list | tuple | np.ndarray) and len(v) == 2 and all(kinematics.is_number(x) for x in v)):
-                raise ValueError(f"prior: '{name}' must be a pair of numbers (min, max), got {v!r}")
+                raise ValueError(f"prior: '{name}' must be (min, max), a pair of numbers, got {v!r}")
         widths = {n: getattr(self, n) for n in ("proximal_half_width", "distal_half_width", "contact_half_width")}
         bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
         if bad:
