@@ -1001,7 +1001,10 @@ class FilterConfig:
     # the model plant (informative actions, seeds 0-35) the truth lay inside 0.97 / 0.94 of
     # the joint / contact intervals, against 0.96 / 0.92 with None.
     newton_loose_after: int | None = 8
-    # Liu-West kernel width h (fraction of the cloud's spread added as jitter).
+    # Liu-West kernel width h (fraction of the cloud's spread added as jitter). DESIGN.md
+    # section 6 suggests about 0.1 and tempering below about 10% of M; 0.2 and 0.3 are what
+    # the physics runs were tuned to (docs/results.md, "Tempering, roughening, a mismatch that
+    # repeats": 0.15 and 0.5 each cost some row, 0.3 roughening did not help the links).
     roughening: float = 0.2
     # Temper the likelihood when ESS would fall below this fraction of M.
     ess_fraction: float = 0.3
