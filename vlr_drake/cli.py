@@ -778,7 +778,7 @@ def task(args) -> dict:
                          "with the plant's hidden truth and runs no filter")
     from vlr_drake.tasks.common import output_files
 
-    _check_own_files(args, {Path(args.out) / f: what for f, what in output_files(args.command).items()})
+    _check_own_files(args, output_files(args.command, args.out))
     budget = {} if args.iterations is None else {"identify_iterations": args.iterations}  # (else the task's, 40)
     common = dict(model=args.model, out=args.out, progress=not args.no_progress, meshcat=_meshcat(args), **budget,
                   **_task_settings(args))
@@ -856,7 +856,7 @@ def demo(args) -> None:
 
     out = Path(args.out)
     _check_own_files(args, {**_identify_files(args, opts), out / DEMO_WRITE_JSON: "the demo's writing result",
-                            **{out / f: what for f, what in output_files("write").items()}})
+                            **output_files("write", out)})
     print("== self-check: the motion function, batched vs MathematicalProgram ==")
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
@@ -1166,7 +1166,7 @@ def _command(args) -> int:
             if not args.no_render and graphviz_available() is None:
                 print("Graphviz's dot is not on the PATH: no .svg written")
         elif args.command == "reproduce":
-            from vlr_drake.reproduce import format_table, reproduce
+            from vlr_drake.reproduce import TABLE_FILES, format_table, reproduce
 
             given = [flag for flag, value in (("--trials", args.trials), ("--particles", args.particles),
                                               ("--iterations", args.iterations)) if value is not None]
@@ -1175,8 +1175,8 @@ def _command(args) -> int:
                                  f"drop {', '.join(given)} or --quick")
             # (a --json named as the table's own reproduce.json had written the table without its
             # runs over it: every trial's result lost)
-            _check_own_files(args, {Path(args.out) / "reproduce.json": "the table's JSON with every trial's result",
-                                    Path(args.out) / "reproduce.md": "the table's markdown"})
+            json_file, markdown = (Path(args.out) / name for name in TABLE_FILES)
+            _check_own_files(args, {json_file: "the table's JSON with every trial's result", markdown: "the table's markdown"})
             r = reproduce(trials=5 if args.trials is None else args.trials, plant=args.plant,
                           particles=(args.particles if args.particles is not None
                                      else args.loaded.filter.particles if args.loaded else 20_000),
@@ -1186,7 +1186,7 @@ def _command(args) -> int:
                           experiments=None if args.experiments is None else [
                               e.strip() for e in args.experiments.split(",") if e.strip()])
             print(format_table(r))
-            print(f"wrote {args.out}/reproduce.md and reproduce.json")
+            print(f"wrote {markdown} and {json_file}")
             write_json(r, args.json)
     except USER_ERRORS as e:
         return report(f"vlr-drake {args.command}", e)

@@ -127,6 +127,9 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
+#: The table's files in ``out``: its JSON (every trial's result) and its markdown.
+TABLE_FILES = ("reproduce.json", "reproduce.md")
+
 #: Identification iterations of the tasks' self-identification in :func:`reproduce` when no
 #: budget is given.
 TASK_IDENTIFY_ITERATIONS = 100
@@ -298,10 +301,10 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
     # the traces this table's runs saved (a folder of an earlier run's had been named too)
     saved = sorted(str(Path(r["trace"])) for rs in runs.values() for r in rs if r.get("trace"))
     result = {**settings, "traces": str(traces) if saved else None, "trace_files": saved, "rows": rows}
-    (out / "reproduce.md").write_text(format_table(result))
+    (out / TABLE_FILES[1]).write_text(format_table(result))
     from vlr_drake.cli import _finite, _json_default  # (JSON has no NaN: a row without samples is null)
 
-    (out / "reproduce.json").write_text(json.dumps(_finite({**result, "runs": runs}), indent=2,
+    (out / TABLE_FILES[0]).write_text(json.dumps(_finite({**result, "runs": runs}), indent=2,
                                                    default=_json_default, allow_nan=False))
     return result
 

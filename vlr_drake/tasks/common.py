@@ -415,10 +415,13 @@ def followed(view, tp):
 PLOT_FILES = {"write": "write_path.png", "maze": "maze.png", "stack": "stack.png"}
 
 
-def output_files(task: str) -> dict[str, str]:
-    """The files a task run writes in its ``out`` folder besides its JSON, by name: what each
-    is (the command line refuses a ``--json`` that one of them would overwrite)."""
-    return {PLOT_FILES[task]: f"the {task} task's plot", f"{task}.html": f"the {task} task's Meshcat recording"}
+def output_files(task: str, out) -> dict:
+    """The files a task run writes in its ``out`` folder besides its JSON (paths), each with
+    what it is (the command line refuses a ``--json`` that one of them would overwrite)."""
+    from pathlib import Path
+
+    return {Path(out) / PLOT_FILES[task]: f"the {task} task's plot",
+            Path(out) / f"{task}.html": f"the {task} task's Meshcat recording"}
 
 
 def save_view(view, out: str | None, name: str, result: dict) -> None:
