@@ -162,9 +162,12 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     if quick:
         trials, particles, iterations = 1, 1000, 8
     # checked once here, not by every trial in turn (each of which had failed on its own)
-    for name, value in (("trials", trials), ("particles", particles), ("seed", seed), ("iterations", iterations)):
-        if not (value is None and name == "iterations") and not is_count(value, 0 if name == "seed" else 1):
-            raise ValueError(f"reproduce: '{name}' must be an integer >= {0 if name == 'seed' else 1}, got {value!r}")
+    counts = {"trials": (trials, 1), "particles": (particles, 1), "seed": (seed, 0)}
+    if iterations is not None:  # (None: each experiment's own budget)
+        counts["iterations"] = (iterations, 1)
+    for name, (value, least) in counts.items():
+        if not is_count(value, least):
+            raise ValueError(f"reproduce: '{name}' must be an integer >= {least}, got {value!r}")
     chosen = EXPERIMENTS if experiments is None else tuple(experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:

@@ -132,8 +132,8 @@ class RollingState:
         return RollingState(com=com, object_mass=float(mass), curvature_radius=curvature, pad_offset=offset, **out)
 
     def _numbers(self, name: str) -> np.ndarray:
-        """The field ``name`` as a float array, or a ValueError naming it (a string or None had
-        surfaced as numpy's message, which names no field)."""
+        """The field ``name`` as a float array, or a ValueError naming it (text had surfaced as
+        numpy's message, which names no field)."""
         try:
             return np.asarray(getattr(self, name), float)
         except (TypeError, ValueError) as err:
