@@ -2183,6 +2183,26 @@ def test_bad_step_arguments_are_refused_before_the_iteration_counts():
     assert f.step(dl, R, t, valid=1, tendon_command=plant.state.tendon_command).iteration == 1
 
 
+def test_initialise_names_its_centres_and_scale():
+    """A misshapen spring centre had raised an IndexError, a NaN centre or scale an error about
+    the draws, a scale past 1 blamed the prior, a negative one was taken, and a link centre in
+    mm was folded into the link range silently."""
+    h, plant, f = _filter_and_plant(6, particles=300)
+    R, t, _ = plant.measure()
+    th, a = plant.state.theta, plant.state.a
+    for kwargs, message in [({"scale": -0.5}, "'scale' must be in \\(0, 1\\]"), ({"scale": 3.0}, "'scale'"),
+                            ({"scale": np.nan}, "'scale'"), ({"scale": "1"}, "'scale'"),
+                            ({"stiffness_center": np.ones(3)}, "'stiffness_center' must have shape \\(3, 2\\)"),
+                            ({"link_center": np.full((3, 1), np.nan)}, "'link_center' contains NaN"),
+                            ({"link_center": np.full((3, 1), 50.0)}, "'link_center'.*millimetres"),
+                            ({"mass_center": np.nan}, "'mass_center' must be a finite number"),
+                            ({"com_center": np.zeros(2)}, "'com_center' must have shape \\(3,\\)")]:
+        with pytest.raises(ValueError, match=message):
+            f.initialise(th, a, R, t, tendon_command=plant.state.tendon_command, **kwargs)
+    f.initialise(th, a, R, t, tendon_command=plant.state.tendon_command, scale=0.5,
+                 stiffness_center=h.stiffness, link_center=h.link_lengths)
+
+
 def test_nearest_hypotheses_takes_a_count():
     """A negative count had sliced the sorted hypotheses from the far end: -1 gave all but the
     farthest (299 of 300; control.filter_model_fn(fallbacks=-1) then tried every one), 2.0 a

@@ -1568,6 +1568,20 @@ class SelfIdentificationFilter:
         theta_center = _shaped("theta_center", theta_center, (h.N, h.K))
         a_center = contact_center(h, a_center)
         R_PO, t_PO = _pose("initial", R_PO, t_PO)
+        # the centres and the box's scale named here (a misshapen spring centre had raised an
+        # IndexError, a NaN one or a NaN scale a message about the draws, a large scale blamed
+        # the prior, a negative one was taken, a link centre in mm was folded into the range)
+        if not (kinematics.is_number(scale) and 0 < scale <= 1):
+            raise ValueError(f"filter: initialise's 'scale' must be in (0, 1] (the prior box's fraction), got {scale!r}")
+        if stiffness_center is not None:
+            stiffness_center = _shaped("stiffness_center", stiffness_center, (h.N, h.K))
+        if link_center is not None:
+            link_center = _shaped("link_center", link_center, (h.N, h.K - 1))
+            units.check_length(link_center, "filter: 'link_center'")
+        if mass_center is not None and not (kinematics.is_number(mass_center) and np.isfinite(mass_center)):
+            raise ValueError(f"filter: 'mass_center' must be a finite number [kg], got {mass_center!r}")
+        if com_center is not None:
+            com_center = _shaped("com_center", com_center, (3,))
         draw_center = theta_center
         if self.prior.angle_centers == "settled" and self.reinitialisations == 0:
             theta_center, self.settled = self.settled_angles(theta_center, a_center)
