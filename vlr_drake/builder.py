@@ -48,7 +48,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import check_output, count, plain
+from vlr_drake.entry import check_not_trace, check_output, count, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
@@ -880,9 +880,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.run:
         check_output("--trace", args.trace)  # before the run, not after it
         check_output("--json", args.json)
-        if args.trace and args.json and Path(args.trace).resolve() == Path(args.json).resolve():
-            # (the JSON had been written over the trace it names, the only record of a hardware run's measurements)
-            raise ValueError(f"--json {args.json} is the trace {args.trace} too: one would be written over the other")
+        check_not_trace(args.json, [args.trace])  # (a hardware run's trace is its only record of the measurements)
         # a file, or an example's name in diagrams/ (as vlr-drake's --scenario takes)
         scenario = load_scenario(find_scenario(args.run), args.set)
         iterations = default_iterations(scenario) if args.iterations is None else args.iterations

@@ -166,7 +166,7 @@ class SelfCheckError(ValueError):
 # ------------------------------------------------------------------------------ scenario
 def _check_outputs(args) -> None:
     """Refuse an output path that cannot be written before the run, not after it."""
-    from vlr_drake.entry import check_output
+    from vlr_drake.entry import check_not_trace, check_output
 
     check_output("--out", getattr(args, "out", None), folder=True)
     check_output("--json", getattr(args, "json", None))
@@ -180,14 +180,10 @@ def _check_outputs(args) -> None:
         if out is not None and given and Path(given).resolve() in (out, *out.parents):
             raise ValueError(f"{flag} {given} is the --out folder {args.out} (or a folder above it): the run writes "
                              "its results and plots in that folder; name a file")
-    # the JSON over the run's trace, or over a trace a replay reads (a review: identify wrote
-    # its JSON over the trace it had just saved)
-    json_path = getattr(args, "json", None)
-    traces = {"identify": [args.trace] if args.command == "identify" and args.trace else [],
+    # the JSON over the run's trace, or over a trace a replay reads
+    traces = {"identify": [args.trace] if args.command == "identify" else [],
               "replay": getattr(args, "trace", None) or []}.get(args.command, [])
-    for trace in traces if json_path else ():
-        if Path(trace).resolve() == Path(json_path).resolve():
-            raise ValueError(f"--json {json_path} is the trace {trace} too: one would be written over the other")
+    check_not_trace(getattr(args, "json", None), traces)
 
 
 def _load_scenario(args) -> None:

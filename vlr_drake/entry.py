@@ -14,6 +14,7 @@ import re
 import sys
 import warnings
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 #: Exceptions that report a problem with the input or the setting, not with the code:
 #: bad values, missing files and settings too large for the machine's memory, and the
@@ -156,6 +157,15 @@ def count(least: int):
     return parse
 
 
+def check_not_trace(json_path, traces) -> None:
+    """Refuse a ``--json`` that is one of ``traces`` (a run's ``--trace``, or the traces a
+    replay reads): one would be written over the other (identify and a diagram run had
+    written their JSON over the trace they had just saved)."""
+    for trace in traces if json_path else ():
+        if trace and Path(trace).resolve() == Path(json_path).resolve():
+            raise ValueError(f"--json {json_path} is the trace {trace} too: one would be written over the other")
+
+
 def check_output(flag: str, path, *, folder: bool = False) -> None:
     """Refuse, before a run, an output path that the run could not write at its end:
     a file where a folder is wanted or the reverse, a file among its parent folders, a
@@ -163,7 +173,6 @@ def check_output(flag: str, path, *, folder: bool = False) -> None:
     yet are fine (they are made). Raises ValueError naming ``flag``."""
     import os
     import tempfile
-    from pathlib import Path
 
     if path is None or str(path) == "":
         return

@@ -700,14 +700,13 @@ class PriorConfig:
         if not (np.isfinite(self.min_tension) and self.min_tension >= 0):
             raise ValueError(f"prior: 'min_tension' must be a finite number >= 0 (tendons only pull) [N], "
                              f"got {self.min_tension}")
-        def integer(x):  # an index (1.5 or 1.0 had failed deep in numpy, True had named finger 1)
-            return not isinstance(x, bool | np.bool_) and isinstance(x, int | np.integer)
-
+        # indices (1.5 or 1.0 had failed deep in numpy, True had named finger 1)
+        index = kinematics.is_count
         if not (isinstance(self.stiffness_unknown, list | tuple)
-                and all(np.shape(e) == (2,) and all(integer(x) for x in e) for e in self.stiffness_unknown)):
+                and all(np.shape(e) == (2,) and all(index(x) for x in e) for e in self.stiffness_unknown)):
             raise ValueError(f"prior: 'stiffness_unknown' must be a list of (finger, joint) integer pairs, "
                              f"got {self.stiffness_unknown!r}")
-        if not (isinstance(self.links_unknown, list | tuple) and all(integer(fi) for fi in self.links_unknown)):
+        if not (isinstance(self.links_unknown, list | tuple) and all(index(fi) for fi in self.links_unknown)):
             raise ValueError(f"prior: 'links_unknown' must be a list of finger indices (integers), "
                              f"got {self.links_unknown!r}")
         for fi, j in self.stiffness_unknown if N is not None else ():
