@@ -4,7 +4,8 @@ Each notebook reads ``VLR_DRAKE_QUICK=1`` in its first cell (fewer particles, sh
 and its last cell writes a small JSON summary to the path in ``VLR_DRAKE_NOTEBOOK_OUT``.
 The notebooks run with nbclient on a ``python3`` kernel launched from this interpreter (its
 directory goes first on PATH, so the kernelspec's ``python`` is the venv's), in a temporary
-copy of ``tutorials/``, with a time limit per cell. The assertions are about the tutorial's
+copy of ``tutorials/``, with a time limit per cell and a temporary directory of their own,
+which must be empty once the kernel has shut down. The assertions are about the tutorial's
 results (two solvers agree, the filter narrows its intervals, the pen writes, ...), not only
 that it ran.
 """
@@ -35,6 +36,9 @@ def run_notebook(name: str, tmp_path: Path, monkeypatch) -> dict:
     work = tmp_path / "tutorials"
     shutil.copytree(TUTORIALS, work)
     out = tmp_path / "summary.json"
+    scratch = tmp_path / "tmp"  # the kernel's temporary directory: a notebook must leave it empty
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
     monkeypatch.setenv("VLR_DRAKE_QUICK", "1")
     monkeypatch.setenv("VLR_DRAKE_NOTEBOOK_OUT", str(out))
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
@@ -43,8 +47,10 @@ def run_notebook(name: str, tmp_path: Path, monkeypatch) -> dict:
     client = nbclient.NotebookClient(
         nb, kernel_name="python3", timeout=CELL_TIMEOUT_S, resources={"metadata": {"path": str(work)}}
     )
-    client.execute()
+    client.execute()  # shuts the kernel down at the end
     assert out.exists(), f"{name} did not write its summary"
+    left = sorted(p.name for p in scratch.iterdir())
+    assert not left, f"{name} left temporary files behind: {left}"
     return json.loads(out.read_text())
 
 
