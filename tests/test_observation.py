@@ -72,6 +72,20 @@ def test_collinear_contacts_are_refused_and_flagged():
     np.testing.assert_allclose(t[1], good[0].mean(axis=0))  # the finite contacts' centroid
 
 
+def test_fit_pose_refuses_points_on_one_line(rng):
+    """Points on a line leave the turn about it free: the SVD's other directions are
+    rounding, and a pose had come back as if it were the fit."""
+    line = np.linspace(0.0, 0.05, 4)[:, None] * np.array([1.0, 2.0, -0.5])
+    good = rng.normal(scale=0.04, size=(2, 4, 3))
+    p_O = np.concatenate([good, line[None] + 0.01])
+    with pytest.raises(observation.CollinearContactsError, match="1 of 3 poses lie on one line.*pose 2"):
+        observation.fit_pose(p_O, p_O + 0.1)
+    with pytest.raises(observation.CollinearContactsError, match="one line"):  # one point
+        observation.fit_pose(np.zeros((1, 3, 3)), np.ones((1, 3, 3)))
+    R, _ = observation.fit_pose(good, good)  # (points that fix a pose are unchanged)
+    np.testing.assert_allclose(R, np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+
+
 def test_fit_pose_is_the_least_squares_pose_whatever_the_points_order(rng):
     """pom_pose fits three contacts exactly; for points that are not rigid that depends on
     their order (0.27-0.72 deg on one case), fit_pose's least-squares pose does not."""

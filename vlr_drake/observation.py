@@ -219,13 +219,24 @@ def pom_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def fit_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray]:
     """The least-squares rigid pose (R (P, 3, 3), t (P, 3)) taking points ``p_O`` (P, N, 3)
     onto ``p_P`` (Kabsch): for points that are not exactly rigid, where :func:`pom_pose`'s
-    exact fit of three of them depends on which three. Non-finite points are a ValueError."""
+    exact fit of three of them depends on which three. Non-finite points are a ValueError;
+    points ``p_O`` on one line (or one point) leave the turn about that line free and are a
+    :class:`CollinearContactsError`."""
     p_O, p_P = _check_points("p_O", p_O), _check_points("p_P", p_P)
     if p_O.shape != p_P.shape:
         raise ValueError(f"'p_O' {p_O.shape} and 'p_P' {p_P.shape} must have the same shape")
     if not (np.all(np.isfinite(p_O)) and np.all(np.isfinite(p_P))):
         raise ValueError("fit_pose: the points must be finite")
     c_O, c_P = p_O.mean(axis=1), p_P.mean(axis=1)
+    # (on a line the SVD's second and third directions are rounding: any turn about the line
+    # had come back as "the" pose)
+    spread = np.linalg.svd(p_O - c_O[:, None], compute_uv=False)  # (P, min(N, 3))
+    flat = (spread.shape[1] < 2) | (spread[:, min(1, spread.shape[1] - 1)] <= 1e-9 * np.maximum(spread[:, 0], 1e-300))
+    if np.any(flat):
+        raise CollinearContactsError(
+            f"fit_pose: the points of {int(flat.sum())} of {flat.size} poses lie on one line "
+            f"(first: pose {int(np.argmax(flat))}): they do not fix a rotation about it"
+        )
     H = np.einsum("pni,pnj->pij", p_O - c_O[:, None], p_P - c_P[:, None])
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("pji,pkj->pik", Vt, U)))  # no reflection
