@@ -207,3 +207,12 @@ def test_rotvec_names_a_matrix_that_is_not_finite():
         observation.rotvec(np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="reflection"):
         observation.rotvec(np.diag([1.0, 1.0, -1.0]))
+
+
+def test_rotvec_refuses_a_scaled_rotation():
+    """A rotation times 2 (determinant 8) had come out as a rotation vector of another angle
+    (2 I as 0 rad, 2 R_z(30 deg) as 57 deg)."""
+    R = np.stack([np.eye(3), observation.rotvec_to_matrix(np.array([0.0, 0.0, np.deg2rad(30)]))[0]])
+    with pytest.raises(ValueError, match="not a rotation .*matrix 1's determinant is 8"):
+        observation.rotvec(R * np.array([1.0, 2.0])[:, None, None])
+    np.testing.assert_allclose(observation.rotvec(R)[1], [0.0, 0.0, np.deg2rad(30)], atol=1e-12)

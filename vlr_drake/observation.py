@@ -356,9 +356,13 @@ def rotvec(R) -> np.ndarray:
     out, det = np.empty((R.shape[0], 3)), np.empty(R.shape[0])
     _rotvec_kernel(R, out, det)  # (the determinants in the same pass: a full is_rotation test
     # per matrix cost six times the rotation vectors on the informative actions' 20,000)
-    if not np.all(det > 0.5):  # a reflection (det -1) had come out as the identity
+    if not np.all((det > 0.5) & (det < 1.5)):  # a reflection (det -1) had come out as the identity,
+        # a scaled rotation (det s^3) as a rotation vector of some other angle
         if not np.all(np.isfinite(R)):  # (NaN had been reported as a reflection)
             raise ValueError("rotvec: R is not finite")
+        if np.all(det > 0.5):
+            bad = int(np.argmax(det >= 1.5))
+            raise ValueError(f"rotvec: R is not a rotation (matrix {bad}'s determinant is {det[bad]:.3g}, not 1)")
         raise ValueError("rotvec: R is a reflection (determinant below 0.5), not a rotation")
     return out
 
