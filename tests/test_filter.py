@@ -578,6 +578,9 @@ def test_lost_tag_moves_but_does_not_learn():
         held = np.log(stuck) if stuck else -np.inf
         assert np.all((w == 0) | (w == held) | np.isneginf(w))
         assert np.all(w[~moved] <= held)  # no equilibrium: discarded, or weighed as held
+        # and held they are: with a stuck_probability they weigh it, not nothing (a lost step
+        # that discarded them had passed the bound above, which -inf meets)
+        assert (w[~moved] == held).mean() > 0.95, np.unique(w[~moved], return_counts=True)
         assert (w[moved] == 0).mean() > 0.95  # the moved ones keep their weight (bar unphysical ones)
         assert rep.ess == pytest.approx(pf.effective_sample_size(w)) and rep.ess < 2000
 
