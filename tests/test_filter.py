@@ -938,6 +938,12 @@ def test_roughening_keeps_the_objects_mass_and_the_prior_folds_contacts():
     for _ in range(30):
         f._roughen(ps)
     m = ps.object_load.sum(1)
+    # the masses were roughened (left alone, they had met every check below): 30 Liu-West
+    # steps x' - mean = s (x - mean) + h C^(1/2) eps, s = sqrt(1 - h^2), move each by
+    # sqrt(2 (1 - s^30)) of the spread
+    shrink = np.sqrt(1 - f.config.roughening**2)
+    moved = np.std(m - m0) / m0.std()
+    assert moved == pytest.approx(np.sqrt(2 * (1 - shrink**30)), rel=0.05), moved  # (measured 0.955 of 0.957)
     assert abs(m.mean() / m0.mean() - 1) < 0.005 and abs(m.std() / m0.std() - 1) < 0.05, (m.mean(), m0.mean())
     assert np.all(ps.object_load > 0)
 
