@@ -427,6 +427,7 @@ def test_reproduce_quick_writes_the_table(tmp_path):
     assert all(r["scenario"] == "model_plant" for r in data["runs"]["write"] + data["runs"]["known_hand"])
     assert "| proximal joint error, known hand [deg] | 1.78 +- 0.92 |" in table
     assert len(data["rows"]) == 13 and data["quick"]
+    assert data["plot"] == str(out / "reproduce.png") and (out / "reproduce.png").read_bytes()[:4] == b"\x89PNG"
     # each novel hand counts twice, as the paper reported it: its links and its joints
     nh2 = {r["key"]: r for r in data["rows"]}["NH2_joints"]
     assert nh2["ours_mean"] == pytest.approx(np.mean(data["runs"]["NH2"][0]["proximal_joint_error_deg"]), rel=1e-12)
@@ -826,7 +827,7 @@ def test_reproduce_refuses_a_json_over_its_own_table(tmp_path, capsys, monkeypat
     monkeypatch.setattr(vlr_drake.reproduce, "reproduce", lambda **kw: ran.append(kw))
     out = tmp_path / "out"
     for name, said in (("reproduce.json", "is the table's JSON with every trial's result"),
-                       ("reproduce.md", "is the table's markdown")):
+                       ("reproduce.md", "is the table's markdown"), ("reproduce.png", "is the table's figure")):
         assert main(["reproduce", "--plant", "model", "--out", str(out), "--json", str(out / name),
                      "--no-progress"]) == 2
         assert said in capsys.readouterr().err

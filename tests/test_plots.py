@@ -311,3 +311,36 @@ def test_every_column_keeps_its_iteration_axis():
     for title in ("f1", "f2", "f3"):  # each column's lowest (f0 has f3 below it)
         assert shown[title].get_xlabel() == "iteration", title
         assert shown[title].xaxis.get_tick_params()["labelbottom"], title
+
+
+def test_reproduction_figure_draws_each_row_against_the_papers(tmp_path):
+    """One strip per row: the paper's mean +- SD above, ours below (green where it beats the
+    paper, red where not), each trial's figure a dot; a row with no mean of ours (every
+    trial failed) shows the paper's alone."""
+    from matplotlib.colors import to_rgba
+
+    row = dict(key="NH2", experiment="NH2 link length error", unit="mm", paper_mean=2.9, paper_sd=1.7)
+    rows = [{**row, "ours_mean": 1.2, "ours_sd": 0.4, "better": True},
+            {**row, "key": "spring", "unit": "N m/rad", "paper_mean": 0.0026, "paper_sd": 0.0012,
+             "ours_mean": 0.0149, "ours_sd": 0.0129, "better": False},
+            {**row, "key": "stack", "ours_mean": 0.6, "ours_sd": 0.5, "better": False, "succeeded": [1, 2]},
+            {**row, "key": "NH3", "ours_mean": None, "ours_sd": None, "better": False}]
+    fig = plots.make_reproduction_figure(rows, {"NH2": [0.8, 1.2, 1.6, float("nan")]}, title="t")
+    axes = fig.axes
+    assert len(axes) == 4
+    paper, ours = axes[0].lines[0], axes[0].lines[3]  # (each errorbar: its marker line, then its caps)
+    assert (paper.get_xdata()[0], paper.get_ydata()[0]) == (2.9, 1.0)
+    assert (ours.get_xdata()[0], ours.get_ydata()[0]) == (1.2, 0.0)
+    assert to_rgba(ours.get_color()) == to_rgba("tab:green")
+    assert to_rgba(axes[1].lines[3].get_color()) == to_rgba("tab:red")
+    np.testing.assert_allclose(np.sort(axes[0].collections[-1].get_offsets()[:, 0]), [0.8, 1.2, 1.6])  # NaN left out
+    assert axes[0].get_title(loc="left").endswith("(beats the paper)")
+    assert axes[1].get_title(loc="left") == "NH2 link length error [N m/rad]  (does not beat the paper)"
+    assert axes[2].get_title(loc="left").endswith("(does not beat the paper: 1 of 2 succeeded)")
+    assert len(axes[3].lines) == 3 and axes[3].get_title(loc="left") == "NH2 link length error [mm]"  # the paper's alone
+    path = plots.plot_reproduction(rows, tmp_path / "r.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match=r"rows\[0\] has no 'better'"):
+        plots.make_reproduction_figure([{k: v for k, v in rows[0].items() if k != "better"}])
+    with pytest.raises(ValueError, match="rows is empty"):
+        plots.make_reproduction_figure([])

@@ -919,7 +919,8 @@ physics plant the known hand's with each of the paper's four objects, the stiffn
 toy block), mean +- SD of the paper's measure beside the paper's, whether ours is better, and
 for the identification rows how often the truth lay inside the 95% intervals (joints,
 contacts, springs, links) and how many identified hand parameters stayed weakly identified.
-Prints the markdown table and writes reproduce.md and reproduce.json to --out. The default is
+Prints the markdown table and writes reproduce.md, reproduce.json and a figure of the rows
+against the paper's (reproduce.png) to --out. The default is
 the paper's setting, the physics plant with the rendered camera (5 trials: about an hour and
 a half on 2 cores, most of it the identification rows, each with identify's budget); --plant model runs
 the fast model plant (5 trials: about 5 minutes); --experiments runs some of the rows. A --scenario
@@ -1171,8 +1172,9 @@ def _command(args) -> int:
                                  f"drop {', '.join(given)} or --quick")
             # (a --json named as the table's own reproduce.json had written the table without its
             # runs over it: every trial's result lost)
-            json_file, markdown = (Path(args.out) / name for name in TABLE_FILES)
-            _check_own_files(args, {json_file: "the table's JSON with every trial's result", markdown: "the table's markdown"})
+            json_file, markdown, figure = (Path(args.out) / name for name in TABLE_FILES)
+            _check_own_files(args, {json_file: "the table's JSON with every trial's result", markdown: "the table's markdown",
+                                    figure: "the table's figure"})
             r = reproduce(trials=5 if args.trials is None else args.trials, plant=args.plant,
                           particles=(args.particles if args.particles is not None
                                      else args.loaded.filter.particles if args.loaded else 20_000),
@@ -1182,7 +1184,7 @@ def _command(args) -> int:
                           experiments=None if args.experiments is None else [
                               e.strip() for e in args.experiments.split(",") if e.strip()])
             print(format_table(r))
-            print(f"wrote {markdown} and {json_file}")
+            print(f"wrote {markdown}, {json_file}" + (f" and {r['plot']}" if r["plot"] else ""))
             write_json(r, args.json)
     except USER_ERRORS as e:
         return report(f"vlr-drake {args.command}", e)

@@ -16,6 +16,9 @@ keeps it:
   keys ``theta``, ``a``, ``stiffness``, ``link_lengths``; a missing entry is not drawn.
 - ``names``: the finger names (N,).
 
+:func:`make_reproduction_figure` draws ``vlr-drake reproduce``'s table: each row of ours
+beside the paper's.
+
 Every ``make_*_figure`` function returns a :class:`matplotlib.figure.Figure` (for tests
 and notebooks); every ``plot_*`` function saves that figure and returns the path written.
 Figures are made with the object-oriented API and the Agg canvas only: no pyplot, no
@@ -44,12 +47,14 @@ __all__ = [
     "make_link_lengths_figure",
     "make_convergence_figure",
     "make_hypotheses_figure",
+    "make_reproduction_figure",
     "plot_joint_angles",
     "plot_contacts",
     "plot_stiffness",
     "plot_link_lengths",
     "plot_convergence",
     "plot_hypotheses",
+    "plot_reproduction",
     "save_figure",
 ]
 
@@ -421,6 +426,57 @@ def make_convergence_figure(history: Sequence, threshold_deg: float | None = Non
     return fig
 
 
+def make_reproduction_figure(rows: Sequence[Mapping], values: Mapping[str, Sequence[float]] | None = None,
+                             title: str = "") -> Figure:
+    """The paper's table against ours (``vlr-drake reproduce``): one strip per row, in the
+    row's own unit, with the paper's mean +- SD (grey, above) and ours (blue, below; green
+    where the row beats the paper, red where it does not, with the row's ``converged``,
+    ``succeeded`` or ``failed`` where they are why), and each trial's figure (for a task its
+    mean over its waypoints, samples or cups) as a dot in a lane below, where ``values[row
+    key]`` gives them.
+
+    ``rows``: :func:`vlr_drake.reproduce.reproduce`'s rows (keys ``key``, ``experiment``,
+    ``unit``, ``paper_mean``, ``paper_sd``, ``ours_mean``, ``ours_sd``, ``better``); a row
+    without a finite mean of ours (every trial failed) shows the paper's alone. Axes i is
+    row i: ``lines`` hold the two error bars' lines, ``collections[0]`` the dots where given.
+    """
+    if len(rows) == 0:
+        raise ValueError("rows is empty: nothing to plot")
+    for i, r in enumerate(rows):
+        missing = [k for k in ("key", "experiment", "unit", "paper_mean", "paper_sd", "ours_mean", "ours_sd", "better")
+                   if k not in r]
+        if missing:
+            raise ValueError(f"rows[{i}] has no {', '.join(repr(k) for k in missing)} (expected a reproduce row)")
+    values = {} if values is None else values
+    fig = Figure(figsize=(7.0, 0.95 * len(rows) + 0.9), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(len(rows), 1))
+    for ax, r in zip(axes, rows, strict=True):
+        ours = r["ours_mean"] is not None and np.isfinite(r["ours_mean"])
+        ax.errorbar([r["paper_mean"]], [1.0], xerr=[r["paper_sd"]], fmt="s", color="tab:gray", capsize=3)
+        if ours:
+            color = "tab:green" if r["better"] else "tab:red"
+            ax.errorbar([r["ours_mean"]], [0.0], xerr=[r["ours_sd"] or 0.0], fmt="o", color=color, capsize=3)
+        dots = np.asarray(values.get(r["key"], ()), float).ravel()
+        dots = dots[np.isfinite(dots)]
+        if dots.size:  # a lane of their own below ours, jittered (fixed: the same picture every time)
+            jitter = np.random.default_rng(0).uniform(-0.12, 0.12, dots.size)
+            ax.scatter(dots, -0.55 + jitter, s=10, color=ESTIMATE_COLOR, alpha=0.6, linewidths=0)
+        ax.set_ylim(-0.85, 1.5)
+        ax.set_yticks([1.0, 0.0, -0.55], ["paper", "ours", "trials"], fontsize="small")
+        ax.set_xlim(left=0.0)
+        why = [f"{r[k][0]} of {r[k][1]} {k}" for k in ("converged", "succeeded") if k in r and r[k][0] < r[k][1]]
+        why += [f"{r['failed'][0]} of {r['failed'][1]} failed"] if "failed" in r else []
+        verdict = "" if not ours else ("  (beats the paper)" if r["better"] else
+                                       f"  (does not beat the paper{': ' + ', '.join(why) if why else ''})")
+        ax.set_title(f"{r['experiment']} [{r['unit']}]{verdict}", fontsize="small", loc="left")
+        ax.tick_params(axis="x", labelsize="small")
+        ax.grid(True, axis="x", alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize="medium")
+    return fig
+
+
 def make_hypotheses_figure(
     joints: np.ndarray,
     contacts: np.ndarray,
@@ -567,6 +623,12 @@ def plot_convergence(history: Sequence, path: str | Path, threshold_deg: float |
                      measure: str = "half_width", parameter_threshold: float | None = None) -> Path:
     """Save :func:`make_convergence_figure` to ``path``; returns the path."""
     return save_figure(make_convergence_figure(history, threshold_deg, measure, parameter_threshold), path)
+
+
+def plot_reproduction(rows: Sequence[Mapping], path: str | Path, values: Mapping[str, Sequence[float]] | None = None,
+                      title: str = "") -> Path:
+    """Save :func:`make_reproduction_figure` to ``path``."""
+    return save_figure(make_reproduction_figure(rows, values, title), path)
 
 
 def plot_hypotheses(

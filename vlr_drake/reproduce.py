@@ -127,8 +127,9 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-#: The table's files in ``out``: its JSON (every trial's result) and its markdown.
-TABLE_FILES = ("reproduce.json", "reproduce.md")
+#: The table's files in ``out``: its JSON (every trial's result), its markdown and its figure
+#: (:func:`vlr_drake.plots.make_reproduction_figure`, written once the table is finished).
+TABLE_FILES = ("reproduce.json", "reproduce.md", "reproduce.png")
 
 #: Identification iterations of the tasks' self-identification in :func:`reproduce` when no
 #: budget is given.
@@ -223,7 +224,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
             bar.update(1)
             _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
     bar.close()
-    return _write_table(out, settings, runs, tr)
+    return _write_table(out, settings, runs, tr, figure=True)
 
 
 def _failed(name: str, seed: int, e: Exception) -> dict:
@@ -244,10 +245,11 @@ def _attempt(name: str, seed: int, run) -> dict:
         return _failed(name, seed, e)
 
 
-def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
+def _write_table(out: Path, settings: dict, runs: dict, traces: Path, figure: bool = False) -> dict:
     """The table of ``runs`` (one list of result dicts per experiment) as ``reproduce.md`` and
-    ``reproduce.json`` in ``out``; returns the result dict. Called after every trial, so that
-    a table cut short keeps the rows it finished."""
+    ``reproduce.json`` in ``out``, and with ``figure`` as ``reproduce.png`` (the result's
+    ``plot``, else null); returns the result dict. Called after every trial, so that a table
+    cut short keeps the rows it finished; the figure, a second or so, once at the end."""
     measures = {  # row key: (experiment, the paper's measure of one run)
         "known_hand": ("known_hand", IDENTIFICATION_MEASURES["known_hand"]),
         # a run that did not converge counts its budget (one that stopped early, e.g. on refused
@@ -266,6 +268,7 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
     from vlr_drake.tasks.common import pooled
 
     rows = []
+    values = {}  # row key: each trial's figure (a task's its mean), for the figure's dots
     for p in PAPER_ROWS:
         name, measure = measures[p.key]
         if not runs.get(name):
@@ -280,6 +283,8 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
             v = np.asarray(got, float)
             v = v[np.isfinite(v)]
             mean, sd, over = (float(v.mean()), float(v.std()), len(v)) if v.size else (float("nan"), float("nan"), 0)
+        values[p.key] = ([g["mean"] for g in got if g is not None and g["n"] > 0] if is_task
+                         else [float(g) for g in got])
         identification = name in ("known_hand", "stiffness", "NH1", "NH2", "NH3") and p.key != "known_hand_iterations"
         row = {"key": p.key, "experiment": p.label, "unit": p.unit, "paper_mean": p.mean, "paper_sd": p.sd,
                "ours_mean": mean, "ours_sd": sd, "trials": len(runs[name]), "samples": over,
@@ -303,7 +308,13 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path) -> dict:
         rows.append(row)
     # the traces this table's runs saved (a folder of an earlier run's had been named too)
     saved = sorted(str(Path(r["trace"])) for rs in runs.values() for r in rs if r.get("trace"))
-    result = {**settings, "traces": str(traces) if saved else None, "trace_files": saved, "rows": rows}
+    plot = None
+    if figure and rows:
+        from vlr_drake.plots import plot_reproduction
+
+        plot = str(plot_reproduction(rows, out / TABLE_FILES[2], values, title=(
+            f"ours ({settings['plant']} plant, {settings['trials']} trial(s) each) against the paper's hardware")))
+    result = {**settings, "traces": str(traces) if saved else None, "trace_files": saved, "rows": rows, "plot": plot}
     (out / TABLE_FILES[1]).write_text(format_table(result))
     from vlr_drake.cli import _finite, _json_default  # (JSON has no NaN: a row without samples is null)
 
