@@ -146,6 +146,16 @@ def test_statics_profile_is_zero_at_the_truth_on_the_model_plant():
         statics_profile(r["_trace"], "damping", [0.1])
 
 
+def test_a_link_length_profile_in_millimetres_is_refused_by_name():
+    """``--profile link_length:<finger> --values 40,50`` (millimetres) had run: the statics
+    profile printed nan for every value and ended with status 0."""
+    trace = _run("novel_fingers", "NH2", particles=300, iterations=2)["_trace"]
+    for profile in (statics_profile, evidence_profile):
+        with pytest.raises(ValueError, match=r"'link_length:thumb_NF1' values: \[40.0, 50.0\] m is longer than 1 m.*"
+                                             r"millimetres"):
+            profile(trace, "link_length:thumb_NF1", [40, 50])
+
+
 def test_bad_traces_and_profiles_are_named(tmp_path):
     trace = _run("stiffness", iterations=3)["_trace"]
     with pytest.raises(ValueError, match="'actions' must have shape"):

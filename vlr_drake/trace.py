@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from vlr_drake import filter as pf
-from vlr_drake import motion
+from vlr_drake import motion, units
 from vlr_drake.hand import FingerSpec, HandSpec
 from vlr_drake.kinematics import is_count
 from vlr_drake.observation import is_rotation
@@ -506,6 +506,8 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
             unknown = [names[int(i)] for i in prior.links_unknown]
             raise ValueError(f"{what}: finger '{finger}' has a known link length in {whose} "
                              f"(unknown: {unknown or 'none'})")
+        # metres: 40,50 meant as mm had given a statics profile of nan at status 0
+        units.check_length(values, f"{what}: '{parameter}' values")
         return values, fi, 0
     raise ValueError(f"{what}: parameter must be one of {PROFILE_PARAMETERS}, got '{parameter}'")
 
