@@ -760,6 +760,8 @@ class PriorConfig:
         if lim.shape != (2,) or not (np.isfinite(lim).all() and 0 <= lim[0] < lim[1]):
             raise ValueError(f"prior: 'contact_limits' must be [min, max] [m] with 0 <= min < max, "
                              f"got {self.contact_limits}")
+        # metres: [5, 38] meant as mm had been said to reach "38000.0 mm" past the links
+        units.check_length(lim, "prior: 'contact_limits'")
         past = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True)
                 if lim[1] > length + 1e-12]
         if past:
