@@ -502,6 +502,15 @@ def test_missing_scenario_file(tmp_path: Path):
         load_scenario(tmp_path / "nope.yaml")
 
 
+def test_a_binary_file_given_as_a_scenario_is_named(tmp_path: Path):
+    """A trace given to --scenario or --run had ended in "'utf-8' codec can't decode byte ...",
+    naming neither the file nor what it was."""
+    path = tmp_path / "run.npz"
+    np.savez(path, x=np.arange(3.0))
+    with pytest.raises(ValueError, match=re.escape(f"{path}: not a scenario YAML file (not text; a trace .npz")):
+        load_scenario(path)
+
+
 def test_scenario_defaults_validate():
     s = Scenario().validate()
     assert s.hand_spec_resolved() == model_o()

@@ -664,6 +664,11 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: scenario file not found")
+    try:  # a trace (.npz) given as a scenario had ended in "'utf-8' codec can't decode byte 0xb4 ..."
+        path.read_text()
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a scenario YAML file (not text; a trace .npz is replayed with "
+                         "vlr-drake replay)") from None
     # Load with unset preset names so that a preset written next to a full spec is caught
     # (a sentinel no file writes: an empty name given is an error, not the default)
     scenario = Scenario(hand=_UNSET, object=_UNSET)
