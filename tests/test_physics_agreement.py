@@ -167,6 +167,12 @@ def test_bad_direction_is_named():
         run_agreement(direction=[-1.0, 1.0, 1.0], step=float("nan"))
     with pytest.raises(ValueError, match="'hold' must be a duration >= 0"):
         run_agreement(hold=-1.0)
+    # a span or window in millimetres is named before any plant is built (--span 1.5
+    # --window 4 had run until "the apple fell out of the hand ... check the pretension")
+    for kw, field in ((dict(span=1.5, window=4.0), "action_range"), (dict(window=4.0), "window"),
+                      (dict(span=2.0), "action_range")):
+        with pytest.raises(ValueError, match=rf"{field} \(exploration\.\w+\): .* m is longer than 1 m.*millimetres"):
+            run_agreement(**kw)
 
 
 def test_bad_command_line_is_named(capsys):

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vlr_drake import filter as pf
-from vlr_drake import grasps
+from vlr_drake import grasps, units
 from vlr_drake.hand import NOVEL_HANDS, hand_by_name
 from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
@@ -412,6 +412,9 @@ class IdentifyOptions:
         span, window = EXPLORATION[self.plant]
         self.action_range = span if self.action_range is None else self.action_range
         self.window = window if self.window is None else self.window
+        # metres: agreement's --span 1.5 --window 4, meant as mm, had run until "the apple fell out"
+        units.check_length(self.action_range, "action_range (exploration.span)")
+        units.check_length(self.window, "window (exploration.window)")
         if not 0 < self.action_range <= self.window:
             raise ValueError(f"action_range (a scenario's exploration.span) must be in (0, window] "
                              f"(exploration.window), got {self.action_range} and window {self.window}")
@@ -423,6 +426,8 @@ class IdentifyOptions:
         squeeze, squeeze_window = default_squeeze(self.plant, self.experiment)
         self.squeeze_range = squeeze if self.squeeze_range is None else self.squeeze_range
         self.squeeze_window = squeeze_window if self.squeeze_window is None else self.squeeze_window
+        units.check_length(self.squeeze_range, "squeeze_range (exploration.squeeze)")
+        units.check_length(self.squeeze_window, "squeeze_window (exploration.squeeze_window)")
         if not 0 <= self.squeeze_range <= self.squeeze_window or (self.squeeze_range > 0) != (self.squeeze_window > 0):
             raise ValueError(f"squeeze_range must be in (0, squeeze_window] (or both 0), got {self.squeeze_range} "
                              f"and squeeze_window {self.squeeze_window}")
