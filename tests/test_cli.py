@@ -1081,3 +1081,16 @@ def test_the_commands_help_reads_as_plain_text(capsys):
         main(["--help"])
     out = capsys.readouterr().out
     assert "The vlr-drake command line" in out and "takes --scenario" in out and "``" not in out
+
+
+def test_the_help_states_the_defaults_it_applies(capsys):
+    """write/maze/stack --model had not said that it defaults to filter, and the demo's
+    --object (a known-hand run) had offered identify's "toy_block for stiffness"."""
+    for command in ("write", "maze", "stack"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert "self-identified first (default: filter)" in " ".join(capsys.readouterr().out.split())
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "object preset held (default: the scenario's, else apple)" in out and "toy_block" not in out

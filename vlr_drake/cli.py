@@ -1052,7 +1052,8 @@ def main(argv: list[str] | None = None) -> int:
             _config_arguments(p, "after the scenario's, e.g. --filter motion_model=rolling",
                               "after the scenario's, e.g. --prior link_range=0.035,0.07")
         p.add_argument("--object", default=None, help="object preset held (default: the scenario's, else the experiment's: "
-                                                        "toy_block for stiffness as in the paper, apple otherwise)")
+                                                        "toy_block for stiffness as in the paper, apple otherwise)"
+                       if name == "identify" else "object preset held (default: the scenario's, else apple)")
         if name == "identify":  # the demo's hand is the Model O
             p.add_argument("--hand", default=None, type=_preset_hand,
                            help="hand preset: model_o, or NH1/NH2/NH3 for novel_fingers (default: the scenario's, "
@@ -1064,7 +1065,8 @@ def main(argv: list[str] | None = None) -> int:
         p = _parser(name, sub, help_text)
         _common(p, particles=3000, iterations=None, least_iterations=0, iterations_help="40")
         p.add_argument("--model", choices=["true", "filter"], default="filter",
-                       help="the controller's model: the plant's hidden truth, or self-identified first")
+                       help="the controller's model: the plant's hidden truth, or self-identified first "
+                            "(default: filter)")
         if name == "write":
             p.add_argument("word", nargs="?", default="SCIENCE", help="letters A-Z (default SCIENCE)")
         if name == "stack":
