@@ -633,3 +633,29 @@ def test_a_control_run_without_iterations_runs_until_its_goals_are_done(tmp_path
     r = json.loads(out.read_text())
     assert r["iterations"] == 15 and r["control"]["done"], r["control"]
     assert "the run ended first" not in capsys.readouterr().out
+
+
+def test_each_set_applies_in_order(monkeypatch):
+    """--set twice had kept only the last text: --set 'seed: 3' --set 'filter: {particles: 500}'
+    ran seed 0 without a word."""
+    import vlr_drake.builder as builder
+
+    class Ran(Exception):
+        pass
+
+    seen = {}
+
+    def fake_run(scenario, iterations, **kw):
+        seen["scenario"] = scenario
+        raise Ran
+
+    monkeypatch.setattr(builder, "run", fake_run)
+    with pytest.raises(Ran):
+        builder.main(["--run", "model_plant", "--iterations", "1", "--set", "seed: 3",
+                      "--set", "filter: {particles: 500}", "--set", "seed: 4"])
+    s = seen["scenario"]
+    assert s.seed == 4 and s.filter.particles == 500
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["seed: 3", "model_plant: {dropout: 0.1}"])
+    assert s.seed == 3 and s.model_plant.dropout == 0.1 and s.filter.particles == 20000
+    with pytest.raises(ValueError, match=r"model_plant.yaml \(override text\), unknown field 'sed'"):
+        load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["seed: 3", "sed: 4"])

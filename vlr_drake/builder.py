@@ -858,7 +858,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iterations", type=count(0), default=None,
                         help=f"filter iterations of --run (default {RUN_ITERATIONS}; with a control section, as many "
                              "as its goals need: ControlSettings.iterations_to_finish)")
-    parser.add_argument("--set", default=None, help="YAML override text for --run, e.g. 'seed: 3'")
+    parser.add_argument("--set", action="append", default=None,
+                        help="YAML override text for --run, e.g. 'seed: 3'; repeatable, applied in order")
     parser.add_argument("--trace", default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
     parser.add_argument("--json", default=None, metavar="PATH",

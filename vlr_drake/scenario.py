@@ -653,9 +653,9 @@ def _with_section(section: str, check) -> None:
 _UNSET = "\0unset"
 
 
-def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: str | list[str] | None = None) -> Scenario:
     """Load a scenario: ``yaml_load_typed(filename=path)`` on the defaults, then the YAML
-    ``overrides`` text on the result; resolve the hardware section's relative file names
+    ``overrides`` text (or each of a list of texts, in order) on the result; resolve the hardware section's relative file names
     against the file's folder; validate every section (:meth:`Scenario.validate`).
 
     Raises ``ValueError`` naming the file and the field for an unknown field, a value of the
@@ -672,16 +672,17 @@ def load_scenario(path: str | Path, overrides: str | None = None) -> Scenario:
     # Load with unset preset names so that a preset written next to a full spec is caught
     # (a sentinel no file writes: an empty name given is an error, not the default)
     scenario = Scenario(hand=_UNSET, object=_UNSET)
-    for source, kwargs in [("file", dict(filename=str(path))), ("override text", dict(data=overrides))]:
-        if source == "override text" and not overrides:
-            continue
-        duplicate = _duplicate_key(path.read_text() if source == "file" else overrides)
+    # each override text in order (a second --set had replaced the first without a word)
+    texts = [overrides] if isinstance(overrides, str) else list(overrides or [])
+    for source, text in [("file", None)] + [("override text", t) for t in texts if t]:
+        kwargs = dict(filename=str(path)) if source == "file" else dict(data=text)
+        text = path.read_text() if source == "file" else text
+        duplicate = _duplicate_key(text)
         if duplicate:
             raise ValueError(f"{path} ({source}): {duplicate}")
         try:
             scenario = yaml_load_typed(schema=Scenario, defaults=scenario, **kwargs)
         except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError ...
-            text = path.read_text() if source == "file" else overrides
             where = _locate_error(text, scenario)
             raise ValueError(f"{path} ({source}){where}: {e}") from e
     for preset_field, spec_field, default in [
