@@ -333,3 +333,23 @@ def test_the_model_state_starts_at_the_vlrs_equilibrium_or_says_it_has_none(monk
     monkeypatch.setattr(motion, "equilibrium", lambda *args, **kw: dataclasses.replace(eq, ok=np.array([False])))
     with pytest.raises(RuntimeError, match="no tendon state that holds the plant's grasp"):
         agreement._ModelState(h, g.theta[0], g.a[0], R, t)
+
+
+def test_each_physics_flag_applies(monkeypatch):
+    """--physics gravity=0 --physics time_step=0.00025 had run with gravity: the second flag
+    replaced the first's settings."""
+    import vlr_drake.physics.agreement as agreement
+
+    class Ran(Exception):
+        pass
+
+    seen = {}
+
+    def fake_run(*args, physics=None, **kw):
+        seen["physics"] = physics
+        raise Ran
+
+    monkeypatch.setattr(agreement, "run_agreement", fake_run)
+    with pytest.raises(Ran):
+        main(["--physics", "gravity=0", "--physics", "time_step=0.00025", "settle_window=0.02"])
+    assert (seen["physics"].gravity, seen["physics"].time_step, seen["physics"].settle_window) == (0.0, 0.00025, 0.02)

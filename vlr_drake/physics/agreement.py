@@ -681,8 +681,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--step", type=float, default=0.5e-3, help="sweep step along --direction [m]")
     ap.add_argument("--tendon-stiffness", type=float, default=None,
                     help="tendon stiffness of every finger [N/m] (default: the Model O spec's)")
-    ap.add_argument("--physics", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="physics plant settings, e.g. gravity=0 settle_object_speed=1e-4")
+    # extend: a second --physics had replaced the first's settings without a word
+    ap.add_argument("--physics", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                    help="physics plant settings, e.g. gravity=0 settle_object_speed=1e-4; repeatable")
     ap.add_argument("--spring-profile", type=float, nargs="+", default=None, metavar="SCALE",
                     help="predict each action again with the thumb's distal spring scaled by each factor, "
                          "e.g. 0.85 1 1.15 (the rolling reference and Eq. 9)")
