@@ -279,6 +279,19 @@ def test_bring_up_reboot_command(emulator):
     assert emulator.reboots == IDS
 
 
+def test_bring_up_applies_each_set(emulator):
+    """--set twice had kept only the last text (the port given first dropped, the default
+    /dev/ttyUSB0 opened)."""
+    import io
+
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    out = io.StringIO()
+    assert bring_up(["reboot", "--set", f"port: {emulator.port_name}", "--set",
+                     "latency_timer_ms: 30.0\nmotor_ids: [1, 2, 3]\n"], out=out) == 0
+    assert emulator.reboots == IDS
+
+
 def test_silent_bus_does_not_hang(emulator):
     """... and a torque off that no motor confirms is said, not reported done: the motors
     may still hold their goals (a review: the stop message had said the torque was off)."""

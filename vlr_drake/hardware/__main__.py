@@ -46,7 +46,8 @@ def main(argv: Sequence[str] | None = None, out=None) -> int:
     p = argparse.ArgumentParser(prog="python -m vlr_drake.hardware", description=__doc__.split("\n")[0])
     p.add_argument("command", choices=["status", "zero", "camera", "reboot"])
     p.add_argument("--config", help="hardware section YAML file, or a scenario file with a hardware section")
-    p.add_argument("--set", default=None, help="YAML text overriding config fields")
+    p.add_argument("--set", action="append", default=None,
+                   help="YAML text overriding config fields; repeatable, applied in order")
     p.add_argument("--frames", type=count(1), default=30, help="camera: frames to read")
     p.add_argument("--hand", default="model_o",
                    help="status: the hand whose tendon_range gives the limits where the config gives none "

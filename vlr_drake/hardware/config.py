@@ -340,9 +340,10 @@ class TendonMotorMap:
         return np.minimum(a, b), np.maximum(a, b)
 
 
-def load_hardware_config(filename: str | None = None, data: str | None = None, *,
+def load_hardware_config(filename: str | None = None, data: str | list[str] | None = None, *,
                          resolve: bool = False) -> HardwareConfig:
-    """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file).
+    """Load a :class:`HardwareConfig` from a YAML file and/or text (text overrides the file;
+    a list of texts, each in order).
     The file is a hardware section, or a scenario file (:class:`vlr_drake.scenario.Scenario`,
     e.g. ``diagrams/hardware.yaml``) whose ``hardware`` section is taken; a scenario file's
     relative paths are taken as relative to its folder, and with ``resolve`` a hardware
@@ -369,9 +370,9 @@ def load_hardware_config(filename: str | None = None, data: str | None = None, *
                 config.resolve_paths(Path(filename).resolve().parent)
         except errors as e:
             raise ValueError(f"hardware config file '{filename}': {e}") from e
-    if data is not None:
+    for text in [data] if isinstance(data, str) else data or []:  # (a second --set had replaced the first)
         try:
-            config = yaml_load_typed(schema=HardwareConfig, data=data, defaults=config)
+            config = yaml_load_typed(schema=HardwareConfig, data=text, defaults=config)
         except errors as e:
             raise ValueError(f"hardware config text: {e}") from e
     return config
