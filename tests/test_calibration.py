@@ -154,3 +154,14 @@ def test_views_that_do_not_determine_the_focal_length_are_refused(rng):
     K[1, 2] = -33.5
     with pytest.raises(ValueError, match=r"principal point \(322.5, -33.5\) px lies outside the 640 x 480 image"):
         CameraIntrinsics(K=K, dist=np.zeros(5), width=640, height=480).validate()
+
+
+def test_a_bad_board_size_is_named(capsys):
+    """--pattern 9by6 had ended in "argument --pattern: invalid _pair value: '9by6'"."""
+    for text in ("9by6", "9x", "9x6x2"):
+        with pytest.raises(SystemExit) as info:
+            main(["--pattern", text, "--square", "0.024", "--out", "cam.yaml", "a.png"])
+        assert info.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument --pattern: expected two counts as COLSxROWS, e.g. 9x6, got '{text}'" in err
+        assert "_pair" not in err

@@ -251,8 +251,13 @@ def render_planar_target(
 
 
 def _pair(text: str) -> tuple[int, int]:
-    a, b = text.lower().split("x")
-    return int(a), int(b)
+    """``9x6`` as (9, 6); otherwise an error argparse prints after the flag's name (it had
+    printed "invalid _pair value: '9by6'")."""
+    try:
+        a, b = text.lower().split("x")
+        return int(a), int(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two counts as COLSxROWS, e.g. 9x6, got '{text}'") from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
