@@ -511,6 +511,22 @@ def test_a_binary_file_given_as_a_scenario_is_named(tmp_path: Path):
         load_scenario(path)
 
 
+def test_a_result_json_given_as_a_scenario_is_named(tmp_path: Path):
+    """An identification's result JSON given to --scenario had been refused with all its 50
+    fields listed as unknown; a scenario with a typo still names the typo."""
+    from vlr_drake.cli import main
+
+    assert main(["identify", "known_hand", "--plant", "model", "--particles", "300", "--iterations", "1",
+                 "--no-progress", "--out", str(tmp_path)]) == 0
+    path, = tmp_path.glob("*.json")
+    with pytest.raises(ValueError, match=re.escape(f"{path}: not a scenario file: ") + r"\d+ of its \d+ fields "
+                                         r"\(experiment, scenario, .*\) are no scenario's"):
+        load_scenario(path)
+    path.write_text("seed: 3\nparticles: 500\nplant: model\n")
+    with pytest.raises(ValueError, match="unknown field 'particles'"):
+        load_scenario(path)
+
+
 def test_scenario_defaults_validate():
     s = Scenario().validate()
     assert s.hand_spec_resolved() == model_o()

@@ -680,6 +680,8 @@ def load_scenario(path: str | Path, overrides: str | list[str] | None = None) ->
         duplicate = _duplicate_key(text)
         if duplicate:
             raise ValueError(f"{path} ({source}): {duplicate}")
+        if source == "file":
+            _check_some_scenario_field(path, text)
         try:
             scenario = yaml_load_typed(schema=Scenario, defaults=scenario, **kwargs)
         except Exception as e:  # the loader raises RuntimeError, ValueError, TypeError ...
@@ -704,6 +706,27 @@ def load_scenario(path: str | Path, overrides: str | list[str] | None = None) ->
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
     return scenario
+
+
+def _check_some_scenario_field(path: Path, text: str) -> None:
+    """Refuse a file whose top-level mapping has more fields that are no scenario's than
+    fields that are (at least 3): a run's result JSON given as --scenario had been refused
+    with every one of its 50 fields listed."""
+    import yaml
+
+    try:
+        root = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return  # the loader says why
+    if not isinstance(root, dict) or not root:
+        return
+    known = {f.name for f in dataclasses.fields(Scenario)}
+    unknown = [str(k) for k in root if str(k) not in known]
+    if len(unknown) >= 3 and len(unknown) > len(root) - len(unknown):  # (a result JSON shares seed, plant, hand)
+        shown = ", ".join(unknown[:4]) + (", ..." if len(unknown) > 4 else "")
+        raise ValueError(f"{path}: not a scenario file: {len(unknown)} of its {len(root)} fields ({shown}) are "
+                         f"no scenario's (name, seed, plant, hand, object, filter, prior, ...: "
+                         "vlr_drake.scenario.Scenario); a run's result JSON is no scenario")
 
 
 def _duplicate_key(text: str) -> str:
