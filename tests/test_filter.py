@@ -743,6 +743,9 @@ def test_contact_limits_past_a_finger_are_named():
         pf.PriorConfig(contact_limits=(0.03, 0.01)).contact_bounds(h)
     lo, hi = pf.PriorConfig(contact_limits=(0.01, 0.035)).contact_bounds(h)
     assert np.all(lo == 0.01) and np.all(hi == 0.035)
+    # a spring's range in N mm/rad is named as such (it had drawn springs of 50-400 N m/rad)
+    with pytest.raises(ValueError, match=r"prior: 'stiffness_range': \[50.0, 400.0\] N m/rad is stiffer.*N mm/rad"):
+        pf.PriorConfig(stiffness_range=(50.0, 400.0)).validate()
     # millimetres are named as such (had been "max 38000.0 mm reaches past the last link")
     with pytest.raises(ValueError, match=r"prior: 'contact_limits': \[5.0, 38.0\] m is longer than 1 m.*millimetres"):
         pf.PriorConfig(contact_limits=(5, 38)).contact_bounds(h)

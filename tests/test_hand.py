@@ -61,6 +61,7 @@ def test_novel_hands_replace_the_right_fingers():
         ("tendon_range", [0.0, 45.0], "'tendon_range'.*given in millimetres"),
         ("joint_upper", [110.0, 110.0], "'joint_upper'.*given in degrees"),
         ("link_density", 1.1, "'link_density'.*given in g/cm"),
+        ("stiffness", [80.0, 160.0], r"'stiffness': \[80.0, 160.0\] N m/rad .*given in N mm/rad"),
     ],
 )
 def test_bad_finger_fields_are_named(field, value, message):

@@ -156,6 +156,16 @@ def test_a_link_length_profile_in_millimetres_is_refused_by_name():
             profile(trace, "link_length:thumb_NF1", [40, 50])
 
 
+def test_a_stiffness_profile_in_newton_millimetres_is_refused_by_name():
+    """``--profile stiffness --values 130,170`` (N mm/rad) had run and said which of the two
+    the measurements favour, with status 0."""
+    trace = _run("stiffness", iterations=2)["_trace"]
+    for profile in (statics_profile, evidence_profile):
+        with pytest.raises(ValueError, match=r"'stiffness' values: \[130.0, 170.0\] N m/rad is stiffer than .*"
+                                             r"N mm/rad"):
+            profile(trace, "stiffness", [130, 170])
+
+
 def test_bad_traces_and_profiles_are_named(tmp_path):
     trace = _run("stiffness", iterations=3)["_trace"]
     with pytest.raises(ValueError, match="'actions' must have shape"):

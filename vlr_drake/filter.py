@@ -693,6 +693,7 @@ class PriorConfig:
                 raise ValueError(f"prior: '{name}' must be finite [min, max] with 0 < min < max, "
                                  f"got {getattr(self, name)}")
         units.check_length(self.link_range, "prior: 'link_range'")
+        units.check_stiffness(self.stiffness_range, "prior: 'stiffness_range'")
         if self.angle_centers not in ANGLE_CENTERS:
             raise ValueError(f"prior: 'angle_centers' must be one of {ANGLE_CENTERS}, got '{self.angle_centers}'")
         if self.stiffness_prior not in STIFFNESS_PRIORS:

@@ -186,6 +186,7 @@ class FingerSpec:
             units.check_length(getattr(f, fname), f"{where}: field '{fname}'")
         for fname in ("rest_angles", "joint_lower", "joint_upper"):
             units.check_angle(getattr(f, fname), f"{where}: field '{fname}'")
+        units.check_stiffness(f.stiffness, f"{where}: field 'stiffness'")
         units.check_density(f.link_density, f"{where}: field 'link_density'")
         return self
 

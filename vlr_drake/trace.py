@@ -496,6 +496,8 @@ def _profile_parameter(trace: IdentificationTrace, parameter: str, values, what:
         if not prior.stiffness_unknown:
             raise ValueError(f"{what}: {whose} identifies no stiffness")
         fi, j = (int(x) for x in prior.stiffness_unknown[0])
+        # N m/rad: 130,170 meant as N mm/rad had run, and said which of them the data favour
+        units.check_stiffness(values, f"{what}: 'stiffness' values")
         return values, fi, j
     if parameter.startswith("link_length:"):
         finger = parameter.split(":", 1)[1]

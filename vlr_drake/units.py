@@ -1,9 +1,9 @@
 """Checks that a setting is in the package's units.
 
-Every length here is in metres, every angle in radians, every mass in kilograms, a density
-in kg/m^3 and gravity in m/s^2. A hand's or an object's value far outside what any hand of
-this kind has was almost surely given in another unit: millimetres, degrees, grams or
-g/cm^3. Left alone it runs and gives a wrong result, such as a 48 m link "identified" from a
+Every length here is in metres, every angle in radians, every mass in kilograms, a joint's
+stiffness in N m/rad, a density in kg/m^3 and gravity in m/s^2. A hand's or an object's value far outside what any hand of
+this kind has was almost surely given in another unit: millimetres, degrees, grams, N mm/rad
+or g/cm^3. Left alone it runs and gives a wrong result, such as a 48 m link "identified" from a
 prior in millimetres, or tendon limits a thousand times too wide for the motors. These
 checks refuse such a value, naming the field and the unit it looks like. A mass and a
 grasp's angles are warned about rather than refused: a heavy object or a nearly open hand
@@ -26,6 +26,9 @@ LARGEST_ANGLE = 2.0 * np.pi
 HEAVY_OBJECT = 5.0
 #: Lighter than this [kg/m^3] a solid's density is taken for g/cm^3 (water is 1000 kg/m^3).
 LIGHTEST_DENSITY = 10.0
+#: Stiffer than this [N m/rad] a finger joint's spring is taken for N mm/rad. The Model O's
+#: are 0.08-0.16 N m/rad, the identified ones' prior 0.05-0.40.
+STIFFEST_SPRING = 10.0
 #: Stronger than this [m/s^2] a gravity vector is taken for mm/s^2 (Earth's is 9.81).
 STRONGEST_GRAVITY = 30.0
 #: Below this [deg] in every joint a grasp's angles are taken for radians (a warning): a
@@ -49,6 +52,15 @@ def check_angle(value, field: str) -> None:
     if v.size and np.nanmax(v) > LARGEST_ANGLE:
         raise ValueError(f"{field}: {_show(value)} rad is more than a full turn; angles are in radians: "
                          "was it given in degrees?")
+
+
+def check_stiffness(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where any of ``value`` (a joint spring's
+    stiffness [N m/rad], or an array of them) is stiffer than :data:`STIFFEST_SPRING`."""
+    v = np.abs(np.asarray(value, float))
+    if v.size and np.nanmax(v) > STIFFEST_SPRING:
+        raise ValueError(f"{field}: {_show(value)} N m/rad is stiffer than any finger joint's spring here (the Model "
+                         "O's are 0.08-0.16); stiffness is in N m/rad: was it given in N mm/rad?")
 
 
 def check_density(value, field: str) -> None:
