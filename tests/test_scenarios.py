@@ -511,6 +511,22 @@ def test_a_binary_file_given_as_a_scenario_is_named(tmp_path: Path):
         load_scenario(path)
 
 
+def test_an_empty_file_a_list_and_a_folder_given_as_a_scenario_are_named(tmp_path: Path):
+    """An empty file had been "YAML root was a <class 'NoneType'> but should have been a
+    dict", a list the same with 'list', and a folder "not found"."""
+    from vlr_drake.scenario import find_scenario
+
+    empty, listed = tmp_path / "empty.yaml", tmp_path / "list.yaml"
+    empty.write_text("# nothing yet\n")
+    listed.write_text("- plant: model\n")
+    with pytest.raises(ValueError, match=re.escape(f"{empty}: the scenario file is empty (a scenario is a YAML mapping")):
+        load_scenario(empty)
+    with pytest.raises(ValueError, match=re.escape(f"{listed}: a scenario is a YAML mapping of fields") + ".*got a list"):
+        load_scenario(listed)
+    with pytest.raises(ValueError, match=re.escape(f"scenario '{tmp_path}' is a folder: give a YAML file in it")):
+        find_scenario(tmp_path)
+
+
 def test_a_result_json_given_as_a_scenario_is_named(tmp_path: Path):
     """An identification's result JSON given to --scenario had been refused with all its 50
     fields listed as unknown; a scenario with a typo still names the typo."""

@@ -709,16 +709,23 @@ def load_scenario(path: str | Path, overrides: str | list[str] | None = None) ->
 
 
 def _check_some_scenario_field(path: Path, text: str) -> None:
-    """Refuse a file whose top-level mapping has more fields that are no scenario's than
-    fields that are (at least 3): a run's result JSON given as --scenario had been refused
-    with every one of its 50 fields listed."""
+    """Refuse an empty file, one whose top level is no mapping, and one whose top-level
+    mapping has more fields that are no scenario's than fields that are (at least 3): a run's
+    result JSON given as --scenario had been refused with every one of its 50 fields listed."""
     import yaml
 
     try:
         root = yaml.safe_load(text)
     except yaml.YAMLError:
         return  # the loader says why
-    if not isinstance(root, dict) or not root:
+    # (an empty file had been "YAML root was a <class 'NoneType'> but should have been a dict")
+    if root is None:
+        raise ValueError(f"{path}: the scenario file is empty (a scenario is a YAML mapping of fields: "
+                         "name, seed, plant, hand, object, filter, prior, ...)")
+    if not isinstance(root, dict):
+        raise ValueError(f"{path}: a scenario is a YAML mapping of fields (name, seed, plant, hand, object, "
+                         f"filter, prior, ...), got a {type(root).__name__}")
+    if not root:
         return
     known = {f.name for f in dataclasses.fields(Scenario)}
     unknown = [str(k) for k in root if str(k) not in known]
@@ -862,6 +869,8 @@ def find_scenario(name_or_path: str | Path) -> Path:
     if example.is_file():
         return example
     names = ", ".join(p.stem for p in example_scenarios())
+    if path.is_dir():  # (had been "not found")
+        raise ValueError(f"scenario '{name_or_path}' is a folder: give a YAML file in it or an example name ({names})")
     raise ValueError(f"scenario '{name_or_path}' not found: give a YAML file or an example name ({names})")
 
 
