@@ -165,6 +165,9 @@ def test_bad_direction_is_named():
         run_agreement(actions=2.5)
     with pytest.raises(ValueError, match="'step' must be a finite number"):
         run_agreement(direction=[-1.0, 1.0, 1.0], step=float("nan"))
+    # a sweep step in millimetres (--step 0.5 had pulled 0.5 m until the apple fell out)
+    with pytest.raises(ValueError, match=r"'step' 0.5 m is a tendon's whole travel \(45 mm\) or more.*millimetres"):
+        run_agreement(direction=[-1.0, 1.0, 1.0], step=0.5)
     with pytest.raises(ValueError, match="'hold' must be a duration >= 0"):
         run_agreement(hold=-1.0)
     # a span or window in millimetres is named before any plant is built (--span 1.5

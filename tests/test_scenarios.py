@@ -571,6 +571,11 @@ def test_a_field_given_twice_is_named(tmp_path):
     ("custom_hand_and_object.yaml", "prior: {links_unknown: [0], link_range: [30, 75]}", "prior: 'link_range'"),
     ("model_plant.yaml", "prior: {contact_half_width: 8.0}", "prior: 'contact_half_width'"),
     ("model_plant.yaml", "prior: {proximal_half_width: 20.0}", "prior: 'proximal_half_width'.*degrees"),
+    # under a full turn, over a quarter either side (5 meant as deg had failed in "only 56 of 500
+    # draws are physical grasps")
+    ("model_plant.yaml", "prior: {distal_half_width: 5.0}", "prior: 'distal_half_width'.*quarter turn.*degrees"),
+    ("model_plant.yaml", "prior: {stiffness_unknown: [[0, 1]], stiffness_range: [50, 400]}",
+     "prior: 'stiffness_range'.*N mm/rad"),
     ("hardware.yaml", "filter: {gravity_palm: [0.0, 0.0, 9810.0]}", "filter: 'gravity_palm'.*mm/s"),
     ("model_plant.yaml", "exploration: {span: 0.5, window: 6.0}", "exploration: 'window'"),
     ("hardware.yaml", "hardware: {spool_radius: 5.0}", "'spool_radius'"),
@@ -582,7 +587,7 @@ def test_values_in_another_unit_are_refused_by_name(base, override, named):
     48 m link; a spool radius in mm was blamed on start_tolerance_ticks; review)."""
     with pytest.raises(ValueError, match=named) as info:
         load_scenario(DIAGRAMS_DIR / base, override + "\n")
-    assert re.search("millimetres|degrees|mm/s", str(info.value))
+    assert re.search("millimetres|degrees|mm/s|N mm/rad", str(info.value))
 
 
 def test_an_object_mass_in_grams_is_warned_about():

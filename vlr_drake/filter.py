@@ -684,8 +684,8 @@ class PriorConfig:
         bad = {n: v for n, v in widths.items() if not (np.isfinite(v) and v > 0)}
         if bad:
             raise ValueError(f"prior: the half-widths must be positive and finite, got {bad}")
-        for name in ("proximal_half_width", "distal_half_width"):
-            units.check_angle(getattr(self, name), f"prior: '{name}'")
+        for name in ("proximal_half_width", "distal_half_width"):  # (5 meant as deg had drawn 5 rad either side)
+            units.check_angle(getattr(self, name), f"prior: '{name}'", np.pi / 2, "a quarter turn either side")
         units.check_length(self.contact_half_width, "prior: 'contact_half_width'")
         for name in ("stiffness_range", "link_range"):
             lo, hi = getattr(self, name)

@@ -45,12 +45,12 @@ def check_length(value, field: str) -> None:
                          "measures; lengths are in metres: was it given in millimetres?")
 
 
-def check_angle(value, field: str) -> None:
+def check_angle(value, field: str, largest: float = LARGEST_ANGLE, what: str = "a full turn") -> None:
     """Raise ``ValueError`` naming ``field`` where any of ``value`` [rad] exceeds
-    :data:`LARGEST_ANGLE` in size."""
+    ``largest`` (:data:`LARGEST_ANGLE`, ``what`` names it) in size."""
     v = np.abs(np.asarray(value, float))
-    if v.size and np.nanmax(v) > LARGEST_ANGLE:
-        raise ValueError(f"{field}: {_show(value)} rad is more than a full turn; angles are in radians: "
+    if v.size and np.nanmax(v) > largest:
+        raise ValueError(f"{field}: {_show(value)} rad is more than {what}; angles are in radians: "
                          "was it given in degrees?")
 
 

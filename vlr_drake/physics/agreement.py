@@ -348,6 +348,10 @@ def run_agreement(
         if direction.shape != (h.N,) or not np.linalg.norm(direction) > 0:
             raise ValueError(f"'direction' must be a nonzero vector of {h.N} tendon pulls, got {direction.tolist()}")
         direction = direction / np.linalg.norm(direction)
+        travel = float(np.min(np.diff(h.tendon_range, axis=1)))
+        if abs(step) >= travel:  # (0.5 meant as mm had pulled 0.5 m, and the apple fell out of the hand)
+            raise ValueError(f"'step' {step:g} m is a tendon's whole travel ({travel * 1e3:g} mm) or more; the step "
+                             "is in metres: was it given in millimetres?")
     opts = IdentifyOptions(plant="physics", object=object_name, seed=seed, action_range=span, window=window).validate()
     t_start = time.perf_counter()
     adapter = PhysicsAdapter(opts, spec, np.random.default_rng(seed), physics)
