@@ -733,6 +733,7 @@ def test_a_result_replaced_by_a_run_set_up_otherwise_is_named(tmp_path, capsys):
     assert main([*base, "--filter", "likelihood_width=2"]) == 0
     err = capsys.readouterr().err
     assert "identify_known_hand_model_seed0.json held a run set up otherwise (filter_settings.likelihood_width" in err
+    assert err.startswith("vlr-drake identify: warning: ")  # (the command named, as its errors name it)
     assert main([*base, "--filter", "likelihood_width=2", "--json", str(tmp_path / "other.json")]) == 0
     assert "set up otherwise" not in capsys.readouterr().err  # a file of its own
 

@@ -76,11 +76,12 @@ IDENTIFY_SETTINGS = ("experiment", "scenario_path", "hand", "object", "plant", "
 TASK_SETTINGS = ("task", "plant", "model", "word", "scenario", "particles", "identify_iterations", "alpha")
 
 
-def note_replaced(path: Path, result: dict, keys: tuple) -> None:
+def note_replaced(path: Path, result: dict, keys: tuple, command: str) -> None:
     """Warn where ``path`` holds the result of a run set up otherwise (any of ``keys`` differs;
     a dict's entries are named one by one), which this run's result and plots replace: an
     output folder keeps one result per run name, and runs that differ only in their settings
-    share it (a review: the README's four stiffness commands wrote one file)."""
+    share it (a review: the README's four stiffness commands wrote one file). ``command`` names
+    the command in the warning, as its errors name it."""
     try:
         old = json.loads(Path(path).read_text())
     except (OSError, ValueError):  # none there, or not ours: nothing to compare
@@ -97,7 +98,7 @@ def note_replaced(path: Path, result: dict, keys: tuple) -> None:
             differ.append(k)
     if differ:
         shown = ", ".join(differ[:4]) + (f" and {len(differ) - 4} more" if len(differ) > 4 else "")
-        print(f"vlr-drake: warning: {path} held a run set up otherwise ({shown}); this run replaces it and its "
+        print(f"vlr-drake {command}: warning: {path} held a run set up otherwise ({shown}); this run replaces it and its "
               "plots (--json, or another --out, keeps both)", file=sys.stderr)
 
 
@@ -381,7 +382,7 @@ def identify(args) -> dict:
         result["trace"] = str(result["_trace"].save(args.trace))
         print(f"wrote {result['trace']}")
     if not args.json:
-        note_replaced(path, result, IDENTIFY_SETTINGS)
+        note_replaced(path, result, IDENTIFY_SETTINGS, args.command)
     write_json(result, path)  # first: the run is kept whatever the pooling and the plots do
     if draws > 1:  # K times the filter's time, offline: after the run's own result is written
         try:
@@ -801,7 +802,7 @@ def task(args) -> dict:
         print(f"wrote {result['recording']}")
     path = args.json or str(Path(args.out) / f"{args.command}_seed{result['seed']}.json")
     if not args.json:
-        note_replaced(path, result, TASK_SETTINGS)
+        note_replaced(path, result, TASK_SETTINGS, args.command)
     write_json(result, path)
     return result
 
