@@ -98,8 +98,12 @@ def test_03_handwriting_follows_the_letters(tmp_path, monkeypatch):
     assert s["position_error_mm_mean"] < 1.0  # the paper: 0.42 +- 0.34 mm
     assert s["success"]
     # the diagram with a control section: every goal left, most reached, the POM near them
-    # (goals 0.4-0.72 mm from where control started; measured 0.19 mm, 4 of 4 reached)
-    assert s["control_goals"] == 4 and s["control_reached"] >= 3 and s["control_error_mm_mean"] < 0.4
+    # (goals 0-0.72 mm from where control started, 0.43 mm on average: a POM left where it
+    # started is 0.43 mm off; measured 0.065 mm, 4 of 4 reached, 2026-12-07). A bar of 0.4 mm
+    # passed the notebook with its goal tolerance loosened to 0.4 mm: every goal "reached",
+    # 0.26 mm off on average, one 0.43 mm off. A reached goal is within 0.15 mm as measured
+    # (the scenario's tol_position_mm), and the camera stand-in's noise is 0.05 mm per axis.
+    assert s["control_goals"] == 4 and s["control_reached"] >= 3 and s["control_error_mm_mean"] < 0.2
 
 
 def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
