@@ -113,14 +113,14 @@ def test_04_stiffness_and_link_length_intervals_narrow(tmp_path, monkeypatch):
     assert lo <= s["stiffness_true"] <= hi  # an interval that holds the truth ...
     assert abs(s["stiffness_estimate"] - s["stiffness_true"]) < 0.03  # ... around a near estimate
     # the evidence profile: the true spring is within a log Bayes factor of 2 of the best value
-    # (measured: the best at 2,000 particles; at 3,000, -0.07 against 0.30's 0), and it falls off
+    # (measured, 3,000 particles, 2026-12-07: -1.05 against 0.30's 0; it had been -0.07), and it falls off
     # away from it (asserting the peak "within one grid step" added nothing: the ends' bars
     # below leave only the truth and its neighbours)
     values, rel = np.array(s["profile_values"]), np.array(s["profile_relative"])
     assert rel[np.argmin(np.abs(values - s["stiffness_true"]))] > -2.0, rel
     # (the stiff side falls off more slowly: a stiff distal joint barely moves, so twelve
-    # iterations tell 0.35 from 0.25 N m/rad by a log Bayes factor of about 1.1 on the
-    # model plant's stable truth of seed 2, 0.15 by 9.7, at 3,000 particles)
+    # iterations put 0.35 N m/rad 1.10 below the best value (0.30) and 0.15 28.8 below it,
+    # on the model plant's stable truth of seed 2, at 3,000 particles; 2026-12-07)
     assert rel[0] < -3.0 and rel[-1] < -0.5
     assert s["link_interval_final_m"] < 0.5 * s["link_interval_prior_m"]
     assert abs(s["link_estimate_m"] - s["link_true_m"]) < 8e-3
