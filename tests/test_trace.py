@@ -448,15 +448,15 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
 
     real_replay = trace_module.replay
 
-    def no_grasp_at_1000(trace, config, prior, spec, **kw):
-        if spec.fingers[0].stiffness[1] == 1000.0:
+    def no_grasp_at_8(trace, config, prior, spec, **kw):
+        if spec.fingers[0].stiffness[1] == 8.0:  # (a spring the hand admits no grasp with, under the N mm/rad check's 10)
             raise ValueError("prior: only 5 of 500 draws are physical grasps")
         return real_replay(trace, config, prior, spec, **kw)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(trace_module, "replay", no_grasp_at_1000)
-        assert main(["replay", str(path), "--profile", "stiffness", "--values", "1000,0.2", "--no-progress"]) == 2
-    assert "evidence profile of stiffness at 1000: prior: only 5 of 500" in capsys.readouterr().err
+        mp.setattr(trace_module, "replay", no_grasp_at_8)
+        assert main(["replay", str(path), "--profile", "stiffness", "--values", "8,0.2", "--no-progress"]) == 2
+    assert "evidence profile of stiffness at 8: prior: only 5 of 500" in capsys.readouterr().err
     assert main(["replay", str(path), "--filter", "roughness=2"]) == 2
     assert "--filter 'roughness=2'" in capsys.readouterr().err
 
