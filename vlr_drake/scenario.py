@@ -655,8 +655,9 @@ _UNSET = "\0unset"
 
 def load_scenario(path: str | Path, overrides: str | list[str] | None = None) -> Scenario:
     """Load a scenario: ``yaml_load_typed(filename=path)`` on the defaults, then the YAML
-    ``overrides`` text (or each of a list of texts, in order) on the result; resolve the hardware section's relative file names
-    against the file's folder; validate every section (:meth:`Scenario.validate`).
+    ``overrides`` text (or each of a list of texts, in order) on the result; resolve the
+    hardware section's relative file names against the file's folder; validate every
+    section (:meth:`Scenario.validate`).
 
     Raises ``ValueError`` naming the file and the field for an unknown field, a value of the
     wrong type, both a preset and a full spec given, a missing file, or a failed check.
@@ -665,7 +666,7 @@ def load_scenario(path: str | Path, overrides: str | list[str] | None = None) ->
     if not path.is_file():
         raise ValueError(f"{path}: scenario file not found")
     try:  # a trace (.npz) given as a scenario had ended in "'utf-8' codec can't decode byte 0xb4 ..."
-        path.read_text()
+        file_text = path.read_text()
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a scenario YAML file (not text; a trace .npz is replayed with "
                          "vlr-drake replay)") from None
@@ -676,7 +677,7 @@ def load_scenario(path: str | Path, overrides: str | list[str] | None = None) ->
     texts = [overrides] if isinstance(overrides, str) else list(overrides or [])
     for source, text in [("file", None)] + [("override text", t) for t in texts if t]:
         kwargs = dict(filename=str(path)) if source == "file" else dict(data=text)
-        text = path.read_text() if source == "file" else text
+        text = file_text if source == "file" else text
         duplicate = _duplicate_key(text)
         if duplicate:
             raise ValueError(f"{path} ({source}): {duplicate}")

@@ -1,13 +1,13 @@
 """Checks that a setting is in the package's units.
 
 Every length here is in metres, every angle in radians, every mass in kilograms, a joint's
-stiffness in N m/rad, a density in kg/m^3 and gravity in m/s^2. A hand's or an object's value far outside what any hand of
-this kind has was almost surely given in another unit: millimetres, degrees, grams, N mm/rad
-or g/cm^3. Left alone it runs and gives a wrong result, such as a 48 m link "identified" from a
-prior in millimetres, or tendon limits a thousand times too wide for the motors. These
-checks refuse such a value, naming the field and the unit it looks like. A mass and a
-grasp's angles are warned about rather than refused: a heavy object or a nearly open hand
-can be meant.
+stiffness in N m/rad, a density in kg/m^3 and gravity in m/s^2. A hand's or an object's
+value far outside what any hand of this kind has was almost surely given in another unit:
+millimetres, degrees, grams, N mm/rad or g/cm^3. Left alone it runs and gives a wrong
+result, such as a 48 m link "identified" from a prior in millimetres, or tendon limits a
+thousand times too wide for the motors. These checks refuse such a value, naming the field
+and the unit it looks like. A mass and a grasp's angles are warned about rather than
+refused: a heavy object or a nearly open hand can be meant.
 """
 
 from __future__ import annotations
