@@ -228,16 +228,18 @@ def fit_pose(p_O, p_P) -> tuple[np.ndarray, np.ndarray]:
     if not (np.all(np.isfinite(p_O)) and np.all(np.isfinite(p_P))):
         raise ValueError("fit_pose: the points must be finite")
     c_O, c_P = p_O.mean(axis=1), p_P.mean(axis=1)
+    q_O = p_O - c_O[:, None]
     # (on a line the SVD's second and third directions are rounding: any turn about the line
     # had come back as "the" pose)
-    spread = np.linalg.svd(p_O - c_O[:, None], compute_uv=False)  # (P, min(N, 3))
-    flat = (spread.shape[1] < 2) | (spread[:, min(1, spread.shape[1] - 1)] <= 1e-9 * np.maximum(spread[:, 0], 1e-300))
+    spread = np.linalg.svd(q_O, compute_uv=False)  # (P, min(N, 3)), largest first
+    second = spread[:, 1] if spread.shape[1] > 1 else np.zeros(len(spread))
+    flat = second <= 1e-9 * spread[:, 0]  # (one point: 0 <= 0)
     if np.any(flat):
         raise CollinearContactsError(
             f"fit_pose: the points of {int(flat.sum())} of {flat.size} poses lie on one line "
             f"(first: pose {int(np.argmax(flat))}): they do not fix a rotation about it"
         )
-    H = np.einsum("pni,pnj->pij", p_O - c_O[:, None], p_P - c_P[:, None])
+    H = np.einsum("pni,pnj->pij", q_O, p_P - c_P[:, None])
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("pji,pkj->pik", Vt, U)))  # no reflection
     D = np.zeros_like(H)
