@@ -928,7 +928,8 @@ def test_module_docstrings_read_as_plain_help():
 def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, monkeypatch):
     """Without --iterations every identification row runs identify's budget for its
     experiment (240 for the stiffness and the novel fingers on the physics plant, 120 for the
-    known hand) and the tasks' self-identification 100; a given budget applies to all of them."""
+    known hand) and the tasks' self-identification 100; a given budget applies to all of them.
+    The rows are named in any case (nh2 had been refused where --hand nh2 was taken)."""
     import vlr_drake.reproduce as rp
 
     budgets = []
@@ -941,12 +942,13 @@ def test_reproduce_gives_each_identification_its_experiments_budget(tmp_path, mo
         raise Stop
 
     monkeypatch.setattr(rp, "run_identification", fake)
-    for experiment, iterations, want in [("stiffness", None, 240), ("known_hand", None, 120), ("stiffness", 30, 30)]:
+    for experiment, iterations, want in [("stiffness", None, 240), ("known_hand", None, 120), ("stiffness", 30, 30),
+                                         ("nh2", None, 240)]:  # any case, as --hand nh2
         with pytest.raises(Stop):
             rp.reproduce(trials=1, plant="physics", iterations=iterations, out=tmp_path, progress=False,
                          experiments=[experiment])
         assert budgets[-1][1] == want
-    assert [e for e, _ in budgets] == ["stiffness", "known_hand", "stiffness"]
+    assert [e for e, _ in budgets] == ["stiffness", "known_hand", "stiffness", "novel_fingers"]
 
     def fake_write(word, **kw):  # the tasks' self-identification: 100 unless told
         budgets.append(("write", kw["identify_iterations"]))

@@ -1082,7 +1082,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trials", type=count(1), default=None, help="trials per row (default 5)")
     p.add_argument("--quick", action="store_true", help="one trial of each, small: a smoke run")
     p.add_argument("--experiments", default=None,
-                   help="comma-separated experiments to run, e.g. known_hand,stiffness,NH1,NH2,NH3 "
+                   help="comma-separated experiments to run (any case), e.g. known_hand,stiffness,NH1,NH2,NH3 "
                         "(default: all of known_hand, stiffness, NH1, NH2, NH3, write, maze, stack)")
 
     p = _parser("replay", sub, "replay an identification's trace offline")

@@ -169,7 +169,9 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     for name, (value, least) in counts.items():
         if not is_count(value, least):
             raise ValueError(f"reproduce: '{name}' must be an integer >= {least}, got {value!r}")
-    chosen = EXPERIMENTS if experiments is None else tuple(experiments)
+    # named in any case, as --hand's names are (nh2 for NH2)
+    spelled = {e.lower(): e for e in EXPERIMENTS}
+    chosen = EXPERIMENTS if experiments is None else tuple(spelled.get(str(e).lower(), e) for e in experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:
         raise ValueError(f"reproduce: experiments must be some of {', '.join(EXPERIMENTS)}, got {list(chosen)}")
