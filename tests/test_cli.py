@@ -886,6 +886,9 @@ def test_demo_runs_every_step_and_writes_its_outputs(tmp_path, capsys):
     # a typo in the last name is named before the first object runs (it had cost the apple's run)
     ("vlr_drake.physics.check", ["--objects", "apple", "aple", "--actions", "1", "--no-camera"],
      "unknown object preset 'aple'"),
+    # --objects given twice runs both lists (the second had replaced the first: the apple ran)
+    ("vlr_drake.physics.check", ["--objects", "aple", "--objects", "apple", "--actions", "1", "--no-camera"],
+     "unknown object preset 'aple'"),
 ])
 def test_module_tools_name_a_bad_input_in_one_line(tmp_path, module, argv, says):
     """The python -m tools end a run with a bad input as the vlr-drake commands do: exit

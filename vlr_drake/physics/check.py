@@ -197,7 +197,9 @@ def run_check(
 def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap = argparse.ArgumentParser(prog="python -m vlr_drake.physics.check", description=plain(__doc__),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", nargs="+", default=list(PAPER_OBJECTS), help="object presets")
+    ap.add_argument("--objects", nargs="+", action="extend", default=None,
+                    help="object presets (given twice, both lists run; default: the paper's "
+                         f"{', '.join(PAPER_OBJECTS)})")
     ap.add_argument("--hand", default="model_o", help="model_o, NH1, NH2 or NH3")
     ap.add_argument("--actions", type=count(1), default=50, help="random actions per object (default 50)")
     ap.add_argument("--seed", type=count(0), default=0, help="seed of the random actions (default 0)")
@@ -209,6 +211,7 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     )
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
+    args.objects = args.objects or list(PAPER_OBJECTS)  # (a default list would be extended, not replaced)
     check_output("--json", args.json)
     check_output("--html-dir", args.html_dir, folder=True)
     physics = PhysicsConfig()
