@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, count, plain, report, warning_lines
+from vlr_drake.entry import USER_ERRORS, as_spelled, count, plain, report, warning_lines
 
 
 def _json_default(o):
@@ -275,8 +275,7 @@ def _preset_hand(text: str) -> str:
     names are left for the run to refuse, with the list of presets."""
     from vlr_drake.hand import NOVEL_HANDS
 
-    names = {n.lower(): n for n in ("model_o", *NOVEL_HANDS)}
-    return names.get(text.lower(), text)
+    return as_spelled(text, ("model_o", *NOVEL_HANDS))
 
 
 def _task_settings(args) -> dict:

@@ -157,6 +157,12 @@ def count(least: int):
     return parse
 
 
+def as_spelled(text, names) -> str:
+    """``text`` as one of ``names`` spells it, whatever its case (``nh2`` -> ``NH2``); a text
+    that names none of them is returned as it is, for its user to refuse with the list."""
+    return {n.lower(): n for n in names}.get(str(text).lower(), text)
+
+
 def check_not_trace(json_path, traces) -> None:
     """Refuse a ``--json`` that is one of ``traces`` (a run's ``--trace``, or the traces a
     replay reads): one would be written over the other (identify and a diagram run had

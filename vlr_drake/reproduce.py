@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.entry import as_spelled
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import options_from_scenario, task_settings
@@ -170,8 +171,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
         if not is_count(value, least):
             raise ValueError(f"reproduce: '{name}' must be an integer >= {least}, got {value!r}")
     # named in any case, as --hand's names are (nh2 for NH2)
-    spelled = {e.lower(): e for e in EXPERIMENTS}
-    chosen = EXPERIMENTS if experiments is None else tuple(spelled.get(str(e).lower(), e) for e in experiments)
+    chosen = EXPERIMENTS if experiments is None else tuple(as_spelled(e, EXPERIMENTS) for e in experiments)
     unknown = [e for e in chosen if e not in EXPERIMENTS]
     if unknown or not chosen:
         raise ValueError(f"reproduce: experiments must be some of {', '.join(EXPERIMENTS)}, got {list(chosen)}")
