@@ -224,9 +224,10 @@ class PhysicsConfig:
     # error from the plant's state on the toy block 0.016-0.021 mm against 0.083-0.094 (four
     # seeds), the apple's 0.115 against 0.157, NH2's 0.032 against 0.111, at about the same
     # wall time. It identified worse (NH1's links 3.01 against 1.55 mm, 10 seeds; every novel
-    # hand's joints 0.2-0.4 deg; the weighed spring's lean kept), perhaps through the longer
-    # creep, and the rows were measured with the test, so the test stays the default
-    # (docs/results.md, "The settle test stops on the overshoot's tail").
+    # hand's joints 0.2-0.4 deg; the weighed spring's lean kept), perhaps through Eq. 9's
+    # excess gain, which the overshoot had partly hidden, or the longer creep; and the rows
+    # were measured with the test, so the test stays the default (docs/results.md, "The
+    # settle test stops on the overshoot's tail").
     fixed_settle_time: float = 0.0
     # When a pad cannot reach the object at its preset placement (e.g. a novel hand), the
     # grasp tries placements shifted along the palm normal in 2.5 mm steps up to this far
