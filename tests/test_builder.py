@@ -397,6 +397,34 @@ def test_the_physics_diagram_renders_and_detects_one_frame_per_period(monkeypatc
     np.testing.assert_allclose(times, (np.arange(3) + pf.FILTER_PHASE) * T, atol=1e-9)
 
 
+def test_a_physics_diagram_with_control_detects_one_frame_per_period_too(monkeypatch):
+    """The controller (at 0.05 T) and the goal anchor (at 0.5 T) read the frame the tag
+    observer held at the filter's offset: they had each rendered and detected one of their
+    own, a second frame every control period. The controller still steps on what it reads."""
+    from vlr_drake.builder import default_iterations, run
+    from vlr_drake.systems.tag_observer import TagObserver
+
+    times = []
+    calc = TagObserver._calc_detection
+
+    def counted(self, context, value):
+        times.append(context.get_time())
+        return calc(self, context, value)
+
+    monkeypatch.setattr(TagObserver, "_calc_detection", counted)
+    s = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml",
+                      FAST + "plant: physics\ncontrol: {after_iterations: 2, anchor_frames: 1, max_periods: 2, "
+                      "goals_mm: [[0.3, 0.0, 0.0]]}\n")
+    n = default_iterations(s)
+    r = run(s, n)
+    T = s.period_sec()
+    assert r["iterations"] == n and r["lost_measurements"] == 0
+    np.testing.assert_allclose(times, (np.arange(n + 1) + pf.FILTER_PHASE) * T, atol=1e-9)
+    goal = r["control"]["goals"][0]
+    assert r["control"]["done"] and np.isfinite(goal["measured_error_mm"]), r["control"]
+    assert goal["true_error_mm"] < 0.25, goal  # it moved the object 0.3 mm towards the goal
+
+
 def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):
     """The custom box with its tag on the face away from the palm camera: no measurement,
     so the filter never starts; the run says why instead of printing infinite intervals."""

@@ -277,8 +277,12 @@ def test_observer_ports_fixvalue_eval(synthetic, camera):
     assert observer.X_PO_measured_output_port().get_name() == "X_PO_measured"
     assert observer.X_PO_valid_output_port().get_name() == "X_PO_valid"
     assert observer.reprojection_error_output_port().get_name() == "reprojection_error"
+    assert observer.X_PO_held_output_port().get_name() == "X_PO_held"
+    assert observer.X_PO_held_valid_output_port().get_name() == "X_PO_held_valid"
     context = observer.CreateDefaultContext()
     np.testing.assert_array_equal(observer.held_pose(context).GetAsMatrix4(), np.eye(4))
+    np.testing.assert_array_equal(observer.X_PO_held_output_port().Eval(context).GetAsMatrix4(), np.eye(4))
+    assert observer.X_PO_held_valid_output_port().Eval(context)[0] == 0.0  # no update yet
     # Blank image first: identity (the initial held pose), invalid.
     observer.rgb_image_input_port().FixValue(context, to_rgba(np.full_like(gray, 180)))
     np.testing.assert_array_equal(
@@ -297,11 +301,18 @@ def test_observer_ports_fixvalue_eval(synthetic, camera):
     state = context.get_mutable_state()
     observer.CalcForcedUnrestrictedUpdate(context, state)
     np.testing.assert_array_equal(observer.held_pose(context).GetAsMatrix4(), X_PO.GetAsMatrix4())
+    np.testing.assert_array_equal(observer.X_PO_held_output_port().Eval(context).GetAsMatrix4(), X_PO.GetAsMatrix4())
+    assert observer.X_PO_held_valid_output_port().Eval(context)[0] == 1.0
     observer.rgb_image_input_port().FixValue(context, to_rgba(np.full_like(gray, 180)))
+    assert observer.X_PO_held_valid_output_port().Eval(context)[0] == 1.0  # the held ports read no frame
     assert observer.X_PO_valid_output_port().Eval(context)[0] == 0.0
     np.testing.assert_array_equal(
         observer.X_PO_measured_output_port().Eval(context).GetAsMatrix4(), X_PO.GetAsMatrix4()
     )
+    # An update on the blank frame keeps the pose and says its frame was not valid.
+    observer.ExecuteForcedEvents(context, publish=False)
+    np.testing.assert_array_equal(observer.X_PO_held_output_port().Eval(context).GetAsMatrix4(), X_PO.GetAsMatrix4())
+    assert observer.X_PO_held_valid_output_port().Eval(context)[0] == 0.0
 
 
 def test_observer_applies_X_TO_and_input_scale(synthetic, camera):

@@ -232,8 +232,14 @@ def _wire_control(builder: DiagramBuilder, c: dict, policy, plant, sensor, flt) 
     hand, the sensor and the filter, and export their outputs as ``controller.<signal>`` and
     ``trajectory.<signal>``. The controller steps from what the hand was given (on hardware
     what the motors were sent, after the interface's clipping and ramp) and waits for the
-    trajectory's goals to be anchored."""
+    trajectory's goals to be anchored. Beside a tag observer both read the frame it held at the
+    filter's offset (``X_PO_held``), the one the filter's estimate was last updated from: a
+    frame of their own at 0.05 T and 0.5 T would be rendered (or grabbed) and detected again,
+    a second frame every control period. The model plant's pose sensor measures at no cost
+    and is read as it measures."""
     ctrl, traj, switch = c["controller"], c["trajectory"], c["switch"]
+    pose, valid = (("X_PO_held", "X_PO_held_valid") if sensor.HasOutputPort("X_PO_held")
+                   else ("X_PO_measured", "X_PO_valid"))
     builder.Connect(policy.GetOutputPort("tendon_command"), c["explore_in"])
     builder.Connect(ctrl.tendon_command_output_port(), c["control_in"])
     applied = (plant.GetOutputPort("tendon_command_sent") if plant.HasOutputPort("tendon_command_sent")
@@ -241,8 +247,8 @@ def _wire_control(builder: DiagramBuilder, c: dict, policy, plant, sensor, flt) 
     builder.Connect(applied, ctrl.tendon_command_applied_input_port())
     builder.Connect(traj.ready_output_port(), ctrl.enabled_input_port())
     for dest in (ctrl, traj):
-        builder.Connect(sensor.GetOutputPort("X_PO_measured"), dest.GetInputPort("X_PO_measured"))
-        builder.Connect(sensor.GetOutputPort("X_PO_valid"), dest.GetInputPort("X_PO_valid"))
+        builder.Connect(sensor.GetOutputPort(pose), dest.GetInputPort("X_PO_measured"))
+        builder.Connect(sensor.GetOutputPort(valid), dest.GetInputPort("X_PO_valid"))
     builder.Connect(flt.GetOutputPort("estimate"), ctrl.estimate_input_port())
     builder.Connect(traj.X_PO_goal_output_port(), ctrl.X_PO_goal_input_port())
     builder.Connect(ctrl.at_goal_output_port(), traj.at_goal_input_port())

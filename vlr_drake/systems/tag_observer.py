@@ -24,7 +24,8 @@ default) it is a per-step event, which evaluates the input at *every* simulator 
 for a discrete diagram stepping at the action period, far too slow beside a physics plant
 stepping at 1 ms with a rendered camera (about 0.1 s per render). A forced unrestricted
 update does the same (tests use it). So the held pose is the last valid measurement *at an
-update event*.
+update event*. The TagObserver outputs it too (``X_PO_held``), with whether that update's
+frame was valid (``X_PO_held_valid``): reading them costs no frame.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def _declare_update(system: LeafSystem, update_period_sec: float | None, update,
 
 class TagObserver(LeafSystem):
     """AprilTag observer: ``rgb_image`` in; ``X_PO_measured``, ``X_PO_valid``,
-    ``reprojection_error`` out (DESIGN sections 5 and 8).
+    ``reprojection_error``, ``X_PO_held``, ``X_PO_held_valid`` out (DESIGN sections 5 and 8).
 
     Parameters:
         config: what tag to look for and when to trust it (``TagObserverConfig``).
@@ -84,7 +85,11 @@ class TagObserver(LeafSystem):
     (abstract ``RigidTransform``), ``X_PO_valid`` (size 1) and ``reprojection_error`` (size
     1, RMS px of the pose fitted to the detection; NaN where no pose was fitted: no tag,
     an empty image, a tag too small, one whose edges could not be measured or that faces
-    away; finite with valid 0 where the error itself rejected the frame).
+    away; finite with valid 0 where the error itself rejected the frame); ``X_PO_held``
+    (abstract ``RigidTransform``) and ``X_PO_held_valid`` (size 1): the held pose and
+    whether the last update's frame was valid, which a reader between updates takes
+    without rendering or detecting a frame of its own (the scenario builder's controller
+    and goal anchor: they act on the frame the filter read).
     """
 
     def __init__(
@@ -149,6 +154,15 @@ class TagObserver(LeafSystem):
             calc=self._calc_reprojection_error,
             prerequisites_of_calc={self._detection.ticket()},
         )
+        # whether the last update's frame was valid (0 before the first update)
+        self._held_valid = self.DeclareDiscreteState(1)
+        self._X_PO_held = self.DeclareAbstractOutputPort(
+            name="X_PO_held",
+            alloc=lambda: AbstractValue.Make(RigidTransform()),
+            calc=lambda context, output: output.set_value(self.held_pose(context)),
+            prerequisites_of_calc={self.abstract_state_ticket(self._held)},
+        )
+        self._X_PO_held_valid = self.DeclareStateOutputPort("X_PO_held_valid", self._held_valid)
         _declare_update(self, update_period_sec, self._update_held, update_offset_sec)
 
     # Port accessors (keep the handles, never look ports up by number).
@@ -163,6 +177,17 @@ class TagObserver(LeafSystem):
 
     def reprojection_error_output_port(self):
         return self._reprojection_error
+
+    def X_PO_held_output_port(self):
+        """The pose stored at the last update: its frame's where that frame was valid
+        (``X_PO_held_valid`` 1), else the last valid one before it. Reading it renders and
+        detects nothing."""
+        return self._X_PO_held
+
+    def X_PO_held_valid_output_port(self):
+        """1.0 where the last update's frame was valid, 0.0 where it was not or before the
+        first update."""
+        return self._X_PO_held_valid
 
     def held_pose(self, context: Context) -> RigidTransform:
         """The last valid pose stored by an update (identity before the first); a copy."""
@@ -207,6 +232,7 @@ class TagObserver(LeafSystem):
         X_PO, _ = self._detection.Eval(context)
         if X_PO is not None:
             state.get_mutable_abstract_state(self._held).set_value(X_PO)
+        state.get_mutable_discrete_state(self._held_valid).SetAtIndex(0, 0.0 if X_PO is None else 1.0)
 
 
 def rotation_from_vector(w: np.ndarray) -> RotationMatrix:
