@@ -643,24 +643,29 @@ def test_a_grasp_that_drops_the_object_is_said_before_the_run():
 def test_a_control_run_without_iterations_runs_until_its_goals_are_done(tmp_path, capsys):
     """``--run`` without ``--iterations`` had run 10 iterations whatever the scenario, so a
     control section starting after 60 never started. With one the default is what its goals
-    need (3 of exploration, the switch's period, one anchor frame, 5 periods for each of two
-    goals: 15), and the run ends with every goal reached or given up."""
+    need (3 of exploration, one anchor frame, 5 periods for each of two goals never reached:
+    14; it had counted the switch's period too, one more than needed), and the run ends with
+    every goal given up, which one iteration fewer does not."""
     import json
 
     from vlr_drake.builder import RUN_ITERATIONS, default_iterations, main
 
-    short = (FAST + "control: {after_iterations: 3, anchor_frames: 1, max_periods: 5, "
-             "goals_mm: [[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]}\n")
+    short = (FAST + "control: {after_iterations: 3, anchor_frames: 1, max_periods: 5, tol_position_mm: 0.0001, "
+             "goals_mm: [[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]}\n")  # a tolerance no goal meets
     s = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml", short)
-    assert s.control.iterations_to_finish() == 15 > RUN_ITERATIONS
-    assert default_iterations(s) == 15
+    assert s.control.iterations_to_finish() == 14 > RUN_ITERATIONS
+    assert default_iterations(s) == 14
     assert default_iterations(load_scenario(DIAGRAMS_DIR / "model_plant.yaml")) == RUN_ITERATIONS
     assert load_scenario(DIAGRAMS_DIR / "model_plant.yaml").control.iterations_to_finish() == 0
     out = tmp_path / "run.json"
     assert main(["--run", "model_plant_control", "--set", short, "--json", str(out)]) == 0
     r = json.loads(out.read_text())
-    assert r["iterations"] == 15 and r["control"]["done"], r["control"]
+    assert r["iterations"] == 14 and r["control"]["done"], r["control"]
+    assert [g["reached"] for g in r["control"]["goals"]] == [False, False]
     assert "the run ended first" not in capsys.readouterr().out
+    assert main(["--run", "model_plant_control", "--set", short, "--iterations", "13", "--json", str(out)]) == 0
+    assert not json.loads(out.read_text())["control"]["done"]
+    assert "the run ended first" in capsys.readouterr().out
 
 
 def test_each_set_applies_in_order(monkeypatch):

@@ -444,11 +444,13 @@ class ControlSettings:
 
     def iterations_to_finish(self) -> int:
         """Filter iterations (action periods) a run needs for every goal to be reached or
-        given up: the exploration, the switch's period, the anchor's frames and
-        ``max_periods`` for each goal. 0 without goals (identification only)."""
+        given up: the exploration's (iteration k reads period k's action; period 0 holds the
+        grasp), the anchor's frames (the first in the period the switch hands over) and
+        ``max_periods`` for each goal; the last goal is given up in the last of these
+        periods, before its filter iteration. 0 without goals (identification only)."""
         if not self.goals_mm:
             return 0
-        return self.after_iterations + 1 + self.anchor_frames + len(self.goals_mm) * self.max_periods
+        return self.after_iterations + self.anchor_frames + len(self.goals_mm) * self.max_periods
 
 
 @dataclass
