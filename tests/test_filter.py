@@ -1847,8 +1847,10 @@ def test_the_model_plant_truth_stays_an_equilibrium_and_starts_physical():
         ModelPlant(m, bad_theta, a, *args)
     with pytest.raises(ValueError, match="model plant: the initial contacts .* are not on the last links"):
         ModelPlant(m, theta, np.r_[a[:2], -0.01], *args)
-    for kw, name in [({"dropout": float("nan")}, "dropout"), ({"sigma_position": -1e-3}, "sigma_position")]:
-        with pytest.raises(ValueError, match=f"model plant: '{name}'"):
+    for kw, name in [({"dropout": float("nan")}, "dropout"), ({"sigma_position": -1e-3}, "sigma_position"),
+                     ({"sigma_position": 0.2}, "sigma_position': 0.2 m is longer than 0.01 m, wider than any tag"),
+                     ({"sigma_rotation": 1.0}, "sigma_rotation': 1.0 rad is more than 15 deg")]:  # (mm and deg ran)
+        with pytest.raises(ValueError, match=f"model plant: '{name}"):
             ModelPlant(m, theta, a, *args, **kw)
     # a pose that is no rotation, a NaN pose, a missing generator or an object's weight
     # without gravity had been accepted (every action then refused, or a later error that

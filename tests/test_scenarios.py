@@ -340,6 +340,11 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         # the filter's measurement before the tendons' ramp ends (0.9 T against a 0.2 s ramp)
         ("plant: physics\nexploration: {period_sec: 0.15}\n", "exploration: 'period_sec' 0.15 s: the filter measures"),
         ("plant: model\nfilter: {sigma_rotation: 30}\n", "filter: 'sigma_rotation'"),
+        # ... and millimetres or degrees under a metre or a turn, as a noise's width (they ran)
+        ("plant: model\nmodel_plant: {sigma_position: 0.2}\n",
+         "model_plant: 'sigma_position': 0.2 m is longer than 0.01 m, wider than any tag camera's noise"),
+        ("plant: model\nfilter: {sigma_position: 0.3}\n", "filter: 'sigma_position': 0.3 m is longer than 0.01 m"),
+        ("plant: model\nfilter: {sigma_rotation: 1.5}\n", "filter: 'sigma_rotation': 1.5 rad is more than 15 deg"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

@@ -1118,8 +1118,9 @@ class FilterConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"filter: '{name}' must be a positive finite number, got {v}")
-        units.check_length(self.sigma_position, "filter: 'sigma_position'")  # metres (5000 had run)
-        units.check_angle(self.sigma_rotation, "filter: 'sigma_rotation'")  # radians (30 had run)
+        # metres and radians (5000 and 30 had run, then 0.3 and 1.5)
+        units.check_pose_noise(self.sigma_position, "filter: 'sigma_position'", self.sigma_rotation,
+                               "filter: 'sigma_rotation'")
         for name in ("motion_error", "convergence_deg"):  # convergence_deg 0: never converged (a benchmark)
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):

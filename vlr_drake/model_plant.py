@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vlr_drake import kinematics, motion, observation
+from vlr_drake import kinematics, motion, observation, units
 from vlr_drake.hand import HandModel
 
 __all__ = ["ModelPlantState", "ModelPlant"]
@@ -71,6 +71,8 @@ class ModelPlant:
                         ("contact_drift", contact_drift)):
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"model plant: '{name}' must be a finite number >= 0, got {v}")
+        units.check_pose_noise(sigma_position, "model plant: 'sigma_position'", sigma_rotation,
+                               "model plant: 'sigma_rotation'")
         if not 0 <= dropout < 1:  # (NaN too)
             raise ValueError(f"model plant: 'dropout' must be a probability in [0, 1), got {dropout}")
         self.sigma_position, self.sigma_rotation, self.dropout = sigma_position, sigma_rotation, dropout

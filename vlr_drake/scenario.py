@@ -311,7 +311,7 @@ class ModelPlantSettings:
             raise ValueError(f"model_plant: 'link_lengths' must be positive and finite, got {self.link_lengths}")
         if self.link_lengths:  # metres, as the hand's (a review: [[50], ...] ran)
             units.check_length(self.link_lengths, "model_plant: 'link_lengths'")
-        units.check_length(self.sigma_position, "model_plant: 'sigma_position'")
+        units.check_pose_noise(self.sigma_position, "model_plant: 'sigma_position'")
         if not 0 <= self.center_offset_fraction <= 1:
             raise ValueError(
                 f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}"

@@ -31,18 +31,41 @@ LIGHTEST_DENSITY = 10.0
 STIFFEST_SPRING = 10.0
 #: Stronger than this [m/s^2] a gravity vector is taken for mm/s^2 (Earth's is 9.81).
 STRONGEST_GRAVITY = 30.0
+#: Wider than this [m] a pose measurement's noise (a camera stand-in's, or the filter's
+#: likelihood, which also stands for the model's mismatch) is taken for millimetres: a tag
+#: at the hand's scale is measured to hundredths of a millimetre (the rendered camera's
+#: 0.002 mm), the likelihood is 0.3 mm wide, and an action moves the object about a
+#: millimetre, which a noise of centimetres would hide. (Under :data:`LONGEST_LENGTH`, 0.3
+#: meant as millimetres had run.)
+WIDEST_POSE_NOISE = 0.01
+#: Wider than this [rad] a pose measurement's rotation noise is taken for degrees: the
+#: likelihood's is 1.5 deg, the camera's 0.02 (1.5 meant as degrees is 86 deg and had run).
+WIDEST_ROTATION_NOISE = np.deg2rad(15.0)
 #: Below this [deg] in every joint a grasp's angles are taken for radians (a warning): a
 #: grasp bends its joints by tens of degrees.
 SMALLEST_GRASP_DEG = 3.0
 
 
-def check_length(value, field: str) -> None:
+def check_length(value, field: str, longest: float = LONGEST_LENGTH,
+                 what: str = "more than any hand here measures") -> None:
     """Raise ``ValueError`` naming ``field`` where any of ``value`` (a length or an array of
-    lengths [m], or of positions) is longer than :data:`LONGEST_LENGTH`."""
+    lengths [m], or of positions) is longer than ``longest`` (:data:`LONGEST_LENGTH`,
+    ``what`` says why it is too long)."""
     v = np.abs(np.asarray(value, float))
-    if v.size and np.nanmax(v) > LONGEST_LENGTH:
-        raise ValueError(f"{field}: {_show(value)} m is longer than {LONGEST_LENGTH:g} m, more than any hand here "
-                         "measures; lengths are in metres: was it given in millimetres?")
+    if v.size and np.nanmax(v) > longest:
+        raise ValueError(f"{field}: {_show(value)} m is longer than {longest:g} m, {what}; lengths are in metres: "
+                         "was it given in millimetres?")
+
+
+def check_pose_noise(position, field: str, rotation=None, rotation_field: str = "") -> None:
+    """Raise ``ValueError`` naming the field where a pose measurement's position noise [m]
+    (``field``) is wider than :data:`WIDEST_POSE_NOISE`, or its rotation noise [rad]
+    (``rotation_field``; None: not given) than :data:`WIDEST_ROTATION_NOISE`."""
+    check_length(position, field, WIDEST_POSE_NOISE,
+                 "wider than any tag camera's noise at a hand's scale (an action moves the object about a mm)")
+    if rotation is not None:
+        check_angle(rotation, rotation_field, WIDEST_ROTATION_NOISE,
+                    f"{np.rad2deg(WIDEST_ROTATION_NOISE):g} deg, wider than any tag camera's rotation noise")
 
 
 def check_angle(value, field: str, largest: float = LARGEST_ANGLE, what: str = "a full turn") -> None:
