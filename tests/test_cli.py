@@ -688,13 +688,14 @@ def test_impossible_prior_and_nan_setting_exit_2_with_one_line(tmp_path, capsys)
 
 
 def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
-    """50 mm actions: the model plant refuses all three, no filter iteration runs; the
-    result is still written and says so, and the missing convergence plot is named."""
-    path = _scenario_file(tmp_path, "plant: model\nexploration:\n  span: 0.05\n  window: 0.05\n")
+    """Actions of a tendon's whole travel (45 mm; seed 1's three are all refused): the model
+    plant refuses all three, no filter iteration runs; the result is still written and says
+    so, and the missing convergence plot is named."""
+    path = _scenario_file(tmp_path, "plant: model\nseed: 1\nexploration:\n  span: 0.045\n  window: 0.045\n")
     out = tmp_path / "out"
     assert main(["identify", "--scenario", str(path), "--particles", "300", "--iterations", "3", "--no-progress",
                  "--out", str(out)]) == 0
-    r = json.loads((out / "identify_known_hand_model_seed0.json").read_text())
+    r = json.loads((out / "identify_known_hand_model_seed1.json").read_text())
     assert r["actions_refused"] == 3 and r["actions_tried"] == 3 and r["iterations"] == 0 and not r["converged"]
     assert r["stopped"].startswith("iteration 1: the plant refused 3 actions over the run, as many as the iteration budget")
     assert "no plots: no filter iteration ran (iteration 1: the plant refused 3 actions" in capsys.readouterr().out

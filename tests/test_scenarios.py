@@ -345,6 +345,9 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
          "model_plant: 'sigma_position': 0.2 m is longer than 0.01 m, wider than any tag camera's noise"),
         ("plant: model\nfilter: {sigma_position: 0.3}\n", "filter: 'sigma_position': 0.3 m is longer than 0.01 m"),
         ("plant: model\nfilter: {sigma_rotation: 1.5}\n", "filter: 'sigma_rotation': 1.5 rad is more than 15 deg"),
+        ("plant: model\nexploration: {span: 0.0005, window: 0.8}\n",
+         "exploration: 'window': 0.8 m is longer than 0.045 m, more than a tendon's whole travel (45 mm)"),
+        ("plant: physics\nexploration: {squeeze: 0.5, squeeze_window: 0.5}\n", "exploration: 'squeeze': 0.5 m"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

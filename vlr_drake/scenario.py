@@ -581,6 +581,11 @@ class Scenario:
         self.prior.validate(N, K)
         _with_section("prior", lambda: self.prior.to_prior().contact_bounds(hand.model()))
         self.exploration.validate()
+        travel = float(np.min(np.diff(hand.model().tendon_range, axis=1)))
+        for name in ("span", "window", "squeeze", "squeeze_window"):  # (0.8 meant as mm had run)
+            if getattr(self.exploration, name) is not None:
+                units.check_length(getattr(self.exploration, name), f"exploration: '{name}'", travel,
+                                   f"more than a tendon's whole travel ({1e3 * travel:g} mm)")
         self.model_plant.validate(N, K)
         self.grasp.validate(N, K, hand.model())
         self.control.validate()
