@@ -289,7 +289,7 @@ def _model_plant_parts(s: Scenario, h: HandModel, prior: pf.PriorConfig, T: floa
         tendon=s.filter.tendon,
         contact_drift=mp.contact_drift,
     )
-    theta_c, a_c = prior.guessed_grasp(plant.state.theta, plant.state.a, rng, mp.center_offset_fraction)
+    theta_c, a_c = prior.guessed_grasp(plant.state.theta, plant.state.a, rng, h, mp.center_offset_fraction)
     plant_sys = ModelPlantSystem(plant, T)
     sensor = NoisyPoseSensor(
         mp.sigma_position,

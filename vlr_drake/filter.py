@@ -391,6 +391,7 @@ def information_gain(y: np.ndarray, ok: np.ndarray, min_valid: float = 0.9) -> n
         raise ValueError(f"information_gain: y must be (C, S, D) and ok (C, S), got {y.shape} and {ok.shape}")
     n = ok.sum(axis=1)
     w = ok / np.maximum(n, 1)[:, None]
+    y = np.where(ok[..., None], y, 0.0)  # an invalid prediction may be NaN: 0 x NaN is NaN
     mean = np.einsum("cs,csd->cd", w, y)
     d = np.where(ok[..., None], y - mean[:, None], 0.0)
     cov = np.einsum("cs,csd,cse->cde", w, d, d)
@@ -641,16 +642,18 @@ class PriorConfig:
         lo, hi = self.stiffness_range
         return float(np.sqrt(lo * hi)) if self.stiffness_prior == "log_uniform" else 0.5 * (lo + hi)
 
-    def guessed_grasp(self, theta, a, rng: np.random.Generator,
+    def guessed_grasp(self, theta, a, rng: np.random.Generator, hand: HandModel,
                       fraction: float = CENTER_OFFSET_FRACTION) -> tuple[np.ndarray, np.ndarray]:
         """A nominal grasp guessed from the true one, ``theta`` (N, K) [rad] and ``a`` (N,)
         [m]: each proximal angle, distal angle and contact displaced uniformly by up to
-        ``fraction`` of its half-width (drawn in that order; the model plant)."""
+        ``fraction`` of its half-width (drawn in that order; the model plant), the contacts
+        clipped to :meth:`contact_bounds` as :meth:`guessed_contacts` clips them (a guess
+        past a short last link's end, NH3's 40 mm NF3, had been refused by the filter)."""
         theta_c = np.array(theta, float)
         N, K = theta_c.shape
         theta_c[:, 0] += fraction * self.proximal_half_width * rng.uniform(-1, 1, N)
         theta_c[:, 1:] += fraction * self.distal_half_width * rng.uniform(-1, 1, (N, K - 1))
-        return theta_c, self._displaced_contacts(a, rng, fraction)
+        return theta_c, self.guessed_contacts(a, rng, hand, fraction)
 
     def guessed_contacts(self, a, rng: np.random.Generator, hand: HandModel,
                          fraction: float = CENTER_OFFSET_FRACTION) -> np.ndarray:
@@ -658,8 +661,8 @@ class PriorConfig:
         displaced uniformly by up to ``fraction`` of the contact half-width and clipped to
         :meth:`contact_bounds` (a truth may lie near a bound: pads on a short last link,
         custom limits). The physics plant's guess, whose nominal angles, the placed grasp,
-        already differ from where the grasp settles; the same draws as
-        :meth:`guessed_grasp`'s contacts would be with no angles before them."""
+        already differ from where the grasp settles; :meth:`guessed_grasp`'s contacts after
+        its angles."""
         return np.clip(self._displaced_contacts(a, rng, fraction), *self.contact_bounds(hand))
 
     def _displaced_contacts(self, a, rng: np.random.Generator, fraction: float) -> np.ndarray:
@@ -954,7 +957,8 @@ class FilterConfig:
     # most) to 2.06 (3.9 at most), but the joints from 0.88 inside their intervals to 0.47
     # (mean joint error 3.5 deg): a hypothesis held at any angles no longer has the
     # commanded statics to tell its angles apart. With stuck_probability 0.3 as well (six
-    # seeds) the links were worse again and the joints no better. Giving a held hypothesis
+    # seeds) the links were worse again and the joints no better (measured while the
+    # elastically moved ones escaped the 0.3; not measured again since). Giving a held hypothesis
     # the cloud's average likelihood (measured, not built) removed NH1's collapses (3.22 mm,
     # joints inside 0.90) but doubled its joint error (3.86 deg against 1.67) and broke NH2
     # and NH3 (7.05 and 9.24 mm against 3.09 and 3.75). So "still" stays.
@@ -1578,11 +1582,17 @@ class SelfIdentificationFilter:
             raise ValueError(f"filter: initialise's 'scale' must be in (0, 1] (the prior box's fraction), got {scale!r}")
         if stiffness_center is not None:
             stiffness_center = _shaped("stiffness_center", stiffness_center, (h.N, h.K))
+            if np.any(stiffness_center <= 0):  # (its log had been taken, or it was clipped into the range)
+                raise ValueError(f"filter: 'stiffness_center' must be positive [N m/rad], got {stiffness_center.tolist()}")
+            units.check_stiffness(stiffness_center, "filter: 'stiffness_center'")
         if link_center is not None:
             link_center = _shaped("link_center", link_center, (h.N, h.K - 1))
             units.check_length(link_center, "filter: 'link_center'")
-        if mass_center is not None and not (kinematics.is_number(mass_center) and np.isfinite(mass_center)):
-            raise ValueError(f"filter: 'mass_center' must be a finite number [kg], got {mass_center!r}")
+        if mass_center is not None and not (kinematics.is_number(mass_center) and np.isfinite(mass_center)
+                                            and mass_center >= 0):
+            raise ValueError(f"filter: 'mass_center' must be a finite number >= 0 [kg], got {mass_center!r}")
+        if mass_center is not None:
+            units.warn_if_grams(mass_center, "filter: 'mass_center'")
         if com_center is not None:
             com_center = _shaped("com_center", com_center, (3,))
         draw_center = theta_center
@@ -2067,6 +2077,7 @@ class SelfIdentificationFilter:
         if self._first_move and cfg.first_move_substeps is not None:  # the prior's draws settle
             substeps = cfg.first_move_substeps
         self._first_move = False
+        held = None  # the hypotheses held by friction, where held_motion "elastic" moved them
         if rolling:
             res, R_pred, t_pred = self._move_rolling(dl, R_prev, t_prev)
             p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
@@ -2079,11 +2090,15 @@ class SelfIdentificationFilter:
                               check_stability=self._check_moves(),
                               **self._loads(ps.theta, ps.a, ps.link_lengths, ps.object_load))
             if cfg.stuck_probability and cfg.held_motion == "elastic" and not res.ok.all():
+                held = ~res.ok
                 res = self._move_held(res, dl, D2, substeps)
             res = _finite_moves(res, ps.theta, ps.stretch + dl, h.kappa)
             p_new = kinematics.contacts(h, res.theta, ps.a, ps.link_lengths)
             R_pred, t_pred, pose_ok = observation.pom_pose(ps.p_O, p_new)
         feasible = self._feasible(res, pose_ok)
+        # the hypotheses held by friction weigh stuck_probability, moved elastically from
+        # where they were held or not (the elastic ones had escaped it: a review)
+        moved = res.ok if held is None else res.ok & ~held
         ps.theta, ps.stretch = res.theta, res.stretch
         lap("move")
         if not valid or R_meas is None:
@@ -2097,14 +2112,14 @@ class SelfIdentificationFilter:
             # and the next measurement finds the cloud implausible.
             physics = np.where(feasible, 0.0, -np.inf)
             if cfg.stuck_probability:
-                physics = np.where(res.ok, physics, physics + np.log(cfg.stuck_probability))
+                physics = np.where(moved, physics, physics + np.log(cfg.stuck_probability))
             if np.any(np.isfinite(ps.log_w + physics)):
                 ps.log_w = ps.log_w + physics
-            return self._report(False, effective_sample_size(ps.log_w), 1.0, res, feasible, False, np.nan, lap=lap)
+            return self._report(False, effective_sample_size(ps.log_w), 1.0, moved, feasible, False, np.nan, lap=lap)
         dp, ang = observation.pose_error(R_pred, t_pred, R_meas[None], t_meas[None])
         log_lik, maha2 = self._log_likelihood(dp, ang, R_pred, t_pred, R_prev, t_prev)
         if cfg.stuck_probability:  # held by friction where it was (motion.move kept its angles)
-            log_lik = np.where(res.ok, log_lik, log_lik + np.log(cfg.stuck_probability))
+            log_lik = np.where(moved, log_lik, log_lik + np.log(cfg.stuck_probability))
         log_lik = np.where(feasible, log_lik, -np.inf)
         # the hypotheses that still carry weight and are feasible now: where none is, every
         # particle has become implausible, whatever those already weighing nothing say
@@ -2122,7 +2137,7 @@ class SelfIdentificationFilter:
             lap("weigh")
             self._reinitialise(R_meas, t_meas)
             lap("reinitialise")
-            return self._report(True, float(self.particles.size), 0.0, res, feasible, True, best, evidence, lap=lap)
+            return self._report(True, float(self.particles.size), 0.0, moved, feasible, True, best, evidence, lap=lap)
         # temper this iteration's likelihood only, relative to the weights carried so far
         target = cfg.ess_fraction * ps.size
         if live_ess < target:
@@ -2153,7 +2168,7 @@ class SelfIdentificationFilter:
         new.p_O = observation.in_frame(p_now, R_anchor, t_anchor)  # R^T (p - t), particle by particle
         self.particles = new
         lap("resample")
-        return self._report(True, ess, beta, res, feasible, False, best, evidence, lap=lap)
+        return self._report(True, ess, beta, moved, feasible, False, best, evidence, lap=lap)
 
     def _live_floor(self) -> float:
         """The effective number of live hypotheses below which the cloud counts as lost: one
@@ -2201,7 +2216,8 @@ class SelfIdentificationFilter:
         """``held_motion = "elastic"``: each hypothesis whose move under the commanded tendon
         state found no equilibrium is held by friction where it is, with the tendon stretch
         of its own equilibrium there, and moved by the action ``dl`` from that state. Those
-        solved replace the failures in ``res`` (marked solved); the rest stay held still.
+        solved replace the failures in ``res`` (marked solved; the step still weighs every
+        held one by ``stuck_probability``); the rest stay held still.
         ``substeps``: the continuation of this move (``max_substeps``, or
         ``first_move_substeps`` for the prior's draws)."""
         cfg, h, ps = self.config, self.hand, self.particles
@@ -2341,7 +2357,7 @@ class SelfIdentificationFilter:
         try:
             Lc = np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:  # a collapsed cloud (few particles, many copies): rank-deficient
-            lam, V = np.linalg.eigh(cov)  # the symmetric square root, same covariance where it is PSD
+            lam, V = np.linalg.eigh(cov)  # a square root V sqrt(lam): the same covariance where it is PSD
             Lc = V * np.sqrt(np.clip(lam, 0.0, None))
         jitter = self.rng.standard_normal(x.shape) @ (hh * Lc.T)
         x *= shrink  # in place: x is the fresh matrix of _unknowns
@@ -2400,7 +2416,7 @@ class SelfIdentificationFilter:
         self._theta_center, self._a_center = nominal
         self.estimates.pop()  # initialise appended one; the report below appends the current
 
-    def _report(self, measured, ess, beta, res, feasible, reinit, best, evidence=np.nan, lap=None) -> StepReport:
+    def _report(self, measured, ess, beta, moved, feasible, reinit, best, evidence=np.nan, lap=None) -> StepReport:
         est = self.estimate()
         self.estimates.append(est)
         if lap is not None:
@@ -2412,7 +2428,7 @@ class SelfIdentificationFilter:
         params_done = limit is None or np.isnan(param) or param < limit
         report = StepReport(
             iteration=self.iteration, measured=measured, ess=ess, beta=beta,
-            solve_failures=int((~res.ok).sum()), infeasible=int((~feasible).sum()), reinitialised=reinit,
+            solve_failures=int((~moved).sum()), infeasible=int((~feasible).sum()), reinitialised=reinit,
             best_mahalanobis=best, mean_interval_deg=mean_int,
             converged=bool(mean_int < self.config.convergence_deg and params_done and not reinit),
             log_evidence=evidence, parameter_interval=param, timing_s={} if lap is None else dict(lap.times),

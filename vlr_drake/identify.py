@@ -949,7 +949,7 @@ class _ModelAdapter:
                                 dropout=o.dropout, contact_drift=o.contact_drift, tendon=o.filter.tendon)
         # The filter's nominal grasp: the truth displaced by up to center_offset_fraction
         # of the prior's half-widths (on hardware this is the grasp planner's guess).
-        theta_c, a_c = prior.guessed_grasp(theta, a, rng, o.center_offset_fraction)
+        theta_c, a_c = prior.guessed_grasp(theta, a, rng, h, o.center_offset_fraction)
         # the first measurement anchors the hypotheses: a lost tag is looked for again (the
         # hand holds still), as a camera takes its next frame
         for _ in range(START_LOOKS):

@@ -145,7 +145,7 @@ class TaskPlant:
         """The filter's nominal grasp: the truth displaced by up to
         CENTER_OFFSET_FRACTION of the prior's half-widths (as in the identification
         experiments)."""
-        return prior.guessed_grasp(self.theta0, self.a0, rng)
+        return prior.guessed_grasp(self.theta0, self.a0, rng, self.hand)
 
 
 def _possible_fraction(hand: HandModel, theta, a, samples: int = 64) -> float:
