@@ -661,10 +661,16 @@ def test_bad_scenario_or_object_exits_2_with_one_line(tmp_path, capsys, argv, me
     (["reproduce", "--plant", "model", "--trials", "0"], "argument --trials: must be >= 1, got 0"),
     (["write", "AB", "--iterations", "-1"], "argument --iterations: must be >= 0, got -1"),
     (["bench", "motion", "--particles", "5"], "argument --particles: must be >= 10, got 5"),
+    # an empty path (a script's unset variable) had meant none: no trace or JSON written,
+    # no scenario read, and exit 0 (a review)
+    (["identify", "--trace", ""], "argument --trace: an empty path (an unset variable?)"),
+    (["identify", "--scenario", " "], "argument --scenario: an empty path"),
+    (["replay", "t.npz", "--json", ""], "argument --json: an empty path"),
+    (["selfcheck", "--json", ""], "argument --json: an empty path"),
 ])
 def test_bad_counts_are_refused_before_anything_runs(capsys, argv, message):
     """A count out of range is argparse's usage error (exit 2), named; before, --particles 0
-    in reproduce silently meant 20,000."""
+    in reproduce silently meant 20,000. So is an empty path."""
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2 and message in capsys.readouterr().err
@@ -700,6 +706,13 @@ def test_a_run_whose_every_action_is_refused_keeps_its_result(tmp_path, capsys):
     assert r["stopped"].startswith("iteration 1: the plant refused 3 actions over the run, as many as the iteration budget")
     assert "no plots: no filter iteration ran (iteration 1: the plant refused 3 actions" in capsys.readouterr().out
     assert not list(out.glob("*.png"))  # (the prior alone had made plots of one point: a legend, no band)
+    assert r["parameter_interval"] is None  # the hand known
+    # with a spring unknown its prior's interval is said (it had been null, as for a known hand)
+    assert main(["identify", "stiffness", "--scenario", str(path), "--particles", "300", "--iterations", "3",
+                 "--no-progress", "--out", str(out)]) == 0
+    r = json.loads(next(out.glob("identify_stiffness_*seed1.json")).read_text())
+    assert r["iterations"] == 0 and r["parameter_interval"] > 0.5
+    assert "widest hand parameter's 95% half-width" in capsys.readouterr().out
 
 
 def test_a_run_whose_filter_fails_keeps_the_iterations_done(tmp_path, capsys, filter_fails_at_4):

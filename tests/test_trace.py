@@ -438,6 +438,9 @@ def test_identify_trace_then_replay_and_profile_from_the_command_line(tmp_path, 
     assert ideal_offset(path) != r["statics"][0]["offset_deg"]
     assert main(["replay", str(path), "--statics"]) == 2
     assert "--statics needs --profile" in capsys.readouterr().err
+    # without --prior a profile's error names the trace's prior (it had said "the given prior")
+    assert main(["replay", str(path), "--profile", "link_length:thumb", "--values", "0.05"]) == 2
+    assert "finger 'thumb' has a known link length in the trace's prior" in capsys.readouterr().err
     assert main(["replay", str(path), "--profile", "stiffness"]) == 2
     assert "--profile needs --values" in capsys.readouterr().err
     for bad in ("", "0.1,0.2,", "0.1,,0.2", "0.1,nan"):  # empty items are mistakes, not skipped

@@ -48,7 +48,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import check_not_trace, check_output, count, plain
+from vlr_drake.entry import check_not_trace, check_output, count, path_text, plain
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
@@ -858,7 +858,7 @@ def main(argv: list[str] | None = None) -> int:
                                      description=plain("\n\n".join(__doc__.split("\n\n")[:2])))
     parser.add_argument("--write-diagrams", action="store_true", help="write diagrams/<file>.dot (and .svg) beside each scenario file")
     parser.add_argument("--no-render", action="store_true", help="do not run Graphviz's dot")
-    parser.add_argument("--folder", default=None, help="scenario folder (default diagrams/)")
+    parser.add_argument("--folder", type=path_text, default=None, help="scenario folder (default diagrams/)")
     parser.add_argument("--run", metavar="SCENARIO", default=None,
                         help="run a scenario: a file, or an example's name in diagrams/ (e.g. model_plant)")
     parser.add_argument("--iterations", type=count(0), default=None,
@@ -866,9 +866,9 @@ def main(argv: list[str] | None = None) -> int:
                              "as its goals need: ControlSettings.iterations_to_finish)")
     parser.add_argument("--set", action="append", default=None,
                         help="YAML override text for --run, e.g. 'seed: 3'; repeatable, applied in order")
-    parser.add_argument("--trace", default=None, metavar="PATH",
+    parser.add_argument("--trace", type=path_text, default=None, metavar="PATH",
                         help="save the filter's trace of --run (.npz) for vlr-drake replay (e.g. of a hardware run)")
-    parser.add_argument("--json", default=None, metavar="PATH",
+    parser.add_argument("--json", type=path_text, default=None, metavar="PATH",
                         help="write --run's result as JSON (docs/result-files.md, 'Diagram run')")
     parser.add_argument("--draws", type=count(1), default=None, metavar="K",
                         help="after --run, filter its measurements again under K draws of the filter's randomness "

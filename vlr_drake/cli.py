@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, as_spelled, count, plain, report, warning_lines
+from vlr_drake.entry import USER_ERRORS, as_spelled, count, path_text, plain, report, warning_lines
 
 
 def _json_default(o):
@@ -498,8 +498,8 @@ def replay_trace(args) -> dict:
         try:
             values = [float(v) for v in args.values.split(",")]  # an empty item (",,", a trailing comma) too
         except ValueError:
-            raise ValueError(f"--values '{args.values}': expected comma-separated numbers, e.g. 0.13,0.17,0.21 "
-                             f"(a negative first value as --values=-0.1,0.2)") from None
+            raise ValueError(f"--values '{args.values}': expected comma-separated numbers, e.g. 0.13,0.17,0.21") \
+                from None
         if not all(np.isfinite(values)):
             raise ValueError(f"--values '{args.values}': expected finite numbers")
     seen = {}
@@ -591,7 +591,8 @@ def replay_trace(args) -> dict:
                       f"solved {100 * r['solved']:.0f}%")
             run = {"trace": str(path), "parameter": args.profile, "statics": rows}
         else:
-            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress, prior=prior)
+            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress,
+                                    prior=prior if args.prior else None)  # (its errors name whose prior)
             unit = "N m/rad" if args.profile == "stiffness" else "m"
             print(f"  evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
             for r in rows:
@@ -960,15 +961,15 @@ MIN_PARTICLES = 10
 def _common(p: argparse.ArgumentParser, particles: int, iterations: int | None, out: str = "out",
             least_iterations: int = 1, iterations_help: str | None = None,
             scenario_help: str = _SCENARIO_HELP) -> None:
-    p.add_argument("--scenario", default=None, help=scenario_help)
+    p.add_argument("--scenario", type=path_text, default=None, help=scenario_help)
     p.add_argument("--seed", type=count(0), default=None,
                    help="seed of every random draw (default: the scenario's, else 0)")
     p.add_argument("--particles", type=count(MIN_PARTICLES), default=None,
                    help=f"number of particles (default: the scenario's filter.particles, else {particles})")
     p.add_argument("--iterations", type=count(least_iterations), default=iterations,
                    help=f"iteration budget of the identification (default {iterations_help or iterations})")
-    p.add_argument("--json", default=None, help="write the result as JSON to this path (default: a file in --out)")
-    p.add_argument("--out", default=out, help=f"output folder for plots, recordings and results (default ./{out})")
+    p.add_argument("--json", type=path_text, default=None, help="write the result as JSON to this path (default: a file in --out)")
+    p.add_argument("--out", type=path_text, default=out, help=f"output folder for plots, recordings and results (default ./{out})")
     p.add_argument("--plant", choices=["model", "physics"], default=None,
                    help="model: the VLR model with hidden truth (fast); physics: Drake MultibodyPlant with the "
                         "rendered camera (default: the scenario's, else physics)")
@@ -998,7 +999,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = _parser("selfcheck", sub, "move the default hand with both solvers and compare")
     p.add_argument("--seed", type=count(0), default=0, help="seed of the grasp and the actions (default 0)")
-    p.add_argument("--json", default=None, help="write the result as JSON to this path")
+    p.add_argument("--json", type=path_text, default=None, help="write the result as JSON to this path")
 
     for name, help_text in [("identify", "run a self-identification experiment"),
                             ("demo", "the main job: self-check, self-identification, handwriting")]:
@@ -1022,7 +1023,7 @@ def main(argv: list[str] | None = None) -> int:
                            help="how each exploratory action is chosen: random (the paper's) or informative (the "
                                 "most informative of 8 random proposals; default: informative on the model plant, "
                                 "random on the physics plant)")
-            p.add_argument("--trace", default=None, metavar="PATH",
+            p.add_argument("--trace", type=path_text, default=None, metavar="PATH",
                            help="also save the run's trace (the filter's inputs and the truth) as .npz, for "
                                 "vlr-drake replay")
             p.add_argument("--draws", type=count(1), default=1, metavar="K",
@@ -1092,8 +1093,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--profile", default=None, metavar="PARAMETER",
                    help="fix this identified hand parameter at each of --values and compare the evidence: "
                         "stiffness [N m/rad] or link_length:<finger> [m]")
-    p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter "
-                                                  "(a negative first value as --values=-0.1,0.2)")
+    p.add_argument("--values", default=None, help="comma-separated values of the --profile parameter (positive: "
+                                                  "N m/rad or m)")
     p.add_argument("--statics", action="store_true",
                    help="with --profile: no replay; how the VLR's equilibrium under the motors' commands, with the "
                         "parameter at each value, agrees with the plant's true angles along the trace (simulation "
@@ -1115,11 +1116,11 @@ def main(argv: list[str] | None = None) -> int:
                         "also each trace's pooled estimate, the equal mixture of its draws' clouds (its mean "
                         "the draws' mean, its intervals their spread as well; --all-steps where draws would "
                         "stop at different steps)")
-    p.add_argument("--json", default=None, help="write the result as JSON to this path")
+    p.add_argument("--json", type=path_text, default=None, help="write the result as JSON to this path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p = _parser("diagrams", sub, "write each example scenario's diagram (.dot; .svg if Graphviz is installed)")
-    p.add_argument("--folder", default=None,
+    p.add_argument("--folder", type=path_text, default=None,
                    help="folder of scenario files; the diagrams are written beside them (default: diagrams/)")
     p.add_argument("--no-render", action="store_true", help="only the .dot text")
 
@@ -1133,7 +1134,7 @@ def main(argv: list[str] | None = None) -> int:
                         "time is split into physics, rendering, detection, filtering and the rest (default 30; "
                         "0: none)")
     p.add_argument("--seed", type=count(0), default=0, help="seed of every random draw (default 0)")
-    p.add_argument("--json", default=None, help="write the result as JSON to this path")
+    p.add_argument("--json", type=path_text, default=None, help="write the result as JSON to this path")
 
     args = parser.parse_args(argv)
     with warning_lines(f"vlr-drake {args.command}"):

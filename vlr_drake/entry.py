@@ -157,6 +157,18 @@ def count(least: int):
     return parse
 
 
+def path_text(text: str) -> str:
+    """An argparse type: a path, not empty. An empty one (a script's unset variable, as in
+    ``--trace "$T"``) had been taken for no path: the run went on without writing it, or
+    without its scenario, and exited 0."""
+    if not str(text).strip():
+        raise argparse.ArgumentTypeError("an empty path (an unset variable?)")
+    return text
+
+
+path_text.__name__ = "path"
+
+
 def as_spelled(text, names) -> str:
     """``text`` as one of ``names`` spells it, whatever its case (``nh2`` -> ``NH2``); a text
     that names none of them is returned as it is, for its user to refuse with the list."""

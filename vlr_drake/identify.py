@@ -899,7 +899,8 @@ def _result_dict(opts, hand, est, truth, converged_at, timing, prior, f, lost, p
         # None: the joints alone) and, at the end, their widest 95% interval as a fraction of
         # its estimate (None where every hand parameter is known)
         "parameter_convergence": opts.filter.parameter_convergence,
-        "parameter_interval": f.history[-1].parameter_interval if f.history else float("nan"),
+        # (the prior's, where no iteration ran: it had been null, as for a known hand)
+        "parameter_interval": f.parameter_interval(f.estimates[-1]),
         "timing_s": timing,
         "reinitialisations": f.reinitialisations,
         "lost_measurements": int(lost),

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlr_drake.entry import path_text
 from vlr_drake.hardware.camera import CameraIntrinsics, write_intrinsics
 
 __all__ = [
@@ -271,7 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--square", type=float, required=True, help="square side [m]")
     p.add_argument("--marker", type=float, help="ChArUco marker side [m]")
     p.add_argument("--fix-aspect", action="store_true", help="fix fx = fy")
-    p.add_argument("--out", required=True, help="output OpenCV YAML file")
+    p.add_argument("--out", type=path_text, required=True, help="output OpenCV YAML file")
     p.add_argument("images", nargs="+")
     a = p.parse_args(argv)
     from vlr_drake.entry import check_output

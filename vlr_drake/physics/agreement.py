@@ -148,7 +148,7 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import kinematics, motion, observation
-from vlr_drake.entry import check_output, count, plain, run
+from vlr_drake.entry import check_output, count, path_text, plain, run
 from vlr_drake.grasps import commanded_equilibrium
 from vlr_drake.hand import HandSpec, hand_by_name, model_o
 from vlr_drake.identify import EXPLORATION, default_squeeze
@@ -695,7 +695,7 @@ def main(argv: list[str] | None = None) -> dict:
                     help="add the stiffness experiment's common-mode squeezes to the random actions")
     ap.add_argument("--hold", type=float, default=0.0, metavar="SECONDS",
                     help="after the last action, hold the commands this long and report the plant's drift")
-    ap.add_argument("--json", default=None, help="write the result as JSON to this path")
+    ap.add_argument("--json", type=path_text, default=None, help="write the result as JSON to this path")
     args = ap.parse_args(argv)
     if not (np.isfinite(args.hold) and args.hold >= 0):
         ap.error(f"--hold: a duration >= 0 [s], got {args.hold}")

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import check_output, count, plain, run
+from vlr_drake.entry import check_output, count, path_text, plain, run
 from vlr_drake.hand import hand_by_name
 from vlr_drake.identify import Exploration
 from vlr_drake.kinematics import is_count, is_number
@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> list[CheckResult]:
     ap.add_argument(
         "--html-dir", default=None, help="save a Meshcat recording per object here (<object>.html)"
     )
-    ap.add_argument("--json", default=None, help="write the results here")
+    ap.add_argument("--json", type=path_text, default=None, help="write the results here")
     args = ap.parse_args(argv)
     args.objects = args.objects or list(PAPER_OBJECTS)  # (a default list would be extended, not replaced)
     check_output("--json", args.json)
