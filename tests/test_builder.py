@@ -375,11 +375,8 @@ def test_a_diagram_run_says_the_object_fell():
     assert fell["object_fell"] is True and fell["lost_measurements"] == 2
 
 
-def test_the_physics_diagram_renders_and_detects_one_frame_per_period(monkeypatch):
-    """The tag observer's held-pose update comes at the filter's offset, so both read one
-    detection of one rendered frame (the cache entry); at offset 0 it had rendered and
-    detected a second frame every period, a fifth of a diagram run's time."""
-    from vlr_drake.builder import run
+def _detection_times(monkeypatch) -> list:
+    """The times of every tag detection (a rendered frame's) from now on, as they come."""
     from vlr_drake.systems.tag_observer import TagObserver
 
     times = []
@@ -390,6 +387,16 @@ def test_the_physics_diagram_renders_and_detects_one_frame_per_period(monkeypatc
         return calc(self, context, value)
 
     monkeypatch.setattr(TagObserver, "_calc_detection", counted)
+    return times
+
+
+def test_the_physics_diagram_renders_and_detects_one_frame_per_period(monkeypatch):
+    """The tag observer's held-pose update comes at the filter's offset, so both read one
+    detection of one rendered frame (the cache entry); at offset 0 it had rendered and
+    detected a second frame every period, a fifth of a diagram run's time."""
+    from vlr_drake.builder import run
+
+    times = _detection_times(monkeypatch)
     s = load_scenario(DIAGRAMS_DIR / "default.yaml", FAST)
     r = run(s, iterations=2)
     T = s.period_sec()
@@ -402,16 +409,8 @@ def test_a_physics_diagram_with_control_detects_one_frame_per_period_too(monkeyp
     observer held at the filter's offset: they had each rendered and detected one of their
     own, a second frame every control period. The controller still steps on what it reads."""
     from vlr_drake.builder import default_iterations, run
-    from vlr_drake.systems.tag_observer import TagObserver
 
-    times = []
-    calc = TagObserver._calc_detection
-
-    def counted(self, context, value):
-        times.append(context.get_time())
-        return calc(self, context, value)
-
-    monkeypatch.setattr(TagObserver, "_calc_detection", counted)
+    times = _detection_times(monkeypatch)
     s = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml",
                       FAST + "plant: physics\ncontrol: {after_iterations: 2, anchor_frames: 1, max_periods: 2, "
                       "goals_mm: [[0.3, 0.0, 0.0]]}\n")
