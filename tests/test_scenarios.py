@@ -348,6 +348,10 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
         ("plant: model\nexploration: {span: 0.0005, window: 0.8}\n",
          "exploration: 'window': 0.8 m is longer than 0.045 m, more than a tendon's whole travel (45 mm)"),
         ("plant: physics\nexploration: {squeeze: 0.5, squeeze_window: 0.5}\n", "exploration: 'squeeze': 0.5 m"),
+        ("plant: model\nprior: {contact_half_width: 0.5}\n",
+         "prior: 'contact_half_width': 0.5 m is longer than 0.048 m, more than the longest last link (48 mm)"),
+        ("plant: model\nexploration: {period_sec: 700}\n",
+         "exploration: 'period_sec': 700 s is longer than 60 s, more than any action period here"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

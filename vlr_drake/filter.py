@@ -749,9 +749,14 @@ class PriorConfig:
         """Each finger's contact range along its last link [m]: (lower (N,), upper (N,)).
 
         Raises ``ValueError`` naming the finger when ``contact_limits`` is not an
-        increasing pair of finite distances or reaches past a finger's last link.
+        increasing pair of finite distances or reaches past a finger's last link (and the
+        field when ``contact_half_width`` is longer than every last link).
         """
         L = np.asarray(hand.distal_length, float)
+        # metres: a half-width past every pad draws the contacts anywhere on them, and 0.5
+        # meant as mm had run so
+        units.check_length(self.contact_half_width, "prior: 'contact_half_width'", float(L.max()),
+                           f"more than the longest last link ({1e3 * L.max():.0f} mm)")
         if self.contact_limits is None:
             short = [f"'{name}' ({length * 1e3:.1f} mm)" for name, length in zip(hand.names, L, strict=True)
                      if not length > CONTACT_MIN]

@@ -265,6 +265,7 @@ class ExplorationSettings:
                              f"({self.squeeze_window})")
         if not (np.isfinite(self.period_sec) and self.period_sec >= 0):
             raise ValueError(f"exploration: 'period_sec' must be finite and >= 0, got {self.period_sec}")
+        units.check_period(self.period_sec, "exploration: 'period_sec'")
         return self
 
 

@@ -41,6 +41,9 @@ WIDEST_POSE_NOISE = 0.01
 #: Wider than this [rad] a pose measurement's rotation noise is taken for degrees: the
 #: likelihood's is 1.5 deg, the camera's 0.02 (1.5 meant as degrees is 86 deg and had run).
 WIDEST_ROTATION_NOISE = np.deg2rad(15.0)
+#: Longer than this [s] an action period is taken for milliseconds: the plants' periods are
+#: 0.7-1 s (700 meant as ms had been taken for twelve minutes an action).
+LONGEST_PERIOD = 60.0
 #: Below this [deg] in every joint a grasp's angles are taken for radians (a warning): a
 #: grasp bends its joints by tens of degrees.
 SMALLEST_GRASP_DEG = 3.0
@@ -75,6 +78,14 @@ def check_angle(value, field: str, largest: float = LARGEST_ANGLE, what: str = "
     if v.size and np.nanmax(v) > largest:
         raise ValueError(f"{field}: {_show(value)} rad is more than {what}; angles are in radians: "
                          "was it given in degrees?")
+
+
+def check_period(value, field: str) -> None:
+    """Raise ``ValueError`` naming ``field`` where a period [s] is longer than
+    :data:`LONGEST_PERIOD`."""
+    if value > LONGEST_PERIOD:
+        raise ValueError(f"{field}: {value:g} s is longer than {LONGEST_PERIOD:g} s, more than any action period "
+                         "here (the plants' are 0.7-1 s); periods are in seconds: was it given in milliseconds?")
 
 
 def check_stiffness(value, field: str) -> None:
