@@ -475,10 +475,15 @@ def test_failed_particles_are_flagged_not_nan(model_o_hand):
     gs = grasps.sample_grasps(model_o_hand, rng, 20)
     # An impossible grasp: contact distances that no configuration near theta can reach.
     D2 = gs.D2 * 25.0  # contacts five times further apart than fingers reach
-    res = motion.move(model_o_hand, gs.theta, np.zeros(3), a=gs.a, D2=D2, stretch=gs.stretch, max_substeps=0)
+    dl = np.array([1e-3, -1e-3, 1e-3])
+    res = motion.move(model_o_hand, gs.theta, dl, a=gs.a, D2=D2, stretch=gs.stretch, max_substeps=0)
     assert not res.ok.any()
     assert np.all(np.isfinite(res.theta)) and np.all(np.isfinite(res.tension))
     np.testing.assert_array_equal(res.theta, gs.theta)
+    # held at its angles, the elastic tendon carries the action, s' = s + dl - R (theta' -
+    # theta) = s + dl (it had returned s, the action lost; a review)
+    np.testing.assert_allclose(res.stretch, gs.stretch + dl, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(res.tension, model_o_hand.kappa * (gs.stretch + dl), rtol=1e-12)
 
 
 def test_coincident_contacts_fail_their_particle_alone(model_o_hand):

@@ -98,7 +98,9 @@ class TendonLimitError(ValueError):
 
 @dataclass
 class MoveResult:
-    """Result of a batched move. Particles that failed keep their input angles.
+    """Result of a batched move. Particles that failed keep their input angles, and with
+    the elastic tendon the stretch the action leaves there, s + dl (ideal: their input
+    tension).
 
     Attributes:
         theta: (P, N, K) joint angles after the action.
@@ -847,9 +849,10 @@ def _finish_lanes(
                     T = -mu[i, w] if ideal else kappa[i] * sp[i, w]
                     T_out[p, i] = T
                     s_out[p, i] = T / kappa[i] if ideal else sp[i, w]
-                else:
-                    s_out[p, i] = sP[i, w]
-                    T_out[p, i] = kappa[i] * sP[i, w]
+                else:  # held at its angles: the elastic tendon stretched by the action
+                    s_fail = sP[i, w] if ideal else sP[i, w] + dlP[i, w]
+                    s_out[p, i] = s_fail
+                    T_out[p, i] = kappa[i] * s_fail
                 for k in range(K):
                     theta[p, i, k] = th[i, k, w] if o else thP[i, k, w]
             for c in range(m):
