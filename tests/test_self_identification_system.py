@@ -353,6 +353,29 @@ def test_model_plant_system_counts_the_actions_it_refuses():
     np.testing.assert_allclose(sys.GetOutputPort("tendon_position_measured").Eval(ctx), l0 + near, atol=1e-15)
 
 
+def test_a_drifting_contact_is_no_new_action_for_the_model_plant_system():
+    """With contact_drift the model plant restates its own tendon command after each move
+    (l = R theta + stretch stays true). The system had read that against the command it was
+    given as a new action, so a held command moved the plant again every period; one move
+    per command now, as vlr-drake identify makes."""
+    h, th, a = _grasp()
+    plant = ModelPlant(h, th, a, np.eye(3), np.array([0.0, 0.0, 0.11]), np.random.default_rng(1),
+                       contact_drift=0.5e-3)
+    l0 = plant.state.tendon_command.copy()
+    sys = ModelPlantSystem(plant, 1.0)
+    sim = Simulator(sys)
+    ctx = sim.get_mutable_context()
+    sys.GetInputPort("tendon_command").FixValue(ctx, l0 + np.array([0.5e-3, -0.3e-3, 0.2e-3]))
+    sim.AdvanceTo(0.5)  # the move, then the drift
+    theta = sys.GetOutputPort("theta_true").Eval(ctx).copy()
+    l_drifted = sys.GetOutputPort("tendon_position_measured").Eval(ctx).copy()
+    assert np.abs(l_drifted - (l0 + np.array([0.5e-3, -0.3e-3, 0.2e-3]))).max() > 1e-5  # the restated command
+    sim.AdvanceTo(3.5)  # three more updates with the command held
+    np.testing.assert_array_equal(sys.GetOutputPort("theta_true").Eval(ctx), theta)
+    np.testing.assert_array_equal(sys.GetOutputPort("tendon_position_measured").Eval(ctx), l_drifted)
+    assert sys.refused(ctx) == 0
+
+
 @pytest.mark.parametrize("l_grasp, match", [(np.full(3, np.nan), "finite"), (np.full(2, 0.015), "shape")])
 def test_exploration_refuses_a_bad_grasp_command(l_grasp, match):
     """A NaN grasp command used to give NaN tendon commands on the policy's output; a

@@ -289,6 +289,10 @@ class ModelPlantSystem(LeafSystem):
         self._N, self._K = h.N, h.K
         self._command = self.DeclareVectorInputPort(name="tendon_command", size=h.N)
         self._plant = self.DeclareAbstractState(model_value=AbstractValue.Make(copy.deepcopy(plant)))
+        # the command it last moved to: a contact drift restates the plant's own command
+        # (ModelPlant._drift_contacts), which is no new action (read against it, a held
+        # command had moved the plant again every period: a review)
+        self._given = self.DeclareDiscreteState(plant.state.tendon_command.copy())
         ticket = {self.abstract_state_ticket(self._plant)}
         self.DeclareAbstractOutputPort(name="X_PO_true", alloc=lambda: AbstractValue.Make(RigidTransform()),
                                        calc=self._calc_pose, prerequisites_of_calc=ticket)
@@ -311,16 +315,18 @@ class ModelPlantSystem(LeafSystem):
         l = np.array(self._command.Eval(context), float)
         if not np.all(np.isfinite(l)):  # |NaN| > 0 is False: it would be skipped silently
             raise ValueError(f"model plant: input 'tendon_command' is not finite: {l.tolist()}")
-        dl = l - plant.state.tendon_command
-        if np.any(np.abs(dl) > 0):
-            # a refused action (no nearby equilibrium) leaves the plant where it was: its
-            # measured tendon positions say so to the filter, and refused() counts it
-            plant.apply_action(dl)
+        given = state.get_mutable_discrete_state(self._given)
+        dl = l - given.get_value()
+        # a refused action (no nearby equilibrium) leaves the plant where it was: its
+        # measured tendon positions say so to the filter, refused() counts it, and the next
+        # update tries the whole difference again
+        if np.any(np.abs(dl) > 0) and plant.apply_action(dl):
+            given.SetFromVector(l)
 
     def refused(self, context) -> int:
-        """Actions the model plant refused so far in ``context`` (its own or the root's):
-        where it found no nearby equilibrium for the command (an identification run's
-        ``actions_refused``)."""
+        """Actions the model plant refused so far in ``context`` (a root context: a
+        diagram's, or its own where it runs alone): where it found no nearby equilibrium for
+        the command (an identification run's ``actions_refused``)."""
         return int(self._p(self.GetMyContextFromRoot(context)).failures)
 
     def _p(self, context) -> ModelPlant:
