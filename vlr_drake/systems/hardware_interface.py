@@ -18,7 +18,10 @@ where the motors start, not a jump), and never sends sooner than ``period_s`` of
 after the last send (it waits out the rest): a Simulator that fell behind real time (a slow
 filter, a stalled camera) runs its missed updates back to back, which had sent a full step
 each, 19 mm in 113 ms against the 20 mm/s limit, and had taken the measurement 0.9 T after
-an action a few milliseconds after it (a review). It then converts the command to motor ticks
+an action a few milliseconds after it (a review). The update reads the command as it stands
+before any discrete update at the same instant (Drake runs unrestricted updates first): a
+policy's or controller's new command at k T goes out at the next update, ``period_s`` later
+(50 ms by default; the filter reads at 0.9 T, long after). It then converts the command to motor ticks
 (:class:`vlr_drake.hardware.config.TendonMotorMap`), sends it with one sync write, reads all
 positions with one sync read, and takes a camera frame (a device or stream: the newest frame
 if it is fresher than ``config.camera_max_frame_age_s``, without waiting; a video file: the
