@@ -161,3 +161,6 @@ def test_06_hardware_mapping_calibration_and_emulated_bus(tmp_path, monkeypatch)
     assert z == pytest.approx(0.12, abs=1e-3)
     assert abs(y) < 0.5e-3
     assert min(abs(x - 0.002 * k) for k in range(5)) < 0.5e-3
+    # the emulated motors' record stays in the notebook's own folder: kept in the state
+    # folder, a second run (the same pty name, motors back at 2048) was refused as turned
+    assert not list(Path(os.environ["XDG_STATE_HOME"]).rglob("motors_*.json"))
