@@ -322,6 +322,16 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
     return p
 
 
+def test_a_marble_fits_on_the_tags_face(tmp_path: Path):
+    """The marble rolls on the tag's face: a box 10 mm thick along x with its tag on +x (a
+    90 x 90 mm face) takes a 12 mm marble; it had been refused as not fitting on the x-y face."""
+    text = ("plant: model\nobject_spec: {name: m, shape: box, size: [0.01, 0.09, 0.09], tag_face: '+x', "
+            "marble_radius: 0.006}\n")
+    assert load_scenario(_write(tmp_path, text)).object_spec.marble_radius == 0.006
+    with pytest.raises(ValueError, match=r"does not fit on the 0.09 x 0.09 m \+x face"):
+        load_scenario(_write(tmp_path, text.replace("0.006", "0.05")))
+
+
 @pytest.mark.parametrize(
     ("text", "field"),
     [
@@ -352,6 +362,17 @@ def _write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
          "prior: 'contact_half_width': 0.5 m is longer than 0.048 m, more than the longest last link (48 mm)"),
         ("plant: model\nexploration: {period_sec: 700}\n",
          "exploration: 'period_sec': 700 s is longer than 60 s, more than any action period here"),
+        # ... and the physics plant's and the model plant's own fields (a review)
+        ("physics: {settle_max: 500.0}\n", "physics: 'settle_max': 500 s is longer than 60 s"),
+        ("physics: {gravity: 9810.0}\n", "physics: 'gravity': 9810.0 is stronger than any gravity"),
+        ("physics: {grasp_settle_max: 0.0}\n", "physics: 'grasp_settle_max' must be a positive finite number"),
+        ("physics: {settle_max: 0.02}\n", "the physics plant's period 0.222 s (physics: ramp_time, and "
+                                           "fixed_settle_time or settle_max; exploration: 'period_sec' not given)"),
+        ("plant: model\nmodel_plant: {stiffness: [[80, 160], [80, 160], [80, 160]]}\n",
+         "model_plant: 'stiffness': [[80.0, 160.0]"),
+        ("plant: model\nmodel_plant: {sigma_rotation_deg: 30.0}\n",
+         "model_plant: 'sigma_rotation_deg' 30 deg is more than 15 deg"),
+        ("plant: model\nmodel_plant: {contact_drift: 0.5}\n", "model_plant: 'contact_drift': 0.5 m is longer"),
         ("plant: model\nfilter: {particls: 10}\n", "'filter.particls'"),  # unknown nested field
         ("plant: model\nobject_spec: {name: o, shape: sphere, size: [0.03], mass: -0.1}\n", "mass"),
         ("plant: model\nobject_spec: {name: o, size: [0.03], tag_id: 587}\n", "tag_id"),  # tag36h11: 0..586

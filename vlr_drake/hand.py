@@ -95,7 +95,8 @@ class FingerSpec:
     joint_damping: list[float] = field(default_factory=lambda: [0.002, 0.001])
     # Series stiffness of tendon plus motor position loop, kappa_i [N/m].
     tendon_stiffness: float = 2000.0
-    # Tendon damping for the physics plant [N s/m].
+    # Tendon damping for the physics plant [N s/m], where physics.tendon_damping is 0: that
+    # field (150 by default, the tendon with the motor's position loop) replaces it otherwise.
     tendon_damping: float = 5.0
     # Range of the commanded tendon pull l_i (0 = taut at a straight finger) [m].
     tendon_range: list[float] = field(default_factory=lambda: [0.0, 0.045])

@@ -155,9 +155,11 @@ class ObjectSpec:
                 units.check_length(getattr(self, fname), f"{where}: field '{fname}'")
         if (self.marble_radius > 0 or self.rim_height > 0) and self.shape != "box":
             raise ValueError(f"{where}: field 'shape' must be 'box' for a marble maze, got '{self.shape}'")
-        if self.marble_radius > 0 and 2 * self.marble_radius >= min(self.size[:2]):
+        # the marble rolls on the tag's face (it had been checked on the x-y face whatever the tag's)
+        face = [self.size[i] for i in range(3) if i != "xyz".index(self.tag_face[1])] if len(self.size) == 3 else []
+        if self.marble_radius > 0 and face and 2 * self.marble_radius >= min(face):
             raise ValueError(f"{where}: field 'marble_radius' ({self.marble_radius} m) does not fit on the "
-                             f"{self.size[0]} x {self.size[1]} m face")
+                             f"{face[0]} x {face[1]} m {self.tag_face} face (the tag's, which it rolls on)")
         return self
 
     # -- geometry -------------------------------------------------------------------------

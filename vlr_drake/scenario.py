@@ -304,6 +304,8 @@ class ModelPlantSettings:
             raise ValueError(f"model_plant: 'stiffness' must be {N} lists of {K}, got {self.stiffness}")
         if self.stiffness and not np.all(np.isfinite(self.stiffness) & (np.asarray(self.stiffness) > 0)):
             raise ValueError(f"model_plant: 'stiffness' must be positive and finite, got {self.stiffness}")
+        if self.stiffness:  # N m/rad (in N mm/rad it had been blamed on the preset hand's field)
+            units.check_stiffness(self.stiffness, "model_plant: 'stiffness'")
         if self.link_lengths and _shape_of(self.link_lengths) != (N, K - 1):
             raise ValueError(
                 f"model_plant: 'link_lengths' must be {N} lists of {K - 1}, got {self.link_lengths}"
@@ -313,12 +315,19 @@ class ModelPlantSettings:
         if self.link_lengths:  # metres, as the hand's (a review: [[50], ...] ran)
             units.check_length(self.link_lengths, "model_plant: 'link_lengths'")
         units.check_pose_noise(self.sigma_position, "model_plant: 'sigma_position'")
+        widest = np.rad2deg(units.WIDEST_ROTATION_NOISE)  # (in degrees here: the plant's check said radians)
+        if self.sigma_rotation_deg > widest:
+            raise ValueError(f"model_plant: 'sigma_rotation_deg' {self.sigma_rotation_deg:g} deg is more than "
+                             f"{widest:g} deg, wider than any tag camera's rotation noise")
         if not 0 <= self.center_offset_fraction <= 1:
             raise ValueError(
                 f"model_plant: 'center_offset_fraction' must be in [0, 1], got {self.center_offset_fraction}"
             )
         if not (np.isfinite(self.contact_drift) and self.contact_drift >= 0):
             raise ValueError(f"model_plant: 'contact_drift' must be finite and >= 0, got {self.contact_drift}")
+        # metres: 0.5 meant as mm threw the contacts to the links' ends at every action
+        units.check_length(self.contact_drift, "model_plant: 'contact_drift'", units.WIDEST_POSE_NOISE,
+                           "a roll per action wider than a pad could take")
         return self
 
 
@@ -603,8 +612,12 @@ class Scenario:
         if self.plant == "physics":  # ... when the tendons' ramp is over
             T, ramp = self.period_sec(), self.physics.ramp_time + 2 * self.physics.ramp_update_period
             if phase * T < ramp:  # (a review: 0.15 s against a 0.2 s ramp read tendons mid-ramp)
+                # the period given, or the plant's own (ramp and settle): name the fields that made it
+                given = (f"exploration: 'period_sec' {T} s" if self.exploration.period_sec > 0 else
+                         f"the physics plant's period {T:.3g} s (physics: ramp_time, and fixed_settle_time or "
+                         "settle_max; exploration: 'period_sec' not given)")
                 raise ValueError(
-                    f"exploration: 'period_sec' {T} s: the filter measures at {phase:g} of it ({phase * T:.3g} s), "
+                    f"{given}: the filter measures at {phase:g} of it ({phase * T:.3g} s), "
                     f"before the tendons' ramp ends (physics.ramp_time {self.physics.ramp_time} s, and two "
                     f"updates): a period of at least {ramp / phase:.3g} s")
         if self.plant == "hardware":

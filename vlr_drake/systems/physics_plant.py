@@ -91,6 +91,7 @@ from pydrake.systems.framework import (
 )
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
+from vlr_drake import units
 from vlr_drake.hand import HandModel, HandSpec
 from vlr_drake.kinematics import checked_seed, is_count, is_number
 from vlr_drake.models import (
@@ -281,7 +282,6 @@ class PhysicsConfig:
             "pretension",
             "thumb_factor",
             "settle_max",
-            "grasp_settle_max",
             "fixed_settle_time",
             "gravity",
             "auto_place_range",
@@ -292,6 +292,7 @@ class PhysicsConfig:
                 raise ValueError(f"physics: '{name}' must be a finite number >= 0, got {v!r}")
         for name in [
             "time_step",
+            "grasp_settle_max",  # (0 left the grasp unsettled, ended in "fingers in contact [False, ...]")
             "ramp_update_period",
             "settle_window",
             "contact_sample_period",
@@ -304,6 +305,11 @@ class PhysicsConfig:
             v = getattr(self, name)
             if not (is_number(v) and 0 < v < np.inf):
                 raise ValueError(f"physics: '{name}' must be a positive finite number, got {v!r}")
+        # seconds and m/s^2: settle_max 500 meant as ms made an action eight minutes long, and
+        # gravity 9810 (mm/s^2) ended in a grasp that "failed" (a review)
+        for name in ("ramp_time", "settle_max", "grasp_settle_max", "fixed_settle_time"):
+            units.check_period(getattr(self, name), f"physics: '{name}'")
+        units.check_gravity(self.gravity, "physics: 'gravity'")
         if self.settle_window < self.time_step:
             raise ValueError(f"physics: 'settle_window' ({self.settle_window} s) must be at least the plant's "
                              f"'time_step' ({self.time_step} s): a window without a step sees no motion and "
