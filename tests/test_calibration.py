@@ -59,6 +59,40 @@ def test_chessboard_calibration_recovers_focal_length(rng, tmp_path):
     assert np.allclose(back.K, K) and np.allclose(back.dist, res.intrinsics.dist)
 
 
+ROS_CALIBRATION = """image_width: 640
+image_height: 480
+camera_name: palm
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [500.0, 0.0, 319.5, 0.0, 501.0, 239.5, 0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.1, 0.01, 0.0, 0.0, 0.0]
+"""
+
+
+def test_a_ros_calibration_file_is_read_and_a_bad_one_named(tmp_path):
+    """ROS's camera_calibration writes the same node names with plain rows, cols and data: it
+    is read. It, an empty file and a malformed one had ended in OpenCV's tracebacks (a review)."""
+    from vlr_drake.hardware.camera import CameraError
+
+    (tmp_path / "ros.yaml").write_text(ROS_CALIBRATION)
+    intr = read_intrinsics(tmp_path / "ros.yaml")
+    np.testing.assert_array_equal(intr.K, [[500.0, 0.0, 319.5], [0.0, 501.0, 239.5], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(intr.dist, [-0.1, 0.01, 0.0, 0.0, 0.0])
+    assert (intr.width, intr.height) == (640, 480)
+    for name, text, said in (("empty", "", "cannot parse camera calibration file"),
+                             ("broken", "camera_matrix: [1, 2\n", "cannot parse camera calibration file"),
+                             ("lists", "image_width: 640\nimage_height: 480\ncamera_matrix: [[500, 0, 320], [0, 500, "
+                              "240], [0, 0, 1]]\ndistortion_coefficients: [0, 0, 0, 0, 0]\n", "must be matrices")):
+        (tmp_path / f"{name}.yaml").write_text(text)
+        with pytest.raises(CameraError, match=said):
+            read_intrinsics(tmp_path / f"{name}.yaml")
+
+
 def test_images_without_the_board_are_skipped(rng):
     pattern, square = (9, 6), 0.025
     tex = chessboard_image(pattern, square_px=40)

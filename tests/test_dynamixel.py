@@ -8,6 +8,7 @@ CRC and byte stuffing on both sides.
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -387,6 +388,22 @@ def test_a_model_without_current_control_is_named_in_current_mode():
         assert all(p == bytes([ADDR_TORQUE_ENABLE, 0, 0]) for _, _, p in emu.instructions(WRITE))
         with make_motors(emu, operating_mode=4) as motors:
             assert motors.model_numbers == [1060] * 3 and all(emu.torque_enabled(i) for i in IDS)
+    with DynamixelEmulator(IDS, model_number=1090) as emu:  # the 2XL430-W250 had been let through
+        with pytest.raises(DynamixelError, match=r"id 1 is an 2XL430-W250.*no current-based position mode"):
+            make_motors(emu).open()
+
+
+def test_one_corrupted_reply_to_the_torque_off_is_retried(emulator):
+    """close() asks each motor to confirm its torque off; one corrupted reply had left the
+    motor unconfirmed and raised "cut the motors' power" (a review). It is retried as every
+    other transaction is."""
+    motors = make_motors(emulator)
+    motors.open()
+    emulator.corrupt_next = 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "did not confirm torque off" warning
+        motors.close()
+    assert motors.unconfirmed == [] and not any(emulator.torque_enabled(i) for i in IDS)
 
 
 def test_a_status_error_in_a_sync_read_is_retried_and_named():

@@ -512,6 +512,46 @@ def test_system_ports_with_fixed_input_and_forced_update(emulator, tag_video, mo
     assert hw.closed
 
 
+def test_the_camera_check_counts_new_frames_not_a_stalled_one_given_again(monkeypatch):
+    """In latest mode a frame still fresh is given again; the bring-up check had read its
+    frames back to back and passed a camera that gave one frame and stalled (30 of 30). It
+    paces its reads as a run does and needs more than one new frame (a review)."""
+    import io
+    import threading
+
+    import cv2
+
+    from vlr_drake.hardware.__main__ import main as bring_up
+
+    class OneFrameThenStall:
+        def __init__(self, source):
+            self.n, self.stop = 0, threading.Event()
+
+        def isOpened(self):
+            return True
+
+        def read(self):
+            self.n += 1
+            if self.n == 1:
+                return True, np.zeros((480, 640, 3), np.uint8)
+            self.stop.wait(2.0)  # the device stalls
+            return False, None
+
+        def set(self, *args):
+            return True
+
+        def get(self, *args):
+            return 0.0
+
+        def release(self):
+            self.stop.set()
+
+    monkeypatch.setattr(cv2, "VideoCapture", OneFrameThenStall)
+    out = io.StringIO()
+    assert bring_up(["camera", "--set", "camera: '0'\ncamera_max_frame_age_s: 0.2", "--frames", "10"], out=out) == 1
+    assert "(1 new; latest mode gives a frame still fresh again)" in out.getvalue()
+
+
 def test_end_to_end_with_tag_observer(emulator, tag_video):
     """The interface under Drake's Simulator in real time: commands reach the motors as the
     right ticks (clipped at the limits), the AprilTag observer sees the video's poses, the

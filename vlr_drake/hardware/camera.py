@@ -110,15 +110,43 @@ def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, rms_px: flo
         fs.release()
 
 
+def _matrix(node) -> np.ndarray | None:
+    """A FileNode's matrix: an OpenCV one (``!!opencv-matrix``), or a mapping of rows, cols
+    and a flat data list, as ROS's camera_calibration writes them; None if it is neither."""
+    import cv2
+
+    try:
+        m = node.mat()
+        if m is not None:
+            return m
+    except (cv2.error, SystemError):  # (OpenCV raises on a mapping without the matrix tag)
+        pass
+    if not node.isMap():
+        return None
+    rows, cols, data = node.getNode("rows"), node.getNode("cols"), node.getNode("data")
+    if rows.empty() or cols.empty() or data.empty() or not data.isSeq():
+        return None
+    values = np.array([data.at(i).real() for i in range(data.size())], np.float64)
+    shape = (int(rows.real()), int(cols.real()))
+    return values.reshape(shape) if values.size == shape[0] * shape[1] else None
+
+
 def read_intrinsics(path: str | Path) -> CameraIntrinsics:
-    """Read an OpenCV YAML intrinsics file; a missing file or node is an error naming it."""
+    """Read an intrinsics file: OpenCV YAML (as ``python -m vlr_drake.hardware calibrate``
+    writes it) or a ROS camera_calibration YAML (its matrices as rows, cols and data); a
+    missing file or node is an error naming it."""
     import cv2
 
     if not Path(path).is_file():
         raise FileNotFoundError(f"camera calibration file '{path}' does not exist")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    expected = ("OpenCV YAML expected, as python -m vlr_drake.hardware calibrate writes, or ROS's "
+                "camera_calibration YAML: each matrix with rows, cols and data")
+    try:  # OpenCV raises on an empty or malformed file, and on a matrix without its tag (a review)
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:
+        raise CameraError(f"cannot parse camera calibration file '{path}' ({expected}): {e}") from None
     if not fs.isOpened():
-        raise CameraError(f"cannot parse camera calibration file '{path}' (OpenCV YAML expected)")
+        raise CameraError(f"cannot parse camera calibration file '{path}' ({expected})")
     try:
         nodes = {}
         for name in ("camera_matrix", "distortion_coefficients", "image_width", "image_height"):
@@ -126,14 +154,14 @@ def read_intrinsics(path: str | Path) -> CameraIntrinsics:
             if node.empty():
                 raise CameraError(f"camera calibration file '{path}' has no '{name}'")
             nodes[name] = node
-        K = nodes["camera_matrix"].mat()
-        dist = nodes["distortion_coefficients"].mat()
+        K, dist = _matrix(nodes["camera_matrix"]), _matrix(nodes["distortion_coefficients"])
         width, height = int(nodes["image_width"].real()), int(nodes["image_height"].real())
     finally:
         fs.release()
     if K is None or dist is None:
         raise CameraError(
-            f"camera calibration file '{path}': 'camera_matrix' and 'distortion_coefficients' must be matrices"
+            f"camera calibration file '{path}': 'camera_matrix' and 'distortion_coefficients' must be matrices "
+            f"({expected})"
         )
     try:
         return CameraIntrinsics(K=K, dist=dist.ravel(), width=width, height=height).validate()

@@ -71,7 +71,8 @@ GOAL_CURRENT_MAX = 2047  # the register's range, raw units (about 2.69 mA each o
 #: Model numbers (address 0, what a ping returns) of X-series servos without current
 #: sensing: their operating modes are velocity, position, extended position and PWM
 #: (ROBOTIS e-manual, each model's specifications), so no current-based position mode.
-NO_CURRENT_MODELS = {1060: "XL430-W250", 1070: "XC430-W150", 1080: "XC430-W240", 1160: "2XC430-W250"}
+NO_CURRENT_MODELS = {1060: "XL430-W250", 1070: "XC430-W150", 1080: "XC430-W240", 1090: "2XL430-W250",
+                     1160: "2XC430-W250"}
 #: How long a motor takes to answer again after a REBOOT instruction [s].
 REBOOT_WAIT_S = 0.5
 ADDR_GOAL_POSITION = 116  # 4 bytes
@@ -522,12 +523,17 @@ class TendonMotors:
             log.warning("broadcast torque off on %s failed: %s", self.port_name, e)
         self.unconfirmed = []
         for dxl_id in self.motor_ids:
-            try:
-                self._port.is_using = False
-                result, error = self._ph.write1ByteTxRx(self._port, dxl_id, ADDR_TORQUE_ENABLE, 0)
-                if not (result == sdk.COMM_SUCCESS and (error & ~ERRBIT_ALERT) == 0):
-                    self.unconfirmed.append(dxl_id)
-            except Exception:
+            # retried as every other transaction (one corrupted reply had raised "cut the
+            # motors' power" for a motor whose torque the broadcast had switched off: a review)
+            for _ in range(1 + self.comm_retries):
+                try:
+                    self._port.is_using = False
+                    result, error = self._ph.write1ByteTxRx(self._port, dxl_id, ADDR_TORQUE_ENABLE, 0)
+                    if result == sdk.COMM_SUCCESS and (error & ~ERRBIT_ALERT) == 0:
+                        break
+                except Exception:  # noqa: BLE001 - retried, then reported as unconfirmed
+                    pass
+            else:
                 self.unconfirmed.append(dxl_id)
         self.torque_on = False
         return not self.unconfirmed
