@@ -887,6 +887,20 @@ def test_the_controller_follows_the_applied_command_until_it_starts_then_keeps_a
     assert np.any(moved != 0) and np.max(np.abs(moved)) <= 0.3e-3 + 1e-12
     with pytest.raises(ValueError, match="'window' must be None or a positive"):
         JacobianController(h, l0, 0.1, window=0.0)
+    # a start further below narrower limits than the window: it moves into the limits one
+    # clipped step at a time, as without a window (the empty window had been refused as
+    # 'limits' the user never gave: a review)
+    lim = np.column_stack([l0 + 3e-3, l0 + 6e-3])
+    for window in (None, 2e-3):
+        c = JacobianController(h, l0, 0.1, rows="position", limits=lim, window=window)
+        cx = c.CreateDefaultContext()
+        c.X_PO_goal_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t + [1e-3, 0.0, 0.0]))
+        c.X_PO_measured_input_port().FixValue(cx, RigidTransform(RotationMatrix(R), t))
+        c.X_PO_valid_input_port().FixValue(cx, [1.0])
+        c.estimate_input_port().FixValue(cx, {"theta": pl.state.theta.copy(), "a": pl.state.a.copy()})
+        c.ExecuteForcedEvents(cx)
+        step = c.tendon_command_output_port().Eval(cx) - l0
+        assert np.all(step > 0) and np.max(step) <= 1e-3 + 1e-12, (window, step)  # towards the limits, clipped
     phase = ControlPhase(2.0, "explore", "control")
     px = phase.CreateDefaultContext()
     px.SetTime(1.9)

@@ -510,6 +510,10 @@ def test_task_grasps_have_room_to_move():
         assert copy.deepcopy(loose.plant).apply_action(dl) == p
     with pytest.raises(ValueError, match="possible_actions"):
         loose.plant.possible_actions(np.zeros(3))
+    # a given grasp: both its angles and contacts (the angles alone had been replaced by a draw)
+    assert np.array_equal(common.make_model_plant(5, theta=tp.theta0, a=tp.a0).theta0, tp.theta0)
+    with pytest.raises(ValueError, match="'theta' and 'a' together"):
+        common.make_model_plant(5, theta=tp.theta0)
 
 
 def test_a_bad_identification_count_is_named():

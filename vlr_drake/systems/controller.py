@@ -238,9 +238,13 @@ class JacobianController(LeafSystem):
         packed = np.array(context.get_discrete_state(self._limit_state).get_value())
         if packed[-1] < 0.5:  # the first step in control: the window about where it starts
             lim0 = packed[:-1].reshape(self._hand.N, 2)
-            about = np.column_stack([l_now - self._window, l_now + self._window])
-            packed = np.concatenate([control.tendon_limits(self._hand, np.column_stack(
-                [np.maximum(about[:, 0], lim0[:, 0]), np.minimum(about[:, 1], lim0[:, 1])])).ravel(), [1.0]])
+            both = np.column_stack([np.maximum(l_now - self._window, lim0[:, 0]),
+                                    np.minimum(l_now + self._window, lim0[:, 1])])
+            # a tendon that starts further outside the limits than the window: the limits, which
+            # it moves into one clipped step at a time (the empty intersection had been refused
+            # as 'limits' never given: a review)
+            both = np.where((both[:, 0] > both[:, 1])[:, None], lim0, both)
+            packed = np.concatenate([control.tendon_limits(self._hand, both).ravel(), [1.0]])
             discrete_state.get_mutable_vector(self._limit_state).SetFromVector(packed)
         lim = packed[:-1].reshape(self._hand.N, 2)
         valid = checked_flag(self._valid.Eval(context)[0], "controller: input 'X_PO_valid'")

@@ -174,7 +174,9 @@ def make_model_plant(
     camera stand-in's Gaussian pose noise."""
     hand = model_o().model() if hand is None else hand
     rng = np.random.default_rng(seed)
-    if theta is None or a is None:
+    if (theta is None) != (a is None):  # (one alone had been replaced by a drawn grasp without a word)
+        raise ValueError("make_model_plant: give the grasp's 'theta' and 'a' together, or neither (a drawn grasp)")
+    if theta is None:
         theta, a = grasp_config(hand, rng, min_possible=min_possible)
     plant = ModelPlant(
         hand,
