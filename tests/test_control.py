@@ -1,6 +1,7 @@
 """Tests of the Jacobian controller (vlr_drake.control) and its LeafSystems."""
 
 import copy
+import dataclasses
 import inspect
 
 import numpy as np
@@ -247,6 +248,21 @@ def test_goal_beyond_tendon_limits_stops_at_the_limit(grasp):
     assert rep.at_limit and rep.iterations <= 30
     for l in pl.commands:
         assert np.all(l >= hand.tendon_range[:, 0] - 1e-12) and np.all(l <= hand.tendon_range[:, 1] + 1e-12)
+
+
+def test_servo_does_not_steer_with_a_model_that_is_no_physical_grasp(grasp):
+    """A model with a Jacobian that is no physical grasp (a pushing tendon: the mean of a
+    cloud, filter_model_fn's last resort) had steered the plant, 1 mm off becoming 5.3 (a
+    review); the servo stops with "no_equilibrium", as filter_model_fn's docstring says,
+    and the task's first model is refused."""
+    pl = RecordingPlant(fresh(grasp))
+    model = dataclasses.replace(control.ControlModel.from_plant_truth(pl.plant), physical=False)
+    control.jacobian(model)  # it has a Jacobian
+    rep = control.servo_to(np.eye(3), pl.state.t_PO + [1e-3, 0.0, 0.0], pl, lambda dl, R, t, valid: model,
+                           rows="position", max_steps=5)
+    assert rep.reason == "no_equilibrium" and rep.iterations == 0 and not pl.commands
+    with pytest.raises(common.TaskSetupError, match="write, seed 3: the controller's model is no physical grasp"):
+        common.start_model(pl, lambda dl, R, t, valid: model, pl.hand, "write", 3)
 
 
 def test_servo_never_loops_forever_with_zero_budget(grasp):

@@ -530,9 +530,10 @@ def servo_to(
         if since_best >= stall_steps:
             reason = "stalled"
             break
-        try:
-            J = jacobian(model, eps)
-        except RuntimeError:
+        # a model that is no physical grasp (a pushing tendon: a mean of hypotheses,
+        # filter_model_fn's last resort) had steered on its Jacobian (a review)
+        J = _jacobian_if_usable(model, eps)
+        if J is None:
             reason = "no_equilibrium"
             break
         dl = step(J, e)

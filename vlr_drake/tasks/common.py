@@ -46,6 +46,9 @@ def start_model(pl, model_fn, hand, task: str, seed: int):
     :class:`TaskSetupError` naming the task and seed."""
     R, t, valid = pl.measure()
     model = model_fn(np.zeros(hand.N), R, t, valid)
+    if not model.physical:  # (its Jacobian had been taken all the same: a review)
+        raise TaskSetupError(f"{task}, seed {seed}: the controller's model is no physical grasp (a tendon would "
+                             "push); try another seed")
     try:
         J = control.jacobian(model)
     except RuntimeError as e:
