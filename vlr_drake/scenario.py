@@ -589,15 +589,16 @@ class Scenario:
         _with_section("observer", obs.validate)
         N, K = hand.num_fingers, hand.num_joints_per_finger
         self.prior.validate(N, K)
-        _with_section("prior", lambda: self.prior.to_prior().contact_bounds(hand.model()))
+        model = hand.model()
+        _with_section("prior", lambda: self.prior.to_prior().contact_bounds(model))
         self.exploration.validate()
-        travel = float(np.min(np.diff(hand.model().tendon_range, axis=1)))
+        travel = float(np.min(np.diff(model.tendon_range, axis=1)))
         for name in ("span", "window", "squeeze", "squeeze_window"):  # (0.8 meant as mm had run)
             if getattr(self.exploration, name) is not None:
                 units.check_length(getattr(self.exploration, name), f"exploration: '{name}'", travel,
                                    f"more than a tendon's whole travel ({1e3 * travel:g} mm)")
         self.model_plant.validate(N, K)
-        self.grasp.validate(N, K, hand.model())
+        self.grasp.validate(N, K, model)
         self.control.validate()
         if self.plant != "hardware" and np.any(self.filter.gravity_palm):
             raise ValueError(f"filter: 'gravity_palm' is a hardware hand's mounting; the {self.plant} plant sets "
