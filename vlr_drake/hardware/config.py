@@ -96,7 +96,8 @@ class HardwareConfig:
     current_unit_a: float = 0.00269
     # Camera: an int device index, or a str file path or stream URL (OpenCV VideoCapture).
     camera: int | str = 0
-    # OpenCV YAML intrinsics file (camera_matrix, distortion_coefficients, image size);
+    # Intrinsics file (camera_matrix, distortion_coefficients, image size): OpenCV YAML, as
+    # python -m vlr_drake.hardware.calibrate writes it, or a ROS camera_calibration YAML;
     # relative paths are resolved against the scenario file's folder by the caller.
     calibration_file: str = "camera_intrinsics.yaml"
     # Longest wait for one camera frame before the frame is reported invalid [s].
