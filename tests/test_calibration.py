@@ -144,8 +144,12 @@ def test_bad_targets_and_images_are_named():
                                            ((1, 1), 0.03, 0.02, "squares"), ((2, 2), 0.03, 0.02, "squares")]:
         with pytest.raises(ValueError, match=field):
             calibrate_charuco([blank], squares, square, marker)
-    with pytest.raises(ValueError, match="square_size must be positive, got nan"):  # was accepted
+    with pytest.raises(ValueError, match="square_size must be positive and finite, got nan"):  # was accepted
         calibrate_chessboard([blank], (9, 6), float("nan"))
+    for calibrate in (lambda: calibrate_chessboard([blank], (9, 6), float("inf")),  # (OpenCV's traceback)
+                      lambda: calibrate_charuco([blank], (7, 5), float("inf"), 0.02)):
+        with pytest.raises(ValueError, match="square_size must be positive and finite, got inf"):
+            calibrate()
     with pytest.raises(ValueError, match="all calibration images must have one size"):
         calibrate_charuco([blank, blank[:240, :320]], (7, 5), 0.03, 0.02)
     for image in (np.zeros((0, 0), np.uint8), np.zeros(10, np.uint8), np.zeros((10, 10, 2), np.uint8)):

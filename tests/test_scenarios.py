@@ -612,6 +612,7 @@ def test_a_field_given_twice_is_named(tmp_path):
     ("hardware.yaml", "filter: {gravity_palm: [0.0, 0.0, 9810.0]}", "filter: 'gravity_palm'.*mm/s"),
     ("model_plant.yaml", "exploration: {span: 0.5, window: 6.0}", "exploration: 'window'"),
     ("hardware.yaml", "hardware: {spool_radius: 5.0}", "'spool_radius'"),
+    ("hardware.yaml", "hardware: {grasp_tolerance: 0.5}", "'grasp_tolerance': 0.5 m is longer than 0.01 m"),
     ("custom_hand_and_object.yaml", "object_spec: {size: [80.0, 60.0, 40.0]}", "field 'size'"),
 ])
 def test_values_in_another_unit_are_refused_by_name(base, override, named):

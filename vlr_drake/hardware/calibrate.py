@@ -126,8 +126,8 @@ def calibrate_chessboard(
     cols, rows = (int(x) for x in pattern_size)
     if cols < 2 or rows < 2:
         raise ValueError(f"pattern_size must count at least 2 x 2 inner corners, got {pattern_size}")
-    if not square_size > 0:
-        raise ValueError(f"square_size must be positive, got {square_size}")
+    if not 0 < square_size < np.inf:  # (inf had ended in OpenCV's traceback: a review)
+        raise ValueError(f"square_size must be positive and finite, got {square_size}")
     obj = np.zeros((rows * cols, 3), np.float32)
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square_size
     object_points, image_points, used, size = [], [], [], None
@@ -166,8 +166,8 @@ def calibrate_charuco(
     if cols < 2 or rows < 2 or (cols - 1) * (rows - 1) < 6:  # its inner corners; a view needs 6 of them
         raise ValueError(f"squares must give the board at least 6 inner corners (e.g. 3 x 4 ChArUco squares), "
                          f"got {squares}")
-    if not square_size > 0:
-        raise ValueError(f"square_size must be positive, got {square_size}")
+    if not 0 < square_size < np.inf:
+        raise ValueError(f"square_size must be positive and finite, got {square_size}")
     if not 0 < marker_size < square_size:
         raise ValueError(f"marker_size must be positive and smaller than square_size ({square_size}), got {marker_size}")
     dictionary = aruco.DICT_5X5_100 if dictionary is None else dictionary

@@ -220,6 +220,9 @@ class HardwareConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{where}: '{name}' must be positive, got {v}")
+        # metres: 0.5 meant as mm had been taken as half a metre, any grasp "within" it
+        units.check_length(self.grasp_tolerance, f"{where}: 'grasp_tolerance'", 0.01,
+                           "a grasp missed by centimetres is no grasp")
         step = self.max_tendon_speed * self.period_s
         if step > MAX_UPDATE_STEP * (1 + 1e-9):
             raise ValueError(
