@@ -1900,7 +1900,6 @@ def test_convergence_waits_for_the_identified_hand_parameters():
     estimate (half width, or the full width with convergence_measure "full_width"), NaN for a
     known hand; with parameter_convergence set, a cloud whose joints have converged has not
     while that interval is wider (None: the joints alone, the paper's test)."""
-    from types import SimpleNamespace
 
     h = model_o().model()
     M = 2000
@@ -1921,7 +1920,7 @@ def test_convergence_waits_for_the_identified_hand_parameters():
     assert 0.05 < f.parameter_interval() < 0.07
 
     def report(filt):
-        return filt._report(True, float(M), 1.0, SimpleNamespace(ok=np.ones(M, bool)), np.ones(M, bool), False, 0.0)
+        return filt._report(True, float(M), 1.0, np.ones(M, bool), np.ones(M, bool), False, 0.0)
 
     assert f.config.parameter_convergence == 0.05  # the default
     rep = report(f)

@@ -563,7 +563,8 @@ def test_a_task_that_cannot_start_is_named_in_one_line(monkeypatch, capsys):
             return np.eye(3), np.zeros(3), False
 
     with pytest.raises(common.TaskSetupError, match=r"write, seed 2: the controller's model has no equilibrium"):
-        common.start_model(Plant(), lambda dl, R, t, valid: None, common.model_o().model(), "write", 2)
+        common.start_model(Plant(), lambda dl, R, t, valid: SimpleNamespace(physical=True), common.model_o().model(),
+                           "write", 2)
 
 
 def test_pooled_stats_are_those_of_all_the_values():
