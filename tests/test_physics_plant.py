@@ -637,3 +637,43 @@ def test_custom_object_with_a_new_tag_renders_without_touching_the_repository():
     _, ids, _ = cv2.aruco.ArucoDetector(dictionary(), cv2.aruco.DetectorParameters()).detectMarkers(gray)
     assert ids is not None and 321 in np.ravel(ids)
     assert sorted(p.name for p in (models_dir() / "objects").rglob("*")) == before
+
+
+def test_a_settle_window_with_no_plant_step_is_not_taken():
+    """A settle window that does not divide the cap left a last window shorter than a time
+    step (33.3 ms windows into 0.5 s: 0.5 ms), which saw no motion and passed: every action
+    read as settled with zero creep under thresholds nothing meets (a review). The cap is
+    reached instead; a fixed settle shorter than a step is refused."""
+    from vlr_drake.systems.physics_plant import build_physics_hand
+
+    never = dict(settle_object_speed=1e-9, settle_object_angular_speed=1e-9, settle_joint_speed=1e-9)
+    cfg = PhysicsConfig(settle_window=0.0333, **never).validate()
+    _, ph, sim = build_physics_hand(model_o(), preset("apple"), cfg, None)
+    ph.grasp(sim)
+    r = ph.apply_action(sim, np.array([0.0015, -0.0015, 0.001]), render=False)
+    assert not r.settled and r.settle_time == pytest.approx(cfg.settle_max) and r.creep_mm_per_s > 0
+    with pytest.raises(ValueError, match="'fixed_settle_time' \\(0.0005 s\\) must be 0 or at least"):
+        PhysicsConfig(fixed_settle_time=0.0005).validate()
+
+
+def test_auto_pretension_gives_the_thumb_factor_to_a_thumb():
+    """The Model O's kinematics with no finger named thumb got neither the thumb's factor
+    (it goes by name) nor the balanced tensions: every tendon at 20 N, the block slipping
+    four times as far (a review). Such a hand is balanced."""
+    spec = model_o()
+    assert PhysicsConfig().pretension_mode_for(spec.model()) == "thumb_factor"
+    spec.fingers[0].name = "opposer"
+    assert PhysicsConfig().pretension_mode_for(spec.model()) == "balanced"
+
+
+def test_a_grasp_that_did_not_settle_is_said():
+    """identify's physics adapter had started from a grasp whose settle ran out at
+    grasp_settle_max without a word (a review)."""
+    from vlr_drake.identify import IdentifyOptions
+    from vlr_drake.physics_identify import PhysicsAdapter
+
+    opts = IdentifyOptions(plant="physics", object="apple", seed=3)
+    adapter = PhysicsAdapter(opts, hand_by_name("model_o"), np.random.default_rng(0),
+                             PhysicsConfig(grasp_settle_max=0.03), CameraConfig())
+    with pytest.warns(RuntimeWarning, match="the grasp of 'apple' did not settle within physics.grasp_settle_max"):
+        adapter.start(None)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
+import warnings
 
 import numpy as np
 
@@ -76,6 +77,13 @@ class PhysicsAdapter:
                 f"grasp of '{self.obj.name}' failed: fingers in contact {g.in_contact.tolist()}; the pads do not "
                 f"hold the object at the grasp (check the physics section: pretension {self.physics.pretension} N, "
                 f"pretension_mode '{self.physics.pretension_mode}'; and the object's placement)")
+        if not (g.settled and g.held):  # (it had started in silence from a grasp still moving: a review)
+            why = ("did not settle within physics.grasp_settle_max "
+                   f"({self.physics.grasp_settle_max} s)" if not g.settled else
+                   f"moved {g.object_shift_mm:.1f} mm while settling (physics.fall_distance "
+                   f"{1e3 * self.physics.fall_distance:g} mm)")
+            warnings.warn(f"identify: the grasp of '{self.obj.name}' {why}: the run starts from a grasp that may "
+                          "still be moving", RuntimeWarning, stacklevel=2)
         self.grasp_wall_s = time.perf_counter() - t0
         theta_c = np.asarray(g.theta_placed, float).reshape(self.hand.N, self.hand.K)
         believed = self.believed_spec
