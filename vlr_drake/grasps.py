@@ -287,8 +287,6 @@ def sample_grasps(
         a = rng.uniform(*contact_range, (batch, N))
         drawn += batch
         eq = motion.equilibrium(hand, th, a=a)
-        # (near the mirror images the regularised solve can leave a residual of mN m: a
-        # tendon state that does not hold the grasp, 9 deg off under a zero action: a review)
         good = (eq.ok & ((eq.residual <= EQUILIBRIUM_RESIDUAL) | hand.constraints_dependent)
                 & np.all(eq.tension >= min_tension, axis=1) & np.all(eq.tension <= max_tension, axis=1)
                 & hand.within_joint_limits(eq.theta) & np.all(a <= hand.distal_length, axis=1))
