@@ -1114,3 +1114,21 @@ def test_the_help_states_the_defaults_it_applies(capsys):
         main(["demo", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "object preset held (default: the scenario's, else apple)" in out and "toy_block" not in out
+
+
+def test_a_file_error_and_a_bool_status_are_reported_as_the_contract_says(tmp_path, capsys):
+    """entry.run: an unreadable or misplaced file is the user's input (one line, exit 2), as
+    a missing one is; a bool returned by a command is no exit status (True had exited 1);
+    a camera setting that is no number is named (a string had ended in a TypeError) (a review)."""
+    from vlr_drake.entry import run
+    from vlr_drake.perception.camera import CameraConfig
+
+    def read_folder():
+        return open(tmp_path).read()  # a folder given where a file is expected
+
+    assert run("prog", read_folder) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("prog: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert run("prog", lambda: True) == 0 and run("prog", lambda: 3) == 3
+    with pytest.raises(ValueError, match="camera: 'fov_y_deg' must be a number, got '70'"):
+        CameraConfig(fov_y_deg="70").validate()

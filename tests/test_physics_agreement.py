@@ -156,8 +156,10 @@ def test_physics_overrides_parse_and_name_bad_keys():
 
 
 def test_bad_direction_is_named():
-    with pytest.raises(ValueError, match="'direction' must be a nonzero vector of 3"):
+    with pytest.raises(ValueError, match="'direction' must be a finite, nonzero vector of 3"):
         run_agreement(direction=[1.0, 0.0])
+    with pytest.raises(ValueError, match="'direction' must be a finite"):  # (had been named as 'dl')
+        run_agreement(direction=[np.inf, 1.0, 1.0])
     with pytest.raises(ValueError, match="'actions' must be an integer >= 1"):
         run_agreement(actions=0)
     # (2.5 actions and a NaN sweep step had failed only after the grasp, the step named as 'dl')
@@ -179,7 +181,8 @@ def test_bad_direction_is_named():
 
 
 def test_bad_command_line_is_named(capsys):
-    for argv, what in ((["--hand", "NH9"], "--hand: unknown hand 'NH9'"), (["--hold", "-2"], "--hold: a duration")):
+    for argv, what in ((["--hand", "NH9"], "--hand: unknown hand 'NH9'"), (["--hold", "-2"], "--hold: a duration"),
+                       (["--direction", "1", "1", "1", "--squeeze"], "--squeeze: the random actions' squeezes")):
         with pytest.raises(SystemExit):
             main(argv)
         assert what in capsys.readouterr().err
@@ -356,3 +359,23 @@ def test_each_physics_flag_applies(monkeypatch):
     with pytest.raises(Ran):
         main(["--physics", "gravity=0", "--physics", "time_step=0.00025", "settle_window=0.02"])
     assert (seen["physics"].gravity, seen["physics"].time_step, seen["physics"].settle_window) == (0.0, 0.00025, 0.02)
+
+
+def test_a_model_with_no_equilibrium_at_a_later_action_is_one_failure(monkeypatch):
+    """The one-step model restarts at the plant's truth before each action; where the VLR
+    had no equilibrium there, the run had ended in a RuntimeError traceback and lost the
+    actions before it (a review). That action counts as a model failure."""
+    from vlr_drake.physics import agreement
+
+    real, calls = agreement.motion.equilibrium, [0]
+
+    def failing_third(*args, **kwargs):  # the one-step model's restart at action 2
+        eq = real(*args, **kwargs)
+        calls[0] += 1
+        if calls[0] == 3:
+            eq.ok[:] = False
+        return eq
+
+    monkeypatch.setattr(agreement.motion, "equilibrium", failing_third)
+    r = run_agreement("toy_block", actions=3)
+    assert len(r["actions"]) == 3 and r["model_failures"] == 1 and r["stopped"] is None

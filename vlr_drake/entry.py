@@ -19,7 +19,8 @@ from pathlib import Path
 #: Exceptions that report a problem with the input or the setting, not with the code:
 #: bad values, missing files and settings too large for the machine's memory, and the
 #: hardware's own errors (a port or camera that cannot be opened).
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, MemoryError)
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, PermissionError, IsADirectoryError,
+                                                NotADirectoryError, MemoryError)
 
 
 def _hardware_errors() -> tuple[type[BaseException], ...]:
@@ -138,7 +139,7 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
                 f"torque off NOT confirmed on {', '.join(dict.fromkeys(unconfirmed_torque_off))}: cut the motors' power")
         print(f"{prog}: stopped by {e.name} (closed on the way out: {done})", file=sys.stderr)
         return 128 + int(getattr(signal, e.name))
-    return status if isinstance(status, int) else 0
+    return status if isinstance(status, int) and not isinstance(status, bool) else 0  # (True had exited 1)
 
 
 def count(least: int):

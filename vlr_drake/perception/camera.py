@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 
 
 @dataclass
@@ -40,6 +40,9 @@ class CameraConfig:
     def validate(self) -> CameraConfig:
         if not (is_count(self.width, 1) and is_count(self.height, 1)):
             raise ValueError(f"camera: 'width' and 'height' must be positive integers, got {self.width!r} x {self.height!r}")
+        for name in ("fov_y_deg", "near", "far", "pixel_noise_std"):  # (a string had ended in a TypeError)
+            if not is_number(getattr(self, name)):
+                raise ValueError(f"camera: '{name}' must be a number, got {getattr(self, name)!r}")
         if not 1.0 < self.fov_y_deg < 170.0:
             raise ValueError(f"camera: 'fov_y_deg' must be in (1, 170), got {self.fov_y_deg}")
         if len(self.xyz) != 3 or len(self.rpy_deg) != 3:

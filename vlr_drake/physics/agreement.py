@@ -345,8 +345,9 @@ def run_agreement(
     profile = _profile_hands(spec, spring_scales, spring)
     if direction is not None:
         direction = np.asarray(direction, float).reshape(-1)
-        if direction.shape != (h.N,) or not np.linalg.norm(direction) > 0:
-            raise ValueError(f"'direction' must be a nonzero vector of {h.N} tendon pulls, got {direction.tolist()}")
+        if direction.shape != (h.N,) or not np.all(np.isfinite(direction)) or not np.linalg.norm(direction) > 0:
+            raise ValueError(f"'direction' must be a finite, nonzero vector of {h.N} tendon pulls, got "
+                             f"{direction.tolist()}")
         direction = direction / np.linalg.norm(direction)
         travel = float(np.min(np.diff(h.tendon_range, axis=1)))
         if abs(step) >= travel:  # (0.5 meant as mm had pulled 0.5 m, and the apple fell out of the hand)
@@ -370,8 +371,11 @@ def run_agreement(
     gravity = np.asarray(adapter.physics.gravity_in_palm(), float)
     for _ in range(actions):
         dl = step * direction if direction is not None else explore.next_action()
-        one = _ModelState(h, truth["theta"], truth["a"], R, t)  # restarted at the truth
-        one_ok = one.move(dl)
+        try:  # restarted at the truth
+            one = _ModelState(h, truth["theta"], truth["a"], R, t)
+            one_ok = one.move(dl)
+        except RuntimeError:  # no equilibrium at this true state: this action's model failure (it had
+            one, one_ok = None, False  # ended the run in a traceback, the actions before it lost: a review)
         carried_ok = carried_ok and carried.move(dl)
         offset, settled, settled_motion = _settled_prediction(h, truth, adapter.tendon_command(), dl, R, t)
         # the same with the links' and the object's weight following the angles (the object's
@@ -712,6 +716,8 @@ def main(argv: list[str] | None = None) -> dict:
         for f in spec.fingers:
             f.tendon_stiffness = args.tendon_stiffness
         spec.validate()
+    if args.direction is not None and args.squeeze:  # (a sweep draws no random action: it had been ignored)
+        ap.error("--squeeze: the random actions' squeezes, and --direction sweeps instead")
     if args.spring_profile is not None and not all(np.isfinite(x) and x > 0 for x in args.spring_profile):
         ap.error(f"--spring-profile: the scales must be positive numbers, got {args.spring_profile}")
     r = run_agreement(args.object, hand=spec, actions=args.actions, seed=args.seed, span=args.span,
@@ -782,6 +788,8 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"fraction of the plant's joint motion explained by {what}, action by action: "
                   + ", ".join(f"{name} " + "/".join(num(x) for x in row)
                               for name, row in zip(spec.finger_names(), r[key], strict=True)))
+    if args.hold > 0 and r["hold"] is None:  # (it had been skipped without a word)
+        print(f"no hold: the run stopped before its last action ({r['stopped']})")
     if r["hold"] is not None:
         d = r["hold"]
         print(f"held {d['seconds']:g} s after the last action: the object drifted {d['object_drift_mm']:.3f} mm / "
