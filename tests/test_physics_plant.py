@@ -1,5 +1,7 @@
 """The physics hand: ports, camera, grasp, random actions on the paper's objects."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from vlr_drake.systems.physics_plant import (
     PhysicsConfig,
     PlacementError,
     build_physics_hand,
+    tendon_damping,
 )
 
 OUTPUTS = {
@@ -677,3 +680,16 @@ def test_a_grasp_that_did_not_settle_is_said():
                              PhysicsConfig(grasp_settle_max=0.03), CameraConfig())
     with pytest.warns(RuntimeWarning, match="the grasp of 'apple' did not settle within physics.grasp_settle_max"):
         adapter.start(None)
+
+
+def test_each_finger_has_its_own_tendon_damping_unless_the_physics_section_sets_one():
+    """A finger's FingerSpec.tendon_damping reaches the plant's tendons; a physics
+    tendon_damping > 0 replaces all of them (until the fifty-sixth session the physics
+    section's 150 N s/m replaced them by default, and a finger's own was never used)."""
+    spec = model_o()
+    thumb = spec.fingers[0]
+    spec = spec.replaced({thumb.name: dataclasses.replace(thumb, tendon_damping=40.0)})
+    _, ph, _ = build_physics_hand(spec, preset("apple"), PhysicsConfig(), None, None)
+    assert ph.tendons.damping.tolist() == [40.0, 150.0, 150.0]
+    assert tendon_damping(spec, PhysicsConfig(tendon_damping=90.0)) == [90.0] * 3
+    assert tendon_damping(model_o(), PhysicsConfig()) == [150.0] * 3  # the default as before

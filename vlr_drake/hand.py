@@ -95,9 +95,10 @@ class FingerSpec:
     joint_damping: list[float] = field(default_factory=lambda: [0.002, 0.001])
     # Series stiffness of tendon plus motor position loop, kappa_i [N/m].
     tendon_stiffness: float = 2000.0
-    # Tendon damping for the physics plant [N s/m], where physics.tendon_damping is 0: that
-    # field (150 by default, the tendon with the motor's position loop) replaces it otherwise.
-    tendon_damping: float = 5.0
+    # Tendon damping c_i for the physics plant [N s/m]: the tendon with the motor's position
+    # loop (at 5 N s/m a held object rang at about 4 Hz for over a second after each action).
+    # physics.tendon_damping, where set (> 0), replaces every finger's.
+    tendon_damping: float = 150.0
     # Range of the commanded tendon pull l_i (0 = taut at a straight finger) [m].
     tendon_range: list[float] = field(default_factory=lambda: [0.0, 0.045])
     # Radius of the capsule links (visual and collision) [m].

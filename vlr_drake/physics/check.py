@@ -68,7 +68,7 @@ class CheckResult:
     hand: str
     actions: int
     held: bool  # every pad still touches the object and it never moved past fall_distance
-    first_loss: int | None  # first action after which the object was lost (None: never)
+    first_loss: int | None  # index (from 0) of the first action after which the object was lost (None: never)
     grasp_held: bool  # the grasp held the object (GraspResult.held; False: lost before any action)
     grasp_settled: bool
     grasp_tension_N: list[float]
@@ -78,7 +78,8 @@ class CheckResult:
     pom_motion_per_action_mm_mean: float
     pom_rotation_per_action_deg_mean: float
     min_tension_N: float
-    max_command_violation_m: float  # > 0: the exploration asked for a command past the tendon range
+    max_command_violation_m: float  # > 0: the exploration asked for a command past the tendon range (a guard: the
+    # walk reflects at the range, so 0 unless it is broken; test_the_check_reports_a_command_asked_past_...)
     settled_fraction: float
     settle_time_s_mean: float
     creep_mm_per_s_max: float  # object speed over the last settle window of an action (max)

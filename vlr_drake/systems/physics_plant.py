@@ -189,10 +189,10 @@ class PhysicsConfig:
     ramp_time: float = 0.2
     # Update period of the tendon ramp [s].
     ramp_update_period: float = 0.001
-    # Tendon damping c_i [N s/m], used instead of the spec's when > 0: the tendon plus the
-    # motor's position loop. With the spec's 5 N s/m the held object rang at about 4 Hz for
-    # over a second after each action (thumb against fingers); this damps it.
-    tendon_damping: float = 150.0
+    # Tendon damping c_i [N s/m] of every finger where > 0; 0 (default): each finger's own
+    # (FingerSpec.tendon_damping, 150 N s/m unless its spec says otherwise). Until the
+    # fifty-sixth session this was 150 and the fingers' own were never used.
+    tendon_damping: float = 0.0
     # Tendon pretension at the grasp [N]: 20-25 N held a box; 8 N dropped it.
     pretension: float = 20.0
     # How tendons share the pretension: "thumb_factor" (the thumb, i.e. fingers whose name
@@ -1055,7 +1055,7 @@ def add_physics_hand(
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -physics.gravity])
     plant.Finalize()
 
-    N, K = model.N, model.K
+    K = model.K
     joints = [
         plant.GetJointByName(joint_name(n, k), hand_instance) for n in model.names for k in range(1, K + 1)
     ]
@@ -1084,7 +1084,7 @@ def add_physics_hand(
             plant.num_velocities(),
             ramp_time=physics.ramp_time,
             update_period=physics.ramp_update_period,
-            damping=[physics.tendon_damping] * N if physics.tendon_damping > 0 else None,
+            damping=tendon_damping(hand, physics),
         ),
     )
     inner.Connect(plant.get_state_output_port(), tendons.state_input)
@@ -1205,6 +1205,14 @@ def draw_camera_frustum(
     start = [o] * 4 + far
     end = far + far[1:] + far[:1]
     meshcat.SetLineSegments(path, np.array(start).T, np.array(end).T, 1.0, Rgba(0.1, 0.6, 1.0, 1.0))
+
+
+def tendon_damping(spec: HandSpec, physics: PhysicsConfig) -> list[float]:
+    """Each tendon's damping c_i [N s/m]: ``physics.tendon_damping`` where set (> 0), else
+    the finger's own (FingerSpec.tendon_damping)."""
+    if physics.tendon_damping > 0:
+        return [float(physics.tendon_damping)] * spec.num_fingers
+    return [float(f.tendon_damping) for f in spec.fingers]
 
 
 def build_physics_hand(

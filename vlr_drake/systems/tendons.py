@@ -135,6 +135,11 @@ class TendonForces(LeafSystem):
     # -- helpers --------------------------------------------------------------------------
 
     @property
+    def damping(self) -> np.ndarray:
+        """Each tendon's damping c_i [N s/m] (a copy)."""
+        return self._damping.copy()
+
+    @property
     def hand(self) -> HandModel:
         return self._hand
 
