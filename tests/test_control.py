@@ -777,6 +777,28 @@ def test_servo_a_step_at_a_time_carries_the_predicted_pose(grasp):
     assert [r.reason for r in reps[1:]] == ["budget", "lost_tag", "lost_tag"] and reps[-1].iterations == 0
 
 
+def test_servo_a_step_at_a_time_looks_once_per_action(grasp):
+    """Given the call before's report, a call that ended on a measured pose, the next one
+    starts from that frame: one measurement per action (the maze had looked twice, a second
+    render and detection per control period on the physics plant). After a lost tag it looks
+    again (test_servo_a_step_at_a_time_carries_the_predicted_pose)."""
+    m = control.ControlModel.from_plant_truth(grasp.plant)
+    x = np.linalg.svd(control.jacobian(m)[:3])[0][:, 0]
+    pl = fresh(grasp, sigma_position=0.02e-3, seed=3)
+    looks = []
+    measure = pl.measure
+    pl.measure = lambda: looks.append(1) or measure()
+    goal = pl.state.t_PO + 1.0e-3 * x
+    rep, steps = None, 0
+    for _ in range(25):
+        rep = control.servo_to(np.eye(3), goal, pl, control.true_model_fn(pl), rows="position",
+                               tol_position=0.01e-3, max_steps=1, resume=rep)
+        steps += rep.iterations
+    assert steps > 10
+    assert len(looks) == 1 + steps  # one look before the first action and one after each
+    assert np.linalg.norm(pl.state.t_PO - goal) < 0.1e-3
+
+
 def test_a_command_outside_its_window_moves_into_it_one_step_at_a_time(grasp):
     """A tendon that starts outside the grip window had been clamped into it in one jump (2 mm
     where the servo had clipped its step to 0.5 mm); it now moves towards the window by its

@@ -210,7 +210,7 @@ def test_a_maze_run_the_marble_skipped_scores_nothing():
     run's last sample again, a review found: 6 samples that were 3 values twice)."""
     r = maze.run_maze(seed=0, plant="model", model="true", period=0.5, progress=False)
     assert r["success"] and r["runs"] == 6 and r["skipped_runs"] == 3
-    assert r["orientation_error_deg"]["n"] == 3
+    assert r["orientation_error_deg"]["n"] == 4  # the three runs steered, one settled for two periods
     assert maze.run_maze(seed=0, plant="model", model="true", progress=False)["skipped_runs"] == 0
 
 

@@ -462,9 +462,11 @@ def servo_to(
     the goal), the model is told the measurement is not valid, the closest pose and the
     stall count consider measured poses only, and ``max_lost`` lost tags in a row end the
     run with ``"lost_tag"``. The first measurement, if lost, is the plant's held pose (its
-    last valid one), or, given ``resume`` (the report of the call before, for a caller that
-    servos a step at a time, e.g. the maze), that call's final pose, measured or predicted,
-    with its lost tags in a row counting on.
+    last valid one). ``resume`` is the report of the call before, for a caller that servos a
+    step at a time without moving the hand in between (e.g. the maze): where that call ended
+    on a measured pose, the pose is this call's first measurement (one frame per action, not
+    two); where it ended on a lost tag, the plant is measured again and, if lost once more,
+    that call's predicted pose is the first, with its lost tags in a row counting on.
     """
     for name, value, least in (("max_steps", max_steps, 0), ("stall_steps", stall_steps, 1),
                                ("backoff", backoff, 0), ("max_lost", max_lost, 1)):
@@ -480,8 +482,14 @@ def servo_to(
     t_goal = _shaped("t_goal", t_goal, (3,))
     w = row_weights(rows, alpha, position_unit, rotation_unit)
     ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
-    R, t, valid = _measured(plant)
-    R_last, t_last = np.asarray(R, float), np.asarray(t, float)
+    if resume is not None and resume.R_final is not None and resume.lost_in_a_row == 0:
+        # the call before ended on a measured pose and the hand has not moved since: that
+        # frame is this one (the maze had looked twice per action, a second render and
+        # detection per control period on the physics plant)
+        R, t, valid = resume.R_final, resume.t_final, True
+    else:
+        R, t, valid = _measured(plant)
+    R_last, t_last = np.array(R, float), np.array(t, float)
     lost = lost_in_a_row = int(not valid)
     if not valid and resume is not None and resume.R_final is not None:
         R_last, t_last = np.array(resume.R_final, float), np.array(resume.t_final, float)
