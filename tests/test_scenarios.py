@@ -689,3 +689,20 @@ def test_a_hardware_camera_s_settings_that_its_calibration_replaces_are_named():
     with pytest.warns(UserWarning, match="the hardware plant does not use camera.width, camera.fov_y_deg"):
         build_diagram(s).plant.close()
     assert ignored_by_plant(load_scenario(DIAGRAMS_DIR / "hardware.yaml", "camera: {rpy_deg: [0, 0, 90]}\n")) == []
+
+
+def test_another_hand_than_the_scenarios_identifies_its_own_novel_fingers():
+    """The prior's links_unknown and the model plant's true springs and links name the
+    scenario's own fingers: under NH2's scenario, NH1's run had identified a stock Model O
+    finger as novel and NH3's had been handed one novel finger's truth (reproduce's rows,
+    a review). Another hand identifies its own replaced fingers; the same hand keeps them."""
+    from vlr_drake.identify import run_identification
+
+    sc = load_scenario(DIAGRAMS_DIR / "novel_NH2.yaml")
+    assert options_from_scenario(sc, experiment="novel_fingers", hand="NH2").prior.links_unknown == [0, 1]
+    for hand, fingers in (("NH1", {"thumb_NF1"}), ("NH3", {"thumb_NF1", "finger_left_NF2", "finger_right_NF3"})):
+        opts = options_from_scenario(sc, experiment="novel_fingers", hand=hand, plant="model", particles=500,
+                                     max_iterations=2, progress=False, seed=0)
+        assert opts.prior.links_unknown == [] and opts.true_link_lengths is None
+        r = run_identification(opts)
+        assert set(r["link_length_error_mm"]) == fingers, hand

@@ -455,6 +455,38 @@ def test_reproduce_keeps_the_table_when_a_trial_fails(tmp_path, monkeypatch, cap
     assert len(data["trace_files"]) == 2 and "known_hand, seed 1 failed: RuntimeError" in capsys.readouterr().err
 
 
+def test_reproduce_names_a_failed_known_hand_runs_object_and_a_row_its_scenario_cannot_run(tmp_path, monkeypatch,
+                                                                                             capsys):
+    """On the physics plant a seed's known-hand trial is four runs, one per object: a failed
+    one names its object (which run to repeat). A row the scenario cannot run is refused
+    before any trial (each trial had failed in turn, with its traceback; a review)."""
+    import vlr_drake.reproduce as rp
+    from vlr_drake.scenario import DIAGRAMS_DIR, load_scenario
+
+    class Trace:
+        def save(self, path):
+            return path
+
+    def identification(opts):
+        if opts.object == "wine_glass":
+            raise RuntimeError("the glass slipped (injected)")
+        return {"experiment": opts.experiment, "object": opts.object, "seed": opts.seed,
+                "proximal_joint_error_deg": [1.0] * 3, "iterations": 10, "converged": True, "max_iterations": 100,
+                "truth_inside_95_theta": 1.0, "truth_inside_95_contact": 1.0, "_trace": Trace()}
+
+    monkeypatch.setattr(rp, "run_identification", identification)
+    r = rp.reproduce(trials=1, plant="physics", out=tmp_path, progress=False, experiments=["known_hand"])
+    runs = r["runs"]["known_hand"]
+    assert [x.get("object") for x in runs] == ["apple", "wine_glass", "gelatin_box", "flat_screwdriver"]
+    assert "failed" in runs[1] and "failed" not in runs[0]
+    assert "known_hand, seed 0, object wine_glass failed: RuntimeError" in capsys.readouterr().err
+    sc = load_scenario(DIAGRAMS_DIR / "novel_NH2.yaml")
+    with pytest.raises(ValueError, match="the row 'stiffness' cannot run under this scenario: .*identifies novel_f"):
+        rp.reproduce(trials=1, plant="model", out=tmp_path / "b", progress=False, scenario=sc,
+                     experiments=["NH1", "stiffness"])
+    assert not (tmp_path / "b" / "reproduce.json").exists()
+
+
 def test_write_with_the_filter_model():
     """The identified model (a small filter, kept running during control) also writes."""
     r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)

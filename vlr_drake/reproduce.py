@@ -41,6 +41,10 @@ EXPERIMENTS = ("known_hand", "stiffness", "NH1", "NH2", "NH3", "write", "maze", 
 #: The object of the stiffness experiment (the paper's Fig. 5: the toy block).
 STIFFNESS_OBJECT = DEFAULT_OBJECT["stiffness"]
 
+#: The identification experiments' (experiment, hand) runs.
+IDENTIFICATION_RUNS = {"known_hand": ("known_hand", "model_o"), "stiffness": ("stiffness", "model_o"),
+                       **{nh: ("novel_fingers", nh) for nh in ("NH1", "NH2", "NH3")}}
+
 #: The paper's figures (Hang et al. 2021, real hardware; DESIGN.md section 10).
 PAPER_ROWS = [
     PaperRow("known_hand", "proximal joint error, known hand", 1.78, 0.92, "deg"),
@@ -180,19 +184,24 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     plant = plant or (scenario.plant if scenario is not None else "physics")
     seeds = range(seed, seed + trials)
     sc = (scenario, scenario_path)
+    for name in chosen:  # a row the scenario cannot run, said before any trial (each trial had
+        if scenario is not None and name in IDENTIFICATION_RUNS:  # failed in turn, with its traceback)
+            experiment, hand = IDENTIFICATION_RUNS[name]
+            try:
+                options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, plant=plant)
+            except ValueError as e:
+                raise ValueError(f"reproduce: the row '{name}' cannot run under this scenario: {e}") from None
     tr = out / "traces"  # one trace per identification run (vlr-drake replay)
     runs: dict[str, list] = {}
     # As the paper ran them: the known hand with each of its four objects (Fig. 4; trials
     # each), the stiffness with the toy block (Fig. 5); the novel hands name no object.
     # (each object's run its own trial: one that fails loses none of the seed's others)
-    jobs = [("known_hand", lambda s: [_attempt("known_hand", s, lambda o=o: _identify(
-                "known_hand", "model_o", s, plant, particles, iterations, *sc, obj=o, traces=tr))
-                for o in known_hand_objects(plant)]),
-            ("stiffness", lambda s: [_identify("stiffness", "model_o", s, plant, particles, iterations, *sc,
-                                               obj=STIFFNESS_OBJECT, traces=tr)])]
-    for nh in ("NH1", "NH2", "NH3"):
-        jobs.append((nh, lambda s, nh=nh: _identify("novel_fingers", nh, s, plant, particles, iterations, *sc,
-                                                    traces=tr)))
+    objects = {"known_hand": known_hand_objects(plant), "stiffness": (STIFFNESS_OBJECT,)}
+    jobs = [(name, lambda s, name=name, run=run: [
+                _attempt(name, s, lambda o=o: _identify(*run, s, plant, particles, iterations, *sc, obj=o, traces=tr),
+                         obj=o)
+                for o in objects.get(name, (None,))])
+            for name, run in IDENTIFICATION_RUNS.items()]
     # Tasks run with the identified model (self-identification first, then the filter keeps
     # updating during control), at up to 10,000 particles and 100 identification iterations.
     task_model = "true" if quick else "filter"
@@ -229,22 +238,23 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     return _write_table(out, settings, runs, tr, figure=True)
 
 
-def _failed(name: str, seed: int, e: Exception) -> dict:
+def _failed(name: str, seed: int, e: Exception, obj: str | None = None) -> dict:
     """A trial that failed, said (with its traceback) and kept as a result that counts as
     failed: the rest of the table runs on (a review: a failure late in an hours-long table
-    had lost every finished row)."""
-    print(f"reproduce: {name}, seed {seed} failed: {type(e).__name__}: {e}", file=sys.stderr)
+    had lost every finished row). ``obj``: the known hand's object, of four per seed."""
+    where = f", seed {seed}" + ("" if obj is None else f", object {obj}")
+    print(f"reproduce: {name}{where} failed: {type(e).__name__}: {e}", file=sys.stderr)
     traceback.print_exc()
     return {"seed": seed, "failed": f"{type(e).__name__}: {e}", "success": False,
-            "position_error_mm": None, "orientation_error_deg": None}
+            "position_error_mm": None, "orientation_error_deg": None, **({} if obj is None else {"object": obj})}
 
 
-def _attempt(name: str, seed: int, run) -> dict:
+def _attempt(name: str, seed: int, run, obj: str | None = None) -> dict:
     """``run()``, or where it fails (an Exception), :func:`_failed`'s result."""
     try:
         return run()
     except Exception as e:
-        return _failed(name, seed, e)
+        return _failed(name, seed, e, obj)
 
 
 def _write_table(out: Path, settings: dict, runs: dict, traces: Path, figure: bool = False) -> dict:
@@ -320,8 +330,8 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path, figure: bo
     (out / TABLE_FILES[1]).write_text(format_table(result))
     from vlr_drake.cli import _finite, _json_default  # (JSON has no NaN: a row without samples is null)
 
-    (out / TABLE_FILES[0]).write_text(json.dumps(_finite({**result, "runs": runs}), indent=2,
-                                                   default=_json_default, allow_nan=False))
+    result["runs"] = runs  # (every trial's result: the docstring's promise, which only the file had kept)
+    (out / TABLE_FILES[0]).write_text(json.dumps(_finite(result), indent=2, default=_json_default, allow_nan=False))
     return result
 
 

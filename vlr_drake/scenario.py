@@ -946,7 +946,9 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
 
     The experiment follows from the prior's unknowns (stiffness, link lengths, or neither);
     an ``experiment`` override may add its unknowns to a prior that has none, and must
-    otherwise agree with it. A ``hand``/``object`` override replaces a full spec. Raises
+    otherwise agree with it. A ``hand``/``object`` override replaces a full spec; another
+    hand than the scenario's drops the scenario's finger-wise settings (the prior's
+    ``links_unknown``, the model plant's true stiffness and link lengths). Raises
     ``ValueError`` naming the conflict."""
     from vlr_drake.identify import IdentifyOptions
 
@@ -992,6 +994,13 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
     for preset_field, spec_field in (("hand", "hand_spec"), ("object", "object_spec")):
         if preset_field in given:
             opts[spec_field] = None
+    if "hand" in given and (s.hand_spec is not None or given["hand"] != s.hand):
+        # the prior's unknown links and the model plant's true springs and links name the
+        # scenario's own fingers: another hand's replaced fingers are its own (identify
+        # derives them) and its truth is its preset's (reproduce's NH1 row under NH2's
+        # scenario had identified a stock Model O finger and NH3's had left one novel finger out)
+        opts["prior"].links_unknown = []
+        opts.update(true_stiffness=None, true_link_lengths=None)
     return IdentifyOptions(**{**opts, **given})
 
 
