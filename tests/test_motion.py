@@ -533,11 +533,16 @@ def test_the_reference_names_bad_input(model_o_hand):
                        (dict(stiffness=-model_o_hand.stiffness), "must be positive"),
                        (dict(gravity=np.zeros(2)), "'gravity' must have shape"),
                        (dict(tolerance=-1.0), "'tolerance' must be a positive"),
-                       (dict(local_range=np.nan), "'local_range' must be a positive")):
+                       (dict(local_range=np.nan), "'local_range' must be a positive"),
+                       (dict(stretch=["1e-3", "x", 0]), "'stretch' must be numbers of shape")):
         with pytest.raises(ValueError, match=match):
             ref.solve_move(*args, **{**kw, **bad})
     with pytest.raises(ValueError, match="'dl' must have shape"):
         ref.solve_move(model_o_hand, gs.theta[0], np.zeros(2), **kw)
+    with pytest.raises(ValueError, match="'theta' must be numbers of shape"):  # ragged (numpy's words, a review)
+        ref.solve_move(model_o_hand, [[0.1, 0.2], [0.1], [0.1, 0.2]], np.zeros(3), **kw)
+    with pytest.raises(ValueError, match="'theta' must have shape \\(3, 2\\)"):
+        ref.solve_move(model_o_hand, gs.theta[0].ravel(), np.zeros(3), **kw)
 
 
 def test_a_placed_grasp_settles_where_the_model_moves_it(model_o_hand):

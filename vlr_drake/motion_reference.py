@@ -52,8 +52,12 @@ class ReferenceResult:
 def _values(name: str, value, shape: tuple) -> np.ndarray:
     """``value`` as a finite array of ``shape`` (any array of that many values), or a
     ValueError naming it (a wrong size had failed in numpy's reshape, a NaN as a solver
-    failure, and a NaN ``local_range`` had aborted the process in Drake)."""
-    x = np.asarray(value, float)
+    failure, and a NaN ``local_range`` had aborted the process in Drake; a ragged or
+    non-numeric one in numpy's own words)."""
+    try:
+        x = np.asarray(value, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"'{name}' must be numbers of shape {shape}, got {value!r}") from None
     if x.size != int(np.prod(shape)):
         raise ValueError(f"'{name}' must have shape {shape}, got {x.shape}")
     if not np.all(np.isfinite(x)):
@@ -117,10 +121,9 @@ def solve_move(
         if not (is_number(value) and 0 < value < np.inf):
             raise ValueError(f"'{name}' must be a positive finite number, got {value!r}")
     N, K = hand.N, hand.K
-    theta0 = np.asarray(theta, float)
-    if theta0.shape != (N, K):
-        raise ValueError(f"'theta' must have shape ({N}, {K}), got {theta0.shape}")
-    theta0 = _values("theta", theta0, (N, K))
+    theta0 = _values("theta", theta, (N, K))
+    if np.shape(theta) != (N, K):
+        raise ValueError(f"'theta' must have shape ({N}, {K}), got {np.shape(theta)}")
     dl = _values("dl", dl, (N,))
     a = _values("a", a, (N,))
     D2 = _values("D2", D2, (hand.num_constraints,))
