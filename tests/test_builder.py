@@ -437,6 +437,22 @@ def test_a_tag_the_camera_never_sees_is_reported(tmp_path: Path):
         run(load_scenario(path, "filter: {particles: 300}"), iterations=2)
 
 
+def test_a_model_plant_that_drops_its_samples_is_named_not_a_camera():
+    """The model plant has no camera or tag: where its samples are lost the run names
+    model_plant.dropout (it had said to check the camera and the tag), and action periods
+    spent waiting for the first sample, which leave fewer filter iterations than asked, are
+    said (a review: 3 of 5 ran, silently)."""
+    from vlr_drake.builder import run
+
+    with pytest.raises(ValueError, match="no POM measurement arrived \\(the model plant drops 0.99 of its samples "
+                                         "\\(model_plant.dropout\\)"):
+        run(load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["filter: {particles: 300}",
+                                                               "model_plant: {dropout: 0.99}"]), iterations=2)
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["filter: {particles: 300}", "model_plant: {dropout: 0.3}"])
+    with pytest.warns(UserWarning, match="the filter ran 3 of the 5 iterations asked: it starts at the first POM"):
+        assert run(s, 5)["iterations"] == 3  # (seed 0's first two samples are dropped)
+
+
 def test_an_object_out_of_reach_is_one_line_and_exit_2(tmp_path: Path, capsys):
     """A placement the pads cannot reach (PlacementError, a ValueError) ends the command
     with one line naming the finger and the setting, not a traceback."""
@@ -691,3 +707,24 @@ def test_each_set_applies_in_order(monkeypatch):
     assert s.seed == 3 and s.model_plant.dropout == 0.1 and s.filter.particles == 20000
     with pytest.raises(ValueError, match=r"model_plant.yaml \(override text\), unknown field 'sed'"):
         load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["seed: 3", "sed: 4"])
+
+
+def test_wire_identification_takes_any_sensor_name():
+    """wire_identification (public) had picked the sensor's input by its name: any other than
+    "pose_sensor" was taken for a camera's (no rgb_image on the model plant) and only the two
+    usual names were exported (a review). It follows the sensor's ports now."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    from vlr_drake.builder import _model_plant_parts, wire_identification
+    from vlr_drake.systems.self_identification import ExplorationPolicy, SelfIdentificationSystem
+
+    s = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", ["filter: {particles: 300}"])
+    h, prior = s.hand_spec_resolved().model(), s.prior.to_prior()
+    plant, sensor, theta, a, l0 = _model_plant_parts(s, h, prior, 1.0)
+    flt = SelfIdentificationSystem(h, pf.FilterConfig(particles=300), prior, theta, a, 1.0)
+    builder = DiagramBuilder()
+    wire_identification(builder, ExplorationPolicy(h, l0, 1.0), plant, sensor, flt, "noisy_pose_sensor")
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    assert diagram.GetOutputPort("noisy_pose_sensor.X_PO_valid").Eval(ctx)[0] in (0.0, 1.0)
+    assert diagram.GetOutputPort("noisy_pose_sensor.X_PO_measured").Eval(ctx) is not None

@@ -109,8 +109,7 @@ _EXPORTS = {
         "rgb_image",
         "camera_valid",
     ],
-    "pose_sensor": ["X_PO_measured", "X_PO_valid"],
-    "tag_observer": ["X_PO_measured", "X_PO_valid", "reprojection_error"],
+    "sensor": ["X_PO_measured", "X_PO_valid", "reprojection_error"],  # those it has, under its own name
     "self_identification": ["estimate", "theta_estimate", "interval_half_width", "converged", "particles"],
 }
 
@@ -144,7 +143,9 @@ def wire_identification(
     command=None,
 ) -> None:
     """Add the four parts by name (``exploration``, ``hand`` unless already added,
-    ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter,
+    ``sensor_name``, ``self_identification``), connect policy -> plant -> sensor -> filter
+    (the sensor reads the hand's ``X_PO_true`` where it has that input, a pose sensor, else
+    its ``rgb_image``, a tag observer),
     and the filter's action input to the hand's ``tendon_position_measured``
     (``filter_action="measured"``) or to the commands ("commanded": the hardware interface's
     ``tendon_command_sent``, the commands after its clipping at the limits and its ramp, where
@@ -161,10 +162,10 @@ def wire_identification(
     if command is None:  # what drives the hand: the policy, or a switch between it and a controller
         command = policy.GetOutputPort("tendon_command")
     builder.Connect(command, plant.GetInputPort("tendon_command"))
-    if sensor_name == "pose_sensor":
-        builder.Connect(plant.GetOutputPort("X_PO_true"), sensor.GetInputPort("X_PO_true"))
-    else:
-        builder.Connect(plant.GetOutputPort("rgb_image"), sensor.GetInputPort("rgb_image"))
+    # what the sensor reads, by its ports (by its name, any other than "pose_sensor" had
+    # been taken for a camera's and "tag_observer"'s only exported; a review)
+    seen = "X_PO_true" if sensor.HasInputPort("X_PO_true") else "rgb_image"
+    builder.Connect(plant.GetOutputPort(seen), sensor.GetInputPort(seen))
     if filter_action == "measured":
         action = plant.GetOutputPort("tendon_position_measured")
     elif plant.HasOutputPort("tendon_command_sent"):  # hardware: what went to the motors, clipped and ramped
@@ -177,13 +178,13 @@ def wire_identification(
     # the policy holds the grasp until the filter has its first measurement (the prior is
     # drawn around the grasp: a hand that had moved on could leave the truth outside it)
     builder.Connect(flt.GetOutputPort("started"), policy.GetInputPort("enabled"))
-    for name, system in [
-        ("exploration", policy),
-        ("hand", plant),
-        (sensor_name, sensor),
-        ("self_identification", flt),
+    for name, system, kind in [
+        ("exploration", policy, "exploration"),
+        ("hand", plant, "hand"),
+        (sensor_name, sensor, "sensor"),
+        ("self_identification", flt, "self_identification"),
     ]:
-        for port in _EXPORTS[name]:
+        for port in _EXPORTS[kind]:
             if system.HasOutputPort(port):
                 builder.ExportOutput(system.GetOutputPort(port), f"{name}.{port}")
 
@@ -780,16 +781,22 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         if flt is None and iterations > 0 and stopped:  # it failed before it started: that, not the camera
             raise ValueError(f"scenario '{scenario.name}': the self-identification never started: the run stopped "
                              f"at {stopped}")
+        # why measurements are lost: on the model plant its dropout, else the camera (the
+        # model plant had been told to check a camera and a tag it does not have; a review)
+        check = (f"the model plant drops {scenario.model_plant.dropout:g} of its samples (model_plant.dropout)"
+                 if scenario.plant == "model" else "check the camera and the object's tag_face and tag_size")
         if flt is None and iterations > 0:  # the filter starts at the first POM measurement
             raise ValueError(
                 f"scenario '{scenario.name}': the self-identification never started in {iterations} action "
-                f"periods: no POM measurement arrived (the camera never detected the tag; check the object's "
-                f"tag_face and tag_size, and the camera)")
+                f"periods: no POM measurement arrived ({check})")
+        if flt is not None and not stopped and flt.iteration < iterations:  # periods spent waiting for it
+            warnings.warn(f"scenario '{scenario.name}': the filter ran {flt.iteration} of the {iterations} iterations "
+                          f"asked: it starts at the first POM measurement, which came late ({check})", stacklevel=2)
         record = _run_record(flt, built, ctx)
         if record["lost_measurements"] > 0.5 * max(len(flt.history) if flt is not None else 0, 1):
             warnings.warn(f"scenario '{scenario.name}': most filter iterations had no measurement "
                           f"({record['lost_measurements']} of {len(flt.history)} lost): the estimate is mostly the "
-                          "prior moved by the actions (check the camera and the tag)", stacklevel=2)
+                          f"prior moved by the actions ({check})", stacklevel=2)
         recorded = built.filter.trace(sys_ctx) if trace is not None or draws > 1 else None
         if recorded is not None:
             recorded.meta.update(
