@@ -742,3 +742,24 @@ def test_wire_identification_takes_any_sensor_name():
     ctx = diagram.CreateDefaultContext()
     assert diagram.GetOutputPort("noisy_pose_sensor.X_PO_valid").Eval(ctx)[0] in (0.0, 1.0)
     assert diagram.GetOutputPort("noisy_pose_sensor.X_PO_measured").Eval(ctx) is not None
+
+
+def test_a_default_control_run_waits_for_the_anchors_frames_through_dropouts():
+    """The goals' anchor waits for valid frames: on a model plant that drops half of them a
+    default run of anchor_frames periods had left its last goal unreached (a review). The
+    default counts the periods in which the anchor's frames arrive 999 times in 1,000."""
+    from vlr_drake.builder import default_iterations, periods_for_frames
+
+    assert periods_for_frames(2, 0.0) == 2 and periods_for_frames(1, 0.5) == 10  # 1 - 0.5^10 >= 0.999 > 1 - 0.5^9
+    import math
+
+    def arrive(frames, dropout, periods):  # P(at least `frames` of `periods` frames valid), the binomial's
+        return 1.0 - sum(math.comb(periods, i) * (1 - dropout) ** i * dropout ** (periods - i) for i in range(frames))
+
+    for frames, dropout in ((2, 0.5), (3, 0.3), (1, 0.9)):
+        n = periods_for_frames(frames, dropout)
+        assert arrive(frames, dropout, n) >= 0.999 > arrive(frames, dropout, n - 1)
+    plain = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml")
+    lossy = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml", "model_plant: {dropout: 0.5}")
+    a = plain.control.anchor_frames
+    assert default_iterations(lossy) - default_iterations(plain) == periods_for_frames(a, 0.5) - a > 0

@@ -706,3 +706,22 @@ def test_another_hand_than_the_scenarios_identifies_its_own_novel_fingers():
         assert opts.prior.links_unknown == [] and opts.true_link_lengths is None
         r = run_identification(opts)
         assert set(r["link_length_error_mm"]) == fingers, hand
+
+
+def test_a_scenarios_hand_and_object_settings_do_not_pass_to_another(tmp_path):
+    """What a scenario says of its own hand and object is not carried to another (a review):
+    a weighed mass is its object's (the toy block's 28 g had been the apple's prior), finger-wise
+    truths dropped for another hand are said, and the prior's unknowns are checked against the
+    hand the run has (a four-finger scenario's spring with --hand model_o had ended in an
+    IndexError)."""
+    weighed = load_scenario(DIAGRAMS_DIR / "stiffness_weighed.yaml")
+    with pytest.raises(ValueError, match="weighs its object 'toy_block' .*the object 'apple' needs its own"):
+        options_from_scenario(weighed, object="apple")
+    assert options_from_scenario(weighed, object="apple", object_mass=0.068).object_mass == 0.068
+    assert options_from_scenario(weighed, object="toy_block").object_mass == weighed.prior.object_mass
+    sc = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "model_plant: {link_lengths: [[0.05], [0.05], [0.05]]}")
+    with pytest.warns(UserWarning, match="model_plant.link_lengths name the fingers of its own hand, not of 'NH2'"):
+        assert options_from_scenario(sc, hand="NH2").true_link_lengths is None
+    sc.prior.stiffness_unknown = [(3, 1)]
+    with pytest.raises(ValueError, match="stiffness_unknown entry \\(3, 1\\) is not a joint of a 3 x 2 hand"):
+        options_from_scenario(sc, hand="model_o").validate()

@@ -248,6 +248,20 @@ def test_maze_parse_and_path():
     assert runs[0]["tilt"] == pytest.approx(0.05) and runs[2]["tilt"] == pytest.approx(-0.05)
 
 
+@pytest.mark.parametrize("period", [0.0004, 0.0015, 0.0025])
+def test_the_marble_rolls_as_long_as_the_periods_add_up_to(period):
+    """A period that is no whole number of the marble's 1 ms steps is integrated in steps
+    that add up to it (round(period / dt) steps of 1 ms had rolled the marble 29.5 mm in
+    0.2 s of 0.4 ms periods against 6.1 mm in one period of 0.2 s; a review)."""
+    g = np.array([9.81 * np.sin(np.deg2rad(3)), 0.0, -9.81])
+    one, many = maze.MarbleMaze(maze.parse_maze(maze.MAZE)), maze.MarbleMaze(maze.parse_maze(maze.MAZE))
+    x0 = one.pos.copy()
+    one.step(g, 0.2)
+    for _ in range(round(0.2 / period)):
+        many.step(g, period)
+    assert (many.pos - x0)[0] == pytest.approx((one.pos - x0)[0], rel=0.02)
+
+
 def test_marble_rolls_downhill_and_stops_at_walls():
     mz = maze.parse_maze(maze.MAZE)
     m = maze.MarbleMaze(mz)
@@ -485,6 +499,21 @@ def test_reproduce_names_a_failed_known_hand_runs_object_and_a_row_its_scenario_
         rp.reproduce(trials=1, plant="model", out=tmp_path / "b", progress=False, scenario=sc,
                      experiments=["NH1", "stiffness"])
     assert not (tmp_path / "b" / "reproduce.json").exists()
+    with pytest.raises(ValueError, match="the row 'maze' cannot run under this scenario: .*Model O hand"):
+        rp.reproduce(trials=1, plant="model", out=tmp_path / "c", progress=False, scenario=sc, experiments=["maze"])
+    weighed = load_scenario(DIAGRAMS_DIR / "default.yaml", "prior: {object_mass: 0.068}")  # the apple weighed
+    with pytest.raises(ValueError, match="the row 'known_hand' cannot run .*the object 'wine_glass' needs its own"):
+        rp.reproduce(trials=1, plant="physics", out=tmp_path / "d", progress=False, scenario=weighed,
+                     experiments=["known_hand"])
+
+
+def test_a_task_exploration_span_wider_than_its_window_is_refused():
+    """The tasks explore inside their window (on the physics plant at most 1.2 mm): a span
+    past it is refused by name, as identify refuses it (5 mm steps had walked a 4 mm window)."""
+    tp = common.task_plant("model", 0, "handwriting", sigma_position=0.0, sigma_rotation_deg=0.0)
+    with pytest.raises(ValueError, match="exploration span \\(5 mm, a scenario's exploration.span\\) must be at most "
+                                         "their exploration window, 4 mm"):
+        common.make_model_fn("filter", tp, particles=100, identify_iterations=1, action_range=5e-3, window=4e-3)
 
 
 def test_write_with_the_filter_model():

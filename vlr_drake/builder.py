@@ -33,6 +33,7 @@ runs a scenario (:func:`run`) and prints the estimate beside the truth.
 """
 
 import argparse
+import math
 import re
 import shutil
 import subprocess
@@ -850,12 +851,30 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
 RUN_ITERATIONS = 10
 
 
+def periods_for_frames(frames: int, dropout: float, probability: float = 0.999) -> int:
+    """Action periods within which ``frames`` valid frames arrive with ``probability`` when
+    each is lost with probability ``dropout`` (the negative binomial's quantile)."""
+    if dropout <= 0:
+        return frames
+    n, cdf = frames, 0.0
+    while cdf < probability and n < frames + 100_000:
+        cdf += math.comb(n - 1, frames - 1) * (1.0 - dropout) ** frames * dropout ** (n - frames)
+        n += 1
+    return n - 1
+
+
 def default_iterations(scenario: Scenario) -> int:
     """Filter iterations of a ``--run`` without ``--iterations``: :data:`RUN_ITERATIONS`, or
     with a control section as many as its goals need (the exploration, the anchor and
     ``max_periods`` for each goal: :meth:`ControlSettings.iterations_to_finish`), so that
-    the run reaches the control it describes."""
-    return max(RUN_ITERATIONS, scenario.control.iterations_to_finish())
+    the run reaches the control it describes. The anchor waits for valid frames: on a model
+    plant that drops them, the periods in which its frames arrive 999 times in 1,000 (at
+    ``dropout`` 0.5 a run of anchor_frames periods had left its last goal unreached)."""
+    c = scenario.control
+    extra = 0
+    if c.goals_mm and scenario.plant == "model":
+        extra = periods_for_frames(c.anchor_frames, scenario.model_plant.dropout) - c.anchor_frames
+    return max(RUN_ITERATIONS, c.iterations_to_finish() + extra)
 
 
 def main(argv: list[str] | None = None) -> int:

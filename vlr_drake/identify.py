@@ -360,6 +360,9 @@ class IdentifyOptions:
         if self.hand_spec is None and self.hand != "model_o" and self.hand not in NOVEL_HANDS:
             raise ValueError(f"unknown hand '{self.hand}': use model_o, {', '.join(NOVEL_HANDS)}, "
                              f"or a scenario with a hand_spec")
+        if self.prior is not None:  # its unknowns against the hand (a 4-finger scenario's spring with
+            spec = self.hand_spec if self.hand_spec is not None else hand_by_name(self.hand)  # --hand model_o
+            self.prior.validate(spec.num_fingers, spec.num_joints_per_finger)  # had ended in an IndexError)
         if self.object is None:
             self.object = DEFAULT_OBJECT[self.experiment]
         if self.object_spec is None and self.object not in preset_names():

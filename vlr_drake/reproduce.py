@@ -184,19 +184,23 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     plant = plant or (scenario.plant if scenario is not None else "physics")
     seeds = range(seed, seed + trials)
     sc = (scenario, scenario_path)
-    for name in chosen:  # a row the scenario cannot run, said before any trial (each trial had
-        if scenario is not None and name in IDENTIFICATION_RUNS:  # failed in turn, with its traceback)
-            experiment, hand = IDENTIFICATION_RUNS[name]
-            try:
-                options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, plant=plant)
-            except ValueError as e:
-                raise ValueError(f"reproduce: the row '{name}' cannot run under this scenario: {e}") from None
+    objects = {"known_hand": known_hand_objects(plant), "stiffness": (STIFFNESS_OBJECT,)}
+    for name in chosen if scenario is not None else ():  # a row the scenario cannot run, said before
+        try:  # any trial (each trial had failed in turn, with its traceback, into a table of nan rows)
+            if name in IDENTIFICATION_RUNS:
+                experiment, hand = IDENTIFICATION_RUNS[name]
+                for o in objects.get(name, (None,)):
+                    options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, plant=plant,
+                                          object=o).validate()
+            else:
+                task_settings(scenario, scenario_path, plant=plant)
+        except ValueError as e:
+            raise ValueError(f"reproduce: the row '{name}' cannot run under this scenario: {e}") from None
     tr = out / "traces"  # one trace per identification run (vlr-drake replay)
     runs: dict[str, list] = {}
     # As the paper ran them: the known hand with each of its four objects (Fig. 4; trials
     # each), the stiffness with the toy block (Fig. 5); the novel hands name no object.
     # (each object's run its own trial: one that fails loses none of the seed's others)
-    objects = {"known_hand": known_hand_objects(plant), "stiffness": (STIFFNESS_OBJECT,)}
     jobs = [(name, lambda s, name=name, run=run: [
                 _attempt(name, s, lambda o=o: _identify(*run, s, plant, particles, iterations, *sc, obj=o, traces=tr),
                          obj=o)

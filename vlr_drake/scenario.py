@@ -29,6 +29,7 @@ import copy
 import dataclasses
 import re
 import typing
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -948,8 +949,9 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
     an ``experiment`` override may add its unknowns to a prior that has none, and must
     otherwise agree with it. A ``hand``/``object`` override replaces a full spec; another
     hand than the scenario's drops the scenario's finger-wise settings (the prior's
-    ``links_unknown``, the model plant's true stiffness and link lengths). Raises
-    ``ValueError`` naming the conflict."""
+    ``links_unknown``, the model plant's true stiffness and link lengths, the latter two
+    warned), and another object than a weighed scenario's (``prior.object_mass``) needs its
+    own ``object_mass``. Raises ``ValueError`` naming the conflict."""
     from vlr_drake.identify import IdentifyOptions
 
     given = {k: v for k, v in overrides.items() if v is not None}
@@ -999,8 +1001,18 @@ def options_from_scenario(scenario: Scenario | None, path: str | Path | None = N
         # scenario's own fingers: another hand's replaced fingers are its own (identify
         # derives them) and its truth is its preset's (reproduce's NH1 row under NH2's
         # scenario had identified a stock Model O finger and NH3's had left one novel finger out)
+        dropped = [name for name, v in (("model_plant.stiffness", opts.get("true_stiffness")),
+                                        ("model_plant.link_lengths", opts.get("true_link_lengths"))) if v]
+        if dropped:  # (the replaced fingers are the hand's own: no loss to say)
+            warnings.warn(f"scenario '{s.name}': {', '.join(dropped)} name the fingers of its own hand, not of "
+                          f"'{given['hand']}': not used", stacklevel=2)
         opts["prior"].links_unknown = []
         opts.update(true_stiffness=None, true_link_lengths=None)
+    own_object = s.object_spec.name if s.object_spec is not None else s.object
+    if s.prior.object_mass is not None and "object_mass" not in given and given.get("object", own_object) != own_object:
+        # a weighed mass is its own object's (the apple's 68 g had been the wine glass's prior)
+        raise ValueError(f"scenario '{s.name}' weighs its object '{own_object}' (prior.object_mass "
+                         f"{s.prior.object_mass:g} kg): the object '{given['object']}' needs its own (--object-mass)")
     return IdentifyOptions(**{**opts, **given})
 
 

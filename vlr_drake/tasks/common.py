@@ -334,6 +334,10 @@ def make_model_fn(
     if action_range is None:
         action_range = EXPLORATION["physics"][0] if physics else TASK_EXPLORATION[0]
     explore_window = min(window, EXPLORATION["physics"][1]) if physics else window
+    if action_range > explore_window:  # (identify refuses it; the tasks had walked 1.5 mm steps in 1.2 mm)
+        raise ValueError(f"the tasks' exploration span ({action_range * 1e3:g} mm, a scenario's exploration.span) "
+                         f"must be at most their exploration window, {explore_window * 1e3:g} mm (the grip window "
+                         f"exploration.window, on the physics plant at most {EXPLORATION['physics'][1] * 1e3:g} mm)")
     explore = Exploration(l_grasp, h.tendon_range, action_range, explore_window, np.random.default_rng(seed + 9))
     for _ in range(identify_iterations):
         dl = explore.next_action()

@@ -196,11 +196,15 @@ class MarbleMaze:
         if not (is_number(duration) and 0 <= duration < np.inf):
             raise ValueError(f"marble maze: 'duration' must be a finite number >= 0 [s], got {duration!r}")
         acc = (5.0 / 7.0) * np.asarray(g_plate, float)[:2]
-        for _ in range(max(1, int(round(duration / self.dt)))):
-            self.vel += self.dt * (acc - self.damping * self.vel)
+        # substeps of at most dt that add up to the duration (round(duration / dt) steps of dt
+        # had simulated 1 ms for a 0.4 ms period and 2 ms for 2.5 ms; a review)
+        n = max(1, int(np.ceil(duration / self.dt - 1e-9)))
+        h = duration / n
+        for _ in range(n):
+            self.vel += h * (acc - self.damping * self.vel)
             for axis in (0, 1):
                 r, c = self.cell_of()
-                new = self.pos[axis] + self.dt * self.vel[axis]
+                new = self.pos[axis] + h * self.vel[axis]
                 idx = c if axis == 0 else r
                 lo, hi = idx * self.cell + self.radius, (idx + 1) * self.cell - self.radius
                 if new > hi and self._wall(r, c, axis, +1):
