@@ -118,9 +118,15 @@ HOME_FRAMES = 10
 #: a setup error.
 MIN_LETTER_HEIGHT = 1e-3
 #: A word is written when 95% of its waypoints lie within this of their targets [m], or
-#: within half the letter height where that is less (a pen at rest lies within 0.66 mm of
-#: every waypoint of a 1 mm letter, which the 1 mm test alone had scored written).
+#: within WRITTEN_REST_FRACTION of what a pen at rest scores where that is less.
 WRITTEN_WITHIN = 1e-3
+#: ... the fraction of a pen at rest's 95th-percentile distance (from each letter's centre to
+#: its waypoints) within which 95% of the waypoints must lie. A pen at rest lies within 0.66 mm
+#: of every waypoint of a 1 mm letter (which the 1 mm test alone had scored written), and half
+#: the letter height had passed a pen at rest at the centre of a 1 mm O (0.4985 mm) and an O
+#: written a third of its height (a review). The task rows' runs score 0.32-0.36 of it on the
+#: physics plant (1 mm letters, seeds 0-4) and 0.15-0.29 on the model plant (2.6-4.2 mm).
+WRITTEN_REST_FRACTION = 0.5
 
 
 def home_position(pl, t_first, frames: int = HOME_FRAMES) -> np.ndarray:
@@ -189,8 +195,9 @@ def run_write(
     """
     letters = font.word_letters(word)
     common.check_plant(plant)
-    if not 0 < letter_height <= 12e-3:  # NaN too
-        raise ValueError(f"'letter_height' must be in (0, 12 mm], got {letter_height}")
+    if not MIN_LETTER_HEIGHT <= letter_height <= 12e-3:  # NaN too; (a smaller one had probed a workspace
+        # too small for the smallest letter on every seed, and blamed the seed; a review)
+        raise ValueError(f"'letter_height' must be in [{MIN_LETTER_HEIGHT * 1e3:g}, 12] mm, got {letter_height}")
     common.check_positive(spacing=spacing, tol_position=tol_position, window=window)
     if not is_count(max_steps, 1):
         raise ValueError(f"'max_steps' must be an integer >= 1, got {max_steps!r}")
@@ -219,7 +226,8 @@ def run_write(
         # write (1 mm letters written by a pen at rest had scored as written; a review)
         raise common.TaskSetupError(
             f"write, seed {seed}: the model's probed workspace ({2e3 * r_in:.2f} mm across) is too small for "
-            f"letters of {1e3 * MIN_LETTER_HEIGHT:g} mm (a grasp that cannot move the pen; try another seed)")
+            f"letters of {1e3 * MIN_LETTER_HEIGHT:g} mm (a grasp that cannot move the pen within the grip "
+            f"window of {1e3 * window:g} mm, a scenario's exploration.window: try another seed or a wider window)")
     height = float(np.clip(2.0 * 0.75 * r_in, MIN_LETTER_HEIGHT, letter_height))
 
     wp_err, wp_err_meas, rot_drift = [], [], []
@@ -231,8 +239,10 @@ def run_write(
     bar = tqdm(total=total_wp, disable=not progress, desc=f"write {word}", unit="wp", leave=False)
     iterations = 0
     failures = {}
+    wp_rest = []  # each scored waypoint's distance from its letter's centre: a pen at rest's error
     for c in letters:
         strokes = font.letter_strokes(c, height, spacing)
+        centre = np.mean(np.concatenate(strokes), axis=0)
         paths = []
         for s in strokes:
             pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
@@ -256,6 +266,7 @@ def run_write(
                     break  # (they had been, at the fallen object's pose: 79 mm errors; a review)
                 R_true, t_true = tp.true_pose()
                 wp_err.append(np.linalg.norm(t_true - goal))
+                wp_rest.append(np.linalg.norm(s[k] - centre))
                 wp_err_meas.append(rep.position_error)
                 rot_drift.append(np.rad2deg(control.observation.rotation_angle(R_true0[None], R_true[None])[0]))
                 d = t_true - t_home
@@ -281,7 +292,9 @@ def run_write(
     bar.close()
     wp_err = np.array(wp_err)
     pos = common.stats(wp_err, 1e3)
-    within = min(WRITTEN_WITHIN, 0.5 * height)
+    p95 = float(np.percentile(wp_err, 95)) if wp_err.size else None
+    rest95 = float(np.percentile(wp_rest, 95)) if wp_rest else None
+    within = min(WRITTEN_WITHIN, WRITTEN_REST_FRACTION * (rest95 or 0.0))
     result = {
         "task": "write",
         "scenario": scenario,
@@ -293,9 +306,13 @@ def run_write(
         "word": word.upper(),
         "position_error_mm": pos,
         "orientation_error_deg": None,
-        # written: 95% of the waypoints within WRITTEN_WITHIN of the target, or half a letter
-        "success": bool(wp_err.size and np.percentile(wp_err, 95) <= within and not common.object_fell(tp)),
+        # written: 95% of the waypoints within WRITTEN_WITHIN of the target, or nearer than half
+        # of what a pen at rest scores
+        "success": bool(wp_err.size and p95 <= within and not common.object_fell(tp)),
         "success_within_mm": within * 1e3,
+        "position_error_p95_mm": None if p95 is None else p95 * 1e3,
+        # the same of a pen held still at each letter's centre: what writing nothing scores
+        "pen_at_rest_p95_mm": None if rest95 is None else rest95 * 1e3,
         "object_fell": common.object_fell(tp),
         "letter_height_mm": height * 1e3,
         "waypoints": int(wp_err.size),
