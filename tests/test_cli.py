@@ -1025,6 +1025,33 @@ def test_demo_says_an_unused_object_once_and_refuses_a_bad_one_before_anything_r
     assert "self-check" not in out and "unknown object 'teapot'" in err
 
 
+def test_the_demos_writing_takes_the_scenarios_seed_noise_and_particles(tmp_path, monkeypatch):
+    """The demo's writing runs on the model plant with the scenario's seed, pose noise and
+    particle count (at most 10,000); it had taken none of them (a review)."""
+    import vlr_drake.cli as cli
+    import vlr_drake.tasks.write as wr
+
+    seen = {}
+
+    def write(word, **kw):
+        seen.update(kw)
+        return {"position_error_mm": {"mean": 0.1, "sd": 0.0, "max": 0.1}}
+
+    monkeypatch.setattr(cli, "selfcheck", lambda seed: {})
+    monkeypatch.setattr(cli, "identify", lambda args: {})
+    monkeypatch.setattr(wr, "run_write", write)
+    from vlr_drake.scenario import DIAGRAMS_DIR
+
+    path = tmp_path / "quiet.yaml"
+    text = (DIAGRAMS_DIR / "model_plant.yaml").read_text()
+    assert "sigma_position: 0.0002 " in text
+    path.write_text(text.replace("sigma_position: 0.0002 ", "sigma_position: 0.00005 "))
+    assert main(["demo", "--scenario", str(path), "--seed", "4", "--particles", "3000", "--no-progress",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert (seen["seed"], seen["plant"], seen["particles"], seen["sigma_position"]) == (4, "model", 3000, 0.00005)
+    assert seen["scenario"] == "model_plant"
+
+
 def test_builder_refuses_flags_its_run_would_drop(capsys):
     """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
     example diagrams do not go with it (a review found them silently dropped), and a bad

@@ -859,13 +859,16 @@ def demo(args) -> None:
     print("\n== self-identification: Model O holding an object, known hand ==")
     identify(args)
     print("\n== in-hand manipulation: the identified model writes with the POM ==")
+    # the writing identifies its own grasp on the model plant, with the scenario's seed, pose
+    # noise and exploration where it sets them (it had taken none of them; a review): at most
+    # 10,000 particles and 100 iterations (fewer when the demo was asked for fewer)
+    from vlr_drake.scenario import task_settings
     from vlr_drake.tasks.write import run_write
 
-    # the writing identifies its own grasp: 10,000 particles and 100 iterations (fewer when
-    # the demo was asked for fewer)
-    result = run_write("VLR", seed=args.seed, plant="model", model="filter", particles=min(10_000, 10_000 if args.particles is None else args.particles),
-                       identify_iterations=min(100, args.iterations), out=args.out, progress=not args.no_progress,
-                       scenario=args.loaded.name if args.loaded else None, meshcat=_meshcat(args))
+    kw = task_settings(args.loaded, args.scenario_path, seed=args.seed, plant="model", particles=args.particles)
+    kw["particles"] = min(10_000, kw.get("particles") or 10_000)
+    result = run_write("VLR", model="filter", identify_iterations=min(100, args.iterations), out=args.out,
+                       progress=not args.no_progress, meshcat=_meshcat(args), **{"scenario": None, **kw})
     pos = result["position_error_mm"]
     print(f"wrote 'VLR': position error {pos['mean']:.3f} +- {pos['sd']:.3f} mm (max {pos['max']:.3f}); "
           f"plot in {args.out}/write_path.png")
