@@ -1,7 +1,8 @@
 """The ``vlr-drake`` command line.
 
     vlr-drake demo        the main job: self-check, then a self-identification run with a
-                          summary table and convergence plots
+                          summary table and convergence plots, then handwriting ('VLR')
+                          on the model plant
     vlr-drake selfcheck   build the default hand, move it with both solvers, compare
     vlr-drake identify    one of the paper's identification experiments (JSON + plots)
     vlr-drake replay      replay an identification's trace offline: other filter settings,
