@@ -725,3 +725,21 @@ def test_a_scenarios_hand_and_object_settings_do_not_pass_to_another(tmp_path):
     sc.prior.stiffness_unknown = [(3, 1)]
     with pytest.raises(ValueError, match="stiffness_unknown entry \\(3, 1\\) is not a joint of a 3 x 2 hand"):
         options_from_scenario(sc, hand="model_o").validate()
+
+
+def test_a_hand_or_object_drake_cannot_name_or_a_thumb_factor_without_a_thumb_is_refused(tmp_path):
+    """Names Drake gives its model instances (both the same, or one of its own) had ended in
+    Drake's traceback; a thumb factor on a hand without a finger named thumb had gone to no
+    finger, silently (a review)."""
+    source = DIAGRAMS_DIR / "custom_hand_and_object.yaml"
+    text = source.read_text()
+    for old, new, said in (("name: tagged_block", "name: four_finger_hand", "both named 'four_finger_hand'"),
+                           ("name: four_finger_hand", "name: world", "hand: the name 'world' is Drake's own"),
+                           ("name: tagged_block", "name: DefaultModelInstance", "object: the name 'DefaultModel")):
+        assert old in text
+        path = tmp_path / "renamed.yaml"
+        path.write_text(text.replace(old, new))
+        with pytest.raises(ValueError, match=said):
+            load_scenario(path)
+    with pytest.raises(ValueError, match="pretension_mode 'thumb_factor' .*has none \\(\\['f0', 'f1', 'f2', 'f3'\\]\\)"):
+        load_scenario(source, "physics: {pretension_mode: thumb_factor}")

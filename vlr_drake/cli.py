@@ -326,8 +326,8 @@ def print_summary(result: dict) -> None:
             + [len(name.split(":", 1)[1]) + len(" link [mm]") for name in result.get("hand_parameters", {})])
     print(f"{'quantity':{w}s} {'estimate':>10s} {'95% interval':>20s} {'truth':>10s} {'error':>8s}")
     for i, n in enumerate(names):
-        K = est["theta"].shape[1]  # proximal, the middle joints by number, distal
-        for j, label in enumerate(["proximal", *(f"joint{j}" for j in range(1, K - 1)), "distal"]):
+        K = est["theta"].shape[1]  # proximal, the middle joints by the Drake model's number (from 1), distal
+        for j, label in enumerate(["proximal", *(f"joint{j + 1}" for j in range(1, K - 1)), "distal"]):
             e, lo, hi, t = (np.rad2deg(x[i, j]) for x in (est["theta"], est["theta_lo"], est["theta_hi"], truth["theta"]))
             print(f"{n + ' ' + label + ' [deg]':{w}s} {e:10.2f} {f'[{lo:.2f}, {hi:.2f}]':>20s} {t:10.2f} {abs(e - t):8.2f}")
         e, lo, hi, t = (1e3 * x[i] for x in (est["a"], est["a_lo"], est["a_hi"], truth["a"]))

@@ -1674,9 +1674,10 @@ class SelfIdentificationFilter:
         novel hands worse (NH2 4.30 mm against 3.23, NH3 seeds 0-3 6.0 against 3.8; 20,000
         particles, 100 iterations)."""
         M = self.config.particles
-        kept, total = [], 0
+        kept, total, drawn = [], 0, 0
         for _ in range(50):
             n = 2 * M
+            drawn += n
             theta, a, stiff, links, load, stretch, good = self._draw_grasps(n, theta_center, a_center, scale,
                                                                             centers)
             idx = np.flatnonzero(good)
@@ -1689,8 +1690,8 @@ class SelfIdentificationFilter:
                 break
         if total < M:
             raise PriorError(
-                f"prior: only {total} of {M} draws are physical grasps (positive tension, joints within "
-                "limits); check the nominal grasp and the prior ranges"
+                f"prior: only {total} of {drawn} draws are physical grasps (positive tension, joints within "
+                f"limits), and the filter needs {M}; check the nominal grasp and the prior ranges"
             )
 
         def cat(i):

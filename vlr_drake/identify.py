@@ -32,10 +32,10 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import grasps, units
-from vlr_drake.hand import NOVEL_HANDS, hand_by_name
+from vlr_drake.hand import NOVEL_HANDS, HandSpec, hand_by_name
 from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
-from vlr_drake.objects import preset_names
+from vlr_drake.objects import preset, preset_names
 from vlr_drake.trace import TraceRecorder
 
 if TYPE_CHECKING:
@@ -578,6 +578,29 @@ def options_run_name(opts: IdentifyOptions) -> str:
     return run_name(opts.experiment, _hand_name(opts), obj, opts.plant, opts.seed, opts.scenario)
 
 
+def truths_outside_prior(true_spec: HandSpec, prior: pf.PriorConfig, object_mass: float | None = None) -> list[str]:
+    """The simulated truths the prior's ranges leave out, said: an unknown proximal link's
+    length outside ``link_range``, an unknown spring outside ``stiffness_range``, the
+    object's ``object_mass`` [kg] (where its weight is identified) outside
+    ``object_mass_range``."""
+    out = []
+    for fi in prior.links_unknown:
+        f, (lo, hi) = true_spec.fingers[fi], prior.link_range
+        if not lo <= f.link_lengths[0] <= hi:
+            out.append(f"the true proximal link of '{f.name}', {1e3 * f.link_lengths[0]:g} mm, lies outside the "
+                       f"prior's link_range [{1e3 * lo:g}, {1e3 * hi:g}] mm")
+    for fi, j in prior.stiffness_unknown:
+        f, (lo, hi) = true_spec.fingers[fi], prior.stiffness_range
+        if not lo <= f.stiffness[j] <= hi:
+            out.append(f"the true spring of '{f.name}' joint {j}, {f.stiffness[j]:g} N m/rad, lies outside the "
+                       f"prior's stiffness_range [{lo:g}, {hi:g}] N m/rad")
+    if object_mass is not None and not prior.object_mass_range[0] <= object_mass <= prior.object_mass_range[1]:
+        lo, hi = prior.object_mass_range
+        out.append(f"the object's mass, {1e3 * object_mass:g} g, lies outside the prior's object_mass_range "
+                   f"[{1e3 * lo:g}, {1e3 * hi:g}] g")
+    return out
+
+
 def _hands(opts: IdentifyOptions, rng):
     """(true hand spec, filter's hand spec, prior config).
 
@@ -592,7 +615,13 @@ def _hands(opts: IdentifyOptions, rng):
     true_spec = copy.deepcopy(nominal)
     if opts.experiment == "stiffness":
         if not prior.stiffness_unknown:  # the thumb's distal (last) joint, in the prior's stiffness_range
-            prior.stiffness_unknown = [(0, len(nominal.fingers[0].stiffness) - 1)]
+            # (the thumb by its name: finger 0 had been taken whatever it was; a review)
+            thumbs = [i for i, f in enumerate(nominal.fingers) if f.name.startswith("thumb")] or [0]
+            if not nominal.fingers[thumbs[0]].name.startswith("thumb"):
+                warnings.warn(f"stiffness: the hand '{nominal.name}' has no finger named thumb...: the distal "
+                              f"spring of its first finger, '{nominal.fingers[0].name}', is identified (another: "
+                              f"prior stiffness_unknown)", stacklevel=2)
+            prior.stiffness_unknown = [(thumbs[0], len(nominal.fingers[thumbs[0]].stiffness) - 1)]
         if opts.true_stiffness is None:
             fi, j = prior.stiffness_unknown[0]
             k = list(true_spec.fingers[fi].stiffness)
@@ -627,8 +656,12 @@ def _truth_grasp(hand, rng):
     a grasp that need not be stable, and it was taken more often than not: the known hand's
     seeds 1, 3 and 4, four of five stiffness seeds and every NH3 seed had a truth balanced
     on a saddle (a review of the model's stability)."""
-    for ranges, min_tension in [(((0.05, 0.35), (0.3, 0.9), (0.02, 0.032)), 2.0),
-                                (((0.0, 0.45), (0.2, 1.0), (0.018, 0.036)), 1.0)]:
+    stages = [(((0.05, 0.35), (0.3, 0.9), (0.02, 0.032)), 2.0), (((0.0, 0.45), (0.2, 1.0), (0.018, 0.036)), 1.0)]
+    d = float(np.min(hand.distal_length))
+    if 0.75 * d < 0.036:  # short distal links: the wider contacts scaled to them (the Model O's 48 mm
+        # give the same; an 18 mm link had had every contact drawn past its end; a review)
+        stages.append((((0.0, 0.45), (0.2, 1.0), (0.375 * d, 0.75 * d)), 1.0))
+    for ranges, min_tension in stages:
         for margin in (0.03, 0.01, 1e-3):
             try:
                 gs = grasps.sample_grasps(hand, rng, 1, proximal_range=ranges[0], distal_range=ranges[1],
@@ -640,8 +673,8 @@ def _truth_grasp(hand, rng):
                 continue
     # the true hand's settings, not the code: a ValueError that says so
     raise ValueError("model plant: the true hand has no stable fingertip grasp to start from (tensions 1-30 N, a "
-                     "squeeze; check its link lengths, springs and tendon stiffness, e.g. a scenario's model_plant "
-                     "section or hand_spec)")
+                     "squeeze, contacts along the distal links' middle; check its link lengths, springs and tendon "
+                     "stiffness, e.g. a scenario's model_plant section or hand_spec)")
 
 
 #: Seed offset of the generator of the physics plant's guessed contacts (contact_guess_rng).
@@ -670,6 +703,11 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
         opts.filter.likelihood_width = default_likelihood_width(opts.plant, opts.experiment)
     rng = np.random.default_rng(opts.seed)
     true_spec, filt_spec, prior = _hands(opts, rng)
+    mass = None
+    if opts.plant == "physics" and prior.object_mass_unknown:
+        mass = (opts.object_spec if opts.object_spec is not None else preset(opts.object)).mass
+    for said in truths_outside_prior(true_spec, prior, mass):  # (a spec's own hand or object, e.g. a 350 g
+        warnings.warn(f"{said}: the filter cannot find it", stacklevel=2)  # one, had only been "weakly identified")
     true_hand, filt_hand = true_spec.model(), filt_spec.model()
     timing = {"physics": 0.0, "render": 0.0, "detect": 0.0, "filter": 0.0, "total": 0.0}
     t_start = time.perf_counter()

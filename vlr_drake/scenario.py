@@ -578,6 +578,19 @@ class Scenario:
         )
         _with_section("camera", self.camera.validate)
         _with_section("physics", self.physics.validate)
+        names = {"hand": hand.name, "object": self.object_spec_resolved().name}
+        for what, name in names.items():  # Drake's model instances (they had ended in its traceback)
+            if name in DRAKE_RESERVED_NAMES:
+                raise ValueError(f"{what}: the name '{name}' is Drake's own (a model instance it reserves); "
+                                 f"rename the {what}")
+        if names["hand"] == names["object"]:
+            raise ValueError(f"hand and object are both named '{names['hand']}': Drake names its model instances "
+                             f"by them, so they must differ")
+        if (self.physics.pretension_mode_for(hand.model()) == "thumb_factor"
+                and not any(f.name.startswith("thumb") for f in hand.fingers)):  # (it went to no finger)
+            raise ValueError(f"physics: pretension_mode 'thumb_factor' gives thumb_factor to the fingers named "
+                             f"thumb...; the hand '{hand.name}' has none ({[f.name for f in hand.fingers]}): name "
+                             f"one, or use 'balanced'")
         _with_section("filter", self.filter.validate)
         for name in ("tag_id", "tag_size"):  # the object's: they had been replaced without a word
             mine, default = getattr(self.observer, name), getattr(TagObserverConfig(), name)
@@ -1039,6 +1052,10 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
     if s.exploration.window is None:
         del settings["window"]
     return {**settings, **given}
+
+
+#: Names of Drake's own model instances, which a hand or an object cannot take.
+DRAKE_RESERVED_NAMES = ("world", "WorldModelInstance", "DefaultModelInstance")
 
 
 #: What the tasks take from a scenario (task_settings): the rest is theirs or the task's own.
