@@ -972,3 +972,17 @@ def test_the_controller_holds_once_its_error_stops_improving(grasp):
     assert np.any(c.tendon_command_output_port().Eval(cx) != commands[-1])  # a new goal: steps again
     with pytest.raises(ValueError, match="'stall_periods' must be an integer >= 1"):
         JacobianController(h, l0, 0.1, stall_periods=0)
+
+
+def test_a_huge_rotation_weight_steers_on_the_rotation_alone(grasp):
+    """W's scale does not change the step: a huge alpha (1e308 had hung in lstsq, 1e200 had
+    ended in "'dl' must be finite"; a review) steers as the rotation rows alone do, and
+    weights that overflow are refused by name."""
+    J = control.jacobian(control.ControlModel.from_plant_truth(grasp.plant))
+    e = np.array([1e-3, -2e-3, 0.5e-3, 0.02, -0.01, 0.03])
+    for mode in control.MODES:
+        huge = control.control_step(J, e, mode=mode, alpha=1e308, rotation_unit=1.0, clip=1.0)
+        alone = control.control_step(J, e, mode=mode, rows="orientation", clip=1.0)
+        assert np.all(np.isfinite(huge)) and huge == pytest.approx(alone, rel=1e-9, abs=1e-15), mode
+    with pytest.raises(ValueError, match="overflows: no finite weight"):
+        control.row_weights("full", 1e308, 1e-3, 0.01)

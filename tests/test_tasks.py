@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from vlr_drake import observation
+from vlr_drake.objects import preset
 from vlr_drake.tasks import common, font, maze, stack, write
 
 SECTION_11 = ("task", "scenario", "seed", "plant", "position_error_mm", "orientation_error_deg", "success")
@@ -102,6 +103,10 @@ def test_other_tasks_reject_bad_settings():
         stack.run_stack(tilt_range_deg=(float("nan"), float("nan")), progress=False)
     with pytest.raises(ValueError, match="'offset_range' must be"):
         stack.run_stack(offset_range=-1e-3, progress=False)
+    with pytest.raises(ValueError, match="'offset_range': 0.5 m is longer than 0.02 m, wider than any cup's"):
+        stack.run_stack(offset_range=0.5, progress=False)  # (mm meant: cups placed 252-666 mm off; a review)
+    with pytest.raises(ValueError, match="'tilt_range_deg' must be at most 45 deg"):
+        stack.run_stack(tilt_range_deg=(3.0, 180.0), progress=False)
     # a review found these accepted: they ran to a stall or 3 steps and reported success, or
     # steered the plate the wrong way, wrapped 363 deg round, "solved" 30 deg 17 deg off
     for kw, name in [({"tol_position": float("nan")}, "tol_position"), ({"tol_position": -1e-3}, "tol_position"),
@@ -344,6 +349,22 @@ def test_stack_geometry():
     assert not stack.nested(0, 1, R, t, R, t + np.array([0.02, 0.0, 0.0]))[0]
 
 
+def test_a_physics_cup_is_judged_by_its_own_bottom():
+    """The physics cups' POM is their tag, on the end towards the palm with z towards it: the
+    bottom is the cylinder's other end, 60.3 mm away, not (0, 0, 0.6 H), 36 mm outside the cup
+    (a review: cups 6.9 and 6.4 mm off-axis had been scored 4.0 and 3.7 mm, nested). A cup 4
+    turned 6.5 deg about its tag's centre sweeps its bottom 6.8 mm sideways: with the tilt's own
+    3.4 mm over cup 3's 9.4 mm clearance (the old point's 4.1 mm had nested it)."""
+    q = stack.physics_cup_bottom(4)
+    spec = preset("cup_4")
+    assert q[:2] == pytest.approx([0.0, 0.0]) and q[2] == pytest.approx(-(spec.size[1] + 0.0003), abs=2e-4)
+    R_goal, t_goal = np.eye(3), np.array([0.0, 0.0, 0.11])
+    R = observation.rotvec_to_matrix(np.array([np.deg2rad(6.5), 0.0, 0.0]))[0]
+    ok, lateral, tilt = stack.nested(3, 4, R_goal, t_goal, R, t_goal, q)
+    assert lateral == pytest.approx(np.linalg.norm(q) * np.sin(tilt), rel=1e-6) and not ok
+    assert stack.nested(3, 4, R_goal, t_goal, R, t_goal)[0]  # the old point: nested
+
+
 def test_a_slipped_tilted_grasp_is_grasped_again():
     """Physics stacking: a cup that settles further than SLIPPED_GRASP from its goal is
     grasped again at a new tilt (its own generator), at most REGRASPS times, and counted;
@@ -515,6 +536,11 @@ def test_reproduce_names_a_failed_known_hand_runs_object_and_a_row_its_scenario_
         rp.reproduce(trials=1, plant="model", out=tmp_path / "b", progress=False, scenario=sc,
                      experiments=["NH1", "stiffness"])
     assert not (tmp_path / "b" / "reproduce.json").exists()
+    lossy = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "model_plant: {dropout: 0.3}")
+    monkeypatch.setattr(stack, "run_stack", lambda **kw: {"success": False, "position_error_mm": None,
+                                                          "orientation_error_deg": None})
+    rp.reproduce(trials=1, plant="model", out=tmp_path / "e", progress=False, scenario=lossy, experiments=["stack"])
+    assert "scenario 'model_plant': the task rows (stack) do not use model_plant.dropout" in capsys.readouterr().err
     with pytest.raises(ValueError, match="the row 'maze' cannot run under this scenario: .*Model O hand"):
         rp.reproduce(trials=1, plant="model", out=tmp_path / "c", progress=False, scenario=sc, experiments=["maze"])
     weighed = load_scenario(DIAGRAMS_DIR / "default.yaml", "prior: {object_mass: 0.068}")  # the apple weighed
@@ -530,6 +556,30 @@ def test_a_task_exploration_span_wider_than_its_window_is_refused():
     with pytest.raises(ValueError, match="exploration span \\(5 mm, a scenario's exploration.span\\) must be at most "
                                          "their exploration window, 4 mm"):
         common.make_model_fn("filter", tp, particles=100, identify_iterations=1, action_range=5e-3, window=4e-3)
+
+
+def test_a_stacking_row_beats_the_paper_only_where_the_control_improved_the_cups(tmp_path, monkeypatch):
+    """The cups are grasped at most 2.8 mm off their goals, under the paper's 2.1 mm mean: a
+    run whose control moved nothing had beaten the paper (a review). A stacking row beats it
+    only where its error is also below the cups' as grasped."""
+    import vlr_drake.reproduce as rp
+
+    def stacked(moved):
+        def run(**kw):
+            cup = {"mean": 1.5, "sd": 0.5, "max": 2.0, "n": 4}
+            after = {"mean": 0.5, "sd": 0.2, "max": 0.8, "n": 4} if moved else cup
+            tilt = {"mean": 6.0, "sd": 1.0, "max": 8.0, "n": 4}
+            return {"success": True, "position_error_mm": after, "orientation_error_deg": tilt,
+                    "initial_position_error_mm": cup, "initial_orientation_error_deg": {**tilt, "mean": 7.0}}
+        return run
+
+    for moved in (True, False):
+        monkeypatch.setattr(stack, "run_stack", stacked(moved))
+        rows = {r["key"]: r for r in rp.reproduce(trials=2, plant="model", out=tmp_path / str(moved),
+                                                    progress=False, experiments=["stack"])["rows"]}
+        assert rows["stack_position"]["better"] == moved and rows["stack_position"]["initial_mean"] == 1.5
+        assert not rows["stack_orientation"]["better"]  # 6 deg: below 7 as grasped, not the paper's 5.16
+        assert "(as grasped 1.50)" in (tmp_path / str(moved) / "reproduce.md").read_text()
 
 
 def test_write_with_the_filter_model():

@@ -247,11 +247,22 @@ def row_weights(rows: str, alpha: float, position_unit: float, rotation_unit: fl
         if not (np.isfinite(v) and v > 0):
             raise ValueError(f"'{name}' must be a positive finite number, got {v}")
     w = np.concatenate([np.full(3, 1.0 / position_unit), np.full(3, alpha / rotation_unit)])
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"'alpha' / 'rotation_unit' ({alpha} / {rotation_unit}) overflows: no finite weight")
     if rows == "position":
         w[3:] = 0.0
     elif rows == "orientation":
         w[:3] = 0.0
     return w
+
+
+def _tamed(w: np.ndarray) -> np.ndarray:
+    """Weights W whose largest is huge scaled down by a power of two (exactly): neither the
+    step nor the comparison of weighted errors depends on W's scale, and a huge one had
+    overflowed (alpha 1e308 hung in lstsq, 1e200 ended in "'dl' must be finite"; a review).
+    The usual weights (up to 1e6) are left as they are, to the bit."""
+    top = float(np.max(w))
+    return np.ldexp(w, -int(np.ceil(np.log2(top)))) if top > 1e6 else w
 
 
 def control_step(
@@ -296,7 +307,7 @@ def control_step(
         raise ValueError(f"'mode' must be one of {MODES}, got '{mode}'")
     if not (gain > 0 and clip > 0 and damping >= 0 and np.isfinite([gain, clip, damping]).all()):  # NaN too
         raise ValueError(f"gain and clip must be positive and damping >= 0 (finite), got {gain}, {clip}, {damping}")
-    w = row_weights(rows, alpha, position_unit, rotation_unit)
+    w = _tamed(row_weights(rows, alpha, position_unit, rotation_unit))
     Jw = w[:, None] * J
     ew = w * e
     g = Jw.T @ ew
@@ -480,7 +491,7 @@ def servo_to(
             raise ValueError(f"'{name}' must be a positive finite number, got {value!r}")
     R_goal = _shaped("R_goal", R_goal, (3, 3))
     t_goal = _shaped("t_goal", t_goal, (3,))
-    w = row_weights(rows, alpha, position_unit, rotation_unit)
+    w = _tamed(row_weights(rows, alpha, position_unit, rotation_unit))  # (compared, never reported)
     ctrl_pos, ctrl_rot = rows in ("position", "full"), rows in ("orientation", "full")
     if resume is not None and resume.R_final is not None and resume.lost_in_a_row == 0:
         # the call before ended on a measured pose and the hand has not moved since: that

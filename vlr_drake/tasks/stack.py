@@ -29,8 +29,11 @@ grasped by the physics hand twice: upright, which gives the goal (the base is pl
 the cup where the hand settles it, sag included, as a taught arm pose would), then placed
 tilted by ``tilt_range_deg`` about the axis that grasp can rotate, which gives the unknown
 pose to correct (:func:`_tilted_physics_grasp`). The nesting test applies the same
-geometry to its POM frame (an approximation: the preset's tag frame stands in for the cup
-axis frame).
+geometry, the cup's bottom centre the cylinder's end away from the tag and the palm
+(:func:`physics_cup_bottom`; until the fifty-sixth session (0, 0, 0.6 H) as on the model
+plant, a point 36 mm outside the cup towards the palm, which had scored cups 6.9 and 6.4 mm
+off-axis as 4.0 and 3.7 mm, nested; a review). Its clearance is the stacking cups' own
+(tapered: their bottom 0.72 D), not the cylinders' that stand in for them in the grasp.
 
 The weighted error of Eq. 12 is in mm and rad here (``STACK_POSITION_UNIT``,
 ``STACK_ROTATION_UNIT``; the controller's default is mm and deg), so that alpha = 9.5
@@ -43,12 +46,12 @@ import os
 
 import numpy as np
 
-from vlr_drake import control, observation
+from vlr_drake import control, observation, units
 from vlr_drake.kinematics import is_count
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
-__all__ = ["CUPS", "ALPHA_STACK", "cup_clearance", "nested", "run_stack"]
+__all__ = ["CUPS", "ALPHA_STACK", "cup_clearance", "nested", "physics_cup_bottom", "run_stack"]
 
 #: The paper's rotational weight for cup stacking (Eq. 12).
 ALPHA_STACK = 9.5
@@ -91,11 +94,23 @@ def cup_clearance(lower: int, upper: int) -> float:
     return 0.5 * D_lo - WALL - 0.5 * BOTTOM_RATIO * D_up
 
 
-def nested(lower: int, upper: int, R_goal, t_goal, R, t) -> tuple[bool, float, float]:
+def physics_cup_bottom(k: int) -> np.ndarray:
+    """The bottom centre [m] of the physics plant's cup ``k`` (the preset ``cup_k``, a
+    cylinder with its tag on the end towards the palm) in its POM frame: the cylinder's
+    other end, on the axis (about (0, 0, -60.3 mm))."""
+    spec = preset(f"cup_{k}")
+    X_OB = spec.X_BO().inverse()
+    ends = [X_OB @ np.array([0.0, 0.0, sign * 0.5 * spec.size[1]]) for sign in (1.0, -1.0)]
+    return max(ends, key=np.linalg.norm)
+
+
+def nested(lower: int, upper: int, R_goal, t_goal, R, t, q_O=None) -> tuple[bool, float, float]:
     """(nests?, lateral offset [m], tilt [rad]) of cup ``upper`` released at pose (R, t)
-    over cup ``lower`` whose axis passes through the goal pose's cup bottom."""
+    over cup ``lower`` whose axis passes through the goal pose's cup bottom. ``q_O``: the cup
+    bottom's centre in the POM frame (default the model plant's, (0, 0, 0.6 H); the physics
+    plant's: :func:`physics_cup_bottom`)."""
     H = CUPS[upper][1]
-    q_O = np.array([0.0, 0.0, 0.6 * H])
+    q_O = np.array([0.0, 0.0, 0.6 * H]) if q_O is None else np.asarray(q_O, float)
     d = (R @ q_O + t) - (R_goal @ q_O + t_goal)
     axis_goal = R_goal[:, 2]
     lateral = float(np.linalg.norm(d - (d @ axis_goal) * axis_goal))
@@ -162,6 +177,11 @@ def run_stack(
         raise ValueError(f"'tilt_range_deg' must be (low, high) with 0 <= low <= high, finite, got {tilt_range_deg}")
     if not (np.isfinite(offset_range) and offset_range >= 0):
         raise ValueError(f"'offset_range' must be a finite number >= 0 [m], got {offset_range}")
+    # (0.5 meant as mm had placed the cups 252-666 mm off their goals; 180 deg had been a tilt; a review)
+    units.check_length(offset_range, "'offset_range'", 0.02, "wider than any cup's clearance, 9.4-12.5 mm")
+    if tilt_range_deg[1] > 45.0:
+        raise ValueError(f"'tilt_range_deg' must be at most 45 deg (a grasped cup's tilt, in degrees), "
+                         f"got {tilt_range_deg}")
     # (NaN tolerances and a fractional step count had run to a stall and reported success)
     common.check_positive(tol_position=tol_position, tol_rotation_deg=tol_rotation_deg, window=window)
     if not is_count(max_steps):
@@ -237,7 +257,8 @@ def run_stack(
         )
         R, t = tp.true_pose()
         pos1, rot1 = observation.pose_error(R[None], t[None], R_goal[None], t_goal[None])
-        ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t)
+        ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t,
+                                       physics_cup_bottom(k) if plant == "physics" else None)
         ok = ok and not common.object_fell(tp)
         cups.append(
             {
