@@ -3,6 +3,7 @@
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -1051,6 +1052,28 @@ def test_the_demos_writing_takes_the_scenarios_seed_noise_and_particles(tmp_path
                  "--out", str(tmp_path / "o")]) == 0
     assert (seen["seed"], seen["plant"], seen["particles"], seen["sigma_position"]) == (4, "model", 3000, 0.00005)
     assert seen["scenario"] == "model_plant"
+
+
+def test_a_result_is_written_in_one_piece(tmp_path, monkeypatch):
+    """A file is written beside its path and moved over it once whole: a write that fails
+    part-way (a full disk) leaves the last result as it was and no partial file (a result
+    written in place had been cut to 4,096 bytes of invalid JSON, and a 0-byte trace had made
+    a replay of its folder refuse every trace; a review)."""
+    from vlr_drake.cli import write_json
+
+    path = tmp_path / "r.json"
+    write_json({"a": 1}, str(path))
+    real = Path.write_text
+
+    def full_disk(self, text, *args, **kwargs):
+        real(self, text[:10], *args, **kwargs)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        write_json({"a": 2, "b": list(range(100))}, str(path))
+    monkeypatch.undo()
+    assert json.loads(path.read_text()) == {"a": 1} and [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
 def test_builder_refuses_flags_its_run_would_drop(capsys):

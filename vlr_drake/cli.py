@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, as_spelled, count, path_text, plain, report, warning_lines
+from vlr_drake.entry import USER_ERRORS, as_spelled, count, path_text, plain, replacing, report, warning_lines
 
 
 def _json_default(o):
@@ -65,7 +65,9 @@ def write_json(result: dict, path: str | None) -> None:
         return
     clean = {k: v for k, v in result.items() if not k.startswith("_")}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text(json.dumps(_finite(clean), indent=2, default=_json_default, allow_nan=False))
+    text = json.dumps(_finite(clean), indent=2, default=_json_default, allow_nan=False)
+    with replacing(path) as temporary:
+        temporary.write_text(text)
     print(f"wrote {path}")
 
 

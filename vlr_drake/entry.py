@@ -142,6 +142,24 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     return status if isinstance(status, int) and not isinstance(status, bool) else 0  # (True had exited 1)
 
 
+@contextlib.contextmanager
+def replacing(path) -> Iterator[Path]:
+    """Write a file in one piece: yields a temporary path beside ``path``, which replaces
+    ``path`` once the block is done; where the block fails (a full disk, an interruption) the
+    temporary file goes and ``path`` keeps what it held. A result written in place had been
+    cut to 4,096 bytes of invalid JSON by a full disk, the last run's result lost with it, and
+    a 0-byte trace had made a replay of its folder refuse every trace (a review)."""
+    import os
+
+    path = Path(path)
+    temporary = path.with_name(f".{path.name}.partial{path.suffix}")  # (the suffix: savefig's format)
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
 def count(least: int):
     """An argparse type: an integer >= ``least`` (argparse names the flag in its error)."""
 

@@ -568,7 +568,10 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
         raise ValueError(f"{path}: the plot's file needs an image suffix ({', '.join('.' + f for f in sorted(formats))}), "
                          f"got {path.suffix or 'none'!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    from vlr_drake.entry import replacing
+
+    with replacing(path) as temporary:  # in one piece
+        fig.savefig(temporary, dpi=dpi, format=path.suffix[1:].lower())
     return path
 
 

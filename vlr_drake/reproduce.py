@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import as_spelled
+from vlr_drake.entry import as_spelled, replacing
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import ignored_by_tasks, options_from_scenario, task_settings
@@ -345,11 +345,14 @@ def _write_table(out: Path, settings: dict, runs: dict, traces: Path, figure: bo
         plot = str(plot_reproduction(rows, out / TABLE_FILES[2], values, title=(
             f"ours ({settings['plant']} plant, {settings['trials']} trial(s) each) against the paper's hardware")))
     result = {**settings, "traces": str(traces) if saved else None, "trace_files": saved, "rows": rows, "plot": plot}
-    (out / TABLE_FILES[1]).write_text(format_table(result))
+    with replacing(out / TABLE_FILES[1]) as temporary:  # (each in one piece: a cut one had replaced the last)
+        temporary.write_text(format_table(result))
     from vlr_drake.cli import _finite, _json_default  # (JSON has no NaN: a row without samples is null)
 
     result["runs"] = runs  # (every trial's result: the docstring's promise, which only the file had kept)
-    (out / TABLE_FILES[0]).write_text(json.dumps(_finite(result), indent=2, default=_json_default, allow_nan=False))
+    text = json.dumps(_finite(result), indent=2, default=_json_default, allow_nan=False)
+    with replacing(out / TABLE_FILES[0]) as temporary:
+        temporary.write_text(text)
     return result
 
 

@@ -201,7 +201,9 @@ class IdentificationTrace:
             "theta_center", "a_center", "R0", "t0", "tendon_command0", "actions", "R", "t", "valid", "tendon_commands")}
         if self.truths is not None:
             arrays.update({f"truth_{k}": np.asarray(v) for k, v in self.truths.items()})
-        with open(path, "wb") as fh:
+        from vlr_drake.entry import replacing
+
+        with replacing(path) as temporary, open(temporary, "wb") as fh:  # (in one piece: a cut one is none)
             np.savez_compressed(fh, header=np.array(json.dumps(header, default=_json_default)), **arrays)
         return path
 

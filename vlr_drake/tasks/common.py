@@ -4,6 +4,7 @@ files (docs/result-files.md)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -384,6 +385,14 @@ def check_positive(**values) -> None:
     for name, v in values.items():
         if not (is_number(v) and 0 < v < np.inf):
             raise ValueError(f"'{name}' must be a positive finite number, got {v!r}")
+
+
+def save_figure(fig, path, dpi: int = 110) -> None:
+    """A task's plot saved to ``path`` in one piece (:func:`vlr_drake.entry.replacing`)."""
+    from vlr_drake.entry import replacing
+
+    with replacing(path) as temporary:
+        fig.savefig(temporary, dpi=dpi, format=os.path.splitext(str(path))[1][1:].lower() or "png")
 
 
 def pooled(runs: list[dict | None]) -> dict | None:

@@ -435,6 +435,6 @@ def _plot(mz, marble, track, times, errs, switch_times, path: str) -> str:
     a2.set_ylabel("fall axis f [mm]")
     a2.set_title("marble path")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    common.save_figure(fig, path)
     plt.close(fig)
     return path

@@ -377,6 +377,6 @@ def _plot(cups, path: str, alpha: float) -> str:
         ax.legend(fontsize=8)
     fig.suptitle(f"cup stacking: alignment errors (alpha = {alpha})")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    common.save_figure(fig, path)
     plt.close(fig)
     return path

@@ -373,6 +373,6 @@ def _plot(letters_out, reach, path: str, word: str) -> str:
     fig.suptitle(f"handwriting '{word}': written path over the target letters\n(dotted: probed workspace)",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    common.save_figure(fig, path)
     plt.close(fig)
     return path
