@@ -1076,6 +1076,22 @@ def test_a_result_is_written_in_one_piece(tmp_path, monkeypatch):
     assert json.loads(path.read_text()) == {"a": 1} and [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
+def test_a_trace_that_cannot_be_written_keeps_the_run(tmp_path, monkeypatch, capsys):
+    """A trace that cannot be written (a full disk) had taken the run's result with it: the
+    JSON is written with trace null and the failure said (a review)."""
+    from vlr_drake.trace import IdentificationTrace
+
+    def full_disk(self, path):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(IdentificationTrace, "save", full_disk)
+    out = tmp_path / "o"
+    assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "2", "--no-progress",
+                 "--out", str(out), "--trace", str(tmp_path / "t.npz"), "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["trace"] is None
+    assert "the trace could not be written" in capsys.readouterr().err
+
+
 def test_builder_refuses_flags_its_run_would_drop(capsys):
     """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
     example diagrams do not go with it (a review found them silently dropped), and a bad

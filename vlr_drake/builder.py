@@ -49,7 +49,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import check_not_trace, check_output, count, path_text, plain
+from vlr_drake.entry import check_not_trace, check_output, count, path_text, plain, saved_trace
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
@@ -805,7 +805,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
                 hand=scenario.hand_spec.name if scenario.hand_spec is not None else scenario.hand,
                 object=scenario.object_spec.name if scenario.object_spec is not None else scenario.object)
         result = {
-            "trace": None if trace is None else str(recorded.save(trace)),
+            "trace": None if trace is None else saved_trace(recorded, trace, "python -m vlr_drake.builder"),
             "scenario": scenario.name,
             "iterations": 0 if flt is None else int(flt.iteration),
             "theta_estimate": d.GetOutputPort("self_identification.theta_estimate")

@@ -34,7 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import USER_ERRORS, as_spelled, count, path_text, plain, replacing, report, warning_lines
+from vlr_drake.entry import (
+    USER_ERRORS,
+    as_spelled,
+    count,
+    path_text,
+    plain,
+    replacing,
+    report,
+    saved_trace,
+    warning_lines,
+)
 
 
 def _json_default(o):
@@ -381,8 +391,9 @@ def identify(args) -> dict:
     if finish is not None:
         result["recording"] = str(finish())
     if getattr(args, "trace", None):
-        result["trace"] = str(result["_trace"].save(args.trace))
-        print(f"wrote {result['trace']}")
+        result["trace"] = saved_trace(result["_trace"], args.trace, f"vlr-drake {args.command}")
+        if result["trace"]:
+            print(f"wrote {result['trace']}")
     if not args.json:
         note_replaced(path, result, IDENTIFY_SETTINGS, args.command)
     write_json(result, path)  # first: the run is kept whatever the pooling and the plots do

@@ -160,6 +160,18 @@ def replacing(path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
+def saved_trace(trace, path, prog: str) -> str | None:
+    """``trace.save(path)`` as a string, or where it cannot be written (a full disk) None,
+    said in one line: a run's result is kept without its trace (a trace that failed had
+    taken the run's result with it; a review)."""
+    try:
+        return str(trace.save(path))
+    except OSError as e:
+        print(f"{prog}: warning: the trace could not be written ({path}: {e.strerror}); the run's result is kept",
+              file=sys.stderr)
+        return None
+
+
 def count(least: int):
     """An argparse type: an integer >= ``least`` (argparse names the flag in its error)."""
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import as_spelled, replacing
+from vlr_drake.entry import as_spelled, replacing, saved_trace
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import ignored_by_tasks, options_from_scenario, task_settings
@@ -131,7 +131,8 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     if traces is not None:  # the filter's inputs, for vlr-drake replay; the plant named where it is
         # not the physics plant (a model-plant reproduce had replaced the physics runs' traces)
         where = "" if plant == "physics" else f"_{plant}"
-        r["trace"] = str(r["_trace"].save(Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz"))
+        r["trace"] = saved_trace(r["_trace"], Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz",
+                                 "reproduce")
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
