@@ -763,3 +763,32 @@ def test_a_default_control_run_waits_for_the_anchors_frames_through_dropouts():
     lossy = load_scenario(DIAGRAMS_DIR / "model_plant_control.yaml", "model_plant: {dropout: 0.5}")
     a = plain.control.anchor_frames
     assert default_iterations(lossy) - default_iterations(plain) == periods_for_frames(a, 0.5) - a > 0
+
+
+def test_a_ctrl_c_keeps_a_simulated_diagram_run(tmp_path, monkeypatch, capsys):
+    """A Ctrl-C during a simulated diagram run keeps what it had done: the result and its
+    trace are written, the run says where it stopped and exits 130 without a word of a real
+    hand's torque (it had lost it all and said the torque was off; a review)."""
+    import json
+    import os
+    import signal
+
+    from vlr_drake.builder import main
+    from vlr_drake.entry import run as run_command
+
+    step = pf.SelfIdentificationFilter.step
+
+    def ctrl_c_at_4(self, *args, **kwargs):
+        if len(self.history) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", ctrl_c_at_4)
+    status = run_command("python -m vlr_drake.builder", lambda: main([
+        "--run", "model_plant", "--iterations", "50", "--set", "filter: {particles: 300}",
+        "--json", str(tmp_path / "r.json"), "--trace", str(tmp_path / "t.npz")]), hardware=True)
+    assert status == 130
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert "interrupted (SIGINT)" in r["stopped"] and 3 <= r["iterations"] <= 4 and r["trace"]
+    err = capsys.readouterr().err
+    assert "stopped by Ctrl-C" in err and "torque" not in err

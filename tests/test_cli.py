@@ -1092,6 +1092,39 @@ def test_a_trace_that_cannot_be_written_keeps_the_run(tmp_path, monkeypatch, cap
     assert "the trace could not be written" in capsys.readouterr().err
 
 
+def test_a_ctrl_c_stops_an_identification_between_steps_and_keeps_it(tmp_path, monkeypatch, capsys):
+    """A first Ctrl-C stops the identification after its current iteration: the iterations
+    done are written (JSON, trace, plots) and the command exits 130 with one line (it had
+    ended in a KeyboardInterrupt traceback, nothing written; a review). A second one stops
+    at once."""
+    import os
+    import signal
+
+    import vlr_drake.identify as idm
+    from vlr_drake.entry import stop_between_steps
+
+    real = idm.run_identification
+
+    def ctrl_c_at_3(opts, on_iteration=None):
+        def at(i, f):
+            if i == 3:
+                os.kill(os.getpid(), signal.SIGINT)
+        return real(opts, on_iteration=at)
+
+    monkeypatch.setattr(idm, "run_identification", ctrl_c_at_3)
+    out = tmp_path / "o"
+    assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "20", "--no-progress",
+                 "--out", str(out), "--trace", str(tmp_path / "t.npz"), "--json", str(tmp_path / "r.json")]) == 130
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["stopped"] == "iteration 4: interrupted (SIGINT)" and r["iterations"] == 3 and r["trace"]
+    err = capsys.readouterr().err
+    assert "Ctrl-C: the identification stops after its current step" in err and "stopped by SIGINT" in err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
+    with pytest.raises(KeyboardInterrupt), stop_between_steps("a loop"):
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+
+
 def test_builder_refuses_flags_its_run_would_drop(capsys):
     """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
     example diagrams do not go with it (a review found them silently dropped), and a bad

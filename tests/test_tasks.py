@@ -582,6 +582,37 @@ def test_a_stacking_row_beats_the_paper_only_where_the_control_improved_the_cups
         assert "(as grasped 1.50)" in (tmp_path / str(moved) / "reproduce.md").read_text()
 
 
+def test_a_ctrl_c_keeps_the_tables_finished_trials(tmp_path, monkeypatch):
+    """A Ctrl-C during a table stops the trial under way (left out) and writes the table of
+    those done, marked interrupted (it had lost them all; a review): here during seed 1's
+    second object, the first object's run of seed 1 kept, no object after it run."""
+    import os
+    import signal
+
+    import vlr_drake.reproduce as rp
+
+    ran = []
+
+    def identification(opts):
+        ran.append((opts.seed, opts.object))
+        stopped = None
+        if (opts.seed, opts.object) == (1, "wine_glass"):
+            os.kill(os.getpid(), signal.SIGINT)
+            stopped = "iteration 3: interrupted (SIGINT)"
+        return {"experiment": opts.experiment, "object": opts.object, "seed": opts.seed, "stopped": stopped,
+                "proximal_joint_error_deg": [1.0] * 3, "iterations": 10, "converged": True, "max_iterations": 100,
+                "truth_inside_95_theta": 1.0, "truth_inside_95_contact": 1.0, "_trace": None}
+
+    monkeypatch.setattr(rp, "run_identification", identification)
+    monkeypatch.setattr(rp, "saved_trace", lambda trace, path, prog: None)
+    r = rp.reproduce(trials=3, plant="physics", out=tmp_path, progress=False, experiments=["known_hand", "stack"])
+    assert ran == [(0, o) for o in rp.KNOWN_HAND_OBJECTS] + [(1, "apple"), (1, "wine_glass")]
+    assert r["interrupted"] == "SIGINT" and [(x["seed"], x["object"]) for x in r["runs"]["known_hand"]] == [
+        *((0, o) for o in rp.KNOWN_HAND_OBJECTS), (1, "apple")]
+    assert json.loads((tmp_path / "reproduce.json").read_text())["interrupted"] == "SIGINT"
+    assert "stack" not in r["runs"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_write_with_the_filter_model():
     """The identified model (a small filter, kept running during control) also writes."""
     r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)

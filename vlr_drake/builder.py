@@ -49,7 +49,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import check_not_trace, check_output, count, path_text, plain, saved_trace
+from vlr_drake.entry import Stopped, check_not_trace, check_output, count, path_text, plain, saved_trace
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
@@ -761,6 +761,10 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         stopped = None
         try:
             simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
+        except Stopped as e:  # Ctrl-C (entry.unwinding_signals): a simulated run keeps and reports what it
+            if scenario.plant == "hardware":  # had done (it had lost it all, and said a real hand's
+                raise  # torque was off; a review); a real hand stops (torque off below)
+            stopped = f"t = {simulator.get_context().get_time():.3f} s: interrupted ({e.name})"
         except (RuntimeError, ValueError, FloatingPointError, np.linalg.LinAlgError) as e:
             if scenario.plant == "hardware":  # a real hand stops (torque off below) and says why
                 raise
@@ -959,6 +963,10 @@ def main(argv: list[str] | None = None) -> int:
         if r["trace"]:
             print(f"wrote {r['trace']}")
         write_json(r, args.json)
+        if r["stopped"] and "interrupted (" in r["stopped"]:
+            print(f"python -m vlr_drake.builder: stopped by Ctrl-C at {r['stopped']}; what it had done is written "
+                  "above", file=sys.stderr)
+            return 130
         return 0
     if not args.write_diagrams:
         parser.print_help()

@@ -37,7 +37,9 @@ import numpy as np
 from vlr_drake.entry import (
     USER_ERRORS,
     as_spelled,
+    clear_interrupt,
     count,
+    interrupt_asked,
     path_text,
     plain,
     replacing,
@@ -1159,7 +1161,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _command(args) -> int:
-    """Run the parsed command: 0, or 2 after :func:`report` on a user's error."""
+    """Run the parsed command: 0, or 2 after :func:`report` on a user's error, or 130 where
+    a Ctrl-C stopped its loop (:func:`vlr_drake.entry.stop_between_steps`) and what it had
+    done was written."""
+    clear_interrupt()
     try:
         _check_outputs(args)
         _load_scenario(args)
@@ -1208,6 +1213,10 @@ def _command(args) -> int:
             write_json(r, args.json)
     except USER_ERRORS as e:
         return report(f"vlr-drake {args.command}", e)
+    if interrupt_asked():
+        print(f"vlr-drake {args.command}: stopped by {interrupt_asked()}; what it had done is written above",
+              file=sys.stderr)
+        return 130
     return 0
 
 

@@ -142,6 +142,61 @@ def run(prog: str, main: Callable[[], object], hardware: bool = False) -> int:
     return status if isinstance(status, int) and not isinstance(status, bool) else 0  # (True had exited 1)
 
 
+class _Interrupt:
+    """The state of :func:`stop_between_steps`: how deep its blocks are, and the signal that
+    asked the loop to stop (None: not asked)."""
+
+    depth = 0
+    asked: str | None = None
+
+
+def clear_interrupt() -> None:
+    """Forget a Ctrl-C an earlier command of this process was asked to stop by."""
+    _Interrupt.asked = None
+
+
+def interrupt_asked() -> str | None:
+    """The signal ("SIGINT") that asked a loop in :func:`stop_between_steps` to stop after
+    its current step, or None. It stays said after the block, for the command to report."""
+    return _Interrupt.asked
+
+
+@contextlib.contextmanager
+def stop_between_steps(what: str) -> Iterator[None]:
+    """Within it (in the main thread), a first Ctrl-C asks the loop inside to stop after its
+    current step (:func:`interrupt_asked`), which then keeps and writes what it has; a second
+    one raises KeyboardInterrupt at once. Blocks nest: an inner one shares the outer's state
+    (a reproduce's identification stops the table too). Ctrl-C had lost a whole run to a
+    KeyboardInterrupt traceback, its outputs never written (a review)."""
+    import signal
+    import threading
+
+    if _Interrupt.depth or threading.current_thread() is not threading.main_thread():
+        _Interrupt.depth += 1
+        try:
+            yield
+        finally:
+            _Interrupt.depth -= 1
+        return
+
+    def ask(signum, frame):
+        if _Interrupt.asked:  # asked again: at once
+            signal.signal(signal.SIGINT, previous)
+            raise KeyboardInterrupt
+        _Interrupt.asked = signal.Signals(signum).name
+        print(f"\nCtrl-C: {what} stops after its current step and keeps what it has (Ctrl-C again: at once)",
+              file=sys.stderr)
+
+    _Interrupt.asked = None
+    previous = signal.signal(signal.SIGINT, ask)
+    _Interrupt.depth = 1
+    try:
+        yield
+    finally:
+        _Interrupt.depth = 0
+        signal.signal(signal.SIGINT, previous)
+
+
 @contextlib.contextmanager
 def replacing(path) -> Iterator[Path]:
     """Write a file in one piece: yields a temporary path beside ``path``, which replaces

@@ -32,6 +32,7 @@ import numpy as np
 
 from vlr_drake import filter as pf
 from vlr_drake import grasps, units
+from vlr_drake.entry import interrupt_asked, stop_between_steps
 from vlr_drake.hand import NOVEL_HANDS, HandSpec, hand_by_name
 from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
@@ -747,49 +748,58 @@ def run_identification(opts: IdentifyOptions, on_iteration=None) -> dict:
                unit="it", leave=False)
     stopped = None
     it = 0  # actions tried; the budget counts filter iterations (len(f.history))
-    while len(f.history) < opts.max_iterations:
-        if it - len(f.history) >= opts.max_iterations:
-            stopped = (f"iteration {len(f.history) + 1}: the plant refused {it - len(f.history)} actions over the run, "
-                       f"as many as the iteration budget (the exploration's actions found no equilibrium that often: "
-                       f"a grasp near its fold)")
-            break
-        it += 1
-        tc = time.perf_counter()
-        dl = explore.next_action()
-        timing["filter"] += time.perf_counter() - tc  # (the informative choice moves the filter's hypotheses)
-        try:
-            moved = plant.act(dl, timing)
-        except RunStopped as e:  # the estimates so far are kept and reported, with why it stopped
-            stopped = f"iteration {len(f.history) + 1}: {e}"
-            break
-        if not moved:
-            continue
-        explore.commit(dl)
-        l_now = plant.tendon_command()
-        if not np.array_equal(explore.l, l_now):  # the plant restated its command
-            explore.follow(l_now)
-        R, t, valid = plant.measure(timing)
-        tf = time.perf_counter()
-        try:
-            rep = f.step(dl, R, t, valid, tendon_command=l_now)
-        except Exception as e:  # noqa: BLE001 - the iterations done are kept and reported, not lost
-            stopped = f"iteration {len(f.history) + 1}: the filter failed ({type(e).__name__}: {e})"
-            warnings.warn(f"identify: {stopped}; the run stops and reports its {len(f.history)} iterations\n"
-                          f"{traceback.format_exc()}", RuntimeWarning, stacklevel=2)
-            break
-        timing["filter"] += time.perf_counter() - tf
-        lost += not valid  # (after the step: a frame whose iteration failed is in no history)
-        truths.append(plant.truth())
-        recorder.step(dl, R, t, valid, l_now, truths[-1])
-        if on_iteration is not None:
-            on_iteration(len(f.history), f)
-        bar.update(1)
-        bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
-        # iterations count filter steps (actions the plant took), as a replay of the trace does
-        if rep.converged and converged_at is None:
-            converged_at = len(f.history)
-        if converged_at is not None and len(f.history) >= converged_at + opts.extra_iterations:
-            break
+    with stop_between_steps("the identification"):
+        while len(f.history) < opts.max_iterations:
+            if interrupt_asked():  # Ctrl-C: the iterations done are kept, written and reported
+                stopped = f"iteration {len(f.history) + 1}: interrupted ({interrupt_asked()})"
+                break
+            if it - len(f.history) >= opts.max_iterations:
+                stopped = (f"iteration {len(f.history) + 1}: the plant refused {it - len(f.history)} actions over the run, "
+                           f"as many as the iteration budget (the exploration's actions found no equilibrium that often: "
+                           f"a grasp near its fold)")
+                break
+            it += 1
+            tc = time.perf_counter()
+            dl = explore.next_action()
+            timing["filter"] += time.perf_counter() - tc  # (the informative choice moves the filter's hypotheses)
+            try:
+                moved = plant.act(dl, timing)
+            except RunStopped as e:  # the estimates so far are kept and reported, with why it stopped
+                stopped = f"iteration {len(f.history) + 1}: {e}"
+                break
+            except Exception as e:  # noqa: BLE001 - the plant failed: as the filter's failure below
+                stopped = _failed_at(f, "the plant's action failed", e)
+                break
+            if not moved:
+                continue
+            explore.commit(dl)
+            l_now = plant.tendon_command()
+            if not np.array_equal(explore.l, l_now):  # the plant restated its command
+                explore.follow(l_now)
+            try:
+                R, t, valid = plant.measure(timing)
+            except Exception as e:  # noqa: BLE001 - (a camera's failure had lost the iterations done; a review)
+                stopped = _failed_at(f, "the measurement failed", e)
+                break
+            tf = time.perf_counter()
+            try:
+                rep = f.step(dl, R, t, valid, tendon_command=l_now)
+            except Exception as e:  # noqa: BLE001 - the iterations done are kept and reported, not lost
+                stopped = _failed_at(f, "the filter failed", e)
+                break
+            timing["filter"] += time.perf_counter() - tf
+            lost += not valid  # (after the step: a frame whose iteration failed is in no history)
+            truths.append(plant.truth())  # (a Ctrl-C is taken between steps: the filter, its truths and the
+            recorder.step(dl, R, t, valid, l_now, truths[-1])  # trace stay in step)
+            if on_iteration is not None:
+                on_iteration(len(f.history), f)
+            bar.update(1)
+            bar.set_postfix(interval_deg=f"{rep.mean_interval_deg:.2f}", ess=f"{rep.ess:.0f}")
+            # iterations count filter steps (actions the plant took), as a replay of the trace does
+            if rep.converged and converged_at is None:
+                converged_at = len(f.history)
+            if converged_at is not None and len(f.history) >= converged_at + opts.extra_iterations:
+                break
     bar.close()
     timing["total"] = time.perf_counter() - t_start
     est = f.estimates[-1]
@@ -810,6 +820,15 @@ def _trace_meta(opts: IdentifyOptions) -> dict:
             "object": opts.object_spec.name if opts.object_spec is not None else opts.object,
             "action_choice": opts.action_choice, "scenario": opts.scenario,
             "stops_at_convergence": True, "extra_iterations": int(opts.extra_iterations)}
+
+
+def _failed_at(f, what: str, e: Exception) -> str:
+    """Why an identification stopped where a step failed (``what``), warned with its
+    traceback: the iterations before it are kept and reported, not lost."""
+    stopped = f"iteration {len(f.history) + 1}: {what} ({type(e).__name__}: {e})"
+    warnings.warn(f"identify: {stopped}; the run stops and reports its {len(f.history)} iterations\n"
+                  f"{traceback.format_exc()}", RuntimeWarning, stacklevel=3)
+    return stopped
 
 
 class RunStopped(RuntimeError):

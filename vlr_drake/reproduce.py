@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import as_spelled, replacing, saved_trace
+from vlr_drake.entry import as_spelled, interrupt_asked, replacing, saved_trace, stop_between_steps
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import ignored_by_tasks, options_from_scenario, task_settings
@@ -213,7 +213,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     jobs = [(name, lambda s, name=name, run=run: [
                 _attempt(name, s, lambda o=o: _identify(*run, s, plant, particles, iterations, *sc, obj=o, traces=tr),
                          obj=o)
-                for o in objects.get(name, (None,))])
+                for o in objects.get(name, (None,)) if not interrupt_asked()])
             for name, run in IDENTIFICATION_RUNS.items()]
     # Tasks run with the identified model (self-identification first, then the filter keeps
     # updating during control), at up to 10,000 particles and 100 identification iterations.
@@ -231,22 +231,30 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
     settings = {"plant": plant, "trials": trials, "particles": particles, "iterations": iterations, "quick": quick,
                 "seed": seed, "experiments": [name for name, _ in jobs],
                 "scenario": None if scenario is None else scenario.name,
-                "scenario_path": None if scenario_path is None else str(scenario_path)}
-    for name, job in jobs:
-        runs[name] = []
-        for s in seeds:
-            try:
-                r = job(s)
-            except TaskSetupError as e:  # a task that cannot start from this seed's draw: a failed
-                # trial, counted and said, not the end of the table (a review: one lost every run)
-                print(f"reproduce: {name}, seed {s}: {e}")
-                r = {"task": name, "seed": s, "success": False, "setup_error": str(e),
-                     "position_error_mm": None, "orientation_error_deg": None}
-            except Exception as e:
-                r = _failed(name, s, e)
-            runs[name] += r if isinstance(r, list) else [r]
-            bar.update(1)
-            _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
+                "scenario_path": None if scenario_path is None else str(scenario_path), "interrupted": None}
+    with stop_between_steps("the table"):  # a Ctrl-C keeps the trials done (it had lost even those;
+        for name, job in jobs:  # a review): the one under way stops, is left out, and the table is written
+            if interrupt_asked():
+                break
+            runs[name] = []
+            for s in seeds:
+                if interrupt_asked():
+                    break
+                try:
+                    r = job(s)
+                except TaskSetupError as e:  # a task that cannot start from this seed's draw: a failed
+                    # trial, counted and said, not the end of the table (a review: one lost every run)
+                    print(f"reproduce: {name}, seed {s}: {e}")
+                    r = {"task": name, "seed": s, "success": False, "setup_error": str(e),
+                         "position_error_mm": None, "orientation_error_deg": None}
+                except Exception as e:
+                    r = _failed(name, s, e)
+                # a run a Ctrl-C stopped part-way is no trial
+                runs[name] += [x for x in (r if isinstance(r, list) else [r]) if "interrupted (" not in
+                               str(x.get("stopped") or "")]
+                settings["interrupted"] = interrupt_asked()
+                bar.update(1)
+                _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
     bar.close()
     return _write_table(out, settings, runs, tr, figure=True)
 
