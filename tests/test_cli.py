@@ -1125,6 +1125,19 @@ def test_a_ctrl_c_stops_an_identification_between_steps_and_keeps_it(tmp_path, m
         os.kill(os.getpid(), signal.SIGINT)
 
 
+def test_the_summary_says_lost_frames(tmp_path, capsys):
+    """identify's summary says the iterations without a tag pose, as the diagram's run does
+    (a run that had lost 10 of 12 frames had looked like a clean one; a review)."""
+    lossy = tmp_path / "lossy.yaml"
+    lossy.write_text("name: lossy\nplant: model\nmodel_plant: {dropout: 0.6}\n")
+    assert main(["identify", "--scenario", str(lossy), "--particles", "300", "--iterations", "6", "--no-progress",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"\n\d iterations without a tag pose\n", out)
+    assert "most iterations had no measurement: the estimate is mostly the prior moved by the actions (the model " \
+           "plant's dropout)" in out
+
+
 def test_builder_refuses_flags_its_run_would_drop(capsys):
     """``python -m vlr_drake.builder --run`` runs a scenario; the flags that write the
     example diagrams do not go with it (a review found them silently dropped), and a bad

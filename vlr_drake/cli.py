@@ -333,6 +333,15 @@ def print_summary(result: dict) -> None:
     print(f"\n{result['experiment']} on the {result['plant']} plant, seed {result['seed']}, "
           f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
           f"after {result['iterations']} iterations")
+    said = [f"{result['lost_measurements']} iterations without a tag pose" if result.get("lost_measurements") else "",
+            f"{result['reinitialisations']} re-initialisations (every hypothesis implausible)"
+            if result.get("reinitialisations") else "",
+            f"{result['actions_refused']} actions refused by the plant" if result.get("actions_refused") else ""]
+    if any(said):  # (said by the diagram's run, not by identify's summary: a run that had lost 10 of 12
+        print("; ".join(x for x in said if x))  # frames had looked like a clean one; a review)
+    if result.get("iterations") and result.get("lost_measurements", 0) > 0.5 * result["iterations"]:
+        print("most iterations had no measurement: the estimate is mostly the prior moved by the actions "
+              + ("(the model plant's dropout)" if result["plant"] == "model" else "(check the camera and the tag)"))
     if result.get("stopped"):
         print(f"the run stopped early, at {result['stopped']}")
     # the label column fits the longest name (novel fingers: "finger_left_NF2 proximal [deg]")
