@@ -613,6 +613,31 @@ def test_a_ctrl_c_keeps_the_tables_finished_trials(tmp_path, monkeypatch):
     assert "stack" not in r["runs"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_a_filter_failing_in_a_task_is_said_not_a_traceback(monkeypatch):
+    """A filter failure during a task's self-identification is a TaskSetupError (one line from
+    a command, a failed trial in reproduce); during control the task goes on with the
+    filter's last estimate, said once (either had ended the task in a traceback; a review)."""
+    from vlr_drake import filter as pf
+
+    step = pf.SelfIdentificationFilter.step
+    calls = {"n": 0, "fail_at": 5}
+
+    def failing(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] >= calls["fail_at"]:
+            raise FloatingPointError("an injected failure")
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(pf.SelfIdentificationFilter, "step", failing)
+    with pytest.raises(common.TaskSetupError, match="the task's self-identification failed at its iteration 5 "
+                                                   "\\(FloatingPointError: an injected failure\\)"):
+        write.run_write("I", seed=2, model="filter", particles=500, identify_iterations=12, progress=False)
+    calls.update(n=0, fail_at=22)  # after the 12 iterations and the way back to the grasp: in control
+    with pytest.warns(RuntimeWarning, match="the filter failed during control .* goes on with its last estimate"):
+        r = write.run_write("I", seed=2, model="filter", particles=500, identify_iterations=12, progress=False)
+    assert r["waypoints"] > 0 and r["filter_iterations"] < calls["n"]
+
+
 def test_write_with_the_filter_model():
     """The identified model (a small filter, kept running during control) also writes."""
     r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)

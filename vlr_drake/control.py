@@ -31,6 +31,7 @@ from __future__ import annotations
 import copy
 import functools
 import inspect
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -677,9 +678,17 @@ def filter_model_fn(filt, hand: HandModel, *, tendon: str = "elastic", fallbacks
     ``eps``: the Jacobian's step the servo uses (:func:`servo_to`'s), at which a model must
     be usable."""
 
+    failed = []  # the filter's failure during control, once: it had ended the task in a traceback (a review)
+
     def fn(dl, R, t, valid):
-        if np.any(dl):
-            filt.step(dl, R, t, valid)
+        if np.any(dl) and not failed:
+            try:
+                filt.step(dl, R, t, valid)
+            except Exception as e:  # noqa: BLE001 - control goes on with the last estimate, said once
+                failed.append(e)
+                warnings.warn(f"the filter failed during control at its iteration {len(filt.history) + 1} "
+                              f"({type(e).__name__}: {e}): the control goes on with its last estimate",
+                              RuntimeWarning, stacklevel=2)
         model = ControlModel.from_estimate(hand, filt.estimate(), R, t, tendon=tendon)
         if _jacobian_if_usable(model, eps) is not None:
             return model

@@ -345,16 +345,26 @@ def make_model_fn(
         if not plant.apply_action(dl):
             continue
         explore.commit(dl)
-        R, t, valid = plant.measure()
-        filt.step(dl, R, t, valid, tendon_command=tp.tendon_command())
+        _identify_step(filt, dl, plant, tp, seed)
     # back to the grasp command (in small steps, each one evidence too)
     for _ in range(8):
         dl = np.clip(l_grasp - tp.tendon_command(), -action_range, action_range)
         if np.max(np.abs(dl)) < 1e-9 or not plant.apply_action(dl):
             break
-        R, t, valid = plant.measure()
-        filt.step(dl, R, t, valid, tendon_command=tp.tendon_command())
+        _identify_step(filt, dl, plant, tp, seed)
     return control.filter_model_fn(filt, h), filt
+
+
+def _identify_step(filt, dl, plant, tp, seed: int) -> None:
+    """One filter iteration of a task's self-identification (the measurement after ``dl``);
+    where the filter fails, a :class:`TaskSetupError` that says so, in one line (it had ended
+    the task in a traceback, nothing written; a review)."""
+    R, t, valid = plant.measure()
+    try:
+        filt.step(dl, R, t, valid, tendon_command=tp.tendon_command())
+    except Exception as e:  # noqa: BLE001 - said as the task's, not lost in a traceback
+        raise TaskSetupError(f"seed {seed}: the task's self-identification failed at its iteration "
+                             f"{len(filt.history) + 1} ({type(e).__name__}: {e})") from e
 
 
 def grip_window(hand: HandModel, l_grasp, window: float) -> np.ndarray:
