@@ -751,6 +751,7 @@ def test_a_default_control_run_waits_for_the_anchors_frames_through_dropouts():
     from vlr_drake.builder import default_iterations, periods_for_frames
 
     assert periods_for_frames(2, 0.0) == 2 and periods_for_frames(1, 0.5) == 10  # 1 - 0.5^10 >= 0.999 > 1 - 0.5^9
+    assert periods_for_frames(200, 0.95) > 4000  # (in logs: it had overflowed; a review)
     import math
 
     def arrive(frames, dropout, periods):  # P(at least `frames` of `periods` frames valid), the binomial's
@@ -785,9 +786,10 @@ def test_a_ctrl_c_keeps_a_simulated_diagram_run(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(pf.SelfIdentificationFilter, "step", ctrl_c_at_4)
     status = run_command("python -m vlr_drake.builder", lambda: main([
-        "--run", "model_plant", "--iterations", "50", "--set", "filter: {particles: 300}",
+        "--run", "model_plant", "--iterations", "50", "--set", "filter: {particles: 300}", "--draws", "2",
         "--json", str(tmp_path / "r.json"), "--trace", str(tmp_path / "t.npz")]), hardware=True)
     assert status == 130
+    assert "pooled" not in json.loads((tmp_path / "r.json").read_text())  # (not after a Ctrl-C)
     r = json.loads((tmp_path / "r.json").read_text())
     assert "interrupted (SIGINT)" in r["stopped"] and 3 <= r["iterations"] <= 4 and r["trace"]
     err = capsys.readouterr().err

@@ -1074,6 +1074,13 @@ def test_a_result_is_written_in_one_piece(tmp_path, monkeypatch):
         write_json({"a": 2, "b": list(range(100))}, str(path))
     monkeypatch.undo()
     assert json.loads(path.read_text()) == {"a": 1} and [p.name for p in tmp_path.iterdir()] == ["r.json"]
+    # a link's target is written, the link kept; the file's permissions kept (a review: the link
+    # had been replaced by a file, a 0600 file made 0644, and /dev/null by a regular file)
+    path.chmod(0o600)
+    link = tmp_path / "latest.json"
+    link.symlink_to(path)
+    write_json({"a": 3}, str(link))
+    assert link.is_symlink() and json.loads(path.read_text()) == {"a": 3} and (path.stat().st_mode & 0o777) == 0o600
 
 
 def test_a_trace_that_cannot_be_written_keeps_the_run(tmp_path, monkeypatch, capsys):
@@ -1112,17 +1119,32 @@ def test_a_ctrl_c_stops_an_identification_between_steps_and_keeps_it(tmp_path, m
         return real(opts, on_iteration=at)
 
     monkeypatch.setattr(idm, "run_identification", ctrl_c_at_3)
+    # Python's own handler, as a terminal gives it (a background job's SIGINT is ignored, and taken so)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     out = tmp_path / "o"
-    assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "20", "--no-progress",
-                 "--out", str(out), "--trace", str(tmp_path / "t.npz"), "--json", str(tmp_path / "r.json")]) == 130
+    try:
+        assert main(["identify", "--plant", "model", "--particles", "300", "--iterations", "20", "--no-progress",
+                     "--draws", "3", "--out", str(out), "--trace", str(tmp_path / "t.npz"),
+                     "--json", str(tmp_path / "r.json")]) == 130
+    finally:
+        restored = signal.signal(signal.SIGINT, previous)
     r = json.loads((tmp_path / "r.json").read_text())
     assert r["stopped"] == "iteration 4: interrupted (SIGINT)" and r["iterations"] == 3 and r["trace"]
+    assert "pooled" not in r  # (the draws are not pooled after a Ctrl-C)
     err = capsys.readouterr().err
     assert "Ctrl-C: the identification stops after its current step" in err and "stopped by SIGINT" in err
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
-    with pytest.raises(KeyboardInterrupt), stop_between_steps("a loop"):
-        os.kill(os.getpid(), signal.SIGINT)
-        os.kill(os.getpid(), signal.SIGINT)
+    assert restored is signal.default_int_handler  # given back
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt), stop_between_steps("a loop"):
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a background job's: not taken
+        with stop_between_steps("a loop"):
+            os.kill(os.getpid(), signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_the_summary_says_lost_frames(tmp_path, capsys):

@@ -762,8 +762,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
         try:
             simulator.AdvanceTo((iterations + 0.95) * built.period_sec)
         except Stopped as e:  # Ctrl-C (entry.unwinding_signals): a simulated run keeps and reports what it
-            if scenario.plant == "hardware":  # had done (it had lost it all, and said a real hand's
-                raise  # torque was off; a review); a real hand stops (torque off below)
+            if scenario.plant == "hardware" or e.name != "SIGINT":  # had done (it had lost it all, and said a
+                raise  # real hand's torque was off; a review); a real hand stops (torque off), a kill ends it
             stopped = f"t = {simulator.get_context().get_time():.3f} s: interrupted ({e.name})"
         except (RuntimeError, ValueError, FloatingPointError, np.linalg.LinAlgError) as e:
             if scenario.plant == "hardware":  # a real hand stops (torque off below) and says why
@@ -843,8 +843,8 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     finally:
         if hasattr(built.plant, "close"):
             built.plant.close()
-    if draws > 1:  # offline, from the run's measurements: the motors are off by now
-        t1 = time.perf_counter()
+    if draws > 1 and not (result["stopped"] or "").count("interrupted ("):  # offline, from the run's
+        t1 = time.perf_counter()  # measurements (the motors are off by now); not after a Ctrl-C
         result["pooled"] = pool_draws(recorded, draws, progress=progress, announce=print if progress else None)
         result["pooled"]["wall_s"] = time.perf_counter() - t1
     return result
@@ -861,8 +861,10 @@ def periods_for_frames(frames: int, dropout: float, probability: float = 0.999) 
     if dropout <= 0:
         return frames
     n, cdf = frames, 0.0
-    while cdf < probability and n < frames + 100_000:
-        cdf += math.comb(n - 1, frames - 1) * (1.0 - dropout) ** frames * dropout ** (n - frames)
+    log_p, log_q = math.log1p(-dropout), math.log(dropout)
+    while cdf < probability and n < frames + 1_000_000:  # (the terms in logs: 200 frames at 0.95 had overflowed)
+        cdf += math.exp(math.lgamma(n) - math.lgamma(frames) - math.lgamma(n - frames + 1)
+                        + frames * log_p + (n - frames) * log_q)
         n += 1
     return n - 1
 

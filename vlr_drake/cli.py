@@ -408,7 +408,7 @@ def identify(args) -> dict:
     if not args.json:
         note_replaced(path, result, IDENTIFY_SETTINGS, args.command)
     write_json(result, path)  # first: the run is kept whatever the pooling and the plots do
-    if draws > 1:  # K times the filter's time, offline: after the run's own result is written
+    if draws > 1 and not interrupt_asked():  # K times the filter's time, offline: after the run's own result
         try:
             result["pooled"] = pool_run_draws(result["_trace"], draws, progress=not args.no_progress)
         except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError) as e:
@@ -883,6 +883,8 @@ def demo(args) -> None:
     selfcheck(args.seed)
     print("\n== self-identification: Model O holding an object, known hand ==")
     identify(args)
+    if interrupt_asked():  # (a Ctrl-C had stopped the identification and then run the writing anyway)
+        return
     print("\n== in-hand manipulation: the identified model writes with the POM ==")
     # the writing identifies its own grasp on the model plant, with the scenario's seed, pose
     # noise and exploration where it sets them (it had taken none of them; a review): at most
@@ -1222,6 +1224,9 @@ def _command(args) -> int:
             write_json(r, args.json)
     except USER_ERRORS as e:
         return report(f"vlr-drake {args.command}", e)
+    except KeyboardInterrupt:  # a Ctrl-C where no loop takes it between steps, or a second one
+        print(f"vlr-drake {args.command}: stopped by Ctrl-C before its results were written", file=sys.stderr)
+        return 130
     if interrupt_asked():
         print(f"vlr-drake {args.command}: stopped by {interrupt_asked()}; what it had done is written above",
               file=sys.stderr)

@@ -171,8 +171,9 @@ def stop_between_steps(what: str) -> Iterator[None]:
     import signal
     import threading
 
-    if _Interrupt.depth or threading.current_thread() is not threading.main_thread():
-        _Interrupt.depth += 1
+    inner = _Interrupt.depth or threading.current_thread() is not threading.main_thread()
+    if inner or signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # (ignored: a background job's, which a
+        _Interrupt.depth += 1  # Ctrl-C meant for the foreground had stopped; a review)
         try:
             yield
         finally:
@@ -205,11 +206,17 @@ def replacing(path) -> Iterator[Path]:
     cut to 4,096 bytes of invalid JSON by a full disk, the last run's result lost with it, and
     a 0-byte trace had made a replay of its folder refuse every trace (a review)."""
     import os
+    import shutil
 
-    path = Path(path)
+    path = Path(os.path.realpath(path))  # a link's target is written, the link kept
+    if path.exists() and not path.is_file():  # a device (/dev/null) or a pipe: written into, as it is
+        yield path  # (it had been replaced by a regular file; a review)
+        return
     temporary = path.with_name(f".{path.name}.partial{path.suffix}")  # (the suffix: savefig's format)
     try:
         yield temporary
+        if path.exists():  # the file's permissions kept
+            shutil.copymode(path, temporary)
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)

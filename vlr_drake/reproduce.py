@@ -128,8 +128,10 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     opts = options_from_scenario(scenario, scenario_path, experiment=experiment, hand=hand, seed=seed, plant=plant,
                                  particles=particles, max_iterations=iterations, progress=False, object=obj)
     r = run_identification(opts)
-    if traces is not None:  # the filter's inputs, for vlr-drake replay; the plant named where it is
-        # not the physics plant (a model-plant reproduce had replaced the physics runs' traces)
+    # the filter's inputs, for vlr-drake replay, but a run a Ctrl-C stopped (its part-trace had replaced a
+    # finished one's of the same name; a review); the plant named where it is not the physics plant (a
+    # model-plant reproduce had replaced the physics runs' traces)
+    if traces is not None and "interrupted (" not in str(r.get("stopped") or ""):
         where = "" if plant == "physics" else f"_{plant}"
         r["trace"] = saved_trace(r["_trace"], Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz",
                                  "reproduce")
@@ -254,8 +256,11 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
                                str(x.get("stopped") or "")]
                 settings["interrupted"] = interrupt_asked()
                 bar.update(1)
-                _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
+                if any(runs.values()):  # (an empty table had replaced the last one's; a review)
+                    _write_table(out, settings, runs, tr)  # the table so far, kept whatever comes after
     bar.close()
+    if interrupt_asked() and not any(runs.values()):
+        raise KeyboardInterrupt  # stopped before a trial was done: nothing to write (the command says so)
     return _write_table(out, settings, runs, tr, figure=True)
 
 
