@@ -49,7 +49,16 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from vlr_drake import filter as pf
-from vlr_drake.entry import Stopped, check_not_trace, check_output, count, path_text, plain, saved_trace
+from vlr_drake.entry import (
+    Stopped,
+    check_not_trace,
+    check_output,
+    count,
+    interrupted,
+    path_text,
+    plain,
+    saved_trace,
+)
 from vlr_drake.entry import run as run_command
 from vlr_drake.hand import HandModel
 from vlr_drake.identify import _truth_grasp, contact_guess_rng, hand_parameter_report
@@ -843,7 +852,7 @@ def run(scenario: Scenario, iterations: int, meshcat: Meshcat | None = None, tra
     finally:
         if hasattr(built.plant, "close"):
             built.plant.close()
-    if draws > 1 and not (result["stopped"] or "").count("interrupted ("):  # offline, from the run's
+    if draws > 1 and not interrupted(result["stopped"]):  # offline, from the run's
         t1 = time.perf_counter()  # measurements (the motors are off by now); not after a Ctrl-C
         result["pooled"] = pool_draws(recorded, draws, progress=progress, announce=print if progress else None)
         result["pooled"]["wall_s"] = time.perf_counter() - t1
@@ -965,7 +974,7 @@ def main(argv: list[str] | None = None) -> int:
         if r["trace"]:
             print(f"wrote {r['trace']}")
         write_json(r, args.json)
-        if r["stopped"] and "interrupted (" in r["stopped"]:
+        if interrupted(r["stopped"]):
             print(f"python -m vlr_drake.builder: stopped by Ctrl-C at {r['stopped']}; what it had done is written "
                   "above", file=sys.stderr)
             return 130

@@ -155,6 +155,12 @@ def clear_interrupt() -> None:
     _Interrupt.asked = None
 
 
+def interrupted(stopped) -> bool:
+    """Whether a run's ``stopped`` (its reason, or None) says a Ctrl-C stopped it: its
+    "interrupted (SIGINT)" (:func:`stop_between_steps`)."""
+    return "interrupted (" in str(stopped or "")
+
+
 def interrupt_asked() -> str | None:
     """The signal ("SIGINT") that asked a loop in :func:`stop_between_steps` to stop after
     its current step, or None. It stays said after the block, for the command to report."""

@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from vlr_drake.entry import as_spelled, interrupt_asked, replacing, saved_trace, stop_between_steps
+from vlr_drake.entry import (
+    as_spelled,
+    interrupt_asked,
+    interrupted,
+    replacing,
+    saved_trace,
+    stop_between_steps,
+)
 from vlr_drake.identify import DEFAULT_OBJECT, KNOWN_HAND_OBJECTS, run_identification
 from vlr_drake.kinematics import is_count
 from vlr_drake.scenario import ignored_by_tasks, options_from_scenario, task_settings
@@ -131,7 +138,7 @@ def _identify(experiment, hand, seed, plant, particles, iterations, scenario=Non
     # the filter's inputs, for vlr-drake replay, but a run a Ctrl-C stopped (its part-trace had replaced a
     # finished one's of the same name; a review); the plant named where it is not the physics plant (a
     # model-plant reproduce had replaced the physics runs' traces)
-    if traces is not None and "interrupted (" not in str(r.get("stopped") or ""):
+    if traces is not None and not interrupted(r.get("stopped")):
         where = "" if plant == "physics" else f"_{plant}"
         r["trace"] = saved_trace(r["_trace"], Path(traces) / f"{experiment}_{hand}_{r['object']}{where}_seed{seed}.npz",
                                  "reproduce")
@@ -252,8 +259,7 @@ def reproduce(trials: int = 5, plant: str | None = "physics", particles: int = 2
                 except Exception as e:
                     r = _failed(name, s, e)
                 # a run a Ctrl-C stopped part-way is no trial
-                runs[name] += [x for x in (r if isinstance(r, list) else [r]) if "interrupted (" not in
-                               str(x.get("stopped") or "")]
+                runs[name] += [x for x in (r if isinstance(r, list) else [r]) if not interrupted(x.get("stopped"))]
                 settings["interrupted"] = interrupt_asked()
                 bar.update(1)
                 if any(runs.values()):  # (an empty table had replaced the last one's; a review)
