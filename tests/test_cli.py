@@ -482,6 +482,27 @@ def test_reproduce_runs_the_chosen_experiments(tmp_path, capsys):
     replayed = json.loads((tmp_path / "replay.json").read_text())["rows"]
     for row in data["rows"]:
         assert replayed[row["key"]]["mean"] == pytest.approx(row["ours_mean"], rel=1e-12, abs=1e-15)
+    # a Ctrl-C during the first trace's replay: that one done and written, the second not run, exit 130
+    import os
+    import signal
+
+    import vlr_drake.trace as tr
+
+    real = tr.replay
+
+    def ctrl_c(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return real(*args, **kwargs)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # (a background job's is ignored)
+    try:
+        tr.replay = ctrl_c
+        assert main(["replay", *traces, "--no-progress", "--json", str(tmp_path / "cut.json")]) == 130
+    finally:
+        tr.replay = real
+        signal.signal(signal.SIGINT, previous)
+    cut = json.loads((tmp_path / "cut.json").read_text())
+    assert cut["interrupted"] == "SIGINT" and [r["trace"] for r in cut["runs"]] == traces[:1]
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--experiments", "known_hand,juggling"]) == 2
     assert "juggling" in capsys.readouterr().err

@@ -45,6 +45,7 @@ from vlr_drake.entry import (
     replacing,
     report,
     saved_trace,
+    stop_between_steps,
     warning_lines,
 )
 
@@ -552,81 +553,84 @@ def replay_trace(args) -> dict:
     runs, measured, pooled, pooled_measured, draws_of = [], {}, [], {}, []
     jobs = [(i, path, dataclasses.replace(trace, filter_seed=draw_seed(trace.filter_seed, j)), j)
             for i, (path, trace) in enumerate(traces) for j in range(args.draws)]
-    for i, path, trace, draw in jobs:
-        config = config_overrides(trace.filter, args.filter or [], "--filter")
-        prior = config_overrides(trace.prior, args.prior or [], "--prior")
-        meta = trace.meta
-        which = f", draw {draw + 1} of {args.draws} (filter seed {trace.filter_seed})" if args.draws > 1 else ""
-        print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
-              f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles"
-              f"{which}")
-        if values is None:
-            r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
-                       at_steps=at_steps)
-            run = {"trace": str(path), "filter_seed": trace.filter_seed, "draw": draw, "log_evidence": r["log_evidence"],
-                   "converged_at": r["converged_at"],
-                   "steps": r["steps"],
-                   "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
-                   "weakly_identified": r["weakly_identified"], "object_mass_identified": r["object_mass_identified"],
-                   **(r.get("errors") or {})}
-            conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
-            if r["steps"] < trace.steps:
-                conv += f", where a run stops: {r['steps']} of the trace's {trace.steps} steps replayed"
-            print(f"  log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
-            if r["weakly_identified"]:
-                print("  weakly identified: " + ", ".join(
-                    f"{n} (interval {100 * r['hand_parameters'][n]['narrowed_to']:.0f}% as wide as the prior's)"
-                    for n in r["weakly_identified"]))
-            if at_steps:
-                run["errors_at"] = r["errors_at"]
-                for e in r["errors_at"]:
-                    print(f"  after {e['steps']} steps: {_errors_line(e)}")
-                if len(r["errors_at"]) < len(set(at_steps)):
-                    print(f"  (the replay stopped after {r['steps']} steps; --all-steps replays every step)")
-            if r.get("errors"):
-                print(f"  {_errors_line(r['errors'])}")
-                _measure(measured, i, meta, r["errors"], by_plant)
-            if args.draws > 1:  # kept for the trace's pooled estimate, until its last draw
-                draws_of.append(r)
-            if args.draws > 1 and draw == args.draws - 1:  # the trace's last draw: pool its draws
-                p, errors = _pooled_run(path, trace, draws_of, prior)
-                pooled.append(p)
-                if errors:
-                    _measure(pooled_measured, i, meta, errors, by_plant)
-                draws_of = []
-        elif args.statics:
-            # it runs no filter: what only a filter reads is said, not recorded as applied
-            if args.prior:
-                raise ValueError("--prior is for a replay or an evidence profile: a statics profile runs no filter")
-            if args.filter_seed is not None:
-                raise ValueError("--filter-seed is for a replay or an evidence profile: a statics profile runs no "
-                                 "filter")
-            unused = [item for item in args.filter or [] if item.partition("=")[0] not in STATICS_FILTER_KEYS]
-            if unused:
-                raise ValueError(f"--filter {' '.join(unused)}: a statics profile runs no filter and reads only "
-                                 f"{' and '.join(STATICS_FILTER_KEYS)}")
-            rows = statics_profile(trace, args.profile, values, config)
-            unit = "N m/rad" if args.profile == "stiffness" else "m"
-            print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
-                  "plant's true angles):")
-            own = "the spring's joint" if args.profile == "stiffness" else "the link's finger"
-            for r in rows:
-                print(f"    {r['value']:.5g}: offset {r['offset_deg']:.2f} deg ({own} "
-                      f"{r['parameter_offset_deg']:.2f}), motion rms {r['motion_rms_deg']:.3f} deg, "
-                      f"solved {100 * r['solved']:.0f}%")
-            run = {"trace": str(path), "parameter": args.profile, "statics": rows}
-        else:
-            rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress,
-                                    prior=prior if args.prior else None)  # (its errors name whose prior)
-            unit = "N m/rad" if args.profile == "stiffness" else "m"
-            print(f"  evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
-            for r in rows:
-                extra = f"; {_errors_line(r['errors'])}" if r["errors"] else ""
-                print(f"    {r['value']:.5g}: {r['relative']:8.2f} (log evidence {r['log_evidence']:.2f}; "
-                      f"{r['replay']['reinitialisations']} re-initialisations){extra}")
-            run = {"trace": str(path), "parameter": args.profile,
-                   "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
-        runs.append(run)
+    with stop_between_steps("the replay"):
+        for i, path, trace, draw in jobs:
+            if interrupt_asked():  # Ctrl-C: the replays done are kept and written
+                break
+            config = config_overrides(trace.filter, args.filter or [], "--filter")
+            prior = config_overrides(trace.prior, args.prior or [], "--prior")
+            meta = trace.meta
+            which = f", draw {draw + 1} of {args.draws} (filter seed {trace.filter_seed})" if args.draws > 1 else ""
+            print(f"{path}: {meta.get('experiment')} on the {meta.get('plant')} plant, hand {meta.get('hand')}, object "
+                  f"{meta.get('object')}, seed {meta.get('seed')}, {trace.steps} steps, {config.particles} particles"
+                  f"{which}")
+            if values is None:
+                r = replay(trace, config, prior, progress=not args.no_progress, stop_at_convergence=not args.all_steps,
+                           at_steps=at_steps)
+                run = {"trace": str(path), "filter_seed": trace.filter_seed, "draw": draw, "log_evidence": r["log_evidence"],
+                       "converged_at": r["converged_at"],
+                       "steps": r["steps"],
+                       "reinitialisations": r["reinitialisations"], "hand_parameters": r["hand_parameters"],
+                       "weakly_identified": r["weakly_identified"], "object_mass_identified": r["object_mass_identified"],
+                       **(r.get("errors") or {})}
+                conv = "not converged" if r["converged_at"] is None else f"converged at iteration {r['converged_at']}"
+                if r["steps"] < trace.steps:
+                    conv += f", where a run stops: {r['steps']} of the trace's {trace.steps} steps replayed"
+                print(f"  log evidence {r['log_evidence']:.2f}; {conv}; {r['reinitialisations']} re-initialisations")
+                if r["weakly_identified"]:
+                    print("  weakly identified: " + ", ".join(
+                        f"{n} (interval {100 * r['hand_parameters'][n]['narrowed_to']:.0f}% as wide as the prior's)"
+                        for n in r["weakly_identified"]))
+                if at_steps:
+                    run["errors_at"] = r["errors_at"]
+                    for e in r["errors_at"]:
+                        print(f"  after {e['steps']} steps: {_errors_line(e)}")
+                    if len(r["errors_at"]) < len(set(at_steps)):
+                        print(f"  (the replay stopped after {r['steps']} steps; --all-steps replays every step)")
+                if r.get("errors"):
+                    print(f"  {_errors_line(r['errors'])}")
+                    _measure(measured, i, meta, r["errors"], by_plant)
+                if args.draws > 1:  # kept for the trace's pooled estimate, until its last draw
+                    draws_of.append(r)
+                if args.draws > 1 and draw == args.draws - 1:  # the trace's last draw: pool its draws
+                    p, errors = _pooled_run(path, trace, draws_of, prior)
+                    pooled.append(p)
+                    if errors:
+                        _measure(pooled_measured, i, meta, errors, by_plant)
+                    draws_of = []
+            elif args.statics:
+                # it runs no filter: what only a filter reads is said, not recorded as applied
+                if args.prior:
+                    raise ValueError("--prior is for a replay or an evidence profile: a statics profile runs no filter")
+                if args.filter_seed is not None:
+                    raise ValueError("--filter-seed is for a replay or an evidence profile: a statics profile runs no "
+                                     "filter")
+                unused = [item for item in args.filter or [] if item.partition("=")[0] not in STATICS_FILTER_KEYS]
+                if unused:
+                    raise ValueError(f"--filter {' '.join(unused)}: a statics profile runs no filter and reads only "
+                                     f"{' and '.join(STATICS_FILTER_KEYS)}")
+                rows = statics_profile(trace, args.profile, values, config)
+                unit = "N m/rad" if args.profile == "stiffness" else "m"
+                print(f"  statics profile of {args.profile} [{unit}] (the VLR's commanded equilibrium against the "
+                      "plant's true angles):")
+                own = "the spring's joint" if args.profile == "stiffness" else "the link's finger"
+                for r in rows:
+                    print(f"    {r['value']:.5g}: offset {r['offset_deg']:.2f} deg ({own} "
+                          f"{r['parameter_offset_deg']:.2f}), motion rms {r['motion_rms_deg']:.3f} deg, "
+                          f"solved {100 * r['solved']:.0f}%")
+                run = {"trace": str(path), "parameter": args.profile, "statics": rows}
+            else:
+                rows = evidence_profile(trace, args.profile, values, config, progress=not args.no_progress,
+                                        prior=prior if args.prior else None)  # (its errors name whose prior)
+                unit = "N m/rad" if args.profile == "stiffness" else "m"
+                print(f"  evidence profile of {args.profile} [{unit}] (log Bayes factor against the best value):")
+                for r in rows:
+                    extra = f"; {_errors_line(r['errors'])}" if r["errors"] else ""
+                    print(f"    {r['value']:.5g}: {r['relative']:8.2f} (log evidence {r['log_evidence']:.2f}; "
+                          f"{r['replay']['reinitialisations']} re-initialisations){extra}")
+                run = {"trace": str(path), "parameter": args.profile,
+                       "profile": [{k: v for k, v in r.items() if k != "replay"} for r in rows]}
+            runs.append(run)
     table = {row: _replay_row(v, args.draws) for row, v in measured.items()}
     if len(jobs) > 1 and table:
         over = "the traces" if args.draws == 1 else "every draw of every trace"
@@ -647,7 +651,8 @@ def replay_trace(args) -> dict:
         for row, t in pooled_table.items():
             print(f"  {row}: {t['mean']:.4g} +- {t['sd']:.3g} ({t['trials']} traces; truth inside "
                   f"{t['truth_inside_95_theta']:.2f} of the joint intervals)")
-    spread = draw_spread([(i, run) for (i, *_), run in zip(jobs, runs, strict=True)]) if args.draws > 1 and values is None else {}
+    spread = (draw_spread([(i, run) for (i, *_), run in zip(jobs[:len(runs)], runs, strict=True)])
+              if args.draws > 1 and values is None else {})
     if spread:
         print("the identified hand parameters' estimates, one draw of the filter against another (the sample SD "
               "over a trace's draws; no truth needed):")
@@ -655,7 +660,8 @@ def replay_trace(args) -> dict:
             print(f"  {name}: {d['sd_mean']:.4g} {d['unit']} (mean over the traces; largest {d['sd_max']:.4g})")
     out = {"filter_overrides": args.filter or [], "prior_overrides": args.prior or [], "all_steps": bool(args.all_steps),
            "draws": args.draws, "profile": args.profile, "values": values, "statics": bool(args.statics),
-           "runs": runs, "rows": table, "draw_spread": spread, "pooled": pooled, "pooled_rows": pooled_table}
+           "runs": runs, "rows": table, "draw_spread": spread, "pooled": pooled, "pooled_rows": pooled_table,
+           "interrupted": interrupt_asked()}
     write_json(out, args.json)
     return out
 
