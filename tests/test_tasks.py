@@ -225,6 +225,17 @@ def test_a_pen_the_model_cannot_move_writes_nothing(monkeypatch):
     assert r["position_error_mm"]["max"] < 1.0 and not r["success"]
 
 
+def test_the_tasks_take_the_model_plants_lost_tags(tmp_path):
+    """A scenario's model_plant.dropout reaches the tasks' model plant (it had been said and
+    not used, so a reproduce's task rows ran without the lost tags its identification rows
+    had): the maze counts them and still steers the marble home."""
+    r = maze.run_maze(seed=0, plant="model", model="true", dropout=0.3, progress=False)
+    assert r["lost_measurements"] > 0 and r["success"]
+    assert maze.run_maze(seed=0, plant="model", model="true", progress=False)["lost_measurements"] == 0
+    with pytest.raises(ValueError, match="'dropout' must be a probability in \\[0, 1\\)"):
+        write.run_write("I", dropout=1.0, progress=False)
+
+
 def test_a_maze_run_the_marble_skipped_scores_nothing():
     """With 0.5 s periods the marble runs past three of the six tilt runs before their goal
     is set: they have no control step and score nothing (each had counted the previous
@@ -536,11 +547,14 @@ def test_reproduce_names_a_failed_known_hand_runs_object_and_a_row_its_scenario_
         rp.reproduce(trials=1, plant="model", out=tmp_path / "b", progress=False, scenario=sc,
                      experiments=["NH1", "stiffness"])
     assert not (tmp_path / "b" / "reproduce.json").exists()
-    lossy = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "model_plant: {dropout: 0.3}")
-    monkeypatch.setattr(stack, "run_stack", lambda **kw: {"success": False, "position_error_mm": None,
-                                                          "orientation_error_deg": None})
-    rp.reproduce(trials=1, plant="model", out=tmp_path / "e", progress=False, scenario=lossy, experiments=["stack"])
-    assert "scenario 'model_plant': the task rows (stack) do not use model_plant.dropout" in capsys.readouterr().err
+    drifting = load_scenario(DIAGRAMS_DIR / "model_plant.yaml", "model_plant: {contact_drift: 0.0001, dropout: 0.3}")
+    seen = {}
+    monkeypatch.setattr(stack, "run_stack", lambda **kw: seen.update(kw) or {
+        "success": False, "position_error_mm": None, "orientation_error_deg": None})
+    rp.reproduce(trials=1, plant="model", out=tmp_path / "e", progress=False, scenario=drifting, experiments=["stack"])
+    err = capsys.readouterr().err
+    assert "scenario 'model_plant': the task rows (stack) do not use model_plant.contact_drift" in err
+    assert "dropout" not in err and seen["dropout"] == 0.3  # (the tasks' lost tags: taken)
     with pytest.raises(ValueError, match="the row 'maze' cannot run under this scenario: .*Model O hand"):
         rp.reproduce(trials=1, plant="model", out=tmp_path / "c", progress=False, scenario=sc, experiments=["maze"])
     weighed = load_scenario(DIAGRAMS_DIR / "default.yaml", "prior: {object_mass: 0.068}")  # the apple weighed

@@ -302,7 +302,7 @@ def _task_settings(args) -> dict:
     if ignored:  # said, not silently dropped
         print(f"vlr-drake {args.command}: warning: scenario '{args.loaded.name}': the task does not use "
               f"{', '.join(ignored)} (it takes the seed, plant, particle count, exploration, the model plant's "
-              f"noise on the model plant, physics and camera on the physics plant; its objects, filter and prior are "
+              f"noise and dropout on the model plant, physics and camera on the physics plant; its objects, filter and prior are "
               f"its own)", file=sys.stderr)
     return kw if args.loaded is not None else {**kw, "scenario": None}
 

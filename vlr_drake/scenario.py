@@ -1033,7 +1033,7 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
     """Keyword arguments of the tasks (:func:`vlr_drake.tasks.write.run_write`, ``run_maze``,
     ``run_stack``) from a scenario: seed, plant, the filter's particle count, exploration span
     and window where the scenario sets them (the grip window of the control too; else the
-    tasks' defaults), the model plant's pose noise, the
+    tasks' defaults), the model plant's pose noise and dropout, the
     physics settings and camera, the scenario's name and file; then the ``overrides`` that
     are not None. The tasks hold their own objects (pen stand-in, maze plate, cups) with the
     Model O: a scenario with another hand raises ``ValueError``."""
@@ -1051,6 +1051,8 @@ def task_settings(scenario: Scenario | None, path: str | Path | None = None, **o
         del settings["action_range"]
     if s.exploration.window is None:
         del settings["window"]
+    if settings["plant"] == "model":  # the model plant's lost tags (they had been said and not used)
+        settings["dropout"] = s.model_plant.dropout
     return {**settings, **given}
 
 
@@ -1061,7 +1063,7 @@ DRAKE_RESERVED_NAMES = ("world", "WorldModelInstance", "DefaultModelInstance")
 #: What the tasks take from a scenario (task_settings): the rest is theirs or the task's own.
 TASK_SECTIONS = {"name", "seed", "plant", "hand", "camera", "physics", "meshcat"}
 TASK_FIELDS = {"filter": {"particles"}, "exploration": {"span", "window"},
-               "model_plant": {"sigma_position", "sigma_rotation_deg"}}
+               "model_plant": {"sigma_position", "sigma_rotation_deg", "dropout"}}
 
 
 def ignored_by_tasks(scenario: Scenario, plant: str | None = None) -> list[str]:

@@ -172,10 +172,11 @@ def make_model_plant(
     theta=None,
     a=None,
     min_possible: float = 0.0,
+    dropout: float = 0.0,
 ) -> TaskPlant:
     """The model plant (DESIGN.md section 8) holding an object in a grasp drawn from ``seed``
     (or the given ``theta``, ``a``; ``min_possible``: see :func:`grasp_config`), with the
-    camera stand-in's Gaussian pose noise."""
+    camera stand-in's Gaussian pose noise and its ``dropout`` (the probability of a lost tag)."""
     hand = model_o().model() if hand is None else hand
     rng = np.random.default_rng(seed)
     if (theta is None) != (a is None):  # (one alone had been replaced by a drawn grasp without a word)
@@ -191,6 +192,7 @@ def make_model_plant(
         np.random.default_rng(seed + 1000),
         sigma_position=sigma_position,
         sigma_rotation=np.deg2rad(sigma_rotation_deg),
+        dropout=dropout,
     )
     return TaskPlant(hand, plant, np.asarray(theta, float), np.asarray(a, float))
 
@@ -266,14 +268,17 @@ def check_plant(plant: str) -> None:
 
 
 def task_plant(plant: str, seed: int, physics_object: str, physics=None, camera=None, *,
-               sigma_position: float, sigma_rotation_deg: float):
+               sigma_position: float, sigma_rotation_deg: float, dropout: float = 0.0):
     """The plant a task runs on: the model plant (a grasp drawn from ``seed``, measurement
-    noise ``sigma_position`` [m] and ``sigma_rotation_deg``; :func:`make_model_plant`) or the
-    physics plant holding ``physics_object`` (:class:`PhysicsTaskPlant`)."""
+    noise ``sigma_position`` [m] and ``sigma_rotation_deg``, lost tags with probability
+    ``dropout``; :func:`make_model_plant`) or the physics plant holding ``physics_object``
+    (:class:`PhysicsTaskPlant`)."""
     check_plant(plant)
+    if not (is_number(dropout) and 0.0 <= dropout < 1.0):  # (1 would never see the tag)
+        raise ValueError(f"'dropout' must be a probability in [0, 1), got {dropout!r}")
     if plant == "model":
         return make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
-                                min_possible=MIN_POSSIBLE_ACTIONS)
+                                min_possible=MIN_POSSIBLE_ACTIONS, dropout=dropout)
     return PhysicsTaskPlant(physics_object, seed, physics, camera)
 
 

@@ -227,6 +227,7 @@ def run_maze(
     tol_rotation_deg: float = 0.5,
     sigma_position: float = 0.2e-3,
     sigma_rotation_deg: float = 0.5,
+    dropout: float = 0.0,
     particles: int = 3000,
     identify_iterations: int = 40,
     out: str | None = None,
@@ -271,7 +272,7 @@ def run_maze(
     order = {cell: i for i, cell in enumerate(cells)}
     runs = orientation_sequence(cells, np.deg2rad(tilt_deg))
     tp = common.task_plant(plant, seed, "marble_maze", physics, camera, sigma_position=sigma_position,
-                           sigma_rotation_deg=sigma_rotation_deg)
+                           sigma_rotation_deg=sigma_rotation_deg, dropout=dropout)
     model_fn, filt = common.make_model_fn(
         model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
         action_range=action_range, window=window,

@@ -47,7 +47,7 @@ import os
 import numpy as np
 
 from vlr_drake import control, observation, units
-from vlr_drake.kinematics import is_count
+from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
@@ -132,6 +132,7 @@ def run_stack(
     max_steps: int = 40,
     sigma_position: float = 0.2e-3,
     sigma_rotation_deg: float = 0.5,
+    dropout: float = 0.0,
     particles: int = 3000,
     identify_iterations: int = 40,
     out: str | None = None,
@@ -175,6 +176,8 @@ def run_stack(
         raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
     if len(tilt_range_deg) != 2 or not (0 <= tilt_range_deg[0] <= tilt_range_deg[1] < np.inf):  # NaN too
         raise ValueError(f"'tilt_range_deg' must be (low, high) with 0 <= low <= high, finite, got {tilt_range_deg}")
+    if not (is_number(dropout) and 0.0 <= dropout < 1.0):  # (the model plant's lost tags; 1 would see none)
+        raise ValueError(f"'dropout' must be a probability in [0, 1), got {dropout!r}")
     if not (np.isfinite(offset_range) and offset_range >= 0):
         raise ValueError(f"'offset_range' must be a finite number >= 0 [m], got {offset_range}")
     # (0.5 meant as mm had placed the cups 252-666 mm off their goals; 180 deg had been a tilt; a review)
@@ -225,6 +228,7 @@ def run_stack(
                 sigma_rotation_deg=sigma_rotation_deg,
                 theta=tp0.theta0,
                 a=tp0.a0,
+                dropout=dropout,
             )
         else:
             tp, R_goal, t_goal, regrasps = _settled_tilted_grasp(k, cup_seed, rng, tilt_range_deg, physics, camera)

@@ -155,6 +155,7 @@ def run_write(
     max_steps: int = 8,
     sigma_position: float = 0.2e-3,
     sigma_rotation_deg: float = 0.5,
+    dropout: float = 0.0,
     particles: int = 3000,
     identify_iterations: int = 40,
     out: str | None = None,
@@ -204,7 +205,7 @@ def run_write(
     from tqdm.auto import tqdm
 
     tp = common.task_plant(plant, seed, physics_object, physics, camera, sigma_position=sigma_position,
-                           sigma_rotation_deg=sigma_rotation_deg)
+                           sigma_rotation_deg=sigma_rotation_deg, dropout=dropout)
     model_fn, filt = common.make_model_fn(
         model, tp, seed=seed, particles=particles, identify_iterations=identify_iterations,
         action_range=action_range, window=window,
