@@ -656,6 +656,39 @@ def test_a_filter_failing_in_a_task_is_said_not_a_traceback(monkeypatch):
     assert r["waypoints"] > 0 and r["filter_iterations"] < calls["n"]
 
 
+def test_a_ctrl_c_stops_a_task_between_its_steps_and_scores_them(tmp_path, monkeypatch, capsys):
+    """A first Ctrl-C stops a task between waypoints, maze steps or cups: those done are
+    scored and written, the run is no success and says so, and the command exits 130 (it had
+    ended in a traceback, nothing written)."""
+    import os
+    import signal
+
+    from vlr_drake.cli import main
+
+    fell = common.object_fell
+    calls = {"n": 0}
+
+    def ctrl_c_at_3(tp):  # (asked after each waypoint and cup)
+        calls["n"] += 1
+        if calls["n"] == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return fell(tp)
+
+    monkeypatch.setattr(common, "object_fell", ctrl_c_at_3)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # (a background job's is ignored)
+    try:
+        assert main(["write", "HI", "--plant", "model", "--no-progress", "--out", str(tmp_path),
+                     "--json", str(tmp_path / "w.json")]) == 130
+        calls["n"] = 0
+        cut = stack.run_stack(seed=0, progress=False)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    r = json.loads((tmp_path / "w.json").read_text())
+    assert r["stopped"] == "interrupted (SIGINT)" and not r["success"] and r["waypoints_unscored"] > 0
+    assert 0 < r["waypoints"] and "stopped by SIGINT" in capsys.readouterr().err
+    assert cut["stopped"] == "interrupted (SIGINT)" and 0 < len(cut["cups"]) < 4 and not cut["success"]
+
+
 def test_write_with_the_filter_model():
     """The identified model (a small filter, kept running during control) also writes."""
     r = write.run_write("I", seed=2, model="filter", particles=1000, identify_iterations=30, progress=False)

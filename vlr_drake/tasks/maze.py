@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vlr_drake import control, observation
+from vlr_drake.entry import interrupt_asked, stop_between_steps
 from vlr_drake.kinematics import is_number
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
@@ -311,59 +312,63 @@ def run_maze(
     rep = None  # the last servo call's report: one step per call, so a lost tag's predicted pose carries on
     stopped = None
     skipped_runs = 0
-    for run in runs:
-        R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
-        if view is not None:
-            view.target_pose(R_goal, tp.true_pose()[1])
-        switch_times.append(time_s)
-        t_run = 0.0
-        settled = False
-        run_samples = 0
-        run_steps = 0
-        while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
-            if t_run > segment_time or common.object_fell(tp):
-                success, stopped = False, "object_fell" if common.object_fell(tp) else "timeout"
+    with stop_between_steps("the maze"):  # a Ctrl-C: the steps done are scored and written
+        for run in runs:
+            R_goal = R_PO0 @ observation.rotvec_to_matrix(run["tilt"] * k)[0]
+            if view is not None:
+                view.target_pose(R_goal, tp.true_pose()[1])
+            switch_times.append(time_s)
+            t_run = 0.0
+            settled = False
+            run_samples = 0
+            run_steps = 0
+            while order.get(marble.cell_of(), -1) < order[run["end"]]:  # the marble may run ahead
+                if interrupt_asked():
+                    success, stopped = False, f"interrupted ({interrupt_asked()})"
+                    break
+                if t_run > segment_time or common.object_fell(tp):
+                    success, stopped = False, "object_fell" if common.object_fell(tp) else "timeout"
+                    break
+                rep = control.servo_to(
+                    R_goal,
+                    np.zeros(3),
+                    pl,
+                    model_fn,
+                    rows="orientation",
+                    max_steps=1,
+                    tol_rotation=np.deg2rad(tol_rotation_deg),
+                    stall_steps=100,
+                    limits=limits,
+                    resume=rep,
+                )
+                iterations += rep.iterations
+                lost += rep.lost
+                if rep.reason == "lost_tag":  # the camera lost the plate for good: nothing to steer by
+                    success, stopped = False, "lost_tag"
+                    break
+                if common.object_fell(tp):  # the plate fell during this step: its pose is no sample (a
+                    success, stopped = False, "object_fell"  # fallen plate had been scored, 90 deg off)
+                    break
+                settled = settled or rep.reached or rep.reason != "budget"
+                marble.step(g_plate(), period)
+                time_s += period
+                t_run += period
+                run_steps += 1
+                err = np.rad2deg(observation.rotation_angle(R_goal[None], tp.true_pose()[0][None])[0])
+                times.append(time_s)
+                errs.append(err)
+                track.append(marble.pos.copy())
+                if settled:
+                    settled_err.append(err)
+                    run_samples += 1
+            if run_samples == 0 and run_steps > 0:  # the marble left before the servo settled: score its last sample
+                settled_err.append(errs[-1])
+            elif run_steps == 0 and success:  # the marble had passed this run's goal already: nothing to score
+                # (a run stopped before its first step, e.g. by a fall during identification, is not one)
+                skipped_runs += 1
+            bar.update(1)
+            if not success:
                 break
-            rep = control.servo_to(
-                R_goal,
-                np.zeros(3),
-                pl,
-                model_fn,
-                rows="orientation",
-                max_steps=1,
-                tol_rotation=np.deg2rad(tol_rotation_deg),
-                stall_steps=100,
-                limits=limits,
-                resume=rep,
-            )
-            iterations += rep.iterations
-            lost += rep.lost
-            if rep.reason == "lost_tag":  # the camera lost the plate for good: nothing to steer by
-                success, stopped = False, "lost_tag"
-                break
-            if common.object_fell(tp):  # the plate fell during this step: its pose is no sample (a
-                success, stopped = False, "object_fell"  # fallen plate had been scored, 90 deg off)
-                break
-            settled = settled or rep.reached or rep.reason != "budget"
-            marble.step(g_plate(), period)
-            time_s += period
-            t_run += period
-            run_steps += 1
-            err = np.rad2deg(observation.rotation_angle(R_goal[None], tp.true_pose()[0][None])[0])
-            times.append(time_s)
-            errs.append(err)
-            track.append(marble.pos.copy())
-            if settled:
-                settled_err.append(err)
-                run_samples += 1
-        if run_samples == 0 and run_steps > 0:  # the marble left before the servo settled: score its last sample
-            settled_err.append(errs[-1])
-        elif run_steps == 0 and success:  # the marble had passed this run's goal already: nothing to score
-            # (a run stopped before its first step, e.g. by a fall during identification, is not one)
-            skipped_runs += 1
-        bar.update(1)
-        if not success:
-            break
     bar.close()
     reached = success and marble.cell_of() == mz["goal"]
     result = {

@@ -47,6 +47,7 @@ import os
 import numpy as np
 
 from vlr_drake import control, observation, units
+from vlr_drake.entry import interrupt_asked, stop_between_steps
 from vlr_drake.kinematics import is_count, is_number
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
@@ -196,93 +197,96 @@ def run_stack(
     cups = []
     view = common.task_view(meshcat)
     bar = tqdm(total=len(CUPS) - 1, disable=not progress, desc="stack", unit="cup", leave=False)
-    for k in range(1, len(CUPS)):
-        cup_seed = int(rng.integers(1 << 30))
-        regrasps = 0
-        if plant == "model":
-            first = cup_seed
-            while True:  # a cup whose draw finds no grasp is grasped again, up to REGRASPS times, each
-                try:  # from its own generator as the physics plant's (a review: seeds 9 and 12 had
-                    # ended part-way, the cups placed lost)
-                    tp0 = common.make_model_plant(cup_seed, sigma_position=0.0, sigma_rotation_deg=0.0,
-                                                  min_possible=common.MIN_POSSIBLE_ACTIONS)
-                    break
-                except common.TaskSetupError as e:
-                    if regrasps == REGRASPS:
-                        raise common.TaskSetupError(f"stack, seed {seed}, cup {k}: {e} ({regrasps + 1} grasps "
-                                                    "tried)") from None
-                    regrasps += 1
-                    cup_seed = int(np.random.default_rng((first, regrasps)).integers(1 << 30))
-            # the grasp's rotation axis and translation plane, from the nominal grasp's Jacobian
-            J = control.jacobian(control.ControlModel.from_plant_truth(tp0.plant))
-            k_rot = np.linalg.svd(J[3:])[0][:, 0]
-            U = np.linalg.svd(J[:3])[0]
-            tilt = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(*tilt_range_deg))
-            offset = offset_range * (rng.uniform(-1, 1) * U[:, 0] + rng.uniform(-1, 1) * U[:, 1])
-            R0 = observation.rotvec_to_matrix(tilt * k_rot)[0] @ R_goal
-            tp = common.make_model_plant(
-                cup_seed,
-                R_PO=R0,
-                t_PO=t_goal + offset,
-                sigma_position=sigma_position,
-                sigma_rotation_deg=sigma_rotation_deg,
-                theta=tp0.theta0,
-                a=tp0.a0,
-                dropout=dropout,
+    with stop_between_steps("the stacking"):  # a Ctrl-C: the steps done are scored and written
+        for k in range(1, len(CUPS)):
+            if interrupt_asked():
+                break
+            cup_seed = int(rng.integers(1 << 30))
+            regrasps = 0
+            if plant == "model":
+                first = cup_seed
+                while True:  # a cup whose draw finds no grasp is grasped again, up to REGRASPS times, each
+                    try:  # from its own generator as the physics plant's (a review: seeds 9 and 12 had
+                        # ended part-way, the cups placed lost)
+                        tp0 = common.make_model_plant(cup_seed, sigma_position=0.0, sigma_rotation_deg=0.0,
+                                                      min_possible=common.MIN_POSSIBLE_ACTIONS)
+                        break
+                    except common.TaskSetupError as e:
+                        if regrasps == REGRASPS:
+                            raise common.TaskSetupError(f"stack, seed {seed}, cup {k}: {e} ({regrasps + 1} grasps "
+                                                        "tried)") from None
+                        regrasps += 1
+                        cup_seed = int(np.random.default_rng((first, regrasps)).integers(1 << 30))
+                # the grasp's rotation axis and translation plane, from the nominal grasp's Jacobian
+                J = control.jacobian(control.ControlModel.from_plant_truth(tp0.plant))
+                k_rot = np.linalg.svd(J[3:])[0][:, 0]
+                U = np.linalg.svd(J[:3])[0]
+                tilt = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(*tilt_range_deg))
+                offset = offset_range * (rng.uniform(-1, 1) * U[:, 0] + rng.uniform(-1, 1) * U[:, 1])
+                R0 = observation.rotvec_to_matrix(tilt * k_rot)[0] @ R_goal
+                tp = common.make_model_plant(
+                    cup_seed,
+                    R_PO=R0,
+                    t_PO=t_goal + offset,
+                    sigma_position=sigma_position,
+                    sigma_rotation_deg=sigma_rotation_deg,
+                    theta=tp0.theta0,
+                    a=tp0.a0,
+                    dropout=dropout,
+                )
+            else:
+                tp, R_goal, t_goal, regrasps = _settled_tilted_grasp(k, cup_seed, rng, tilt_range_deg, physics, camera)
+                R_s, t_s = tp.true_pose()
+                tilt = float(observation.rotation_angle(R_goal[None], R_s[None])[0])
+                offset = t_s - t_goal
+            model_fn, filt = common.make_model_fn(
+                model, tp, seed=cup_seed, particles=particles, identify_iterations=identify_iterations,
+                action_range=action_range, window=window,
             )
-        else:
-            tp, R_goal, t_goal, regrasps = _settled_tilted_grasp(k, cup_seed, rng, tilt_range_deg, physics, camera)
+            if view is not None:
+                view.target_pose(R_goal, t_goal)
+            pl = common.followed(view, tp)
             R_s, t_s = tp.true_pose()
-            tilt = float(observation.rotation_angle(R_goal[None], R_s[None])[0])
-            offset = t_s - t_goal
-        model_fn, filt = common.make_model_fn(
-            model, tp, seed=cup_seed, particles=particles, identify_iterations=identify_iterations,
-            action_range=action_range, window=window,
-        )
-        if view is not None:
-            view.target_pose(R_goal, t_goal)
-        pl = common.followed(view, tp)
-        R_s, t_s = tp.true_pose()
-        pos0, rot0 = observation.pose_error(R_s[None], t_s[None], R_goal[None], t_goal[None])
-        rep = control.servo_to(
-            R_goal,
-            t_goal,
-            pl,
-            model_fn,
-            rows="full",
-            alpha=alpha,
-            position_unit=STACK_POSITION_UNIT,
-            rotation_unit=STACK_ROTATION_UNIT,
-            tol_position=tol_position,
-            tol_rotation=np.deg2rad(tol_rotation_deg),
-            max_steps=max_steps,
-            stall_steps=8,
-            limits=common.grip_window(tp.hand, tp.tendon_command(), window),
-        )
-        R, t = tp.true_pose()
-        pos1, rot1 = observation.pose_error(R[None], t[None], R_goal[None], t_goal[None])
-        ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t,
-                                       physics_cup_bottom(k) if plant == "physics" else None)
-        ok = ok and not common.object_fell(tp)
-        cups.append(
-            {
-                "cup": k,
-                "tilt_deg": float(np.rad2deg(tilt)),
-                "offset_mm": float(np.linalg.norm(offset) * 1e3),
-                "initial_position_error_mm": float(pos0[0] * 1e3),
-                "initial_orientation_error_deg": float(np.rad2deg(rot0[0])),
-                "position_error_mm": float(pos1[0] * 1e3),
-                "orientation_error_deg": float(np.rad2deg(rot1[0])),
-                "lateral_mm": lateral * 1e3,
-                "clearance_mm": cup_clearance(k - 1, k) * 1e3,
-                "nested": ok,
-                "servo": rep.reason,
-                "iterations": rep.iterations,
-                "object_fell": common.object_fell(tp),
-                "regrasps": regrasps,
-            }
-        )
-        bar.update(1)
+            pos0, rot0 = observation.pose_error(R_s[None], t_s[None], R_goal[None], t_goal[None])
+            rep = control.servo_to(
+                R_goal,
+                t_goal,
+                pl,
+                model_fn,
+                rows="full",
+                alpha=alpha,
+                position_unit=STACK_POSITION_UNIT,
+                rotation_unit=STACK_ROTATION_UNIT,
+                tol_position=tol_position,
+                tol_rotation=np.deg2rad(tol_rotation_deg),
+                max_steps=max_steps,
+                stall_steps=8,
+                limits=common.grip_window(tp.hand, tp.tendon_command(), window),
+            )
+            R, t = tp.true_pose()
+            pos1, rot1 = observation.pose_error(R[None], t[None], R_goal[None], t_goal[None])
+            ok, lateral, cup_tilt = nested(k - 1, k, R_goal, t_goal, R, t,
+                                           physics_cup_bottom(k) if plant == "physics" else None)
+            ok = ok and not common.object_fell(tp)
+            cups.append(
+                {
+                    "cup": k,
+                    "tilt_deg": float(np.rad2deg(tilt)),
+                    "offset_mm": float(np.linalg.norm(offset) * 1e3),
+                    "initial_position_error_mm": float(pos0[0] * 1e3),
+                    "initial_orientation_error_deg": float(np.rad2deg(rot0[0])),
+                    "position_error_mm": float(pos1[0] * 1e3),
+                    "orientation_error_deg": float(np.rad2deg(rot1[0])),
+                    "lateral_mm": lateral * 1e3,
+                    "clearance_mm": cup_clearance(k - 1, k) * 1e3,
+                    "nested": ok,
+                    "servo": rep.reason,
+                    "iterations": rep.iterations,
+                    "object_fell": common.object_fell(tp),
+                    "regrasps": regrasps,
+                }
+            )
+            bar.update(1)
     bar.close()
     # a cup that fell out of the hand is not nested, and its pose is no alignment error (a
     # fallen cup had been scored 100 mm off): the stats are over the cups still held
@@ -305,7 +309,8 @@ def run_stack(
         # on (the cups' clearance lets most of them nest uncontrolled; these errors do not)
         "initial_position_error_mm": common.stats([c["initial_position_error_mm"] for c in held], 1.0),
         "initial_orientation_error_deg": common.stats([c["initial_orientation_error_deg"] for c in held], 1.0),
-        "success": bool(all(c["nested"] for c in cups)),
+        "success": bool(len(cups) == len(CUPS) - 1 and all(c["nested"] for c in cups)),
+        "stopped": f"interrupted ({interrupt_asked()})" if interrupt_asked() else None,  # (a Ctrl-C's part-stack)
         "cups_fell": len(cups) - len(held),  # not in the error stats (each cup's entry says which)
         "cups": cups,
         "paper_position_error_mm": {"mean": 2.1, "sd": 0.92},

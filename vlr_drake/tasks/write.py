@@ -28,6 +28,7 @@ import os
 import numpy as np
 
 from vlr_drake import control
+from vlr_drake.entry import interrupt_asked, stop_between_steps
 from vlr_drake.kinematics import is_count
 from vlr_drake.tasks import common, font
 
@@ -241,55 +242,58 @@ def run_write(
     iterations = 0
     failures = {}
     wp_rest = []  # each scored waypoint's distance from its letter's centre: a pen at rest's error
-    for c in letters:
-        strokes = font.letter_strokes(c, height, spacing)
-        centre = np.mean(np.concatenate(strokes), axis=0)
-        paths = []
-        for s in strokes:
-            pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
-            if view is not None:
-                view.target_path(pts)
-            # pen up: go to the stroke start (not scored)
-            rep = control.servo_to(
-                np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps, "stall_steps": 8}
-            )
-            iterations += rep.iterations
-            if not rep.reached:  # the stroke's start is its first waypoint: scored, and counted
-                failures[rep.reason] = failures.get(rep.reason, 0) + 1
-            path = []
-            for k, goal in enumerate(pts):
-                if k > 0:
-                    rep = control.servo_to(np.eye(3), goal, pl, model_fn, **servo_kw)
-                    iterations += rep.iterations
-                    if not rep.reached:
-                        failures[rep.reason] = failures.get(rep.reason, 0) + 1
-                if common.object_fell(tp):  # the pen is gone: this waypoint and the rest are not scored
-                    break  # (they had been, at the fallen object's pose: 79 mm errors; a review)
-                R_true, t_true = tp.true_pose()
-                wp_err.append(np.linalg.norm(t_true - goal))
-                wp_rest.append(np.linalg.norm(s[k] - centre))
-                wp_err_meas.append(rep.position_error)
-                rot_drift.append(np.rad2deg(control.observation.rotation_angle(R_true0[None], R_true[None])[0]))
-                d = t_true - t_home
-                path.append([d @ x, d @ y])
-                bar.update(1)
-            paths.append(np.array(path).reshape(-1, 2))
+    with stop_between_steps("the writing"):  # a Ctrl-C: the steps done are scored and written
+        for c in letters:
+            strokes = font.letter_strokes(c, height, spacing)
+            centre = np.mean(np.concatenate(strokes), axis=0)
+            paths = []
+            for s in strokes:
+                pts = t_home[None] + (center2[0] + s[:, :1]) * x + (center2[1] + s[:, 1:2]) * y
+                if view is not None:
+                    view.target_path(pts)
+                # pen up: go to the stroke start (not scored)
+                rep = control.servo_to(
+                    np.eye(3), pts[0], pl, model_fn, **{**servo_kw, "max_steps": 5 * max_steps, "stall_steps": 8}
+                )
+                iterations += rep.iterations
+                if not rep.reached:  # the stroke's start is its first waypoint: scored, and counted
+                    failures[rep.reason] = failures.get(rep.reason, 0) + 1
+                path = []
+                for k, goal in enumerate(pts):
+                    if interrupt_asked():
+                        break
+                    if k > 0:
+                        rep = control.servo_to(np.eye(3), goal, pl, model_fn, **servo_kw)
+                        iterations += rep.iterations
+                        if not rep.reached:
+                            failures[rep.reason] = failures.get(rep.reason, 0) + 1
+                    if common.object_fell(tp):  # the pen is gone: this waypoint and the rest are not scored
+                        break  # (they had been, at the fallen object's pose: 79 mm errors; a review)
+                    R_true, t_true = tp.true_pose()
+                    wp_err.append(np.linalg.norm(t_true - goal))
+                    wp_rest.append(np.linalg.norm(s[k] - centre))
+                    wp_err_meas.append(rep.position_error)
+                    rot_drift.append(np.rad2deg(control.observation.rotation_angle(R_true0[None], R_true[None])[0]))
+                    d = t_true - t_home
+                    path.append([d @ x, d @ y])
+                    bar.update(1)
+                paths.append(np.array(path).reshape(-1, 2))
+                if common.object_fell(tp) or interrupt_asked():
+                    break
+            # the strokes tried (all but those after a fall), each with its written path
+            letters_out.append((c, [center2 + s for s in strokes[:len(paths)]], paths))
+            if common.object_fell(tp) or interrupt_asked():
+                break
+            # the arm moves the paper; the hand goes back to the grasp command
+            home = control.limit_action(tp.hand, tp.tendon_command(), l_home - tp.tendon_command())
+            for _ in range(10):
+                step = np.clip(home, -1e-3, 1e-3)
+                if np.max(np.abs(step)) < 1e-9 or not pl.apply_action(step):
+                    break
+                home = home - step
+                model_fn(step, *pl.measure())
             if common.object_fell(tp):
                 break
-        # the strokes tried (all but those after a fall), each with its written path
-        letters_out.append((c, [center2 + s for s in strokes[:len(paths)]], paths))
-        if common.object_fell(tp):
-            break
-        # the arm moves the paper; the hand goes back to the grasp command
-        home = control.limit_action(tp.hand, tp.tendon_command(), l_home - tp.tendon_command())
-        for _ in range(10):
-            step = np.clip(home, -1e-3, 1e-3)
-            if np.max(np.abs(step)) < 1e-9 or not pl.apply_action(step):
-                break
-            home = home - step
-            model_fn(step, *pl.measure())
-        if common.object_fell(tp):
-            break
     bar.close()
     wp_err = np.array(wp_err)
     pos = common.stats(wp_err, 1e3)
@@ -309,7 +313,8 @@ def run_write(
         "orientation_error_deg": None,
         # written: 95% of the waypoints within WRITTEN_WITHIN of the target, or nearer than half
         # of what a pen at rest scores
-        "success": bool(wp_err.size and p95 <= within and not common.object_fell(tp)),
+        "success": bool(wp_err.size and p95 <= within and not common.object_fell(tp) and not interrupt_asked()),
+        "stopped": f"interrupted ({interrupt_asked()})" if interrupt_asked() else None,  # (a Ctrl-C's part-word)
         "success_within_mm": within * 1e3,
         "position_error_p95_mm": None if p95 is None else p95 * 1e3,
         # the same of a pen held still at each letter's centre: what writing nothing scores
