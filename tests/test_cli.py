@@ -1129,7 +1129,7 @@ def test_a_ctrl_c_stops_an_identification_between_steps_and_keeps_it(tmp_path, m
     import signal
 
     import vlr_drake.identify as idm
-    from vlr_drake.entry import stop_between_steps
+    from vlr_drake.entry import interrupt_asked, stop_between_steps
 
     real = idm.run_identification
 
@@ -1160,10 +1160,11 @@ def test_a_ctrl_c_stops_an_identification_between_steps_and_keeps_it(tmp_path, m
         with pytest.raises(KeyboardInterrupt), stop_between_steps("a loop"):
             os.kill(os.getpid(), signal.SIGINT)
             os.kill(os.getpid(), signal.SIGINT)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a background job's: not taken
-        with stop_between_steps("a loop"):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a background job's: not taken, and the Ctrl-C
+        with stop_between_steps("a loop"):  # before it forgotten (a stale one had stopped every later
+            assert interrupt_asked() is None  # task at its first step in a background test run)
             os.kill(os.getpid(), signal.SIGINT)
-        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN and interrupt_asked() is None
     finally:
         signal.signal(signal.SIGINT, previous)
 

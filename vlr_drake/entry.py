@@ -177,8 +177,10 @@ def stop_between_steps(what: str) -> Iterator[None]:
     import signal
     import threading
 
-    inner = _Interrupt.depth or threading.current_thread() is not threading.main_thread()
-    if inner or signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # (ignored: a background job's, which a
+    if not _Interrupt.depth:  # the outermost block: an earlier run's Ctrl-C is forgotten (a stale one had
+        _Interrupt.asked = None  # stopped every later task at its first step where SIGINT was ignored)
+    if (_Interrupt.depth or threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is signal.SIG_IGN):  # (ignored: a background job's, which a
         _Interrupt.depth += 1  # Ctrl-C meant for the foreground had stopped; a review)
         try:
             yield
@@ -194,7 +196,6 @@ def stop_between_steps(what: str) -> Iterator[None]:
         print(f"\nCtrl-C: {what} stops after its current step and keeps what it has (Ctrl-C again: at once)",
               file=sys.stderr)
 
-    _Interrupt.asked = None
     previous = signal.signal(signal.SIGINT, ask)
     _Interrupt.depth = 1
     try:
