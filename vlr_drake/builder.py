@@ -937,13 +937,12 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{r['scenario']}: {r['iterations']} iterations, converged {r['converged']}, wall {r['wall_s']:.1f} s"
         )
-        said = [f"stopped at {r['stopped']}" if r["stopped"] else "",
-                f"{r['lost_measurements']} iterations without a tag pose" if r["lost_measurements"] else "",
-                f"{r['reinitialisations']} re-initialisations" if r["reinitialisations"] else "",
-                f"{r['actions_refused']} actions refused by the model plant" if r["actions_refused"] else "",
-                "the object fell out of the hand" if r["object_fell"] else ""]
-        if any(said):
-            print("; ".join(s for s in said if s))
+        from vlr_drake.cli import hand_parameter_line, print_pooled, run_notes, write_json
+
+        said = ([f"stopped at {r['stopped']}"] if r["stopped"] else []) + run_notes(r) + (
+            ["the object fell out of the hand"] if r["object_fell"] else [])
+        if said:
+            print("; ".join(said))
         print("theta estimate [deg]\n", np.rad2deg(r["theta_estimate"]))
         if r["theta_true"] is not None:
             print("theta true [deg]\n", np.rad2deg(r["theta_true"]))
@@ -951,8 +950,6 @@ def main(argv: list[str] | None = None) -> int:
         print("contacts along the last links [mm] (95% interval)\n",
               "  ".join(f"{1e3 * a:.2f} [{1e3 * lo:.2f}, {1e3 * hi:.2f}]"
                         for a, (lo, hi) in zip(r["contact_estimate"], r["contact_interval"], strict=True)))
-        from vlr_drake.cli import hand_parameter_line, print_pooled, write_json
-
         for name, q in r["hand_parameters"].items():
             print(hand_parameter_line(name, q) + (" (weakly identified)" if name in r["weakly_identified"] else ""))
         if r.get("object_mass_identified"):

@@ -327,6 +327,15 @@ def _meshcat(args):
 # ------------------------------------------------------------------------------ identify
 
 
+def run_notes(result: dict) -> list[str]:
+    """What a run (an identification's or a diagram's result) went through, said where it
+    happened: iterations without a tag pose, re-initialisations, actions the plant refused."""
+    return [f"{count} {text}" for count, text in (
+        (result.get("lost_measurements"), "iterations without a tag pose"),
+        (result.get("reinitialisations"), "re-initialisations (every hypothesis implausible)"),
+        (result.get("actions_refused"), "actions refused by the plant")) if count]
+
+
 def print_summary(result: dict) -> None:
     names = result.get("_finger_names", [])
     est = result["_estimates"][-1]
@@ -334,12 +343,9 @@ def print_summary(result: dict) -> None:
     print(f"\n{result['experiment']} on the {result['plant']} plant, seed {result['seed']}, "
           f"{result['particles']} particles: {'converged' if result['converged'] else 'not converged'} "
           f"after {result['iterations']} iterations")
-    said = [f"{result['lost_measurements']} iterations without a tag pose" if result.get("lost_measurements") else "",
-            f"{result['reinitialisations']} re-initialisations (every hypothesis implausible)"
-            if result.get("reinitialisations") else "",
-            f"{result['actions_refused']} actions refused by the plant" if result.get("actions_refused") else ""]
-    if any(said):  # (said by the diagram's run, not by identify's summary: a run that had lost 10 of 12
-        print("; ".join(x for x in said if x))  # frames had looked like a clean one; a review)
+    said = run_notes(result)
+    if said:  # (said by the diagram's run, not by identify's summary: a run that had lost 10 of 12
+        print("; ".join(said))  # frames had looked like a clean one; a review)
     if result.get("iterations") and result.get("lost_measurements", 0) > 0.5 * result["iterations"]:
         print("most iterations had no measurement: the estimate is mostly the prior moved by the actions "
               + ("(the model plant's dropout)" if result["plant"] == "model" else "(check the camera and the tag)"))

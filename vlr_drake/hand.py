@@ -460,6 +460,13 @@ MODEL_O_BASE_X = 0.054
 MODEL_O_FINGER_HALF_SPACING = 0.027
 
 
+def thumb_indices(names) -> list[int]:
+    """The fingers that are thumbs, by index: those whose name starts with "thumb" (the
+    Model O's "thumb", a novel hand's "thumb_NF1"), which the thumb factor of the physics
+    plant's pretension and the stiffness experiment's spring go to."""
+    return [i for i, name in enumerate(names) if name.startswith("thumb")]
+
+
 def _model_o_finger(name: str, base: list[float], direction: list[float]) -> FingerSpec:
     return FingerSpec(
         name=name,

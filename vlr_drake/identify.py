@@ -33,7 +33,7 @@ import numpy as np
 from vlr_drake import filter as pf
 from vlr_drake import grasps, units
 from vlr_drake.entry import interrupt_asked, stop_between_steps
-from vlr_drake.hand import NOVEL_HANDS, HandSpec, hand_by_name
+from vlr_drake.hand import NOVEL_HANDS, HandSpec, hand_by_name, thumb_indices
 from vlr_drake.kinematics import is_count
 from vlr_drake.model_plant import ModelPlant
 from vlr_drake.objects import preset, preset_names
@@ -617,12 +617,13 @@ def _hands(opts: IdentifyOptions, rng):
     if opts.experiment == "stiffness":
         if not prior.stiffness_unknown:  # the thumb's distal (last) joint, in the prior's stiffness_range
             # (the thumb by its name: finger 0 had been taken whatever it was; a review)
-            thumbs = [i for i, f in enumerate(nominal.fingers) if f.name.startswith("thumb")] or [0]
-            if not nominal.fingers[thumbs[0]].name.startswith("thumb"):
+            thumbs = thumb_indices(nominal.finger_names())
+            if not thumbs:
                 warnings.warn(f"stiffness: the hand '{nominal.name}' has no finger named thumb...: the distal "
                               f"spring of its first finger, '{nominal.fingers[0].name}', is identified (another: "
                               f"prior stiffness_unknown)", stacklevel=2)
-            prior.stiffness_unknown = [(thumbs[0], len(nominal.fingers[thumbs[0]].stiffness) - 1)]
+            fi = thumbs[0] if thumbs else 0
+            prior.stiffness_unknown = [(fi, len(nominal.fingers[fi].stiffness) - 1)]
         if opts.true_stiffness is None:
             fi, j = prior.stiffness_unknown[0]
             k = list(true_spec.fingers[fi].stiffness)

@@ -38,7 +38,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from vlr_drake import filter as pf
 from vlr_drake import units
-from vlr_drake.hand import HandModel, HandSpec, hand_by_name
+from vlr_drake.hand import HandModel, HandSpec, hand_by_name, thumb_indices
 from vlr_drake.hardware.config import HardwareConfig
 from vlr_drake.kinematics import is_count
 from vlr_drake.objects import ObjectSpec, preset, preset_names
@@ -586,8 +586,9 @@ class Scenario:
         if names["hand"] == names["object"]:
             raise ValueError(f"hand and object are both named '{names['hand']}': Drake names its model instances "
                              f"by them, so they must differ")
-        if (self.physics.pretension_mode_for(hand.model()) == "thumb_factor"
-                and not any(f.name.startswith("thumb") for f in hand.fingers)):  # (it went to no finger)
+        model = hand.model()
+        if self.physics.pretension_mode_for(model) == "thumb_factor" and not thumb_indices(model.names):
+            # (it had gone to no finger)
             raise ValueError(f"physics: pretension_mode 'thumb_factor' gives thumb_factor to the fingers named "
                              f"thumb...; the hand '{hand.name}' has none ({[f.name for f in hand.fingers]}): name "
                              f"one, or use 'balanced'")
@@ -603,7 +604,6 @@ class Scenario:
         _with_section("observer", obs.validate)
         N, K = hand.num_fingers, hand.num_joints_per_finger
         self.prior.validate(N, K)
-        model = hand.model()
         _with_section("prior", lambda: self.prior.to_prior().contact_bounds(model))
         self.exploration.validate()
         travel = float(np.min(np.diff(model.tendon_range, axis=1)))

@@ -92,7 +92,7 @@ from pydrake.systems.framework import (
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 
 from vlr_drake import units
-from vlr_drake.hand import HandModel, HandSpec
+from vlr_drake.hand import HandModel, HandSpec, thumb_indices
 from vlr_drake.kinematics import checked_seed, is_count, is_number
 from vlr_drake.models import (
     configure_parser,
@@ -260,8 +260,7 @@ class PhysicsConfig:
             return self.pretension_mode
         # the factor goes to the fingers named thumb: a Model O's kinematics with no such name
         # (a review: every tendon at 20 N, the block slipping 4x as far) is balanced
-        thumb = any(name.startswith("thumb") for name in hand.names)
-        return "thumb_factor" if has_model_o_fingers(hand) and thumb else "balanced"
+        return "thumb_factor" if has_model_o_fingers(hand) and thumb_indices(hand.names) else "balanced"
 
     def validate(self) -> "PhysicsConfig":
         if self.contact_model not in ("point", "hydroelastic", "hydroelastic_with_fallback"):
@@ -787,7 +786,8 @@ class PhysicsHand:
             if root_context is None:
                 raise ValueError("balanced pretensions need the context with the fingers placed")
             return self.physics.pretension * self.balanced_tension_factors(root_context)
-        f = np.array([self.physics.thumb_factor if n.startswith("thumb") else 1.0 for n in self.hand.names])
+        f = np.ones(self.hand.N)
+        f[thumb_indices(self.hand.names)] = self.physics.thumb_factor
         return self.physics.pretension * f
 
     def pad_forces_per_tension(self, root_context: Context) -> np.ndarray:

@@ -274,8 +274,6 @@ def task_plant(plant: str, seed: int, physics_object: str, physics=None, camera=
     ``dropout``; :func:`make_model_plant`) or the physics plant holding ``physics_object``
     (:class:`PhysicsTaskPlant`)."""
     check_plant(plant)
-    if not (is_number(dropout) and 0.0 <= dropout < 1.0):  # (1 would never see the tag)
-        raise ValueError(f"'dropout' must be a probability in [0, 1), got {dropout!r}")
     if plant == "model":
         return make_model_plant(seed, sigma_position=sigma_position, sigma_rotation_deg=sigma_rotation_deg,
                                 min_possible=MIN_POSSIBLE_ACTIONS, dropout=dropout)

@@ -48,7 +48,7 @@ import numpy as np
 
 from vlr_drake import control, observation, units
 from vlr_drake.entry import interrupt_asked, stop_between_steps
-from vlr_drake.kinematics import is_count, is_number
+from vlr_drake.kinematics import is_count
 from vlr_drake.objects import preset
 from vlr_drake.tasks import common
 
@@ -177,8 +177,6 @@ def run_stack(
         raise ValueError(f"'alpha' must be a positive finite number, got {alpha}")
     if len(tilt_range_deg) != 2 or not (0 <= tilt_range_deg[0] <= tilt_range_deg[1] < np.inf):  # NaN too
         raise ValueError(f"'tilt_range_deg' must be (low, high) with 0 <= low <= high, finite, got {tilt_range_deg}")
-    if not (is_number(dropout) and 0.0 <= dropout < 1.0):  # (the model plant's lost tags; 1 would see none)
-        raise ValueError(f"'dropout' must be a probability in [0, 1), got {dropout!r}")
     if not (np.isfinite(offset_range) and offset_range >= 0):
         raise ValueError(f"'offset_range' must be a finite number >= 0 [m], got {offset_range}")
     # (0.5 meant as mm had placed the cups 252-666 mm off their goals; 180 deg had been a tilt; a review)
